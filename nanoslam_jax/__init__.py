@@ -1,0 +1,15 @@
+"""nanoslam-jax: landmark SLAM of road vehicles with Rao-Blackwellised particle filters in JAX.
+
+Importing the package switches JAX to float64 (``jax_enable_x64``); set the environment
+variable ``NANOSLAM_X64=0`` before importing to keep JAX's float32 default.
+"""
+
+import os as _os
+
+import jax as _jax
+
+if _os.environ.get("NANOSLAM_X64", "1") != "0":
+    _jax.config.update("jax_enable_x64", True)
+
+from ._version import __version__ as __version__  # noqa: E402
+from .config import Config as Config, ConfigError as ConfigError, load_config as load_config  # noqa: E402

@@ -1,0 +1,411 @@
+"""Typed, frozen run configuration loaded from YAML and overridable from the command line.
+
+Every section is a frozen dataclass; :func:`load_config` turns a YAML file (or nothing: the
+embedded default) plus ``key=value`` overrides into a validated :class:`Config`. Every error
+names the offending key (and the file) and what was expected.
+
+Which fields are *static* (they change array shapes or the compiled program) and which are
+*traced* (sweepable without recompiling) is recorded in the field metadata (``static=True``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Optional
+
+import yaml
+
+__all__ = [
+    "Config",
+    "ConfigError",
+    "DataConfig",
+    "VehicleConfig",
+    "NoiseConfig",
+    "FilterConfig",
+    "NanoConfig",
+    "MetricsConfig",
+    "SimConfig",
+    "OutputConfig",
+    "load_config",
+    "config_from_dict",
+    "config_to_dict",
+    "apply_overrides",
+    "resolve_data_dir",
+    "DEFAULT_DATA_DIR",
+    "DATASET_HELP",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration problem; the message names the key (and file) and what was expected."""
+
+
+def _f(default: Any, *, lo: float | None = None, hi: float | None = None,
+       lo_open: bool = False, static: bool = False, doc: str = "") -> Any:
+    """A dataclass field with range and staticness metadata."""
+    return field(default=default, metadata=dict(lo=lo, hi=hi, lo_open=lo_open, static=static, doc=doc))
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Where the log comes from and how it is cut into fixed-shape segments."""
+
+    kind: Literal["victoria_park", "simulated"] = _f("victoria_park", static=True,
+        doc="'victoria_park': read a Victoria Park-format directory; 'simulated': simulate one (see sim).")
+    path: Optional[str] = _f(None, static=True,
+        doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park")
+    format: Literal["auto", "ascii", "mat"] = _f("auto", static=True,
+        doc="'ascii': inputs.dat/measurements.dat/gps.dat; 'mat': aa3_dr.mat/aa3_gpsx.mat (+ measurements.dat); 'auto': ascii when present")
+    min_range: float = _f(0.0, lo=0.0, static=True, doc="detections with range below this are dropped (m)")
+    max_range: float = _f(30.0, lo=0.0, lo_open=True, static=True, doc="detections with range >= this are dropped (m)")
+    k_max: Optional[int] = _f(None, lo=1, static=True, doc="detections per segment; null: the most in any kept scan")
+    max_dr_per_segment: int = _f(12, lo=2, static=True,
+        doc="DR pieces per segment; longer gaps between scans are split with empty segments")
+    t_end: Optional[float] = _f(None, lo=0.0, lo_open=True, static=True, doc="use the log only up to this time (s)")
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """Car constants of the Victoria Park vehicle model (metres), see victoria_park.md section 1."""
+
+    wheelbase: float = _f(2.83, lo=0.0, lo_open=True, doc="L: wheelbase")
+    encoder_offset: float = _f(0.76, lo=0.0, doc="H: lateral offset of the rear-left wheel encoder")
+    laser_a: float = _f(3.78, doc="a: laser forward of the rear axle")
+    laser_b: float = _f(0.50, doc="b: laser to the left of the centre line")
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Control and measurement noise (published setting by default)."""
+
+    sigma_v: float = _f(2.0, lo=0.0, lo_open=True, doc="encoder speed noise (m/s) per DR sample")
+    sigma_alpha_deg: float = _f(6.0, lo=0.0, lo_open=True, doc="steering noise (deg) per DR sample")
+    sigma_r: float = _f(1.0, lo=0.0, lo_open=True, doc="range noise (m)")
+    sigma_beta_deg: float = _f(3.0, lo=0.0, lo_open=True, doc="bearing noise (deg)")
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """The Rao-Blackwellised particle filter shared by all particle methods."""
+
+    method: Literal["dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam",
+                    "iterated", "ekf_slam", "nasrukf"] = _f("nano", static=True)
+    n_particles: int = _f(10, lo=1, static=True)
+    capacity: int = _f(512, lo=1, static=True, doc="landmark slots per particle")
+    prior: Literal["unscented", "linearized"] = _f("unscented", static=True,
+        doc="how control noise is mapped to the pose covariance")
+    prior_cov: Literal["reset", "carry"] = _f("reset", static=True,
+        doc="'reset': start each segment from the sampled pose with init_cov; 'carry': from the last proposal covariance")
+    init_cov: float = _f(1e-8, lo=0.0, lo_open=True, doc="near-zero pose variance at the start and after a reset")
+    ut_alpha: float = _f(0.9, lo=0.0, lo_open=True, doc="unscented alpha of the prior (and of UFastSLAM)")
+    ut_beta: float = _f(2.0, lo=0.0)
+    ut_kappa: float = _f(0.0)
+    gate: float = _f(5.991, lo=0.0, lo_open=True, doc="chi-square (2 dof) association gate on d2")
+    new_landmark: float = _f(13.816, lo=0.0, lo_open=True, doc="a detection whose best d2 exceeds this starts a landmark")
+    sequential: bool = _f(True, static=True, doc="associate detections one after another within a scan")
+    weight: Literal["product", "marginal"] = _f("product", static=True,
+        doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior")
+    p0: float = _f(0.05, lo=0.0, lo_open=True, doc="likelihood factor of a new landmark")
+    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f("systematic", static=True)
+    resample_threshold: float = _f(0.5, lo=0.0, hi=1.0, doc="resample when ESS < threshold * N")
+    estimate: Literal["best", "mean"] = _f("best", static=True, doc="reported estimate: highest weight or weighted mean")
+    prune: bool = _f(False, static=True, doc="remove landmarks by negative evidence")
+    prune_threshold: float = _f(-2.0, doc="log-odds below which a landmark is removed")
+    fov_deg: float = _f(180.0, lo=0.0, lo_open=True, hi=360.0, doc="sensor field of view used by pruning")
+
+
+@dataclass(frozen=True)
+class NanoConfig:
+    """The NANO proposal (algorithms.md section 2)."""
+
+    quadrature: Literal["cubature", "unscented", "gauss_hermite"] = _f("cubature", static=True)
+    gh_order: int = _f(3, lo=1, hi=10, static=True, doc="Gauss-Hermite order p (p^3 points)")
+    ut_alpha: float = _f(1.0, lo=0.0, lo_open=True)
+    ut_beta: float = _f(2.0, lo=0.0)
+    ut_kappa: float = _f(0.0)
+    hessian: Literal["gauss_newton", "exact"] = _f("gauss_newton", static=True)
+    gamma: float = _f(1e-4, lo=0.0, lo_open=True, doc="KL stopping threshold")
+    max_iter: int = _f(10, lo=1, static=True, doc="iteration cap")
+    step: float = _f(1.0, lo=0.0, lo_open=True, hi=1.0, doc="natural-gradient step beta (damping below 1)")
+    landmark_noise: bool = _f(False, static=True, doc="use R + Gm Sigma Gm' in the likelihood")
+    init: Literal["prior", "gauss_newton"] = _f("prior", static=True, doc="start from the prior or the Gauss-Newton MAP")
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    """Evaluation protocol settings (victoria_park.md section 5)."""
+
+    gps_rotation_deg: float = _f(-35.4, doc="rotation of the relative-GPS frame")
+    jump_speed: float = _f(8.0, lo=0.0, lo_open=True, doc="GPS fixes implying a faster jump are removed in *_clean")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The Victoria Park-like simulator (data.kind = simulated)."""
+
+    seed: int = _f(0, lo=0, static=True)
+    duration: float = _f(240.0, lo=0.0, lo_open=True, static=True, doc="seconds driven")
+    n_trees: int = _f(150, lo=1, static=True)
+    area: float = _f(200.0, lo=10.0, static=True, doc="side of the square park (m)")
+    speed: float = _f(3.0, lo=0.0, lo_open=True, static=True, doc="mean encoder speed (m/s)")
+    loops: float = _f(2.0, lo=0.0, static=True, doc="number of loops driven")
+    dr_rate: float = _f(40.0, lo=1.0, static=True, doc="dead-reckoning rate (Hz)")
+    scan_rate: float = _f(4.7, lo=0.1, static=True, doc="laser scan rate (Hz)")
+    max_range: float = _f(30.0, lo=1.0, static=True)
+    fov_deg: float = _f(180.0, lo=1.0, hi=360.0, static=True)
+    p_detect: float = _f(0.9, lo=0.0, hi=1.0, static=True)
+    clutter_rate: float = _f(0.2, lo=0.0, static=True, doc="mean false detections per scan")
+    sigma_r: float = _f(0.3, lo=0.0, static=True, doc="true range noise (m)")
+    sigma_beta_deg: float = _f(1.0, lo=0.0, static=True, doc="true bearing noise (deg)")
+    sigma_v: float = _f(0.1, lo=0.0, static=True, doc="true encoder speed noise (m/s)")
+    sigma_alpha_deg: float = _f(0.5, lo=0.0, static=True, doc="true steering noise (deg)")
+    steering_bias_deg: float = _f(0.0, static=True, doc="constant steering bias in the logged controls")
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """What a run writes."""
+
+    plots: bool = _f(True, static=True)
+    progress: bool = _f(True, static=True, doc="show a progress indicator")
+    chunk: int = _f(500, lo=1, static=True, doc="segments per compiled chunk (progress granularity)")
+
+
+@dataclass(frozen=True)
+class Config:
+    """A whole run."""
+
+    name: str = _f("default", static=True)
+    seed: int = _f(0, lo=0, static=True)
+    data: DataConfig = field(default_factory=DataConfig)
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    nano: NanoConfig = field(default_factory=NanoConfig)
+    metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return " or ".join(_type_name(a) for a in args) + " or null"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        (inner,) = [a for a in args if a is not type(None)]
+        return _coerce(value, inner, key, where)
+    if origin is Literal:
+        if value not in typing.get_args(tp):
+            raise ConfigError(f"{where}key '{key}': expected {_type_name(tp)}, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}key '{key}': expected true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                return int(value)
+            raise ConfigError(f"{where}key '{key}': expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}key '{key}': expected a number, got {value!r}")
+        value = float(value)
+        if value != value or value in (float("inf"), float("-inf")):
+            raise ConfigError(f"{where}key '{key}': expected a finite number, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}key '{key}': expected a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {tp!r} for {key}")
+
+
+def _check_range(value: Any, meta: Any, key: str, where: str) -> None:
+    if value is None or isinstance(value, (bool, str)):
+        return
+    lo, hi, lo_open = meta.get("lo"), meta.get("hi"), meta.get("lo_open")
+    if lo is not None and (value < lo or (lo_open and value == lo)):
+        rel = ">" if lo_open else ">="
+        raise ConfigError(f"{where}key '{key}': expected a value {rel} {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"{where}key '{key}': expected a value <= {hi}, got {value!r}")
+
+
+def _build(cls: type, raw: Any, prefix: str, where: str) -> Any:
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        name = prefix.rstrip(".") or "the top level"
+        raise ConfigError(f"{where}key '{name}': expected a mapping, got {raw!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(raw) - set(fields))
+    if unknown:
+        key = prefix + str(unknown[0])
+        raise ConfigError(f"{where}unknown key '{key}'; known keys here: {', '.join(sorted(fields))}")
+    kwargs = {}
+    for name, value in raw.items():
+        f, tp, key = fields[name], hints[name], prefix + name
+        if dataclasses.is_dataclass(tp):
+            kwargs[name] = _build(tp, value, key + ".", where)
+        else:
+            value = _coerce(value, tp, key, where)
+            _check_range(value, f.metadata, key, where)
+            kwargs[name] = value
+    return cls(**kwargs)
+
+
+def _check_consistency(cfg: Config, where: str) -> None:
+    d = cfg.data
+    if d.min_range >= d.max_range:
+        raise ConfigError(f"{where}key 'data.min_range': expected a value < data.max_range ({d.max_range}), got {d.min_range}")
+    if cfg.filter.new_landmark < cfg.filter.gate:
+        raise ConfigError(f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
+                          f"got {cfg.filter.new_landmark}")
+
+
+def config_from_dict(raw: Any, *, source: str | None = None) -> Config:
+    """Validate a nested mapping (as read from YAML) into a :class:`Config`.
+
+    Args:
+        raw: the mapping; missing keys take their defaults.
+        source: file name used in error messages.
+    """
+    where = f"{source}: " if source else ""
+    cfg = _build(Config, raw, "", where)
+    _check_consistency(cfg, where)
+    return cfg
+
+
+def config_to_dict(cfg: Config) -> dict:
+    """The resolved configuration as a plain nested dict (what ``config.yaml`` holds)."""
+    return dataclasses.asdict(cfg)
+
+
+def _set_path(raw: dict, dotted: str, value: Any, source: str) -> None:
+    parts = dotted.split(".")
+    node = raw
+    cls: Any = Config
+    for i, part in enumerate(parts):
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        if part not in fields:
+            prefix = ".".join(parts[:i])
+            here = f" under '{prefix}'" if prefix else ""
+            raise ConfigError(f"{source}: unknown key '{dotted}'{here}; known keys: {', '.join(sorted(fields))}")
+        tp = typing.get_type_hints(cls)[part]
+        if i == len(parts) - 1:
+            if dataclasses.is_dataclass(tp):
+                raise ConfigError(f"{source}: key '{dotted}' is a section; set one of its keys, e.g. {dotted}.<key>=...")
+            node[part] = value
+        else:
+            if not dataclasses.is_dataclass(tp):
+                raise ConfigError(f"{source}: key '{'.'.join(parts[:i + 1])}' is not a section")
+            node = node.setdefault(part, {}) if isinstance(node.get(part, {}), dict) else node
+            cls = tp
+
+
+def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...]) -> dict:
+    """Apply ``key=value`` strings (values parsed as YAML) to a raw config mapping (copied)."""
+    import copy
+
+    out = copy.deepcopy(raw) if raw else {}
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--set {item!r}: expected key=value, e.g. filter.n_particles=20")
+        key, text = item.split("=", 1)
+        key = key.strip()
+        try:
+            value = yaml.safe_load(text) if text.strip() else None
+        except yaml.YAMLError as e:
+            raise ConfigError(f"--set {item!r}: the value is not valid YAML ({e})") from None
+        _set_path(out, key, value, f"--set {key}")
+    return out
+
+
+def load_config(path: str | os.PathLike | None = None, overrides: list[str] | tuple[str, ...] = ()) -> Config:
+    """Load and validate a configuration.
+
+    Args:
+        path: a YAML file; ``None`` gives the embedded default (NANO-SLAM on a simulated log).
+        overrides: ``key=value`` strings applied after the file, e.g. ``filter.n_particles=20``.
+    """
+    if path is None:
+        raw: Any = {"name": "default", "data": {"kind": "simulated"}}
+        source = "embedded default config"
+    else:
+        p = Path(path)
+        source = str(p)
+        if not p.is_file():
+            raise ConfigError(f"{p}: config file not found")
+        try:
+            raw = yaml.safe_load(p.read_text())
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            line = f" line {mark.line + 1}" if mark is not None else ""
+            raise ConfigError(f"{p}:{line} is not valid YAML: {getattr(e, 'problem', e)}") from None
+        if raw is None:
+            raw = {}
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{p}: expected a mapping of config keys at the top level, got {type(raw).__name__}")
+        raw.setdefault("name", p.stem)
+    raw = apply_overrides(raw, list(overrides))
+    return config_from_dict(raw, source=source)
+
+
+# --------------------------------------------------------------------------- data directory
+
+DEFAULT_DATA_DIR = Path("..") / "shared" / "data" / "victoria_park"
+
+DATASET_HELP = (
+    "The Victoria Park log (Guivant & Nebot, ACFR, University of Sydney) is not shipped with "
+    "nanoslam-jax. Obtain the dataset (aa3_dr.mat and aa3_gpsx.mat from the original "
+    "distribution, plus the tree detections as measurements.dat, or the three ASCII files "
+    "inputs.dat, measurements.dat, gps.dat; see README.md, 'The Victoria Park log'), put the "
+    "files in one directory and pass it with --data DIR, data.path in the config, or the "
+    "NANOSLAM_DATA environment variable."
+)
+
+
+def resolve_data_dir(cfg: Config, cli_data: str | None = None) -> Path:
+    """The log directory: ``--data``, then ``data.path``, then ``$NANOSLAM_DATA``, then the default.
+
+    Raises:
+        FileNotFoundError: with instructions for obtaining the dataset when no directory exists.
+    """
+    candidates = [
+        ("--data", cli_data),
+        ("data.path", cfg.data.path),
+        ("NANOSLAM_DATA", os.environ.get("NANOSLAM_DATA")),
+    ]
+    for origin, value in candidates:
+        if value:
+            p = Path(value).expanduser()
+            if not p.is_dir():
+                raise FileNotFoundError(f"{p} (from {origin}): log directory not found. {DATASET_HELP}")
+            return p
+    for base in (Path.cwd(), Path(__file__).resolve().parents[1]):
+        p = (base / DEFAULT_DATA_DIR).resolve()
+        if p.is_dir():
+            return p
+    raise FileNotFoundError(f"no Victoria Park log directory given and {DEFAULT_DATA_DIR} does not exist. {DATASET_HELP}")

@@ -1,0 +1,69 @@
+"""The log as host arrays (:class:`RawLog`) and as fixed-shape device segments (:class:`Segments`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple, Optional
+
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+
+@dataclass(frozen=True)
+class RawLog:
+    """A Victoria Park-format log on the host, in the SLAM conventions of the spec.
+
+    Attributes:
+        dr: ``(N, 3)`` dead reckoning ``time_s, ve_mps, alpha_rad``, strictly increasing time.
+        detections: ``(M, 4)`` tree detections ``time_s, range_m, bearing_rad, diameter_m`` with
+            the bearing already in the **vehicle frame** (file bearing minus pi/2, wrapped);
+            rows sharing a time form one scan; time non-decreasing.
+        gps: ``(G, 3)`` GPS fixes ``time_s, x_m, y_m`` in the frame of ``gps.dat``.
+        truth_poses: ``(T, 4)`` true laser poses ``time_s, x, y, phi`` (simulated logs only).
+        truth_landmarks: ``(L, 2)`` true landmark positions (simulated logs only).
+        source: where the log came from (directory or "simulated").
+    """
+
+    dr: np.ndarray
+    detections: np.ndarray
+    gps: np.ndarray
+    truth_poses: Optional[np.ndarray] = None
+    truth_landmarks: Optional[np.ndarray] = None
+    source: str = ""
+
+    @property
+    def scan_times(self) -> np.ndarray:
+        """Distinct detection times (one per scan with at least one detection)."""
+        return np.unique(self.detections[:, 0])
+
+
+class Segments(NamedTuple):
+    """One segment per laser scan, padded to fixed shapes (victoria_park.md section 3).
+
+    Segment ``t`` moves the pose from the previous segment's time to ``time[t]`` through the
+    held DR samples (``dt`` = the part of each sample's interval inside the segment; padding
+    has ``dt = 0`` and ``dr_mask = False``), then applies the scan's detections.
+
+    Attributes:
+        time: scan time of each segment (s).
+        dt: integration interval of each DR piece (s).
+        u: controls ``(ve, alpha)`` of each DR piece.
+        dr_mask: which DR pieces are real.
+        z: detections ``(range, bearing)``, bearing in the vehicle frame, wrapped.
+        z_mask: which detections are real.
+    """
+
+    time: Float[Array, "segments"]
+    dt: Float[Array, "segments dr"]
+    u: Float[Array, "segments dr 2"]
+    dr_mask: Bool[Array, "segments dr"]
+    z: Float[Array, "segments k_max 2"]
+    z_mask: Bool[Array, "segments k_max"]
+
+    @property
+    def n_segments(self) -> int:
+        return int(self.time.shape[0])
+
+    @property
+    def k_max(self) -> int:
+        return int(self.z.shape[1])

@@ -1,0 +1,16 @@
+"""Vehicle and measurement models with autodiff Jacobians."""
+
+from ._angles import circular_mean as circular_mean, wrap_angle as wrap_angle
+from ._range_bearing import (
+    innovation as innovation,
+    inverse_range_bearing as inverse_range_bearing,
+    inverse_range_bearing_jacobians as inverse_range_bearing_jacobians,
+    range_bearing as range_bearing,
+    range_bearing_jacobians as range_bearing_jacobians,
+)
+from ._vehicle import (
+    VehicleParams as VehicleParams,
+    centre_speed as centre_speed,
+    vehicle_jacobians as vehicle_jacobians,
+    vehicle_step as vehicle_step,
+)

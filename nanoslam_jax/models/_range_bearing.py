@@ -1,0 +1,47 @@
+"""The range-bearing measurement model and its inverse (victoria_park.md section 2).
+
+Bearings are relative to the vehicle's forward axis and wrapped to (-pi, pi]. Jacobians come
+from autodiff (:func:`range_bearing_jacobians`); the filter never uses hand-written formulas.
+"""
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ._angles import wrap_angle
+
+
+def range_bearing(x: Float[ArrayLike, "3"], m: Float[ArrayLike, "2"]) -> Float[Array, "2"]:
+    """Predicted detection ``(r, beta)`` of landmark ``m = (mx, my)`` from laser pose ``x``."""
+    x, m = jnp.asarray(x), jnp.asarray(m)
+    dx, dy = m[0] - x[0], m[1] - x[1]
+    # sqrt(q) with a floor keeps the derivative finite at r = 0 (never reached by real data).
+    r = jnp.sqrt(jnp.maximum(dx * dx + dy * dy, 1e-24))
+    return jnp.stack([r, wrap_angle(jnp.arctan2(dy, dx) - x[2])])
+
+
+def inverse_range_bearing(x: Float[ArrayLike, "3"], z: Float[ArrayLike, "2"]) -> Float[Array, "2"]:
+    """Landmark position from pose ``x`` and detection ``z = (r, beta)``: ``p + r (cos, sin)(phi + beta)``."""
+    x, z = jnp.asarray(x), jnp.asarray(z)
+    ang = x[2] + z[1]
+    return jnp.stack([x[0] + z[0] * jnp.cos(ang), x[1] + z[0] * jnp.sin(ang)])
+
+
+def innovation(z: Float[ArrayLike, "2"], z_hat: Float[ArrayLike, "2"]) -> Float[Array, "2"]:
+    """Measurement residual ``z - z_hat`` with the bearing component wrapped."""
+    d = jnp.asarray(z) - jnp.asarray(z_hat)
+    return jnp.stack([d[0], wrap_angle(d[1])])
+
+
+def range_bearing_jacobians(
+    x: Float[ArrayLike, "3"], m: Float[ArrayLike, "2"]
+) -> tuple[Float[Array, "2 3"], Float[Array, "2 2"]]:
+    """Jacobians ``(Gx, Gm)`` of :func:`range_bearing` w.r.t. the pose and the landmark (autodiff)."""
+    return jax.jacfwd(range_bearing, argnums=(0, 1))(jnp.asarray(x), jnp.asarray(m))
+
+
+def inverse_range_bearing_jacobians(
+    x: Float[ArrayLike, "3"], z: Float[ArrayLike, "2"]
+) -> tuple[Float[Array, "2 3"], Float[Array, "2 2"]]:
+    """Jacobians of :func:`inverse_range_bearing` w.r.t. the pose and the detection (autodiff)."""
+    return jax.jacfwd(inverse_range_bearing, argnums=(0, 1))(jnp.asarray(x), jnp.asarray(z))

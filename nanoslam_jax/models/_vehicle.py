@@ -1,0 +1,72 @@
+"""The Victoria Park vehicle model (victoria_park.md section 1).
+
+The state is the pose of the **laser**, ``x = (px, py, phi)``; the controls are the rear-left
+encoder speed and the steering angle, ``u = (ve, alpha)``. Process noise enters on the controls,
+so the functions here take the (possibly noisy) controls explicitly; Jacobians are obtained by
+autodiff of :func:`vehicle_step` (see :func:`vehicle_jacobians`).
+"""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ._angles import wrap_angle
+
+
+class VehicleParams(NamedTuple):
+    """Car constants (metres). All fields may be traced scalars.
+
+    Attributes:
+        wheelbase: L, distance between the axles.
+        encoder_offset: H, lateral offset of the rear-left wheel encoder.
+        laser_a: a, laser position forward of the rear axle.
+        laser_b: b, laser position left of the centre line.
+    """
+
+    wheelbase: Float[ArrayLike, ""] = 2.83
+    encoder_offset: Float[ArrayLike, ""] = 0.76
+    laser_a: Float[ArrayLike, ""] = 3.78
+    laser_b: Float[ArrayLike, ""] = 0.50
+
+
+def centre_speed(ve: Float[ArrayLike, ""], alpha: Float[ArrayLike, ""], params: VehicleParams) -> Float[Array, ""]:
+    """Rear-axle centre speed from the encoder speed: ``vc = ve / (1 - tan(alpha) H / L)``."""
+    return ve / (1.0 - jnp.tan(alpha) * params.encoder_offset / params.wheelbase)
+
+
+def vehicle_step(
+    x: Float[ArrayLike, "3"],
+    u: Float[ArrayLike, "2"],
+    dt: Float[ArrayLike, ""],
+    params: VehicleParams,
+) -> Float[Array, "3"]:
+    """Move the laser pose over ``dt`` seconds holding the controls constant.
+
+    Args:
+        x: pose ``(px, py, phi)`` of the laser.
+        u: controls ``(ve, alpha)``: encoder speed (m/s) and steering angle (rad, left positive).
+        dt: interval (s); ``dt = 0`` leaves the pose unchanged (padding).
+        params: car constants.
+
+    Returns:
+        The new pose, heading wrapped to (-pi, pi].
+    """
+    x, u = jnp.asarray(x), jnp.asarray(u)
+    px, py, phi = x[0], x[1], x[2]
+    ve, alpha = u[0], u[1]
+    vc = centre_speed(ve, alpha, params)
+    w = vc / params.wheelbase * jnp.tan(alpha)
+    a, b = params.laser_a, params.laser_b
+    s, c = jnp.sin(phi), jnp.cos(phi)
+    dx = vc * c - w * (a * s + b * c)
+    dy = vc * s + w * (a * c - b * s)
+    return jnp.stack([px + dt * dx, py + dt * dy, wrap_angle(phi + dt * w)])
+
+
+def vehicle_jacobians(
+    x: Float[ArrayLike, "3"], u: Float[ArrayLike, "2"], dt: Float[ArrayLike, ""], params: VehicleParams
+) -> tuple[Float[Array, "3 3"], Float[Array, "3 2"]]:
+    """Jacobians of :func:`vehicle_step` with respect to the pose and the controls (autodiff)."""
+    return jax.jacfwd(vehicle_step, argnums=(0, 1))(jnp.asarray(x), jnp.asarray(u), dt, params)
