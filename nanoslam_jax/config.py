@@ -97,6 +97,8 @@ class FilterConfig:
                     "iterated", "ekf_slam", "nasrukf"] = _f("nano", static=True)
     n_particles: int = _f(10, lo=1, static=True)
     capacity: int = _f(512, lo=1, static=True, doc="landmark slots per particle")
+    window: int = _f(64, lo=1, static=True,
+        doc="nearest landmarks per particle considered for association in a scan (local window)")
     prior: Literal["unscented", "linearized"] = _f("unscented", static=True,
         doc="how control noise is mapped to the pose covariance")
     prior_cov: Literal["reset", "carry"] = _f("reset", static=True,
@@ -134,6 +136,8 @@ class NanoConfig:
     step: float = _f(1.0, lo=0.0, lo_open=True, hi=1.0, doc="natural-gradient step beta (damping below 1)")
     landmark_noise: bool = _f(False, static=True, doc="use R + Gm Sigma Gm' in the likelihood")
     init: Literal["prior", "gauss_newton"] = _f("prior", static=True, doc="start from the prior or the Gauss-Newton MAP")
+    solver: Literal["optimistix", "while_loop"] = _f("optimistix", static=True,
+        doc="the iteration as an optimistix fixed-point solve with a KL stopping rule, or a plain while_loop")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,27 @@
+"""The Rao-Blackwellised particle filter shared by all particle methods."""
+
+from ._association import Association as Association, associate as associate
+from ._landmarks import (
+    ekf_update as ekf_update,
+    gather_window as gather_window,
+    init_landmark as init_landmark,
+    scatter_window as scatter_window,
+)
+from ._params import Params as Params, Static as Static, settings_from_config as settings_from_config
+from ._prior import predict as predict, predict_mean as predict_mean
+from ._resampling import (
+    RESAMPLERS as RESAMPLERS,
+    effective_sample_size as effective_sample_size,
+    normalise as normalise,
+    resample as resample,
+)
+from ._scan import (
+    FilterRun as FilterRun,
+    dead_reckoning as dead_reckoning,
+    filter_scan as filter_scan,
+    make_proposal as make_proposal,
+    run_filter as run_filter,
+    text_progress as text_progress,
+)
+from ._state import FilterState as FilterState, LandmarkMap as LandmarkMap, Particles as Particles, init_state as init_state
+from ._step import StepOutput as StepOutput, filter_step as filter_step

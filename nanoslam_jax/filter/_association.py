@@ -1,0 +1,106 @@
+"""Data association of a scan's detections with a particle's local map (algorithms.md 1.2)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._linalg import inv2, quad_form
+from ..models import innovation, range_bearing, range_bearing_jacobians
+from ._landmarks import init_landmark
+from ._state import LandmarkMap
+
+
+class Association(NamedTuple):
+    """Result of associating ``k_max`` detections with a local map of ``window + k_max`` slots.
+
+    Attributes:
+        slot: local slot matched by each detection, -1 if none. Slots ``>= window`` are
+            provisional landmarks created earlier in the same scan.
+        is_new: detection starts a new landmark (in provisional slot ``window + k``).
+        d2: best squared Mahalanobis distance of each detection (inf if no candidate).
+    """
+
+    slot: Int[Array, "k_max"]
+    is_new: Bool[Array, "k_max"]
+    d2: Float[Array, "k_max"]
+
+
+def predicted_measurements(
+    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots 2"], cov: Float[Array, "slots 2 2"], R: Float[Array, "2 2"]
+) -> tuple[Float[Array, "slots 2"], Float[Array, "slots 2 2"]]:
+    """Predicted detection and innovation covariance ``Gx P Gx' + Gm Sigma Gm' + R`` of each slot."""
+    z_hat = jax.vmap(range_bearing, (None, 0))(x, mean)
+    Gx, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x, mean)
+    S = Gx @ P @ jnp.swapaxes(Gx, -1, -2) + Gm @ cov @ jnp.swapaxes(Gm, -1, -2) + R
+    return z_hat, S
+
+
+def associate(
+    local: LandmarkMap,
+    x: Float[Array, "3"],
+    P: Float[Array, "3 3"],
+    z: Float[Array, "k_max 2"],
+    z_mask: Bool[Array, "k_max"],
+    R: Float[Array, "2 2"],
+    gate: Float[Array, ""],
+    new_landmark: Float[Array, ""],
+    sequential: bool = True,
+) -> Association:
+    """Nearest-neighbour association with a chi-square gate and a new-landmark threshold.
+
+    Args:
+        local: the particle's local map (``window`` existing slots then ``k_max`` provisional).
+        x, P: the particle's prior mean and covariance.
+        z, z_mask: the scan's detections and which are real.
+        R: measurement noise covariance.
+        gate: a detection whose best d2 is below this is associated.
+        new_landmark: a detection whose best d2 is above this starts a landmark.
+        sequential: process detections in order, so a landmark is claimed at most once and a
+            landmark created by detection k can be matched by a later one. If False, detections
+            are associated independently with existing landmarks and, when two pick the same
+            landmark, only the closer keeps it.
+    """
+    k_max = z.shape[0]
+    window = local.active.shape[0] - k_max
+    # Provisional landmarks, one per detection, initialised at the prior mean.
+    prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None))(x, z, R)
+    mean = local.mean.at[window:].set(prov_mean)
+    cov = local.cov.at[window:].set(prov_cov)
+    z_hat, S = predicted_measurements(x, P, mean, cov, R)
+    S_inv = inv2(S)
+
+    def distances(zk):
+        nu = jax.vmap(innovation, (None, 0))(zk, z_hat)
+        return quad_form(nu, S_inv)
+
+    if not sequential:
+        d2 = jax.vmap(distances)(z)
+        d2 = jnp.where(local.active[None, :], d2, jnp.inf)
+        j = jnp.argmin(d2, axis=1)
+        best = jnp.take_along_axis(d2, j[:, None], 1)[:, 0]
+        matched = z_mask & (best < gate)
+        # Keep only the closest claimant of each landmark.
+        claim = jnp.where(matched[:, None] & (j[:, None] == jnp.arange(d2.shape[1])), best[:, None], jnp.inf)
+        winner = jnp.argmin(claim, axis=0)
+        matched = matched & (winner[j] == jnp.arange(k_max))
+        is_new = z_mask & (best > new_landmark)
+        return Association(jnp.where(matched, j, -1), is_new, jnp.where(z_mask, best, jnp.inf))
+
+    def body(avail, inp):
+        k, zk, mk = inp
+        d2 = jnp.where(avail, distances(zk), jnp.inf)
+        j = jnp.argmin(d2)
+        best = d2[j]
+        matched = mk & (best < gate)
+        new = mk & (best > new_landmark)
+        avail = avail.at[j].set(avail[j] & ~matched)
+        avail = avail.at[window + k].set(new)
+        return avail, (jnp.where(matched, j, -1), new, jnp.where(mk, best, jnp.inf))
+
+    avail0 = local.active.at[window:].set(False)
+    _, (slot, is_new, d2) = jax.lax.scan(body, avail0, (jnp.arange(k_max), z, z_mask))
+    return Association(slot, is_new, d2)

@@ -1,0 +1,90 @@
+"""Landmark map operations: the local window, EKF update, initialisation (eq. 16), write-back.
+
+A scan touches only landmarks near the particle. :func:`gather_window` copies the ``window``
+nearest active landmarks into a small local map, followed by one provisional slot per
+detection (slot ``window + k`` holds the landmark that detection ``k`` may create), so all
+per-detection work is over ``window + k_max`` slots instead of the full capacity;
+:func:`scatter_window` writes the local map back and places the new landmarks in free slots.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._linalg import inv2, sym
+from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians
+from ._state import LandmarkMap
+
+
+def gather_window(
+    lm: LandmarkMap, position: Float[Array, "2"], window: int, k_max: int, max_range: Float[Array, ""]
+) -> tuple[LandmarkMap, Int[Array, "window"], Int[Array, ""]]:
+    """The local map of one particle.
+
+    Args:
+        lm: the particle's map (capacity slots).
+        position: where the particle is (its prior mean position).
+        window: how many nearest landmarks to copy.
+        k_max: provisional slots appended (one per detection), empty.
+        max_range: sensor range; landmarks within ``max_range + 10`` m are counted.
+
+    Returns:
+        The local map (``window + k_max`` slots), the global slot index of each of the first
+        ``window`` local slots, and how many landmarks near the particle did not fit the window
+        (0 unless the window is too small for the local landmark density).
+    """
+    d2 = jnp.sum(jnp.square(lm.mean - position), axis=-1)
+    d2 = jnp.where(lm.active, d2, jnp.inf)
+    _, idx = jax.lax.top_k(-d2, window)
+    near = jnp.sum(d2 < jnp.square(max_range + 10.0))
+    local = jax.tree.map(lambda a: a[idx], lm)
+    extra = LandmarkMap.empty(k_max)
+    local = jax.tree.map(lambda a, b: jnp.concatenate([a, b], axis=0), local, extra)
+    return local, idx, jnp.maximum(near - window, 0)
+
+
+def scatter_window(
+    lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"], is_new: Bool[Array, "k_max"]
+) -> tuple[LandmarkMap, Int[Array, ""]]:
+    """Write a local map back into the particle's map.
+
+    The first ``window`` local slots return to their slots; the provisional slot of each new
+    landmark goes to the next free slot. New landmarks that find no free slot are dropped and
+    counted (overflow), never silently.
+
+    Returns:
+        The updated map and the number of landmarks dropped for lack of capacity.
+    """
+    window = idx.shape[0]
+    capacity = lm.active.shape[0]
+    lm = jax.tree.map(lambda g, l: g.at[idx].set(l[:window]), lm, local)
+    k_max = is_new.shape[0]
+    (free,) = jnp.nonzero(~lm.active, size=k_max, fill_value=capacity)
+    order = jnp.clip(jnp.cumsum(is_new) - 1, 0, k_max - 1)
+    target = jnp.where(is_new, free[order], capacity)
+    lm = jax.tree.map(lambda g, l: g.at[target].set(l[window:], mode="drop"), lm, local)
+    return lm, jnp.sum(is_new & (target == capacity))
+
+
+def init_landmark(
+    x: Float[Array, "3"], z: Float[Array, "2"], R: Float[Array, "2 2"]
+) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+    """New landmark from pose ``x`` and detection ``z`` (eq. 16): ``g^-1(x, z)``, ``Gm^-1 R Gm^-T``."""
+    m = inverse_range_bearing(x, z)
+    _, Gm = range_bearing_jacobians(x, m)
+    Gi = inv2(Gm)
+    return m, sym(Gi @ R @ Gi.T)
+
+
+def ekf_update(
+    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"]
+) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+    """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""
+    z_hat = range_bearing(x, mean)
+    _, Gm = range_bearing_jacobians(x, mean)
+    S = Gm @ cov @ Gm.T + R
+    K = cov @ Gm.T @ inv2(S)
+    IKG = jnp.eye(2) - K @ Gm
+    return mean + K @ innovation(z, z_hat), sym(IKG @ cov @ IKG.T + K @ R @ K.T)

@@ -1,0 +1,132 @@
+"""Filter settings split into static ones (shapes, branches) and traced hyperparameters.
+
+:class:`Static` is hashable and is a static argument of the compiled program: changing it
+recompiles. :class:`Params` holds every hyperparameter a sweep may vary as a traced scalar,
+so one compilation serves a whole sweep (and ``jax.vmap`` over a batch of :class:`Params`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ..config import Config
+from ..models import VehicleParams
+
+
+@dataclasses.dataclass(frozen=True)
+class Static:
+    """Settings that fix array shapes or program structure (hashable)."""
+
+    method: str = "nano"
+    n_particles: int = 10
+    capacity: int = 512
+    window: int = 64
+    k_max: int = 14
+    prior: str = "unscented"
+    prior_cov: str = "reset"
+    sequential: bool = True
+    weight: str = "product"
+    resampler: str = "systematic"
+    estimate: str = "best"
+    prune: bool = False
+    quadrature: str = "cubature"
+    gh_order: int = 3
+    hessian: str = "gauss_newton"
+    max_iter: int = 10
+    landmark_noise: bool = False
+    nano_init: str = "prior"
+    nano_solver: str = "optimistix"
+
+    @property
+    def window_size(self) -> int:
+        """Local slots: the window plus one provisional slot per detection."""
+        return min(self.window, self.capacity) + self.k_max
+
+
+class Params(NamedTuple):
+    """Traced hyperparameters (all scalars; angles in radians).
+
+    Attributes:
+        vehicle: car constants.
+        sigma_v, sigma_alpha: control noise (m/s, rad) per DR sample.
+        sigma_r, sigma_beta: measurement noise (m, rad).
+        init_cov: near-zero pose variance at the start and after a reset.
+        ut_alpha, ut_beta, ut_kappa: unscented parameters of the prior (and UFastSLAM).
+        gate: chi-square association gate on d2.
+        new_landmark: d2 above which a detection starts a landmark.
+        log_p0: log of the likelihood factor of a new landmark.
+        resample_threshold: resample when ESS < threshold * N.
+        gamma: NANO KL stopping threshold.
+        step: NANO natural-gradient step (1 = undamped).
+        nano_alpha, nano_beta, nano_kappa: unscented parameters of the NANO quadrature.
+        prune_threshold: existence score (hits - misses) below which a landmark is removed.
+        max_range: sensor range (m), used by pruning and the window-overflow count.
+        half_fov: half the field of view (rad), used by pruning.
+    """
+
+    vehicle: VehicleParams
+    sigma_v: Float[ArrayLike, ""]
+    sigma_alpha: Float[ArrayLike, ""]
+    sigma_r: Float[ArrayLike, ""]
+    sigma_beta: Float[ArrayLike, ""]
+    init_cov: Float[ArrayLike, ""]
+    ut_alpha: Float[ArrayLike, ""]
+    ut_beta: Float[ArrayLike, ""]
+    ut_kappa: Float[ArrayLike, ""]
+    gate: Float[ArrayLike, ""]
+    new_landmark: Float[ArrayLike, ""]
+    log_p0: Float[ArrayLike, ""]
+    resample_threshold: Float[ArrayLike, ""]
+    gamma: Float[ArrayLike, ""]
+    step: Float[ArrayLike, ""]
+    nano_alpha: Float[ArrayLike, ""]
+    nano_beta: Float[ArrayLike, ""]
+    nano_kappa: Float[ArrayLike, ""]
+    prune_threshold: Float[ArrayLike, ""]
+    max_range: Float[ArrayLike, ""]
+    half_fov: Float[ArrayLike, ""]
+
+    @property
+    def R(self) -> Float[Array, "2 2"]:
+        """Measurement noise covariance."""
+        return jnp.diag(jnp.stack([jnp.square(self.sigma_r), jnp.square(self.sigma_beta)]))
+
+    @property
+    def Q(self) -> Float[Array, "2 2"]:
+        """Control noise covariance per DR sample."""
+        return jnp.diag(jnp.stack([jnp.square(self.sigma_v), jnp.square(self.sigma_alpha)]))
+
+
+def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
+    """Split a :class:`Config` into the static settings and the traced hyperparameters.
+
+    Args:
+        cfg: the run configuration.
+        k_max: detections per segment of the log (from the segments' shape).
+    """
+    f, n, v, nz = cfg.filter, cfg.nano, cfg.vehicle, cfg.noise
+    static = Static(
+        method=f.method, n_particles=f.n_particles, capacity=f.capacity, window=f.window, k_max=k_max,
+        prior=f.prior, prior_cov=f.prior_cov, sequential=f.sequential, weight=f.weight,
+        resampler=f.resampler, estimate=f.estimate, prune=f.prune, quadrature=n.quadrature,
+        gh_order=n.gh_order, hessian=n.hessian, max_iter=n.max_iter, landmark_noise=n.landmark_noise,
+        nano_init=n.init, nano_solver=n.solver,
+    )
+    a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
+    params = Params(
+        vehicle=VehicleParams(a(v.wheelbase), a(v.encoder_offset), a(v.laser_a), a(v.laser_b)),
+        sigma_v=a(nz.sigma_v), sigma_alpha=a(math.radians(nz.sigma_alpha_deg)),
+        sigma_r=a(nz.sigma_r), sigma_beta=a(math.radians(nz.sigma_beta_deg)),
+        init_cov=a(f.init_cov), ut_alpha=a(f.ut_alpha), ut_beta=a(f.ut_beta), ut_kappa=a(f.ut_kappa),
+        gate=a(f.gate), new_landmark=a(f.new_landmark), log_p0=a(math.log(f.p0)),
+        resample_threshold=a(f.resample_threshold), gamma=a(n.gamma), step=a(n.step),
+        nano_alpha=a(n.ut_alpha), nano_beta=a(n.ut_beta), nano_kappa=a(n.ut_kappa),
+        prune_threshold=a(f.prune_threshold), max_range=a(cfg.data.max_range),
+        half_fov=a(math.radians(f.fov_deg) / 2),
+    )
+    return static, params

@@ -1,0 +1,80 @@
+"""Prediction of a particle's pose through the DR pieces of one segment (the prior)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from .._linalg import chol3, sym
+from ..models import vehicle_jacobians, vehicle_step, wrap_angle
+from ..quadrature import Unscented
+from ._params import Params
+
+
+def _ut_piece(x, P, u, dt, params: Params):
+    """Unscented transform over the augmented state (pose, control noise) for one DR piece."""
+    xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(5)
+    sq = jnp.stack([params.sigma_v, params.sigma_alpha])
+    pose_pts = x + xi[:, :3] @ chol3(P).T
+    ctrl_pts = u + xi[:, 3:] * sq
+    f = lambda xp, up: vehicle_step(xp, up, dt, params.vehicle)  # noqa: E731
+    centre = f(x, u)
+    y = jax.vmap(f)(pose_pts, ctrl_pts)
+    dev = (y - centre).at[:, 2].set(wrap_angle(y[:, 2] - centre[2]))
+    delta = wm @ dev
+    d = dev - delta
+    cov = jnp.einsum("i,ij,ik->jk", wc, d, d)
+    mean = (centre + delta).at[2].set(wrap_angle(centre[2] + delta[2]))
+    return mean, sym(cov)
+
+
+def _linear_piece(x, P, u, dt, params: Params):
+    """First-order propagation with autodiff Jacobians for one DR piece."""
+    F, G = vehicle_jacobians(x, u, dt, params.vehicle)
+    return vehicle_step(x, u, dt, params.vehicle), sym(F @ P @ F.T + G @ params.Q @ G.T)
+
+
+def predict(
+    x: Float[Array, "3"],
+    P: Float[Array, "3 3"],
+    dt: Float[Array, "dr"],
+    u: Float[Array, "dr 2"],
+    dr_mask: Bool[Array, "dr"],
+    params: Params,
+    kind: str = "unscented",
+) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+    """Propagate a pose Gaussian through a segment's DR pieces.
+
+    Args:
+        x: pose at the start of the segment.
+        P: its covariance.
+        dt: piece durations (padding: 0).
+        u: piece controls ``(ve, alpha)``.
+        dr_mask: which pieces are real (padding leaves the Gaussian unchanged).
+        params: hyperparameters (vehicle constants, control noise, unscented parameters).
+        kind: ``'unscented'`` (augmented unscented transform) or ``'linearized'``.
+
+    Returns:
+        The prior mean and covariance at the segment's scan time.
+    """
+    piece = _ut_piece if kind == "unscented" else _linear_piece
+
+    def body(carry, inp):
+        xc, Pc = carry
+        dti, ui, mi = inp
+        xn, Pn = piece(xc, Pc, ui, dti, params)
+        return (jnp.where(mi, xn, xc), jnp.where(mi, Pn, Pc)), None
+
+    (x, P), _ = jax.lax.scan(body, (x, P), (dt, u, dr_mask), unroll=True)
+    return x, P
+
+
+def predict_mean(x: Float[Array, "3"], dt: Float[Array, "dr"], u: Float[Array, "dr 2"], params: Params) -> Float[Array, "3"]:
+    """Noise-free propagation (dead reckoning) through a segment's pieces (padding has dt = 0)."""
+
+    def body(xc, inp):
+        return vehicle_step(xc, inp[1], inp[0], params.vehicle), None
+
+    x, _ = jax.lax.scan(body, x, (dt, u), unroll=True)
+    return x

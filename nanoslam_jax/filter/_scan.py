@@ -1,0 +1,175 @@
+"""The scan driver: the whole log as one ``lax.scan`` of :func:`filter_step`.
+
+:func:`filter_scan` is pure (jit- and vmap-friendly: sweeps vmap it over :class:`Params` and
+keys). :func:`run_filter` is the host driver: it compiles one chunk program and calls it over
+fixed-size chunks of the log (padding the last), reporting progress between chunks.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+from typing import Callable, NamedTuple, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Key
+
+from ..data import Segments
+from ..proposals import AbstractProposal, LinearizedProposal, NanoProposal, PriorProposal
+from ..quadrature import make_rule
+from ._params import Params, Static
+from ._prior import predict_mean
+from ._state import FilterState, init_state
+from ._step import StepOutput, filter_step
+
+
+def make_proposal(static: Static, params: Params) -> AbstractProposal:
+    """The proposal of ``static.method`` with its traced hyperparameters from ``params``."""
+    if static.method == "nano":
+        rule = make_rule(static.quadrature, alpha=params.nano_alpha, beta=params.nano_beta,
+                         kappa=params.nano_kappa, order=static.gh_order)
+        return NanoProposal(rule, params.gamma, params.step, max_iter=static.max_iter, hessian=static.hessian,
+                            landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver)
+    if static.method == "fastslam1":
+        return PriorProposal()
+    if static.method == "fastslam2":
+        return LinearizedProposal(landmark_noise=True)
+    raise NotImplementedError(f"filter.method: {static.method!r} is not available as a particle proposal yet")
+
+
+def _masked_step(static: Static, params: Params, state: FilterState, inp: tuple[Segments, Bool[Array, ""]]):
+    seg, valid = inp
+    proposal = make_proposal(static, params)
+    step = lambda s: filter_step(static, params, proposal, s, seg)  # noqa: E731
+
+    def skip(s):
+        return s, jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(step, s)[1])
+
+    return jax.lax.cond(valid, step, skip, state)
+
+
+def filter_scan(
+    static: Static, params: Params, segments: Segments, key: Key[Array, ""], state: Optional[FilterState] = None,
+    valid: Optional[Bool[Array, "segments"]] = None,
+) -> tuple[FilterState, StepOutput]:
+    """Run the filter over all segments in one ``lax.scan``.
+
+    Args:
+        static: static settings (a static argument when jitted).
+        params: traced hyperparameters.
+        segments: the log's segments.
+        key: PRNG key (used when ``state`` is None to start, and for all sampling).
+        state: state to continue from (default: a fresh state from ``key``).
+        valid: which segments are real (padding segments leave the state unchanged).
+
+    Returns:
+        The final state and a :class:`StepOutput` per segment.
+    """
+    if state is None:
+        state = init_state(static, params, key)
+    if valid is None:
+        valid = jnp.ones(segments.time.shape[0], bool)
+    return jax.lax.scan(functools.partial(_masked_step, static, params), state, (segments, valid))
+
+
+@functools.partial(jax.jit, static_argnames=("static",))
+def _chunk(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
+    return filter_scan(static, params, segments, state.key, state, valid)
+
+
+@functools.partial(jax.jit, static_argnames=("static",))
+def _init(static: Static, params: Params, key) -> FilterState:
+    return init_state(static, params, key)
+
+
+class FilterRun(NamedTuple):
+    """Outputs of :func:`run_filter` (host arrays).
+
+    Attributes:
+        state: the final filter state.
+        outputs: per-segment records (numpy).
+        compile_s: compilation time of the chunk program.
+        run_s: run time after compilation (all chunks).
+    """
+
+    state: FilterState
+    outputs: StepOutput
+    compile_s: float
+    run_s: float
+
+
+def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
+    n = segments.time.shape[0]
+    valid = np.arange(length) < n
+    pad = lambda a: np.concatenate([a, np.zeros((length - n,) + a.shape[1:], a.dtype)]) if length > n else a  # noqa: E731
+    return Segments(*(pad(np.asarray(a)) for a in segments)), valid
+
+
+def run_filter(
+    static: Static,
+    params: Params,
+    segments: Segments,
+    seed: int,
+    *,
+    chunk: int = 500,
+    progress: Optional[Callable[[int, int, float], None]] = None,
+) -> FilterRun:
+    """Run the filter over a log in compiled chunks of ``chunk`` segments.
+
+    Args:
+        static, params: filter settings.
+        segments: the log's segments (host or device arrays).
+        seed: PRNG seed.
+        chunk: segments per compiled call; the last chunk is padded with no-op segments.
+        progress: called as ``progress(done, total, elapsed_s)`` after each chunk.
+    """
+    n = segments.time.shape[0]
+    chunk = max(1, min(chunk, n))
+    n_chunks = -(-n // chunk)
+    padded, valid = _pad(segments, n_chunks * chunk)
+    state = _init(static, params, jax.random.key(seed))
+    t0 = time.perf_counter()
+    first = jax.tree.map(lambda a: jnp.asarray(a[:chunk]), padded)
+    compiled = _chunk.lower(static, params, state, first, jnp.asarray(valid[:chunk])).compile()
+    compile_s = time.perf_counter() - t0
+    outs = []
+    t1 = time.perf_counter()
+    for c in range(n_chunks):
+        sl = slice(c * chunk, (c + 1) * chunk)
+        seg_c = jax.tree.map(lambda a: jnp.asarray(a[sl]), padded)
+        state, out = compiled(params, state, seg_c, jnp.asarray(valid[sl]))
+        outs.append(out)
+        if progress is not None:
+            jax.block_until_ready(state)
+            progress(min((c + 1) * chunk, n), n, time.perf_counter() - t1)
+    jax.block_until_ready(state)
+    run_s = time.perf_counter() - t1
+    outputs = jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a])[:n], *outs)
+    return FilterRun(state, outputs, compile_s, run_s)
+
+
+def text_progress(label: str = "filter", stream=sys.stderr) -> Callable[[int, int, float], None]:
+    """A progress callback printing ``label: done/total segments (pct) elapsed, eta``."""
+
+    def report(done: int, total: int, elapsed: float) -> None:
+        eta = elapsed / max(done, 1) * (total - done)
+        end = "\n" if done >= total else "\r"
+        stream.write(f"{label}: {done}/{total} scans ({100 * done / total:5.1f}%) {elapsed:6.1f} s elapsed, ~{eta:5.1f} s left{end}")
+        stream.flush()
+
+    return report
+
+
+@jax.jit
+def dead_reckoning(params: Params, segments: Segments) -> Float[Array, "segments 3"]:
+    """Noise-free propagation of the pose from the origin through every segment (the DR baseline)."""
+
+    def body(x, seg):
+        x = predict_mean(x, seg.dt, seg.u, params)
+        return x, x
+
+    _, poses = jax.lax.scan(body, jnp.zeros(3), segments)
+    return poses

@@ -1,0 +1,97 @@
+"""Particle and map pytrees: a leading particle axis over fixed-capacity landmark arrays."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, Key
+
+from ._params import Params, Static
+
+
+class LandmarkMap(NamedTuple):
+    """Fixed-capacity landmark arrays of one particle (or stacked: leading particle axis).
+
+    Attributes:
+        mean: landmark positions.
+        cov: landmark covariances.
+        active: which slots hold a landmark.
+        hits: detections associated with each landmark.
+        misses: scans in which the landmark was in view but not detected.
+    """
+
+    mean: Float[Array, "*particles slots 2"]
+    cov: Float[Array, "*particles slots 2 2"]
+    active: Bool[Array, "*particles slots"]
+    hits: Int[Array, "*particles slots"]
+    misses: Int[Array, "*particles slots"]
+
+    @staticmethod
+    def empty(slots: int, batch: tuple[int, ...] = ()) -> "LandmarkMap":
+        """An empty map with ``slots`` slots (and optional leading batch axes)."""
+        return LandmarkMap(
+            mean=jnp.zeros(batch + (slots, 2)),
+            cov=jnp.broadcast_to(jnp.eye(2), batch + (slots, 2, 2)),
+            active=jnp.zeros(batch + (slots,), bool),
+            hits=jnp.zeros(batch + (slots,), jnp.int32),
+            misses=jnp.zeros(batch + (slots,), jnp.int32),
+        )
+
+
+class Particles(NamedTuple):
+    """The particle set.
+
+    Attributes:
+        pose: sampled laser poses ``(px, py, phi)``.
+        pose_cov: each particle's last proposal covariance (used when ``prior_cov='carry'``).
+        log_w: normalised log-weights (logsumexp = 0).
+        landmarks: per-particle maps.
+    """
+
+    pose: Float[Array, "particles 3"]
+    pose_cov: Float[Array, "particles 3 3"]
+    log_w: Float[Array, "particles"]
+    landmarks: LandmarkMap
+
+
+class FilterState(NamedTuple):
+    """Everything carried from one segment to the next.
+
+    Attributes:
+        particles: the particle set.
+        key: PRNG key.
+        best: index of the highest-weight particle (tracked through resampling).
+        resample_count: resampling steps so far.
+        overflow: new landmarks dropped so far because a particle's map was full (all particles).
+    """
+
+    particles: Particles
+    key: Key[Array, ""]
+    best: Int[Array, ""]
+    resample_count: Int[Array, ""]
+    overflow: Int[Array, ""]
+
+
+def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterState:
+    """All particles at the origin with covariance ``init_cov * I``, empty maps, equal weights."""
+    n = static.n_particles
+    particles = Particles(
+        pose=jnp.zeros((n, 3)),
+        pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
+        log_w=jnp.full((n,), -jnp.log(n)),
+        landmarks=LandmarkMap.empty(static.capacity, (n,)),
+    )
+    zero = jnp.zeros((), jnp.int32)
+    return FilterState(particles, key, zero, zero, zero)
+
+
+def count_landmarks(landmarks: LandmarkMap) -> Int[Array, "*particles"]:
+    """Active landmarks per particle."""
+    return jnp.sum(landmarks.active, axis=-1)
+
+
+def tree_where(pred: Bool[Array, ""], a, b):
+    """Select pytree ``a`` where the scalar ``pred`` holds, else ``b``."""
+    return jax.tree.map(lambda x, y: jnp.where(pred, x, y), a, b)

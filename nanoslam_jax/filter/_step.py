@@ -1,0 +1,209 @@
+"""One segment of the Rao-Blackwellised particle filter: per-particle work (vmapped) and the
+particle-set work (weights, estimate, resampling)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, Key
+
+from .._linalg import chol3, gaussian_logpdf, sym
+from ..data import Segments
+from ..models import circular_mean, innovation, range_bearing, wrap_angle
+from ..proposals import AbstractProposal, Detections
+from ._association import associate, predicted_measurements
+from ._landmarks import ekf_update, gather_window, init_landmark, scatter_window
+from ._params import Params, Static
+from ._prior import predict
+from ._resampling import effective_sample_size, normalise, resample
+from ._state import FilterState, LandmarkMap, Particles, count_landmarks
+
+
+class StepOutput(NamedTuple):
+    """What the scan records per segment (small arrays only).
+
+    Attributes:
+        best_pose: pose of the highest-weight particle.
+        mean_pose: weighted mean pose (circular mean heading).
+        ess: effective sample size after weighting.
+        resampled: whether the particles were resampled.
+        n_landmarks: landmarks in the best particle's map.
+        iterations: mean proposal iterations over particles that had associations.
+        n_capped: particles whose iterative proposal hit the iteration cap.
+        n_nonfinite: particles whose proposal failed (fell back to the prior).
+        n_associated: mean associated detections per particle.
+        n_new: mean new landmarks per particle.
+        window_overflow: most landmarks near a particle that did not fit its window.
+        overflow: new landmarks dropped for lack of capacity (all particles).
+        weight_reset: all weights were non-finite and were reset to uniform.
+    """
+
+    best_pose: Float[Array, "3"]
+    mean_pose: Float[Array, "3"]
+    ess: Float[Array, ""]
+    resampled: Bool[Array, ""]
+    n_landmarks: Int[Array, ""]
+    iterations: Float[Array, ""]
+    n_capped: Int[Array, ""]
+    n_nonfinite: Int[Array, ""]
+    n_associated: Float[Array, ""]
+    n_new: Float[Array, ""]
+    window_overflow: Int[Array, ""]
+    overflow: Int[Array, ""]
+    weight_reset: Bool[Array, ""]
+
+
+class _ParticleOut(NamedTuple):
+    pose: Float[Array, "3"]
+    pose_cov: Float[Array, "3 3"]
+    landmarks: LandmarkMap
+    dlogw: Float[Array, ""]
+    iterations: Int[Array, ""]
+    result: Int[Array, ""]
+    has_assoc: Bool[Array, ""]
+    n_associated: Int[Array, ""]
+    n_new: Int[Array, ""]
+    window_overflow: Int[Array, ""]
+    overflow: Int[Array, ""]
+
+
+def particle_update(
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    pose: Float[Array, "3"],
+    pose_cov: Float[Array, "3 3"],
+    lm: LandmarkMap,
+    dt: Float[Array, "dr"],
+    u: Float[Array, "dr 2"],
+    dr_mask: Bool[Array, "dr"],
+    z: Float[Array, "k 2"],
+    z_mask: Bool[Array, "k"],
+    key: Key[Array, ""],
+) -> _ParticleOut:
+    """Prior, association, proposal, sampling, landmark updates and weight of one particle."""
+    R = params.R
+    W, K = static.window_size - static.k_max, static.k_max
+    P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
+    x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
+
+    local, idx, window_overflow = gather_window(lm, x0[:2], W, K, params.max_range)
+    assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential)
+    matched = assoc.slot >= 0
+    existing = matched & (assoc.slot < W)
+    slot = jnp.maximum(assoc.slot, 0)
+    det = Detections(z, local.mean[slot], local.cov[slot], existing)
+
+    prop = proposal(x0, P0, det, R)
+    eps = jax.random.normal(key, (3,), dtype=x0.dtype)
+    x_s = prop.mean + chol3(prop.cov) @ eps
+    x_s = x_s.at[2].set(wrap_angle(x_s[2]))
+
+    # Weight of the associations with existing landmarks (eq. 17, or the marginal at the prior).
+    xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
+    z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R)
+    ll = gaussian_logpdf(jax.vmap(innovation)(z, z_hat), S)
+    dlogw = jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
+
+    # New landmarks at the sampled pose (eq. 16), in their provisional slots.
+    new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None))(x_s, z, R)
+    isn = assoc.is_new
+    local = local._replace(
+        mean=local.mean.at[W:].set(jnp.where(isn[:, None], new_mean, local.mean[W:])),
+        cov=local.cov.at[W:].set(jnp.where(isn[:, None, None], new_cov, local.cov[W:])),
+        active=local.active.at[W:].set(isn),
+        hits=local.hits.at[W:].set(isn.astype(jnp.int32)),
+    )
+
+    # EKF updates at the sampled pose; each slot is matched at most once per scan.
+    cur_mean, cur_cov = local.mean[slot], local.cov[slot]
+    provisional = matched & ~existing
+    zp_hat, Sp = predicted_measurements(x_s, jnp.zeros((3, 3)), cur_mean, cur_cov, R)
+    llp = gaussian_logpdf(jax.vmap(innovation)(z, zp_hat), Sp)
+    dlogw = dlogw + jnp.sum(jnp.where(provisional, llp, 0.0))
+    upd_mean, upd_cov = jax.vmap(ekf_update, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
+    target = jnp.where(matched, assoc.slot, W + K)
+    local = local._replace(
+        mean=local.mean.at[target].set(upd_mean, mode="drop"),
+        cov=local.cov.at[target].set(upd_cov, mode="drop"),
+        hits=local.hits.at[target].add(1, mode="drop"),
+    )
+
+    if static.prune:
+        seen = jnp.zeros(W + K, bool).at[target].set(True, mode="drop")
+        zl = jax.vmap(range_bearing, (None, 0))(x_s, local.mean)
+        in_view = (zl[:, 0] < params.max_range) & (jnp.abs(zl[:, 1]) < params.half_fov)
+        missed = local.active & in_view & ~seen & (jnp.arange(W + K) < W)
+        misses = local.misses + missed.astype(jnp.int32)
+        keep = (local.hits - misses) >= params.prune_threshold
+        local = local._replace(misses=misses, active=local.active & keep)
+
+    lm, overflow = scatter_window(lm, local, idx, assoc.is_new)
+    has_assoc = jnp.any(existing)
+    return _ParticleOut(
+        pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
+        result=jnp.where(has_assoc, prop.result, 0), has_assoc=has_assoc,
+        n_associated=jnp.sum(matched), n_new=jnp.sum(assoc.is_new),
+        window_overflow=window_overflow, overflow=overflow,
+    )
+
+
+def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, "n"]) -> Float[Array, "3"]:
+    """Weighted mean pose with a circular mean for the heading."""
+    w = jnp.exp(normalise(log_w))
+    return jnp.concatenate([w @ pose[:, :2], circular_mean(pose[:, 2], w)[None]])
+
+
+def filter_step(
+    static: Static, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments
+) -> tuple[FilterState, StepOutput]:
+    """Advance the particle set through one segment."""
+    n = static.n_particles
+    key, k_part, k_res = jax.random.split(state.key, 3)
+    p = state.particles
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0))(
+        static, params, proposal, p.pose, p.pose_cov, p.landmarks,
+        seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, jax.random.split(k_part, n),
+    )
+    log_w = p.log_w + out.dlogw
+    finite = jnp.any(jnp.isfinite(log_w))
+    log_w = jnp.where(jnp.isnan(log_w), -jnp.inf, log_w)
+    log_w = jnp.where(finite, normalise(log_w), jnp.full((n,), -jnp.log(n)))
+    ess = effective_sample_size(log_w)
+    best = jnp.argmax(log_w).astype(jnp.int32)
+    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks)
+
+    record = StepOutput(
+        best_pose=out.pose[best],
+        mean_pose=weighted_mean_pose(out.pose, log_w),
+        ess=ess,
+        resampled=ess < params.resample_threshold * n,
+        n_landmarks=count_landmarks(out.landmarks)[best].astype(jnp.int32),
+        iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
+        n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
+        n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),
+        n_associated=jnp.mean(out.n_associated.astype(float)),
+        n_new=jnp.mean(out.n_new.astype(float)),
+        window_overflow=jnp.max(out.window_overflow).astype(jnp.int32),
+        overflow=jnp.sum(out.overflow).astype(jnp.int32),
+        weight_reset=~finite,
+    )
+
+    def do_resample(args):
+        parts, b = args
+        anc = resample(static.resampler, k_res, parts.log_w)
+        parts = jax.tree.map(lambda a: a[anc], parts)
+        parts = parts._replace(log_w=jnp.full((n,), -jnp.log(n), dtype=parts.log_w.dtype))
+        # The best particle survives systematic/stratified/residual resampling (weight >= 1/N).
+        hit = anc == b
+        return parts, jnp.where(jnp.any(hit), jnp.argmax(hit), 0).astype(jnp.int32)
+
+    particles, best = jax.lax.cond(record.resampled, do_resample, lambda a: a, (particles, best))
+    new_state = FilterState(
+        particles=particles, key=key, best=best,
+        resample_count=state.resample_count + record.resampled.astype(jnp.int32),
+        overflow=state.overflow + record.overflow,
+    )
+    return new_state, record

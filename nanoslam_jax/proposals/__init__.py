@@ -1,0 +1,19 @@
+"""Proposals: one module per method, all behind :class:`AbstractProposal`."""
+
+from ._base import (
+    RESULT_CODES as RESULT_CODES,
+    AbstractProposal as AbstractProposal,
+    Detections as Detections,
+    ProposalResult as ProposalResult,
+)
+from ._fastslam1 import PriorProposal as PriorProposal
+from ._fastslam2 import LinearizedProposal as LinearizedProposal
+from ._iterated import gauss_newton_map as gauss_newton_map
+from ._nano import NanoProposal as NanoProposal
+from ._natural_gradient import (
+    Gaussian as Gaussian,
+    NaturalGradientKL as NaturalGradientKL,
+    expected_grad_hess as expected_grad_hess,
+    kl_gaussian as kl_gaussian,
+    natural_gradient_gaussian as natural_gradient_gaussian,
+)

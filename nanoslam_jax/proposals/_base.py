@@ -1,0 +1,88 @@
+"""The proposal interface shared by all particle methods."""
+
+from __future__ import annotations
+
+import abc
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._linalg import inv2
+from ..models import innovation, range_bearing, range_bearing_jacobians, wrap_angle
+
+
+class Detections(NamedTuple):
+    """The detections of one scan that are associated with existing landmarks.
+
+    Attributes:
+        z: detections ``(range, bearing)``.
+        mean: the associated landmark means.
+        cov: the associated landmark covariances.
+        mask: which rows are real associations.
+    """
+
+    z: Float[Array, "k 2"]
+    mean: Float[Array, "k 2"]
+    cov: Float[Array, "k 2 2"]
+    mask: Bool[Array, "k"]
+
+
+class ProposalResult(NamedTuple):
+    """A Gaussian proposal over the pose and how it was obtained.
+
+    Attributes:
+        mean: proposal mean.
+        cov: proposal covariance.
+        iterations: iterations taken by an iterative proposal (0 otherwise).
+        result: 0 converged, 1 iteration cap reached, 2 non-finite values (fell back to the prior).
+    """
+
+    mean: Float[Array, "3"]
+    cov: Float[Array, "3 3"]
+    iterations: Int[Array, ""]
+    result: Int[Array, ""]
+
+
+RESULT_CODES = ("successful", "max_steps_reached", "nonfinite")
+
+
+class AbstractProposal(eqx.Module):
+    """A method's proposal: a Gaussian over the pose given the prior and associated detections."""
+
+    @abc.abstractmethod
+    def __call__(
+        self, x0: Float[Array, "3"], P0: Float[Array, "3 3"], det: Detections, R: Float[Array, "2 2"]
+    ) -> ProposalResult:
+        """Args: the prior mean ``x0`` and covariance ``P0``, the associated detections, the noise ``R``."""
+
+
+def pose_difference(a: Float[Array, "3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
+    """``a - b`` with the heading difference wrapped."""
+    d = a - b
+    return d.at[2].set(wrap_angle(d[2]))
+
+
+def wrap_pose(x: Float[Array, "3"]) -> Float[Array, "3"]:
+    """Pose with its heading wrapped to (-pi, pi]."""
+    return x.at[2].set(wrap_angle(x[2]))
+
+
+def range_bearing_residuals(det: Detections):
+    """``x -> z_k - g(x, m_k)`` (bearing wrapped) for all rows of ``det``."""
+
+    def residual(x):
+        z_hat = jax.vmap(range_bearing, (None, 0))(x, det.mean)
+        return jax.vmap(innovation)(det.z, z_hat)
+
+    return residual
+
+
+def noise_information(x0: Float[Array, "3"], det: Detections, R: Float[Array, "2 2"], landmark_noise: bool) -> Float[Array, "k 2 2"]:
+    """Inverse noise of each detection: ``R^-1``, or ``(R + Gm Sigma Gm')^-1`` at the prior mean."""
+    if not landmark_noise:
+        return jnp.broadcast_to(inv2(R), det.cov.shape)
+    _, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x0, det.mean)
+    return inv2(Gm @ det.cov @ jnp.swapaxes(Gm, -1, -2) + R)

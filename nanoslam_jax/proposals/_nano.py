@@ -1,0 +1,61 @@
+"""The NANO proposal: natural-gradient Gaussian approximation of the pose posterior."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._linalg import inv3, sym
+from ..quadrature import QuadratureRule
+from ._base import (
+    AbstractProposal,
+    Detections,
+    ProposalResult,
+    noise_information,
+    pose_difference,
+    range_bearing_residuals,
+    wrap_pose,
+)
+from ._natural_gradient import Gaussian, natural_gradient_gaussian
+
+
+class NanoProposal(AbstractProposal):
+    """NANO-SLAM's proposal (algorithms.md section 2).
+
+    Attributes:
+        rule: quadrature rule for the expectations (cubature by default).
+        gamma: KL stopping threshold (traced).
+        step: natural-gradient step, 1 undamped (traced).
+        max_iter: iteration cap.
+        hessian: ``'gauss_newton'`` or ``'exact'``.
+        landmark_noise: use ``R + Gm Sigma Gm'`` instead of ``R`` in the likelihood.
+        init: ``'prior'`` or ``'gauss_newton'`` (start from the Gauss-Newton MAP and its
+            Laplace precision).
+        solver: ``'optimistix'`` or ``'while_loop'``.
+    """
+
+    rule: QuadratureRule
+    gamma: Float[Array, ""]
+    step: Float[Array, ""]
+    max_iter: int = eqx.field(static=True, default=10)
+    hessian: str = eqx.field(static=True, default="gauss_newton")
+    landmark_noise: bool = eqx.field(static=True, default=False)
+    init: str = eqx.field(static=True, default="prior")
+    solver: str = eqx.field(static=True, default="optimistix")
+
+    def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
+        prior = Gaussian(x0, sym(inv3(P0)), P0)
+        residual = range_bearing_residuals(det)
+        weights = noise_information(x0, det, R, self.landmark_noise)
+        start = None
+        if self.init == "gauss_newton":
+            from ._iterated import gauss_newton_map
+
+            start = gauss_newton_map(prior, residual, weights, det.mask, max_iter=self.max_iter)
+        out = natural_gradient_gaussian(
+            prior, residual, weights, det.mask, self.rule, gamma=self.gamma, step=self.step,
+            max_iter=self.max_iter, hessian=self.hessian, solver=self.solver, start=start,
+            diff=pose_difference, project=wrap_pose,
+        )
+        return ProposalResult(out.q.mean, out.q.cov, out.iterations, out.result)
