@@ -355,7 +355,10 @@ def load_config(path: str | os.PathLike | None = None, overrides: list[str] | tu
         overrides: ``key=value`` strings applied after the file, e.g. ``filter.n_particles=20``.
     """
     if path is None:
-        raw: Any = {"name": "default", "data": {"kind": "simulated"}}
+        # NANO-SLAM on the default simulated log, with a filter noise model that covers the
+        # simulator's true noise (inflated by 2-3x, as one does with a real vehicle).
+        raw: Any = {"name": "default", "data": {"kind": "simulated"},
+                    "noise": {"sigma_v": 0.3, "sigma_alpha_deg": 1.5, "sigma_r": 0.5, "sigma_beta_deg": 2.0}}
         source = "embedded default config"
     else:
         p = Path(path)

@@ -1,0 +1,202 @@
+"""One run from a :class:`Config`: log -> segments -> filter -> outputs -> metrics -> plots.
+
+:func:`run_experiment` writes a result directory holding the resolved ``config.yaml``,
+``metrics.json`` (with the version and seed), ``trajectory.csv``, ``map.csv`` (filters) and the
+figures.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import math
+import platform
+import sys
+from pathlib import Path
+from typing import Optional
+
+import jax
+import numpy as np
+import yaml
+
+from ._version import __version__
+from .config import Config, config_to_dict, resolve_data_dir
+from .data import RawLog, Segments, load_victoria_park, make_segments
+from .filter import dead_reckoning, run_filter, settings_from_config, text_progress
+from .metrics import error_over_time, evaluate, landmark_errors, relative_gps
+
+
+@dataclasses.dataclass(frozen=True)
+class LoadedLog:
+    """A log ready for the filter.
+
+    Attributes:
+        raw: the host log.
+        segments: its fixed-shape segments.
+        frame: metrics frame: ``'relative'`` (real GPS) or ``'slam'`` (simulated, GPS = truth).
+        source: where it came from.
+    """
+
+    raw: RawLog
+    segments: Segments
+    frame: str
+    source: str
+
+
+def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
+    """Read (or simulate) the log of ``cfg`` and cut it into segments.
+
+    Args:
+        cfg: the run configuration (``data`` and ``sim`` sections).
+        data_dir: a ``--data`` directory overriding ``data.path``.
+    """
+    if cfg.data.kind == "simulated":
+        from .simulate import simulate
+
+        raw, frame, source = simulate(cfg.sim, cfg.vehicle), "slam", f"simulated (seed {cfg.sim.seed})"
+    else:
+        directory = resolve_data_dir(cfg, data_dir)
+        raw = load_victoria_park(directory, cfg.data.format)
+        frame = "slam" if raw.truth_poses is not None else "relative"
+        source = str(directory)
+    d = cfg.data
+    segments = make_segments(raw, min_range=d.min_range, max_range=d.max_range, k_max=d.k_max,
+                             max_dr_per_segment=d.max_dr_per_segment, t_end=d.t_end)
+    return LoadedLog(raw, segments, frame, source)
+
+
+def default_out_dir(cfg: Config, root: str | Path = "results") -> Path:
+    """``results/<config-name>-<timestamp>``."""
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path(root) / f"{cfg.name}-{stamp}"
+
+
+def versions() -> dict:
+    """Versions of the software a result was produced with."""
+    import equinox
+    import optimistix
+
+    return {"nanoslam_jax": __version__, "jax": jax.__version__, "equinox": equinox.__version__,
+            "optimistix": optimistix.__version__, "numpy": np.__version__, "python": platform.python_version()}
+
+
+def _write_csv(path: Path, header: list[str], rows: np.ndarray, fmt: str = "%.6f") -> None:
+    np.savetxt(path, rows, delimiter=",", header=",".join(header), comments="", fmt=fmt)
+
+
+def _json_safe(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out[k] = _json_safe(v)
+        elif isinstance(v, (np.floating, float)):
+            out[k] = None if not math.isfinite(float(v)) else float(v)
+        elif isinstance(v, (np.integer,)):
+            out[k] = int(v)
+        elif isinstance(v, np.bool_):
+            out[k] = bool(v)
+        else:
+            out[k] = v
+    return out
+
+
+def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = None, progress: Optional[bool] = None) -> dict:
+    """Run ``cfg`` and write its result directory.
+
+    Args:
+        cfg: the run configuration.
+        out_dir: result directory (created).
+        data_dir: log directory overriding ``data.path``.
+        progress: show a progress indicator (default: ``output.progress``).
+
+    Returns:
+        The metrics (also in ``metrics.json``).
+
+    Raises:
+        FloatingPointError: if the estimate became non-finite (the metrics are still written).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    header = f"# nanoslam-jax {__version__}, seed {cfg.seed}, written {_dt.datetime.now().isoformat(timespec='seconds')}\n"
+    (out / "config.yaml").write_text(header + yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+
+    log = load_log(cfg, data_dir)
+    seg = log.segments
+    static, params = settings_from_config(cfg, seg.k_max)
+    t = np.asarray(seg.time)
+    metrics: dict = {"method": cfg.filter.method, "seed": cfg.seed, "data": log.source, "n_segments": int(t.shape[0]),
+                     "versions": versions(), "command": " ".join(sys.argv)}
+    show = cfg.output.progress if progress is None else progress
+
+    landmarks = None
+    if cfg.filter.method == "dead_reckoning":
+        import time
+
+        t0 = time.perf_counter()
+        poses = np.asarray(jax.block_until_ready(dead_reckoning(params, seg)))
+        metrics.update(run_s=time.perf_counter() - t0)
+        est = mean = poses
+        ess = None
+    else:
+        run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk,
+                         progress=text_progress(cfg.name) if show else None)
+        o = run.outputs
+        best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
+        est = best_pose if static.estimate == "best" else mean
+        ess = np.asarray(o.ess)
+        b = int(run.state.best)
+        lm = jax.tree.map(lambda a: np.asarray(a[b]), run.state.particles.landmarks)
+        act = lm.active
+        landmarks = np.c_[lm.mean[act], lm.cov[act][:, 0, 0], lm.cov[act][:, 0, 1], lm.cov[act][:, 1, 1], lm.hits[act]]
+        has = np.asarray(o.n_associated) > 0
+        metrics.update(
+            n_landmarks=int(act.sum()), landmark_overflow=int(run.state.overflow),
+            window_overflow_max=int(np.max(o.window_overflow)), resample_count=int(run.state.resample_count),
+            ess_mean=float(ess.mean()), ess_min=float(ess.min()),
+            nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,
+            proposal_capped=int(np.sum(o.n_capped)), proposal_nonfinite=int(np.sum(o.n_nonfinite)),
+            weight_resets=int(np.sum(o.weight_reset)), associations_per_scan=float(np.mean(o.n_associated)),
+            compile_s=run.compile_s, run_s=run.run_s, ms_per_scan=1e3 * run.run_s / max(len(t), 1),
+            n_particles=static.n_particles, capacity=static.capacity,
+        )
+
+    finite = bool(np.all(np.isfinite(est)))
+    metrics["finite"] = finite
+    mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
+    if finite:
+        metrics.update(evaluate(t, est[:, :2], log.raw.gps, **mk))
+        if cfg.filter.method != "dead_reckoning":
+            other = evaluate(t, (mean if static.estimate == "best" else best_pose)[:, :2], log.raw.gps, **mk)
+            tag = "wmean" if static.estimate == "best" else "best"
+            metrics.update({f"rmse_fixed_{tag}": other["rmse_fixed"], f"rmse_aligned_{tag}": other["rmse_aligned"]})
+    if landmarks is not None and log.raw.truth_landmarks is not None:
+        le = landmark_errors(landmarks[:, :2], log.raw.truth_landmarks)
+        metrics.update({f"map_{k}": v for k, v in le.items() if np.ndim(v) == 0})
+
+    _write_csv(out / "trajectory.csv", ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, mean])
+    if landmarks is not None:
+        _write_csv(out / "map.csv", ["x", "y", "cov_xx", "cov_xy", "cov_yy", "hits"], landmarks, fmt="%.9g")
+    (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2) + "\n")
+
+    if cfg.output.plots and finite:
+        _plots(out, cfg, log, t, est, landmarks, ess, static.n_particles, mk)
+    if not finite:
+        raise FloatingPointError(f"{cfg.name}: the estimate became non-finite; metrics written to {out / 'metrics.json'}")
+    return metrics
+
+
+def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk):
+    from .plotting import plot_series, plot_trajectory
+
+    gps = log.raw.gps
+    ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" else gps[:, 1:3]
+    label = "GPS (relative frame)" if log.frame == "relative" else "truth"
+    plot_trajectory(out / "trajectory.png", ref, [(cfg.filter.method, est[:, :2])],
+                    None if landmarks is None else landmarks[:, :2], log.raw.truth_landmarks,
+                    title=f"{cfg.name}: {cfg.filter.method}", reference_label=label)
+    te, err = error_over_time(t, est[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"])
+    plot_series(out / "error.png", [(cfg.filter.method, te, err)], "position error [m]", f"{cfg.name}: error against {label}")
+    if ess is not None:
+        plot_series(out / "ess.png", [("ESS", t, ess)], "effective sample size", f"{cfg.name}: ESS",
+                    hline=cfg.filter.resample_threshold * n_particles)
