@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -39,6 +40,21 @@ __all__ = [
     "DEFAULT_DATA_DIR",
     "DATASET_HELP",
 ]
+
+
+class _Loader(yaml.SafeLoader):
+    """Safe YAML loader that also reads ``1e-5`` (no dot) as a float, as YAML 1.2 does."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def _yaml_load(text: str) -> Any:
+    return yaml.load(text, Loader=_Loader)
 
 
 class ConfigError(ValueError):
@@ -325,7 +341,11 @@ def _set_path(raw: dict, dotted: str, value: Any, source: str) -> None:
         else:
             if not dataclasses.is_dataclass(tp):
                 raise ConfigError(f"{source}: key '{'.'.join(parts[:i + 1])}' is not a section")
-            node = node.setdefault(part, {}) if isinstance(node.get(part, {}), dict) else node
+            if node.get(part) is None:
+                node[part] = {}
+            if not isinstance(node[part], dict):
+                raise ConfigError(f"{source}: key '{'.'.join(parts[:i + 1])}' must be a mapping to set '{dotted}'")
+            node = node[part]
             cls = tp
 
 
@@ -340,7 +360,7 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...]) -> dict:
         key, text = item.split("=", 1)
         key = key.strip()
         try:
-            value = yaml.safe_load(text) if text.strip() else None
+            value = _yaml_load(text) if text.strip() else None
         except yaml.YAMLError as e:
             raise ConfigError(f"--set {item!r}: the value is not valid YAML ({e})") from None
         _set_path(out, key, value, f"--set {key}")
@@ -366,7 +386,7 @@ def load_config(path: str | os.PathLike | None = None, overrides: list[str] | tu
         if not p.is_file():
             raise ConfigError(f"{p}: config file not found")
         try:
-            raw = yaml.safe_load(p.read_text())
+            raw = _yaml_load(p.read_text())
         except yaml.YAMLError as e:
             mark = getattr(e, "problem_mark", None)
             line = f" line {mark.line + 1}" if mark is not None else ""
@@ -377,6 +397,8 @@ def load_config(path: str | os.PathLike | None = None, overrides: list[str] | tu
             raise ConfigError(f"{p}: expected a mapping of config keys at the top level, got {type(raw).__name__}")
         raw.setdefault("name", p.stem)
     raw = apply_overrides(raw, list(overrides))
+    if overrides:
+        source += " with --set " + " ".join(overrides)
     return config_from_dict(raw, source=source)
 
 

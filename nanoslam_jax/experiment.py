@@ -69,7 +69,12 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
 def default_out_dir(cfg: Config, root: str | Path = "results") -> Path:
     """``results/<config-name>-<timestamp>``."""
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path(root) / f"{cfg.name}-{stamp}"
+    out = Path(root) / f"{cfg.name}-{stamp}"
+    k = 2
+    while out.exists():  # never reuse a directory of an earlier run
+        out = Path(root) / f"{cfg.name}-{stamp}-{k}"
+        k += 1
+    return out
 
 
 def versions() -> dict:
@@ -116,16 +121,15 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     Raises:
         FloatingPointError: if the estimate became non-finite (the metrics are still written).
     """
+    log = load_log(cfg, data_dir)  # before creating anything: a bad log leaves no directory behind
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     header = f"# nanoslam-jax {__version__}, seed {cfg.seed}, written {_dt.datetime.now().isoformat(timespec='seconds')}\n"
     (out / "config.yaml").write_text(header + yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
-
-    log = load_log(cfg, data_dir)
     seg = log.segments
     static, params = settings_from_config(cfg, seg.k_max)
     t = np.asarray(seg.time)
-    metrics: dict = {"method": cfg.filter.method, "seed": cfg.seed, "data": log.source, "n_segments": int(t.shape[0]),
+    metrics: dict = {"method": cfg.filter.method, "seed": cfg.seed, "version": __version__, "data": log.source, "n_segments": int(t.shape[0]),
                      "versions": versions(), "command": " ".join(sys.argv)}
     show = cfg.output.progress if progress is None else progress
 

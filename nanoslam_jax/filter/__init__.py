@@ -20,7 +20,9 @@ from ._scan import (
     dead_reckoning as dead_reckoning,
     filter_scan as filter_scan,
     make_proposal as make_proposal,
+    run_batch as run_batch,
     run_filter as run_filter,
+    stack_params as stack_params,
     text_progress as text_progress,
 )
 from ._state import FilterState as FilterState, LandmarkMap as LandmarkMap, Particles as Particles, init_state as init_state

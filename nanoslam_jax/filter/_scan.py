@@ -85,6 +85,17 @@ def _init(static: Static, params: Params, key) -> FilterState:
     return init_state(static, params, key)
 
 
+@functools.partial(jax.jit, static_argnames=("static",))
+def _chunk_batch(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
+    run = lambda p, s: filter_scan(static, p, segments, s.key, s, valid)  # noqa: E731
+    return jax.vmap(run)(params, state)
+
+
+@functools.partial(jax.jit, static_argnames=("static",))
+def _init_batch(static: Static, params: Params, keys) -> FilterState:
+    return jax.vmap(lambda p, k: init_state(static, p, k))(params, keys)
+
+
 class FilterRun(NamedTuple):
     """Outputs of :func:`run_filter` (host arrays).
 
@@ -108,6 +119,32 @@ def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
     return Segments(*(pad(np.asarray(a)) for a in segments)), valid
 
 
+def _drive(chunk_fn, static: Static, params: Params, state: FilterState, segments: Segments, chunk: int,
+           progress, time_axis: int) -> FilterRun:
+    """Compile ``chunk_fn`` once for ``chunk`` segments and call it over the padded log."""
+    n = segments.time.shape[0]
+    chunk = max(1, min(chunk, n))
+    n_chunks = -(-n // chunk)
+    padded, valid = _pad(segments, n_chunks * chunk)
+    piece = lambda c: (jax.tree.map(lambda a: jnp.asarray(a[c * chunk:(c + 1) * chunk]), padded),  # noqa: E731
+                       jnp.asarray(valid[c * chunk:(c + 1) * chunk]))
+    t0 = time.perf_counter()
+    compiled = chunk_fn.lower(static, params, state, *piece(0)).compile()
+    compile_s = time.perf_counter() - t0
+    outs = []
+    t1 = time.perf_counter()
+    for c in range(n_chunks):
+        state, out = compiled(params, state, *piece(c))
+        outs.append(out)
+        if progress is not None:
+            jax.block_until_ready(state)
+            progress(min((c + 1) * chunk, n), n, time.perf_counter() - t1)
+    jax.block_until_ready(state)
+    run_s = time.perf_counter() - t1
+    cat = lambda *a: np.take(np.concatenate([np.asarray(x) for x in a], axis=time_axis), np.arange(n), axis=time_axis)  # noqa: E731
+    return FilterRun(state, jax.tree.map(cat, *outs), compile_s, run_s)
+
+
 def run_filter(
     static: Static,
     params: Params,
@@ -119,36 +156,49 @@ def run_filter(
 ) -> FilterRun:
     """Run the filter over a log in compiled chunks of ``chunk`` segments.
 
+    One program is compiled for a chunk and called over the log; the last chunk is padded with
+    no-op segments, so the whole log needs one compilation whatever its length.
+
     Args:
         static, params: filter settings.
         segments: the log's segments (host or device arrays).
         seed: PRNG seed.
-        chunk: segments per compiled call; the last chunk is padded with no-op segments.
+        chunk: segments per compiled call.
         progress: called as ``progress(done, total, elapsed_s)`` after each chunk.
     """
-    n = segments.time.shape[0]
-    chunk = max(1, min(chunk, n))
-    n_chunks = -(-n // chunk)
-    padded, valid = _pad(segments, n_chunks * chunk)
     state = _init(static, params, jax.random.key(seed))
-    t0 = time.perf_counter()
-    first = jax.tree.map(lambda a: jnp.asarray(a[:chunk]), padded)
-    compiled = _chunk.lower(static, params, state, first, jnp.asarray(valid[:chunk])).compile()
-    compile_s = time.perf_counter() - t0
-    outs = []
-    t1 = time.perf_counter()
-    for c in range(n_chunks):
-        sl = slice(c * chunk, (c + 1) * chunk)
-        seg_c = jax.tree.map(lambda a: jnp.asarray(a[sl]), padded)
-        state, out = compiled(params, state, seg_c, jnp.asarray(valid[sl]))
-        outs.append(out)
-        if progress is not None:
-            jax.block_until_ready(state)
-            progress(min((c + 1) * chunk, n), n, time.perf_counter() - t1)
-    jax.block_until_ready(state)
-    run_s = time.perf_counter() - t1
-    outputs = jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a])[:n], *outs)
-    return FilterRun(state, outputs, compile_s, run_s)
+    return _drive(_chunk, static, params, state, segments, chunk, progress, time_axis=0)
+
+
+def run_batch(
+    static: Static,
+    params: Params,
+    segments: Segments,
+    seeds: "np.ndarray | list[int]",
+    *,
+    chunk: int = 500,
+    progress: Optional[Callable[[int, int, float], None]] = None,
+) -> FilterRun:
+    """Run a batch of filters in one compiled program, vmapped over hyperparameters and seeds.
+
+    Args:
+        static: static settings shared by the batch.
+        params: hyperparameters with a leading batch axis on every leaf (see :func:`stack_params`).
+        segments: the log's segments (shared).
+        seeds: one PRNG seed per batch member.
+        chunk, progress: as in :func:`run_filter`.
+
+    Returns:
+        A :class:`FilterRun` whose state and outputs carry a leading batch axis.
+    """
+    keys = jax.vmap(jax.random.key)(jnp.asarray(np.asarray(seeds)))
+    state = _init_batch(static, params, keys)
+    return _drive(_chunk_batch, static, params, state, segments, chunk, progress, time_axis=1)
+
+
+def stack_params(params: "list[Params]") -> Params:
+    """Stack a list of :class:`Params` into one with a leading batch axis."""
+    return jax.tree.map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]), *params)
 
 
 def text_progress(label: str = "filter", stream=sys.stderr) -> Callable[[int, int, float], None]:

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .._linalg import chol3, inv3, sym
+from .._linalg import chol2, chol3, inv3, sym
 from ._base import pose_difference, wrap_pose
 from ._natural_gradient import Gaussian
 
@@ -18,7 +18,7 @@ def gauss_newton_map(prior: Gaussian, residual, weights, mask, *, max_iter: int 
     and the whitened measurement residuals ``U_k r_k(x)``.
     """
     U0 = chol3(prior.precision).T
-    Uk = jnp.swapaxes(jax.vmap(chol3)(weights), -1, -2) * mask[:, None, None]
+    Uk = jnp.swapaxes(chol2(weights), -1, -2) * mask[:, None, None]
 
     def fn(x, args):
         rp = U0 @ pose_difference(x, prior.mean)

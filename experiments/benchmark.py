@@ -1,0 +1,112 @@
+"""Speed and memory benchmark: prints a Markdown table.
+
+Each configuration runs in its own subprocess (so the peak resident memory is its own), on the
+full Victoria Park log unless ``--segments`` cuts it, float64, after compilation:
+
+    python experiments/benchmark.py                      # the standard table
+    python experiments/benchmark.py --only nano-N10      # one row
+    python experiments/benchmark.py --segments 1000      # quick look on the first 1000 scans
+
+Rows: NANO with 10, 100 and 1000 particles (capacity 512), NANO at 10 particles with capacities
+256, 512 and 1024 (cost per scan should grow only by the capacity's linear term), and the other
+particle methods at 10 particles.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+ROWS: dict[str, list[str]] = {
+    "nano-N10": [],
+    "nano-N100": ["filter.n_particles=100"],
+    "nano-N1000": ["filter.n_particles=1000"],
+    "nano-N10-cap256": ["filter.capacity=256"],
+    "nano-N10-cap1024": ["filter.capacity=1024"],
+    "nano-N10-while_loop": ["nano.solver=while_loop"],
+    "fastslam1-N10": ["filter.method=fastslam1"],
+    "fastslam2-N10": ["filter.method=fastslam2"],
+}
+
+
+def run_one(name: str, overrides: list[str], config: str, segments: int | None, data: str | None) -> dict:
+    """Run one configuration in this process and return its measurements."""
+    import jax
+
+    from nanoslam_jax.config import load_config
+    from nanoslam_jax.experiment import load_log
+    from nanoslam_jax.filter import run_filter, settings_from_config
+
+    cfg = load_config(config, overrides)
+    log = load_log(cfg, data)
+    seg = log.segments
+    if segments is not None:
+        seg = type(seg)(*(a[:segments] for a in seg))
+    static, params = settings_from_config(cfg, seg.k_max)
+    t0 = time.perf_counter()
+    run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk)
+    total = time.perf_counter() - t0
+    n = int(seg.time.shape[0])
+    return {
+        "name": name,
+        "method": cfg.filter.method,
+        "particles": static.n_particles,
+        "capacity": static.capacity,
+        "scans": n,
+        "compile_s": run.compile_s,
+        "run_s": run.run_s,
+        "ms_per_scan": 1e3 * run.run_s / n,
+        "total_s": total,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "landmarks": int(jax.numpy.sum(run.state.particles.landmarks.active[int(run.state.best)])),
+        "backend": jax.default_backend(),
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--only", nargs="*", choices=list(ROWS), help="rows to run (default: all)")
+    p.add_argument("--config", default="configs/victoria_park_nano.yaml")
+    p.add_argument("--segments", type=int, help="use only the first N segments")
+    p.add_argument("--data", help="log directory")
+    p.add_argument("--json", help="also write the rows as JSON here")
+    p.add_argument("--single", help=argparse.SUPPRESS)
+    args = p.parse_args()
+
+    if args.single:
+        print(json.dumps(run_one(args.single, ROWS[args.single], args.config, args.segments, args.data)))
+        return
+
+    rows = []
+    for name in args.only or list(ROWS):
+        cmd = [sys.executable, __file__, "--single", name, "--config", args.config]
+        if args.segments:
+            cmd += ["--segments", str(args.segments)]
+        if args.data:
+            cmd += ["--data", args.data]
+        res = subprocess.run(cmd, capture_output=True, text=True, env=os.environ.copy())
+        if res.returncode != 0:
+            print(f"{name}: failed\n{res.stderr[-2000:]}", file=sys.stderr)
+            continue
+        rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
+        r = rows[-1]
+        print(f"{name}: {r['run_s']:.2f} s run, {r['compile_s']:.1f} s compile", file=sys.stderr, flush=True)
+
+    head = "| row | method | particles | capacity | scans | compile [s] | run [s] | ms/scan | peak RSS [MB] | landmarks |"
+    print(head)
+    print("|" + "---|" * (head.count("|") - 1))
+    for r in rows:
+        print(f"| {r['name']} | {r['method']} | {r['particles']} | {r['capacity']} | {r['scans']} | {r['compile_s']:.1f} | "
+              f"{r['run_s']:.2f} | {r['ms_per_scan']:.3f} | {r['peak_rss_mb']:.0f} | {r['landmarks']} |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()

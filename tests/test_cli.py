@@ -1,0 +1,360 @@
+"""Tests of the ``nanoslam`` command line, result directories and the dead-reckoning baseline.
+
+Runs go through :func:`nanoslam_jax.cli.main` in-process (one subprocess checks the console
+script). The one NANO-SLAM run (the embedded default, cut to 30 s) is shared by several tests so
+that the filter is compiled once.
+"""
+
+import json
+import math
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from nanoslam_jax import __version__
+from nanoslam_jax.cli import main
+from nanoslam_jax.config import config_from_dict, load_config
+from nanoslam_jax.data import load_victoria_park
+from nanoslam_jax.metrics import evaluate
+
+ROOT = Path(__file__).resolve().parents[1]
+DR_CONFIG = ROOT / "configs" / "dead_reckoning.yaml"
+TRAJECTORY_HEADER = "t,x,y,phi,mean_x,mean_y,mean_phi"
+PROTOCOL_METRICS = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean",
+                    "mean_error", "max_error", "final_error", "n_fixes"]
+SIM_FILES = ["inputs.dat", "measurements.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat"]
+STAMPED = re.compile(r"^(?P<name>.+)-\d{8}-\d{6}$")
+
+
+def _call(capsys, argv):
+    """``main(argv)`` -> (exit code, stdout, stderr)."""
+    capsys.readouterr()
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _check_one_line_error(rc, err, *fragments):
+    assert rc == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("nanoslam: error: ")
+    assert "Traceback" not in err
+    for f in fragments:
+        assert f in lines[0], (f, lines[0])
+
+
+def _metrics(d: Path) -> dict:
+    return json.loads((d / "metrics.json").read_text())
+
+
+def _trajectory(d: Path) -> np.ndarray:
+    return np.loadtxt(d / "trajectory.csv", delimiter=",", skiprows=1, ndmin=2)
+
+
+def _written_config(d: Path):
+    text = (d / "config.yaml").read_text()
+    first, rest = text.split("\n", 1)
+    assert first.startswith("#")
+    return first, config_from_dict(yaml.safe_load(rest))
+
+
+def _check_result_dir(d: Path, cfg, *, filter_run: bool):
+    names = {p.name for p in d.iterdir()}
+    expected = {"config.yaml", "metrics.json", "trajectory.csv", "trajectory.png", "error.png"}
+    if filter_run:
+        expected |= {"map.csv", "ess.png"}
+    assert expected <= names, names
+    header, written = _written_config(d)
+    assert __version__ in header and f"seed {cfg.seed}" in header
+    assert written == cfg
+    # the whole file also loads as YAML (the header is a comment)
+    assert config_from_dict(yaml.safe_load((d / "config.yaml").read_text())) == cfg
+    assert (d / "trajectory.csv").read_text().splitlines()[0] == TRAJECTORY_HEADER
+    traj = _trajectory(d)
+    assert traj.shape[1] == 7 and traj.shape[0] > 1
+    assert np.all(np.diff(traj[:, 0]) >= 0)
+    assert np.all(np.isfinite(traj))
+    m = _metrics(d)
+    for k in PROTOCOL_METRICS:
+        assert k in m, k
+    assert m["seed"] == cfg.seed
+    assert m["method"] == cfg.filter.method
+    version = m.get("version", m.get("versions", {}).get("nanoslam_jax"))
+    assert version == __version__
+    assert m["finite"] is True
+    assert (d / "trajectory.png").stat().st_size > 0
+    return m
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def test_console_script_help():
+    exe = Path(sys.executable).with_name("nanoslam")
+    exe = str(exe) if exe.exists() else shutil.which("nanoslam")
+    assert exe, "the nanoslam console script is not installed next to the interpreter nor on PATH"
+    r = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "usage: nanoslam" in r.stdout
+    assert "run" in r.stdout and "simulate" in r.stdout
+
+
+@pytest.mark.parametrize("command, options", [("run", ["--out", "--data", "--set"]),
+                                              ("simulate", ["--out", "--seed", "--set"])])
+def test_subcommand_help(capsys, command, options):
+    with pytest.raises(SystemExit) as e:
+        main([command, "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert f"usage: nanoslam {command}" in out
+    for opt in options:
+        assert opt in out
+
+
+def test_missing_or_unknown_command_is_a_usage_error(capsys):
+    for argv in ([], ["fly"], ["run", "--bogus"]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+    assert "usage: nanoslam" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- errors, one line each
+
+
+@pytest.mark.parametrize("argv, fragments", [
+    (["run", "--set", "filter.n_partcles=3"], ["filter.n_partcles"]),
+    (["run", "--set", "filter.n_particles=0"], ["filter.n_particles"]),
+    (["run", "--set", "filter.n_particles=2.5"], ["filter.n_particles", "integer"]),
+    (["run", "--set", "filter.method=foo"], ["filter.method", "'nano'", "'dead_reckoning'"]),
+    (["run", "--set", "filter.n_particles"], ["key=value"]),
+    (["run", "no_such_config.yaml"], ["no_such_config.yaml"]),
+    (["simulate", "--out", "sim", "--set", "sim.n_tres=3"], ["sim.n_tres"]),
+    (["simulate", "--out", "sim", "--seed", "-1"], ["sim.seed"]),
+])
+def test_config_errors_exit_2_with_one_line(capsys, tmp_path, monkeypatch, argv, fragments):
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = _call(capsys, argv)
+    _check_one_line_error(rc, err, *fragments)
+    assert not (tmp_path / "sim").exists()
+
+
+def test_invalid_yaml_through_the_cli(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("filter:\n  n_particles: 3\n   method: nano\n")
+    rc, _, err = _call(capsys, ["run", bad])
+    _check_one_line_error(rc, err, "bad.yaml", "line 3")
+
+
+def test_missing_data_dir_exits_2_and_says_how_to_get_the_log(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rc, _, err = _call(capsys, ["run", DR_CONFIG, "--data", "/nonexistent", "--out", tmp_path / "out", "--quiet"])
+    _check_one_line_error(rc, err, "/nonexistent", "Victoria Park", "--data", "NANOSLAM_DATA")
+
+
+@pytest.fixture(scope="module")
+def sim_dir(tmp_path_factory):
+    """A simulated log written by ``nanoslam simulate --seed 3``."""
+    d = tmp_path_factory.mktemp("sim") / "seed3"
+    assert main(["simulate", "--out", str(d), "--seed", "3"]) == 0
+    return d
+
+
+def test_corrupted_measurements_exit_2_naming_file_and_line(capsys, tmp_path, sim_dir):
+    bad = tmp_path / "bad_log"
+    shutil.copytree(sim_dir, bad)
+    lines = (bad / "measurements.dat").read_text().splitlines(keepends=True)
+    lines[2] = " ".join(lines[2].split()[:3]) + "\n"  # line 3: three columns instead of four
+    (bad / "measurements.dat").write_text("".join(lines))
+    rc, _, err = _call(capsys, ["run", DR_CONFIG, "--data", bad, "--out", tmp_path / "out", "--quiet"])
+    _check_one_line_error(rc, err, "measurements.dat", "line 3")
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+def test_simulate_writes_a_loadable_log(sim_dir, capsys):
+    for name in SIM_FILES:
+        assert (sim_dir / name).is_file() and (sim_dir / name).stat().st_size > 0, name
+    raw = load_victoria_park(sim_dir)
+    assert raw.dr.shape[1] == 3 and raw.dr.shape[0] > 100
+    assert raw.detections.shape[1] == 4 and raw.detections.shape[0] > 100
+    assert raw.gps.shape[1] == 3 and raw.gps.shape[0] > 10
+    assert raw.truth_poses is not None and raw.truth_landmarks is not None
+    assert raw.truth_landmarks.shape == (load_config().sim.n_trees, 2)
+
+
+def test_simulate_is_reproducible_and_seeded(sim_dir, tmp_path, capsys):
+    rc, out, _ = _call(capsys, ["simulate", "--out", tmp_path / "again", "--seed", "3"])
+    assert rc == 0 and "seed 3" in out
+    for name in SIM_FILES:
+        assert (tmp_path / "again" / name).read_bytes() == (sim_dir / name).read_bytes(), name
+    rc, out, _ = _call(capsys, ["simulate", "--out", tmp_path / "other", "--seed", "4"])
+    assert rc == 0 and "seed 4" in out
+    assert (tmp_path / "other" / "measurements.dat").read_bytes() != (sim_dir / "measurements.dat").read_bytes()
+
+
+def test_simulate_set_overrides_reach_the_simulator(tmp_path, capsys):
+    rc, _, _ = _call(capsys, ["simulate", "--out", tmp_path / "s", "--set", "sim.n_trees=40",
+                              "--set", "sim.duration=30"])
+    assert rc == 0
+    raw = load_victoria_park(tmp_path / "s")
+    assert raw.truth_landmarks.shape == (40, 2)
+    assert raw.dr[-1, 0] - raw.dr[0, 0] <= 31.0
+
+
+def test_dead_reckoning_on_a_simulated_directory(sim_dir, tmp_path, capsys):
+    out = tmp_path / "dr_sim"
+    rc, stdout, err = _call(capsys, ["run", DR_CONFIG, "--data", sim_dir, "--out", out, "--quiet"])
+    assert rc == 0, err
+    assert stdout.strip().splitlines()[-1] == str(out)
+    m = _check_result_dir(out, load_config(DR_CONFIG), filter_run=False)
+    assert m["data"] == str(sim_dir)
+    # simulated GPS is the truth in the SLAM frame: the fixed-frame error is a plain, finite number
+    assert math.isfinite(m["rmse_fixed"]) and m["rmse_fixed"] > 0
+    assert m["rmse_aligned"] <= m["rmse_fixed"] + 1e-9
+    assert not (out / "map.csv").exists()
+
+
+def test_default_out_dir_is_named_after_the_config(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    cfg_path = tmp_path / "quick_dr.yaml"
+    cfg_path.write_text("data:\n  kind: simulated\n  t_end: 20\nfilter:\n  method: dead_reckoning\n")
+    rc, stdout, err = _call(capsys, ["run", cfg_path, "--quiet"])
+    assert rc == 0, err
+    (d,) = list((tmp_path / "results").iterdir())
+    match = STAMPED.match(d.name)
+    assert match and match["name"] == "quick_dr"
+    assert (tmp_path / stdout.strip().splitlines()[-1]).resolve() == d.resolve()
+    traj = _trajectory(d)
+    assert traj[-1, 0] <= 20.0
+    _check_result_dir(d, load_config(cfg_path), filter_run=False)
+
+
+# --------------------------------------------------------------------------- the embedded default (NANO-SLAM)
+
+DEFAULT_OVERRIDES = ["data.t_end=30", "filter.n_particles=3"]
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory):
+    """``nanoslam run --set data.t_end=30 --set filter.n_particles=3`` without --out, in an empty cwd."""
+    cwd = tmp_path_factory.mktemp("default_run")
+    argv = ["run", "--quiet"] + [a for o in DEFAULT_OVERRIDES for a in ("--set", o)]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(cwd)
+        import contextlib
+        import io
+
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            rc = main(argv)
+    assert rc == 0
+    return cwd, buf.getvalue()
+
+
+def test_default_run_writes_results_config_name_timestamp(default_run):
+    cwd, stdout = default_run
+    entries = list((cwd / "results").iterdir())
+    assert len(entries) == 1
+    d = entries[0]
+    match = STAMPED.match(d.name)
+    assert match and match["name"] == "default"
+    last = stdout.strip().splitlines()[-1]
+    assert (cwd / last).resolve() == d.resolve()
+    summary = json.loads(stdout.strip().splitlines()[-2])
+    assert "rmse_fixed" in summary
+
+
+def test_default_run_reports_error_against_ground_truth(default_run):
+    cwd, _ = default_run
+    (d,) = list((cwd / "results").iterdir())
+    cfg = load_config(None, DEFAULT_OVERRIDES)
+    m = _check_result_dir(d, cfg, filter_run=True)
+    assert m["method"] == "nano"
+    assert m["data"].startswith("simulated")
+    assert math.isfinite(m["rmse_fixed"]) and m["rmse_fixed"] < 5.0
+    map_keys = [k for k in m if k.startswith("map_")]
+    assert map_keys and "map_n_true" in m
+    assert m["map_n_true"] == cfg.sim.n_trees
+    traj = _trajectory(d)
+    assert traj[-1, 0] <= 30.0
+    assert (d / "map.csv").read_text().splitlines()[0] == "x,y,cov_xx,cov_xy,cov_yy,hits"
+
+
+def test_set_overrides_reach_the_run(default_run):
+    cwd, _ = default_run
+    (d,) = list((cwd / "results").iterdir())
+    _, written = _written_config(d)
+    assert written.filter.n_particles == 3
+    assert written.data.t_end == 30.0
+    assert yaml.safe_load((d / "config.yaml").read_text())["filter"]["n_particles"] == 3
+    assert _metrics(d)["n_particles"] == 3
+
+
+# --------------------------------------------------------------------------- dead reckoning on the real log
+
+
+@pytest.fixture(scope="module")
+def dr_real(vp_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("dr_real") / "out"
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(["run", str(DR_CONFIG), "--data", str(vp_dir), "--out", str(out), "--quiet"])
+    assert rc == 0
+    return out, buf.getvalue()
+
+
+def test_dead_reckoning_result_directory(dr_real, vp_dir):
+    out, stdout = dr_real
+    assert stdout.strip().splitlines()[-1] == str(out)
+    m = _check_result_dir(out, load_config(DR_CONFIG), filter_run=False)
+    assert m["method"] == "dead_reckoning"
+    assert m["data"] == str(vp_dir)
+    assert m["n_fixes"] > 4000
+    traj = _trajectory(out)
+    # the reported estimate and the mean coincide for dead reckoning; it starts at the origin
+    np.testing.assert_array_equal(traj[:, 1:4], traj[:, 4:7])
+    np.testing.assert_allclose(traj[0, 1:4], 0.0, atol=1e-9)
+
+
+def test_dead_reckoning_metrics_match_the_trajectory(dr_real, vp_dir):
+    out, _ = dr_real
+    m, traj = _metrics(out), _trajectory(out)
+    raw = load_victoria_park(vp_dir)
+    e = evaluate(traj[:, 0], traj[:, 1:3], raw.gps)
+    for k in ("rmse_fixed", "rmse_aligned", "max_error", "final_error"):
+        assert e[k] == pytest.approx(m[k], abs=1e-3), k
+    assert e["n_fixes"] == m["n_fixes"]
+
+
+def test_dead_reckoning_stays_near_gps_for_80_seconds(dr_real, vp_dir):
+    out, _ = dr_real
+    traj = _trajectory(out)
+    early = traj[traj[:, 0] <= 80.0]
+    raw = load_victoria_park(vp_dir)
+    e = evaluate(early[:, 0], early[:, 1:3], raw.gps)
+    # measured: rmse_aligned 1.51 m, rmse_fixed 2.69 m, max 4.5 m (the fixed frame's rotation is uncertain by ~2 deg)
+    assert e["n_fixes"] > 200
+    assert e["rmse_aligned"] < 2.5
+    assert e["rmse_fixed"] < 3.5
+    assert e["max_error"] < 6.0
+
+
+def test_dead_reckoning_drifts_to_order_150_m_over_the_run(dr_real):
+    out, _ = dr_real
+    m = _metrics(out)
+    # measured: rmse_fixed 149.3 m
+    assert 100.0 < m["rmse_fixed"] < 200.0
+    assert m["max_error"] > m["rmse_fixed"]
