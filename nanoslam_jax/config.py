@@ -114,7 +114,8 @@ class FilterConfig:
     n_particles: int = _f(10, lo=1, static=True)
     capacity: int = _f(512, lo=1, static=True, doc="landmark slots per particle")
     window: int = _f(64, lo=1, static=True,
-        doc="nearest landmarks per particle considered for association in a scan (local window)")
+        doc="landmarks per particle considered for association in a scan (local window)")
+    window_margin: float = _f(5.0, lo=0.0, doc="the window holds landmarks within max_range + this (m)")
     prior: Literal["unscented", "linearized"] = _f("unscented", static=True,
         doc="how control noise is mapped to the pose covariance")
     prior_cov: Literal["reset", "carry"] = _f("reset", static=True,

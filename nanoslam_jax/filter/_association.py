@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import inv2, quad_form
+from .._linalg import inv2, quad_form, sandwich
 from ..models import innovation, range_bearing, range_bearing_jacobians
 from ._landmarks import init_landmark
 from ._state import LandmarkMap
@@ -35,7 +35,7 @@ def predicted_measurements(
     """Predicted detection and innovation covariance ``Gx P Gx' + Gm Sigma Gm' + R`` of each slot."""
     z_hat = jax.vmap(range_bearing, (None, 0))(x, mean)
     Gx, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x, mean)
-    S = Gx @ P @ jnp.swapaxes(Gx, -1, -2) + Gm @ cov @ jnp.swapaxes(Gm, -1, -2) + R
+    S = sandwich(Gx, P) + sandwich(Gm, cov) + R
     return z_hat, S
 
 
@@ -90,17 +90,19 @@ def associate(
         is_new = z_mask & (best > new_landmark)
         return Association(jnp.where(matched, j, -1), is_new, jnp.where(z_mask, best, jnp.inf))
 
+    slots = jnp.arange(mean.shape[0])
+
     def body(avail, inp):
         k, zk, mk = inp
         d2 = jnp.where(avail, distances(zk), jnp.inf)
         j = jnp.argmin(d2)
-        best = d2[j]
+        best = jnp.min(d2)
         matched = mk & (best < gate)
         new = mk & (best > new_landmark)
-        avail = avail.at[j].set(avail[j] & ~matched)
-        avail = avail.at[window + k].set(new)
+        # One-hot updates (element-wise, fused) rather than scatters.
+        avail = (avail & ~((slots == j) & matched)) | ((slots == window + k) & new)
         return avail, (jnp.where(matched, j, -1), new, jnp.where(mk, best, jnp.inf))
 
-    avail0 = local.active.at[window:].set(False)
+    avail0 = local.active & (slots < window)
     _, (slot, is_new, d2) = jax.lax.scan(body, avail0, (jnp.arange(k_max), z, z_mask))
     return Association(slot, is_new, d2)

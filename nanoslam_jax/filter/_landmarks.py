@@ -1,7 +1,7 @@
 """Landmark map operations: the local window, EKF update, initialisation (eq. 16), write-back.
 
-A scan touches only landmarks near the particle. :func:`gather_window` copies the ``window``
-nearest active landmarks into a small local map, followed by one provisional slot per
+A scan touches only landmarks near the particle. :func:`gather_window` copies the (at most
+``window``) active landmarks within the sensor range plus a margin into a small local map, followed by one provisional slot per
 detection (slot ``window + k`` holds the landmark that detection ``k`` may create), so all
 per-detection work is over ``window + k_max`` slots instead of the full capacity;
 :func:`scatter_window` writes the local map back and places the new landmarks in free slots.
@@ -13,36 +13,41 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import inv2, sym
+from .._linalg import inv2, mm, mt, mv, sandwich, sym
 from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians
 from ._state import LandmarkMap
 
 
 def gather_window(
-    lm: LandmarkMap, position: Float[Array, "2"], window: int, k_max: int, max_range: Float[Array, ""]
+    lm: LandmarkMap, position: Float[Array, "2"], window: int, k_max: int, radius: Float[Array, ""]
 ) -> tuple[LandmarkMap, Int[Array, "window"], Int[Array, ""]]:
     """The local map of one particle.
 
     Args:
         lm: the particle's map (capacity slots).
         position: where the particle is (its prior mean position).
-        window: how many nearest landmarks to copy.
+        window: how many landmarks the local map holds.
         k_max: provisional slots appended (one per detection), empty.
-        max_range: sensor range; landmarks within ``max_range + 10`` m are counted.
+        radius: landmarks within this distance of ``position`` are copied (the sensor range
+            plus a margin for the pose uncertainty).
 
     Returns:
         The local map (``window + k_max`` slots), the global slot index of each of the first
-        ``window`` local slots, and how many landmarks near the particle did not fit the window
-        (0 unless the window is too small for the local landmark density).
+        ``window`` local slots (``capacity`` for unused ones), and how many landmarks within
+        ``radius`` did not fit the window (0 unless the window is too small for the local
+        landmark density; the lowest slots, i.e. the oldest landmarks, are kept).
     """
+    capacity = lm.active.shape[0]
     d2 = jnp.sum(jnp.square(lm.mean - position), axis=-1)
-    d2 = jnp.where(lm.active, d2, jnp.inf)
-    _, idx = jax.lax.top_k(-d2, window)
-    near = jnp.sum(d2 < jnp.square(max_range + 10.0))
-    local = jax.tree.map(lambda a: a[idx], lm)
+    near = lm.active & (d2 < jnp.square(radius))
+    # A compaction by slot order: O(capacity), unlike a top-k (a sort on CPU).
+    (idx,) = jnp.nonzero(near, size=window, fill_value=capacity)
+    local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
+    local = local._replace(active=idx < capacity,
+                           cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(2)))
     extra = LandmarkMap.empty(k_max)
     local = jax.tree.map(lambda a, b: jnp.concatenate([a, b], axis=0), local, extra)
-    return local, idx, jnp.maximum(near - window, 0)
+    return local, idx, jnp.maximum(jnp.sum(near) - window, 0)
 
 
 def scatter_window(
@@ -59,7 +64,7 @@ def scatter_window(
     """
     window = idx.shape[0]
     capacity = lm.active.shape[0]
-    lm = jax.tree.map(lambda g, l: g.at[idx].set(l[:window]), lm, local)
+    lm = jax.tree.map(lambda g, l: g.at[idx].set(l[:window], mode="drop"), lm, local)
     k_max = is_new.shape[0]
     (free,) = jnp.nonzero(~lm.active, size=k_max, fill_value=capacity)
     order = jnp.clip(jnp.cumsum(is_new) - 1, 0, k_max - 1)
@@ -75,7 +80,7 @@ def init_landmark(
     m = inverse_range_bearing(x, z)
     _, Gm = range_bearing_jacobians(x, m)
     Gi = inv2(Gm)
-    return m, sym(Gi @ R @ Gi.T)
+    return m, sym(sandwich(Gi, R))
 
 
 def ekf_update(
@@ -84,7 +89,7 @@ def ekf_update(
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""
     z_hat = range_bearing(x, mean)
     _, Gm = range_bearing_jacobians(x, mean)
-    S = Gm @ cov @ Gm.T + R
-    K = cov @ Gm.T @ inv2(S)
-    IKG = jnp.eye(2) - K @ Gm
-    return mean + K @ innovation(z, z_hat), sym(IKG @ cov @ IKG.T + K @ R @ K.T)
+    S = sandwich(Gm, cov) + R
+    K = mm(mm(cov, mt(Gm)), inv2(S))
+    IKG = jnp.eye(2) - mm(K, Gm)
+    return mean + mv(K, innovation(z, z_hat)), sym(sandwich(IKG, cov) + sandwich(K, R))

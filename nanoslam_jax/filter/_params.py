@@ -65,7 +65,9 @@ class Params(NamedTuple):
         step: NANO natural-gradient step (1 = undamped).
         nano_alpha, nano_beta, nano_kappa: unscented parameters of the NANO quadrature.
         prune_threshold: existence score (hits - misses) below which a landmark is removed.
-        max_range: sensor range (m), used by pruning and the window-overflow count.
+        max_range: sensor range (m), used by the local window and pruning.
+        window_margin: landmarks within ``max_range + window_margin`` of a particle's prior
+            position enter its local window (m).
         half_fov: half the field of view (rad), used by pruning.
     """
 
@@ -89,6 +91,7 @@ class Params(NamedTuple):
     nano_kappa: Float[ArrayLike, ""]
     prune_threshold: Float[ArrayLike, ""]
     max_range: Float[ArrayLike, ""]
+    window_margin: Float[ArrayLike, ""]
     half_fov: Float[ArrayLike, ""]
 
     @property
@@ -126,7 +129,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         gate=a(f.gate), new_landmark=a(f.new_landmark), log_p0=a(math.log(f.p0)),
         resample_threshold=a(f.resample_threshold), gamma=a(n.gamma), step=a(n.step),
         nano_alpha=a(n.ut_alpha), nano_beta=a(n.ut_beta), nano_kappa=a(n.ut_kappa),
-        prune_threshold=a(f.prune_threshold), max_range=a(cfg.data.max_range),
+        prune_threshold=a(f.prune_threshold), max_range=a(cfg.data.max_range), window_margin=a(f.window_margin),
         half_fov=a(math.radians(f.fov_deg) / 2),
     )
     return static, params

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key
 
-from .._linalg import chol3, gaussian_logpdf, sym
+from .._linalg import chol3, gaussian_logpdf, mv
 from ..data import Segments
 from ..models import circular_mean, innovation, range_bearing, wrap_angle
 from ..proposals import AbstractProposal, Detections
@@ -89,7 +89,7 @@ def particle_update(
     P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
     x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
 
-    local, idx, window_overflow = gather_window(lm, x0[:2], W, K, params.max_range)
+    local, idx, window_overflow = gather_window(lm, x0[:2], W, K, params.max_range + params.window_margin)
     assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential)
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
@@ -98,7 +98,7 @@ def particle_update(
 
     prop = proposal(x0, P0, det, R)
     eps = jax.random.normal(key, (3,), dtype=x0.dtype)
-    x_s = prop.mean + chol3(prop.cov) @ eps
+    x_s = prop.mean + mv(chol3(prop.cov), eps)
     x_s = x_s.at[2].set(wrap_angle(x_s[2]))
 
     # Weight of the associations with existing landmarks (eq. 17, or the marginal at the prior).
@@ -192,13 +192,14 @@ def filter_step(
     )
 
     def do_resample(args):
-        parts, b = args
+        parts, _ = args
         anc = resample(static.resampler, k_res, parts.log_w)
+        # A copy of the best particle if it survived (always, for systematic and residual
+        # resampling, since its weight is >= 1/N), else the best survivor.
+        best_after = jnp.argmax(parts.log_w[anc]).astype(jnp.int32)
         parts = jax.tree.map(lambda a: a[anc], parts)
         parts = parts._replace(log_w=jnp.full((n,), -jnp.log(n), dtype=parts.log_w.dtype))
-        # The best particle survives systematic/stratified/residual resampling (weight >= 1/N).
-        hit = anc == b
-        return parts, jnp.where(jnp.any(hit), jnp.argmax(hit), 0).astype(jnp.int32)
+        return parts, best_after
 
     particles, best = jax.lax.cond(record.resampled, do_resample, lambda a: a, (particles, best))
     new_state = FilterState(

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import inv2
+from .._linalg import inv2, sandwich
 from ..models import innovation, range_bearing, range_bearing_jacobians, wrap_angle
 
 
@@ -85,4 +85,4 @@ def noise_information(x0: Float[Array, "3"], det: Detections, R: Float[Array, "2
     if not landmark_noise:
         return jnp.broadcast_to(inv2(R), det.cov.shape)
     _, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x0, det.mean)
-    return inv2(Gm @ det.cov @ jnp.swapaxes(Gm, -1, -2) + R)
+    return inv2(sandwich(Gm, det.cov) + R)

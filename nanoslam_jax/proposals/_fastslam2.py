@@ -6,7 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._linalg import inv3, sym
+from .._linalg import inv3, mm, mt, mv, sym
 from ._base import AbstractProposal, Detections, ProposalResult, noise_information, range_bearing_residuals, wrap_pose
 
 
@@ -24,8 +24,9 @@ class LinearizedProposal(AbstractProposal):
         W = noise_information(x0, det, R, self.landmark_noise) * det.mask[:, None, None]
         r = residual(x0)
         J = jax.jacfwd(residual)(x0)  # d r / d x = -Gx
-        lam = sym(inv3(P0) + jnp.einsum("kdn,kde,kem->nm", J, W, J))
+        JtW = mm(mt(J), W)
+        lam = sym(inv3(P0) + jnp.sum(mm(JtW, J), axis=0))
         P = sym(inv3(lam))
-        x = wrap_pose(x0 - P @ jnp.einsum("kdn,kde,ke->n", J, W, r))
+        x = wrap_pose(x0 - mv(P, jnp.sum(mv(JtW, r), axis=0)))
         zero = jnp.zeros((), jnp.int32)
         return ProposalResult(x, P, zero, zero)

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int, PyTree
 
-from .._linalg import chol3, inv3, logdet_spd, sym
+from .._linalg import chol3, inv3, logdet_spd, mm, mt, mv, quad_form, sym
 from ..quadrature import QuadratureRule
 
 
@@ -52,9 +52,10 @@ def kl_gaussian(q: Gaussian, p: Gaussian, diff: Callable = jnp.subtract) -> Floa
     """``KL(q || p)`` for Gaussians given with precisions."""
     n = q.mean.shape[-1]
     d = diff(p.mean, q.mean)
-    return 0.5 * (
-        jnp.trace(p.precision @ q.cov) - n + d @ p.precision @ d + _logdet(q.precision) - _logdet(p.precision)
-    )
+    # Clamped at 0: near convergence round-off can make the value slightly negative.
+    return jnp.maximum(0.0, 0.5 * (
+        jnp.sum(p.precision * mt(q.cov)) - n + quad_form(d, p.precision) + _logdet(q.precision) - _logdet(p.precision)
+    ))
 
 
 def expected_grad_hess(
@@ -77,23 +78,23 @@ def expected_grad_hess(
     """
     n = q.mean.shape[-1]
     xi, wm, _ = rule.unit_points(n)
-    X = q.mean + xi @ _chol(q.cov).T
+    X = q.mean + mm(xi, mt(_chol(q.cov)))
     Wm = weights * mask[:, None, None]
 
     def at_point(x):
         r = residual(x)
         J = jax.jacfwd(residual)(x)  # (k, d, n)
-        Wr = jnp.einsum("kde,ke->kd", Wm, r)
-        g = jnp.einsum("kdn,kd->n", J, Wr)
+        JtW = mm(mt(J), Wm)  # (k, n, d)
+        g = jnp.sum(mv(JtW, r), axis=0)
         if hessian == "exact":
-            nll = lambda y: 0.5 * jnp.sum(residual(y) * jnp.einsum("kde,ke->kd", Wm, residual(y)))  # noqa: E731
+            nll = lambda y: 0.5 * jnp.sum(residual(y) * mv(Wm, residual(y)))  # noqa: E731
             H = jax.hessian(nll)(x)
         else:
-            H = jnp.einsum("kdn,kde,kem->nm", J, Wm, J)
+            H = jnp.sum(mm(JtW, J), axis=0)
         return g, H
 
     g, H = jax.vmap(at_point)(X)
-    return wm @ g, sym(jnp.einsum("i,inm->nm", wm, H))
+    return jnp.sum(wm[:, None] * g, axis=0), sym(jnp.sum(wm[:, None, None] * H, axis=0))
 
 
 def _guard_pd(precision: Float[Array, "n n"], floor: Float[Array, "n n"]) -> Float[Array, "n n"]:
@@ -125,7 +126,7 @@ class NaturalGradientProblem(eqx.Module):
         if self.hessian == "exact":
             lam_new = _guard_pd(lam_new, L0)
         P_new = _inv(lam_new)
-        x_new = self.project(x - self.step * P_new @ (Eg + L0 @ self.diff(x, self.prior.mean)))
+        x_new = self.project(x - self.step * mv(P_new, Eg + mv(L0, self.diff(x, self.prior.mean))))
         return x_new, lam_new
 
 
