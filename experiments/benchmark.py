@@ -28,7 +28,7 @@ ROWS: dict[str, list[str]] = {
     "nano-N1000": ["filter.n_particles=1000"],
     "nano-N10-cap256": ["filter.capacity=256"],
     "nano-N10-cap1024": ["filter.capacity=1024"],
-    "nano-N10-while_loop": ["nano.solver=while_loop"],
+    "nano-N10-optimistix": ["nano.solver=optimistix"],
     "fastslam1-N10": ["filter.method=fastslam1"],
     "fastslam2-N10": ["filter.method=fastslam2"],
 }

@@ -11,19 +11,37 @@ from jaxtyping import Array, Float
 _TINY = 1e-300
 
 
-def mm(a: Float[Array, "... n k"], b: Float[Array, "... k m"]) -> Float[Array, "... n m"]:
-    """Matrix product of tiny matrices as a broadcast multiply-and-sum.
+def _stack2d(rows):
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
-    XLA:CPU lowers ``a @ b`` to a separate dot kernel per call; for 2x2/3x3 operands the call
-    overhead dwarfs the work, while a multiply-and-sum fuses with the surrounding element-wise
-    code into one loop.
+
+def mm(a: Float[Array, "... n k"], b: Float[Array, "... k m"]) -> Float[Array, "... n m"]:
+    """Matrix product of tiny matrices, written element by element.
+
+    Each output element is a sum of products of batch-shaped arrays, stacked at the end, so all
+    arithmetic runs along the (long) batch axes. XLA:CPU vectorises the innermost axis: a batched
+    ``@`` or a broadcast-and-sum keeps the tiny 2-3 wide matrix axes innermost and runs several
+    times slower for 2x2/3x3 operands.
     """
-    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+    n, k, m = a.shape[-2], a.shape[-1], b.shape[-1]
+    return _stack2d([[sum(a[..., i, l] * b[..., l, j] for l in range(k)) for j in range(m)] for i in range(n)])
+
+
+def mmt(a: Float[Array, "... n k"], b: Float[Array, "... m k"]) -> Float[Array, "... n m"]:
+    """``A B'`` for tiny matrices (see :func:`mm`)."""
+    n, k, m = a.shape[-2], a.shape[-1], b.shape[-2]
+    return _stack2d([[sum(a[..., i, l] * b[..., j, l] for l in range(k)) for j in range(m)] for i in range(n)])
 
 
 def mv(a: Float[Array, "... n k"], v: Float[Array, "... k"]) -> Float[Array, "... n"]:
     """Matrix-vector product of tiny operands (see :func:`mm`)."""
-    return jnp.sum(a * v[..., None, :], axis=-1)
+    n, k = a.shape[-2], a.shape[-1]
+    return jnp.stack([sum(a[..., i, l] * v[..., l] for l in range(k)) for i in range(n)], axis=-1)
+
+
+def dot(u: Float[Array, "... n"], v: Float[Array, "... n"]) -> Float[Array, "..."]:
+    """Inner product over a tiny last axis (see :func:`mm`)."""
+    return sum(u[..., l] * v[..., l] for l in range(u.shape[-1]))
 
 
 def mt(a: Float[Array, "... n m"]) -> Float[Array, "... m n"]:
@@ -33,7 +51,7 @@ def mt(a: Float[Array, "... n m"]) -> Float[Array, "... m n"]:
 
 def sandwich(a: Float[Array, "... n k"], b: Float[Array, "... k k"]) -> Float[Array, "... n n"]:
     """``A B A'`` for tiny matrices (see :func:`mm`)."""
-    return mm(mm(a, b), mt(a))
+    return mmt(mm(a, b), a)
 
 
 def sym(a: Float[Array, "... n n"]) -> Float[Array, "... n n"]:
@@ -113,7 +131,7 @@ def logdet_spd(a: Float[Array, "... n n"]) -> Float[Array, "..."]:
 
 def quad_form(v: Float[Array, "... n"], a: Float[Array, "... n n"]) -> Float[Array, "..."]:
     """``v' A v``."""
-    return jnp.sum(v[..., :, None] * a * v[..., None, :], axis=(-2, -1))
+    return dot(v, mv(a, v))
 
 
 def gaussian_logpdf(nu: Float[Array, "... 2"], s: Float[Array, "... 2 2"]) -> Float[Array, "..."]:

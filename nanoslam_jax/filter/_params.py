@@ -40,7 +40,7 @@ class Static:
     max_iter: int = 10
     landmark_noise: bool = False
     nano_init: str = "prior"
-    nano_solver: str = "optimistix"
+    nano_solver: str = "while_loop"
 
     @property
     def window_size(self) -> int:

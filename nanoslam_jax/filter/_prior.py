@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._linalg import chol3, mm, mt, sandwich, sym
+from .._linalg import chol3, mm, mmt, mt, mv, sandwich, sym
 from ..models import vehicle_jacobians, vehicle_step, wrap_angle
 from ..quadrature import Unscented
 from ._params import Params
@@ -16,15 +16,15 @@ def _ut_piece(x, P, u, dt, params: Params):
     """Unscented transform over the augmented state (pose, control noise) for one DR piece."""
     xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(5)
     sq = jnp.stack([params.sigma_v, params.sigma_alpha])
-    pose_pts = x + mm(xi[:, :3], mt(chol3(P)))
+    pose_pts = x + mmt(xi[:, :3], chol3(P))
     ctrl_pts = u + xi[:, 3:] * sq
     f = lambda xp, up: vehicle_step(xp, up, dt, params.vehicle)  # noqa: E731
     centre = f(x, u)
     y = jax.vmap(f)(pose_pts, ctrl_pts)
     dev = (y - centre).at[:, 2].set(wrap_angle(y[:, 2] - centre[2]))
-    delta = jnp.sum(wm[:, None] * dev, axis=0)
+    delta = mv(mt(dev), wm)
     d = dev - delta
-    cov = jnp.sum(wc[:, None, None] * d[:, :, None] * d[:, None, :], axis=0)
+    cov = mm(mt(d) * wc, d)
     mean = (centre + delta).at[2].set(wrap_angle(centre[2] + delta[2]))
     return mean, sym(cov)
 

@@ -42,7 +42,7 @@ class NanoProposal(AbstractProposal):
     hessian: str = eqx.field(static=True, default="gauss_newton")
     landmark_noise: bool = eqx.field(static=True, default=False)
     init: str = eqx.field(static=True, default="prior")
-    solver: str = eqx.field(static=True, default="optimistix")
+    solver: str = eqx.field(static=True, default="while_loop")
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         prior = Gaussian(x0, sym(inv3(P0)), P0)
