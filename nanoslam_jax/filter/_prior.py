@@ -7,20 +7,32 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from .._linalg import chol3, mm, mmt, mt, mv, sandwich, sym
-from ..models import vehicle_jacobians, vehicle_step, wrap_angle
+from ..models import vehicle_jacobians, vehicle_move, vehicle_rates, vehicle_step, wrap_angle
 from ..quadrature import Unscented
 from ._params import Params
 
 
 def _ut_piece(x, P, u, dt, params: Params):
-    """Unscented transform over the augmented state (pose, control noise) for one DR piece."""
+    """Unscented transform over the augmented state (pose, control noise) for one DR piece.
+
+    The augmented covariance is block-diagonal, so each sigma point of the rule (the centre and
+    ``+-s`` along each Cholesky column) perturbs either the pose or the controls: the 11 points
+    hold only 7 distinct poses and 5 distinct controls. The vehicle model is split accordingly
+    (:func:`vehicle_rates` per distinct control, :func:`vehicle_move` per point), which halves
+    the transcendental functions evaluated; the moments are those of the full rule.
+    """
     xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(5)
-    sq = jnp.stack([params.sigma_v, params.sigma_alpha])
-    pose_pts = x + mmt(xi[:, :3], chol3(P))
-    ctrl_pts = u + xi[:, 3:] * sq
-    f = lambda xp, up: vehicle_step(xp, up, dt, params.vehicle)  # noqa: E731
-    centre = f(x, u)
-    y = jax.vmap(f)(pose_pts, ctrl_pts)
+    s = xi[1, 0]  # the rule's points: centre, then +s e_i, then -s e_i (i = 0..4)
+    dxs = s * mt(chol3(P))  # row i: s L[:, i]
+    poses = jnp.concatenate([x[None], x + dxs, x - dxs])  # centre, +pose axes, -pose axes
+    du = s * jnp.stack([params.sigma_v, params.sigma_alpha])
+    ctrl = jnp.stack([u, u.at[0].add(du[0]), u.at[1].add(du[1]), u.at[0].add(-du[0]), u.at[1].add(-du[1])])
+    rates = jax.vmap(vehicle_rates, (0, None))(ctrl, params.vehicle)
+    y_pose = jax.vmap(vehicle_move, (0, None, None, None))(poses, rates[0], dt, params.vehicle)
+    y_ctrl = jax.vmap(vehicle_move, (None, 0, None, None))(x, rates[1:], dt, params.vehicle)
+    # Rule order: centre, +pose(3), +ctrl(2), -pose(3), -ctrl(2).
+    y = jnp.concatenate([y_pose[:4], y_ctrl[:2], y_pose[4:], y_ctrl[2:]])
+    centre = y[0]
     dev = (y - centre).at[:, 2].set(wrap_angle(y[:, 2] - centre[2]))
     delta = mv(mt(dev), wm)
     d = dev - delta

@@ -12,5 +12,7 @@ from ._vehicle import (
     VehicleParams as VehicleParams,
     centre_speed as centre_speed,
     vehicle_jacobians as vehicle_jacobians,
+    vehicle_move as vehicle_move,
+    vehicle_rates as vehicle_rates,
     vehicle_step as vehicle_step,
 )

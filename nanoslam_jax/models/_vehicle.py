@@ -36,6 +36,26 @@ def centre_speed(ve: Float[ArrayLike, ""], alpha: Float[ArrayLike, ""], params: 
     return ve / (1.0 - jnp.tan(alpha) * params.encoder_offset / params.wheelbase)
 
 
+def vehicle_rates(u: Float[ArrayLike, "2"], params: VehicleParams) -> Float[Array, "2"]:
+    """Centre speed and yaw rate ``(vc, vc tan(alpha) / L)`` from the controls ``u = (ve, alpha)``."""
+    u = jnp.asarray(u)
+    vc = centre_speed(u[0], u[1], params)
+    return jnp.stack([vc, vc / params.wheelbase * jnp.tan(u[1])])
+
+
+def vehicle_move(
+    x: Float[ArrayLike, "3"], rates: Float[ArrayLike, "2"], dt: Float[ArrayLike, ""], params: VehicleParams
+) -> Float[Array, "3"]:
+    """Move the laser pose over ``dt`` at the given :func:`vehicle_rates` (heading wrapped)."""
+    x, rates = jnp.asarray(x), jnp.asarray(rates)
+    vc, w = rates[0], rates[1]
+    a, b = params.laser_a, params.laser_b
+    s, c = jnp.sin(x[2]), jnp.cos(x[2])
+    dx = vc * c - w * (a * s + b * c)
+    dy = vc * s + w * (a * c - b * s)
+    return jnp.stack([x[0] + dt * dx, x[1] + dt * dy, wrap_angle(x[2] + dt * w)])
+
+
 def vehicle_step(
     x: Float[ArrayLike, "3"],
     u: Float[ArrayLike, "2"],
@@ -53,16 +73,7 @@ def vehicle_step(
     Returns:
         The new pose, heading wrapped to (-pi, pi].
     """
-    x, u = jnp.asarray(x), jnp.asarray(u)
-    px, py, phi = x[0], x[1], x[2]
-    ve, alpha = u[0], u[1]
-    vc = centre_speed(ve, alpha, params)
-    w = vc / params.wheelbase * jnp.tan(alpha)
-    a, b = params.laser_a, params.laser_b
-    s, c = jnp.sin(phi), jnp.cos(phi)
-    dx = vc * c - w * (a * s + b * c)
-    dy = vc * s + w * (a * c - b * s)
-    return jnp.stack([px + dt * dx, py + dt * dy, wrap_angle(phi + dt * w)])
+    return vehicle_move(x, vehicle_rates(u, params), dt, params)
 
 
 def vehicle_jacobians(
