@@ -42,13 +42,7 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
 
 def _masked_step(static: Static, params: Params, state: FilterState, inp: tuple[Segments, Bool[Array, ""]]):
     seg, valid = inp
-    proposal = make_proposal(static, params)
-    step = lambda s: filter_step(static, params, proposal, s, seg)  # noqa: E731
-
-    def skip(s):
-        return s, jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(step, s)[1])
-
-    return jax.lax.cond(valid, step, skip, state)
+    return filter_step(static, params, make_proposal(static, params), state, seg, valid)
 
 
 def filter_scan(

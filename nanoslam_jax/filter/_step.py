@@ -82,8 +82,13 @@ def particle_update(
     z: Float[Array, "k 2"],
     z_mask: Bool[Array, "k"],
     key: Key[Array, ""],
+    valid: Bool[Array, ""] = True,
 ) -> _ParticleOut:
-    """Prior, association, proposal, sampling, landmark updates and weight of one particle."""
+    """Prior, association, proposal, sampling, landmark updates and weight of one particle.
+
+    ``valid`` False marks a padding segment: pruning then counts no misses (the caller masks the
+    pose and weight; with no detections the map is unchanged).
+    """
     R = params.R
     W, K = static.window_size - static.k_max, static.k_max
     P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
@@ -135,7 +140,7 @@ def particle_update(
         seen = jnp.zeros(W + K, bool).at[target].set(True, mode="drop")
         zl = jax.vmap(range_bearing, (None, 0))(x_s, local.mean)
         in_view = (zl[:, 0] < params.max_range) & (jnp.abs(zl[:, 1]) < params.half_fov)
-        missed = local.active & in_view & ~seen & (jnp.arange(W + K) < W)
+        missed = valid & local.active & in_view & ~seen & (jnp.arange(W + K) < W)
         misses = local.misses + missed.astype(jnp.int32)
         keep = (local.hits - misses) >= params.prune_threshold
         local = local._replace(misses=misses, active=local.active & keep)
@@ -157,20 +162,33 @@ def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, "n"]) -> F
 
 
 def filter_step(
-    static: Static, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments
+    static: Static, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
+    valid: Bool[Array, ""] = True,
 ) -> tuple[FilterState, StepOutput]:
-    """Advance the particle set through one segment."""
+    """Advance the particle set through one segment.
+
+    A padding segment (``valid`` False; it has no detections and ``dt = 0``) leaves the state
+    unchanged: its maps are untouched already, and the poses, weights and resampling decision
+    are masked here (small arrays), which is cheaper than a conditional around the whole step.
+    """
     n = static.n_particles
     key, k_part, k_res = jax.random.split(state.key, 3)
     p = state.particles
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0))(
+    valid = jnp.asarray(valid)
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None))(
         static, params, proposal, p.pose, p.pose_cov, p.landmarks,
-        seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, jax.random.split(k_part, n),
+        seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, jax.random.split(k_part, n), valid,
+    )
+    out = out._replace(
+        pose=jnp.where(valid, out.pose, p.pose),
+        pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),
+        dlogw=jnp.where(valid, out.dlogw, 0.0),
     )
     log_w = p.log_w + out.dlogw
     finite = jnp.any(jnp.isfinite(log_w))
     log_w = jnp.where(jnp.isnan(log_w), -jnp.inf, log_w)
     log_w = jnp.where(finite, normalise(log_w), jnp.full((n,), -jnp.log(n)))
+    log_w = jnp.where(valid, log_w, p.log_w)
     ess = effective_sample_size(log_w)
     best = jnp.argmax(log_w).astype(jnp.int32)
     particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks)
@@ -179,7 +197,7 @@ def filter_step(
         best_pose=out.pose[best],
         mean_pose=weighted_mean_pose(out.pose, log_w),
         ess=ess,
-        resampled=ess < params.resample_threshold * n,
+        resampled=valid & (ess < params.resample_threshold * n),
         n_landmarks=count_landmarks(out.landmarks)[best].astype(jnp.int32),
         iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
         n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
