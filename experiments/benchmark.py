@@ -8,8 +8,10 @@ full Victoria Park log unless ``--segments`` cuts it, float64, after compilation
     python experiments/benchmark.py --segments 1000      # quick look on the first 1000 scans
 
 Rows: NANO with 10, 100 and 1000 particles (capacity 512), NANO at 10 particles with capacities
-256, 512 and 1024 (cost per scan should grow only by the capacity's linear term), and the other
-particle methods at 10 particles.
+256, 512 and 1024 (cost per scan should grow only by the capacity's linear term), NANO at 10
+particles in one compiled call (no chunks: the cost of the progress reporting), with the
+optimistix fixed-point solver instead of the while_loop, and the other particle methods at 10
+particles.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ ROWS: dict[str, list[str]] = {
     "nano-N1000": ["filter.n_particles=1000"],
     "nano-N10-cap256": ["filter.capacity=256"],
     "nano-N10-cap1024": ["filter.capacity=1024"],
+    "nano-N10-onechunk": ["output.chunk=100000"],
     "nano-N10-optimistix": ["nano.solver=optimistix"],
     "fastslam1-N10": ["filter.method=fastslam1"],
     "fastslam2-N10": ["filter.method=fastslam2"],

@@ -195,7 +195,7 @@ class OutputConfig:
 
     plots: bool = _f(True, static=True)
     progress: bool = _f(True, static=True, doc="show a progress indicator")
-    chunk: int = _f(500, lo=1, static=True, doc="segments per compiled chunk (progress granularity)")
+    chunk: int = _f(1000, lo=1, static=True, doc="segments per compiled chunk (progress granularity)")
 
 
 @dataclass(frozen=True)

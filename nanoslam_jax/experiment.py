@@ -13,6 +13,7 @@ import json
 import math
 import platform
 import sys
+import time
 from pathlib import Path
 from typing import Optional
 
@@ -135,8 +136,6 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
 
     landmarks = None
     if cfg.filter.method == "dead_reckoning":
-        import time
-
         t0 = time.perf_counter()
         poses = np.asarray(jax.block_until_ready(dead_reckoning(params, seg)))
         metrics.update(run_s=time.perf_counter() - t0)

@@ -342,3 +342,19 @@ def test_scatter_overflow_is_counted(n_active, n_new, expect_overflow):
     # Existing landmarks were not overwritten.
     act = np.asarray(lm.active)
     np.testing.assert_array_equal(np.asarray(back.mean)[act], np.asarray(lm.mean)[act])
+
+
+@pytest.mark.parametrize("n_active,n_new", [(0, 2), (4, 3), (CAP - 2, 3), (CAP, 1)])
+def test_contiguous_placement_equals_free_slot_search_on_prefix_maps(n_active, n_new):
+    """Without pruning the active slots are a prefix: placing new landmarks after them must give
+    exactly what the general free-slot search gives (including the overflow count)."""
+    lm = full_map(CAP, seed=3)
+    lm = lm._replace(active=jnp.asarray(np.arange(CAP) < n_active))
+    local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, K, jnp.asarray(1000.0))
+    is_new = jnp.asarray(np.arange(K) < n_new)
+    local = local._replace(mean=local.mean.at[W:].set(jnp.asarray([[50.0, 1.0], [51.0, 2.0], [52.0, 3.0]])),
+                           active=local.active.at[W:].set(is_new))
+    a, ov_a = scatter_window(lm, local, idx, is_new, contiguous=False)
+    b, ov_b = jax.jit(scatter_window, static_argnums=4)(lm, local, idx, is_new, True)
+    assert int(ov_a) == int(ov_b) == max(n_active + n_new - CAP, 0)
+    assert_maps_equal(a, b)

@@ -51,13 +51,21 @@ def gather_window(
 
 
 def scatter_window(
-    lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"], is_new: Bool[Array, "k_max"]
+    lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"], is_new: Bool[Array, "k_max"],
+    contiguous: bool = False,
 ) -> tuple[LandmarkMap, Int[Array, ""]]:
     """Write a local map back into the particle's map.
 
     The first ``window`` local slots return to their slots; the provisional slot of each new
     landmark goes to the next free slot. New landmarks that find no free slot are dropped and
     counted (overflow), never silently.
+
+    Args:
+        lm, local, idx: the particle's map, its local map and the window index.
+        is_new: which provisional slots hold new landmarks.
+        contiguous: the active slots are a prefix of the map (always so without pruning, since
+            landmarks are only added): the free slots then start at the active count, which
+            avoids a search over the whole capacity.
 
     Returns:
         The updated map and the number of landmarks dropped for lack of capacity.
@@ -66,8 +74,12 @@ def scatter_window(
     capacity = lm.active.shape[0]
     lm = jax.tree.map(lambda g, l: g.at[idx].set(l[:window], mode="drop"), lm, local)
     k_max = is_new.shape[0]
-    (free,) = jnp.nonzero(~lm.active, size=k_max, fill_value=capacity)
     order = jnp.clip(jnp.cumsum(is_new) - 1, 0, k_max - 1)
+    if contiguous:
+        free = jnp.sum(lm.active) + jnp.arange(k_max)
+        free = jnp.where(free < capacity, free, capacity)
+    else:
+        (free,) = jnp.nonzero(~lm.active, size=k_max, fill_value=capacity)
     target = jnp.where(is_new, free[order], capacity)
     lm = jax.tree.map(lambda g, l: g.at[target].set(l[window:], mode="drop"), lm, local)
     return lm, jnp.sum(is_new & (target == capacity))

@@ -145,7 +145,7 @@ def particle_update(
         keep = (local.hits - misses) >= params.prune_threshold
         local = local._replace(misses=misses, active=local.active & keep)
 
-    lm, overflow = scatter_window(lm, local, idx, assoc.is_new)
+    lm, overflow = scatter_window(lm, local, idx, assoc.is_new, contiguous=not static.prune)
     has_assoc = jnp.any(existing)
     return _ParticleOut(
         pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,

@@ -17,6 +17,7 @@ from ._base import (
     range_bearing_residuals,
     wrap_pose,
 )
+from ._iterated import gauss_newton_map
 from ._natural_gradient import Gaussian, natural_gradient_gaussian
 
 
@@ -50,8 +51,6 @@ class NanoProposal(AbstractProposal):
         weights = noise_information(x0, det, R, self.landmark_noise)
         start = None
         if self.init == "gauss_newton":
-            from ._iterated import gauss_newton_map
-
             start = gauss_newton_map(prior, residual, weights, det.mask, max_iter=self.max_iter)
         out = natural_gradient_gaussian(
             prior, residual, weights, det.mask, self.rule, gamma=self.gamma, step=self.step,
