@@ -22,9 +22,9 @@ import numpy as np
 import yaml
 
 from ._version import __version__
-from .config import Config, config_to_dict, resolve_data_dir
+from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
-from .filter import dead_reckoning, run_filter, settings_from_config, text_progress
+from .filter import AVAILABLE_METHODS, dead_reckoning, run_filter, settings_from_config, text_progress
 from .metrics import error_over_time, evaluate, landmark_errors, relative_gps
 
 
@@ -122,6 +122,9 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     Raises:
         FloatingPointError: if the estimate became non-finite (the metrics are still written).
     """
+    if cfg.filter.method not in AVAILABLE_METHODS:
+        raise ConfigError(f"key 'filter.method': {cfg.filter.method!r} is not available yet; "
+                          f"available: {', '.join(AVAILABLE_METHODS)}")
     log = load_log(cfg, data_dir)  # before creating anything: a bad log leaves no directory behind
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -358,3 +358,13 @@ def test_dead_reckoning_drifts_to_order_150_m_over_the_run(dr_real):
     # measured: rmse_fixed 149.3 m
     assert 100.0 < m["rmse_fixed"] < 200.0
     assert m["max_error"] > m["rmse_fixed"]
+
+
+def test_method_not_available_yet_is_a_clear_error(tmp_path, capsys):
+    out = tmp_path / "never"
+    code = main(["run", "--out", str(out), "--set", "filter.method=ufastslam"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "filter.method" in err and "ufastslam" in err and "available" in err
+    assert "Traceback" not in err
+    assert not out.exists()

@@ -16,6 +16,7 @@ from ._resampling import (
     resample as resample,
 )
 from ._scan import (
+    AVAILABLE_METHODS as AVAILABLE_METHODS,
     FilterRun as FilterRun,
     dead_reckoning as dead_reckoning,
     filter_scan as filter_scan,

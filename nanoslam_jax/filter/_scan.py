@@ -26,6 +26,10 @@ from ._state import FilterState, init_state
 from ._step import StepOutput, filter_step
 
 
+#: Methods that run today (the config also names the comparison methods still to come).
+AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2")
+
+
 def make_proposal(static: Static, params: Params) -> AbstractProposal:
     """The proposal of ``static.method`` with its traced hyperparameters from ``params``."""
     if static.method == "nano":
@@ -37,7 +41,7 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
         return PriorProposal()
     if static.method == "fastslam2":
         return LinearizedProposal(landmark_noise=True)
-    raise NotImplementedError(f"filter.method: {static.method!r} is not available as a particle proposal yet")
+    raise ValueError(f"filter.method: {static.method!r} is not available yet; available: {', '.join(AVAILABLE_METHODS)}")
 
 
 def _masked_step(static: Static, params: Params, state: FilterState, inp: tuple[Segments, Bool[Array, ""]]):
