@@ -349,7 +349,8 @@ def test_contiguous_placement_equals_free_slot_search_on_prefix_maps(n_active, n
     """Without pruning the active slots are a prefix: placing new landmarks after them must give
     exactly what the general free-slot search gives (including the overflow count)."""
     lm = full_map(CAP, seed=3)
-    lm = lm._replace(active=jnp.asarray(np.arange(CAP) < n_active))
+    # Without pruning the active slots are a prefix and no landmark ever has misses.
+    lm = lm._replace(active=jnp.asarray(np.arange(CAP) < n_active), misses=jnp.zeros(CAP, jnp.int32))
     local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, K, jnp.asarray(1000.0))
     is_new = jnp.asarray(np.arange(K) < n_new)
     local = local._replace(mean=local.mean.at[W:].set(jnp.asarray([[50.0, 1.0], [51.0, 2.0], [52.0, 3.0]])),

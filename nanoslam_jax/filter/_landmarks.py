@@ -72,7 +72,11 @@ def scatter_window(
     """
     window = idx.shape[0]
     capacity = lm.active.shape[0]
-    lm = jax.tree.map(lambda g, l: g.at[idx].set(l[:window], mode="drop"), lm, local)
+    # Without pruning a scan changes only the window's means, covariances and hits, and a free
+    # slot already holds zero misses: fewer fields to scatter.
+    back = ("mean", "cov", "hits") if contiguous else LandmarkMap._fields
+    new_fields = ("mean", "cov", "active", "hits") if contiguous else LandmarkMap._fields
+    lm = lm._replace(**{f: getattr(lm, f).at[idx].set(getattr(local, f)[:window], mode="drop") for f in back})
     k_max = is_new.shape[0]
     order = jnp.clip(jnp.cumsum(is_new) - 1, 0, k_max - 1)
     if contiguous:
@@ -81,7 +85,7 @@ def scatter_window(
     else:
         (free,) = jnp.nonzero(~lm.active, size=k_max, fill_value=capacity)
     target = jnp.where(is_new, free[order], capacity)
-    lm = jax.tree.map(lambda g, l: g.at[target].set(l[window:], mode="drop"), lm, local)
+    lm = lm._replace(**{f: getattr(lm, f).at[target].set(getattr(local, f)[window:], mode="drop") for f in new_fields})
     return lm, jnp.sum(is_new & (target == capacity))
 
 
