@@ -20,7 +20,6 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.filter import predict
-from nanoslam_jax.models import VehicleParams
 from nanoslam_jax.proposals import (
     Detections,
     Gaussian,

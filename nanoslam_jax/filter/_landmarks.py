@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import inv2, mm, mt, mv, sandwich, sym
+from .._linalg import gaussian_logpdf, inv2, mm, mt, mv, sandwich, sym
 from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians
 from ._state import LandmarkMap
 
@@ -99,13 +99,22 @@ def init_landmark(
     return m, sym(sandwich(Gi, R))
 
 
-def ekf_update(
+def ekf_update_loglik(
     x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"]
-) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
-    """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""
+) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
+    """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form), and the
+    detection's log-likelihood ``log N(z; g(x, mean), Gm cov Gm' + R)`` from the same quantities."""
     z_hat = range_bearing(x, mean)
     _, Gm = range_bearing_jacobians(x, mean)
     S = sandwich(Gm, cov) + R
     K = mm(mm(cov, mt(Gm)), inv2(S))
     IKG = jnp.eye(2) - mm(K, Gm)
-    return mean + mv(K, innovation(z, z_hat)), sym(sandwich(IKG, cov) + sandwich(K, R))
+    nu = innovation(z, z_hat)
+    return mean + mv(K, nu), sym(sandwich(IKG, cov) + sandwich(K, R)), gaussian_logpdf(nu, S)
+
+
+def ekf_update(
+    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"]
+) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+    """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""
+    return ekf_update_loglik(x, z, mean, cov, R)[:2]

@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._linalg import chol3, mm, mmt, mt, mv, sandwich, sym
+from .._linalg import chol3, mm, mt, mv, sandwich, sym
 from ..models import vehicle_jacobians, vehicle_move, vehicle_rates, vehicle_step, wrap_angle
 from ..quadrature import Unscented
 from ._params import Params

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key
 
@@ -90,8 +89,3 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
 def count_landmarks(landmarks: LandmarkMap) -> Int[Array, "*particles"]:
     """Active landmarks per particle."""
     return jnp.sum(landmarks.active, axis=-1)
-
-
-def tree_where(pred: Bool[Array, ""], a, b):
-    """Select pytree ``a`` where the scalar ``pred`` holds, else ``b``."""
-    return jax.tree.map(lambda x, y: jnp.where(pred, x, y), a, b)

@@ -14,7 +14,7 @@ from ..data import Segments
 from ..models import circular_mean, innovation, range_bearing, wrap_angle
 from ..proposals import AbstractProposal, Detections
 from ._association import associate, predicted_measurements
-from ._landmarks import ekf_update, gather_window, init_landmark, scatter_window
+from ._landmarks import ekf_update_loglik, gather_window, init_landmark, scatter_window
 from ._params import Params, Static
 from ._prior import predict
 from ._resampling import effective_sample_size, normalise, resample
@@ -123,12 +123,10 @@ def particle_update(
     )
 
     # EKF updates at the sampled pose; each slot is matched at most once per scan.
+    # A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
     cur_mean, cur_cov = local.mean[slot], local.cov[slot]
-    provisional = matched & ~existing
-    zp_hat, Sp = predicted_measurements(x_s, jnp.zeros((3, 3)), cur_mean, cur_cov, R)
-    llp = gaussian_logpdf(jax.vmap(innovation)(z, zp_hat), Sp)
-    dlogw = dlogw + jnp.sum(jnp.where(provisional, llp, 0.0))
-    upd_mean, upd_cov = jax.vmap(ekf_update, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
+    upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
+    dlogw = dlogw + jnp.sum(jnp.where(matched & ~existing, llp, 0.0))
     target = jnp.where(matched, assoc.slot, W + K)
     local = local._replace(
         mean=local.mean.at[target].set(upd_mean, mode="drop"),
@@ -198,7 +196,7 @@ def filter_step(
         mean_pose=weighted_mean_pose(out.pose, log_w),
         ess=ess,
         resampled=valid & (ess < params.resample_threshold * n),
-        n_landmarks=count_landmarks(out.landmarks)[best].astype(jnp.int32),
+        n_landmarks=count_landmarks(jax.tree.map(lambda a: a[best], out.landmarks)).astype(jnp.int32),
         iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
         n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
         n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),

@@ -22,7 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
-from jaxtyping import Array, Bool, Float, Int, PyTree
+from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol3, inv3, logdet_spd, mm, mt, mv, quad_form, sym
 from ..quadrature import QuadratureRule
