@@ -2,6 +2,7 @@
 
     nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--set sim.key=value ...]
+    nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
 """
 
 from __future__ import annotations
@@ -33,7 +34,30 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--config", help="YAML config whose sim and vehicle sections are used")
     s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config key, e.g. --set sim.n_trees=200 (repeatable)")
+
+    c = sub.add_parser("compare", help="run several methods over seeds: Table I (Markdown, CSV) and Figures 3-5")
+    c.add_argument("comparison", help="comparison YAML, e.g. configs/table1.yaml")
+    c.add_argument("--out", help="result directory (default: results/<name>-<timestamp>)")
+    c.add_argument("--data", help="log directory (overrides data.path and $NANOSLAM_DATA)")
+    c.add_argument("--seeds", type=int, help="seeds per method (overrides the file's seeds)")
+    c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config key for every method (repeatable)")
+    c.add_argument("--no-plots", action="store_true", help="skip Figures 3-5")
+
     return p
+
+
+def _compare(args) -> int:
+    import datetime as _dt
+
+    from .compare import load_compare_spec, run_compare
+
+    spec = load_compare_spec(args.comparison, tuple(args.overrides), seeds=args.seeds)
+    out = Path(args.out) if args.out else Path("results") / f"{spec.name}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
+    rows = run_compare(spec, out, data_dir=args.data, plots=not args.no_plots)
+    print((out / "table1.md").read_text())
+    print(out)
+    return 0 if all(r["status"] == "ok" for r in rows) else 1
 
 
 def _run(args) -> int:
@@ -67,7 +91,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     args = _parser().parse_args(argv)
     try:
-        return {"run": _run, "simulate": _simulate}[args.command](args)
+        return {"run": _run, "simulate": _simulate, "compare": _compare}[args.command](args)
     except (ConfigError, LogFormatError, FileNotFoundError, ValueError, FloatingPointError) as e:
         print(f"nanoslam: error: {e}", file=sys.stderr)
         return 2

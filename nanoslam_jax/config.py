@@ -29,6 +29,7 @@ __all__ = [
     "NoiseConfig",
     "FilterConfig",
     "NanoConfig",
+    "IteratedConfig",
     "MetricsConfig",
     "SimConfig",
     "OutputConfig",
@@ -159,6 +160,18 @@ class NanoConfig:
 
 
 @dataclass(frozen=True)
+class IteratedConfig:
+    """The iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal, method ``iterated``."""
+
+    solver: Literal["gauss_newton", "levenberg_marquardt"] = _f("gauss_newton", static=True,
+        doc="optimistix least-squares solver for the MAP of prior x likelihood")
+    max_iter: int = _f(10, lo=1, static=True, doc="solver step cap")
+    tol: float = _f(1e-8, lo=0.0, lo_open=True, static=True, doc="solver rtol = atol")
+    landmark_noise: bool = _f(True, static=True,
+        doc="weigh residuals with (R + Gm Sigma Gm')^-1 as FastSLAM 2.0 does (one step = FastSLAM 2.0)")
+
+
+@dataclass(frozen=True)
 class MetricsConfig:
     """Evaluation protocol settings (victoria_park.md section 5)."""
 
@@ -209,6 +222,7 @@ class Config:
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
     nano: NanoConfig = field(default_factory=NanoConfig)
+    iterated: IteratedConfig = field(default_factory=IteratedConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
@@ -369,12 +383,51 @@ def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...]) -> dict:
     return out
 
 
+def _merge(base: dict, top: dict) -> dict:
+    """``top`` over ``base``, section by section."""
+    out = dict(base)
+    for k, v in top.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _read_with_base(p: Path, chain: tuple[Path, ...]) -> dict:
+    """The raw mapping of a config file, merged over the file named by its ``base`` key (if any)."""
+    if not p.is_file():
+        where = f" (base of {chain[-1]})" if chain else ""
+        raise ConfigError(f"{p}: config file not found{where}")
+    try:
+        raw = _yaml_load(p.read_text())
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        line = f" line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{p}:{line} is not valid YAML: {getattr(e, 'problem', e)}") from None
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{p}: expected a mapping of config keys at the top level, got {type(raw).__name__}")
+    base = raw.pop("base", None)
+    if base is None:
+        return raw
+    if not isinstance(base, str):
+        raise ConfigError(f"{p}: key 'base': expected the path of another config file, got {base!r}")
+    bp = Path(base) if Path(base).is_absolute() else p.parent / base
+    if bp.resolve() in [c.resolve() for c in chain + (p,)]:
+        raise ConfigError(f"{p}: key 'base': {bp} is already in the chain of bases (a cycle)")
+    merged = _read_with_base(bp, chain + (p,))
+    merged.pop("name", None)  # a derived config is named after its own file unless it says otherwise
+    return _merge(merged, raw)
+
+
 def load_config(path: str | os.PathLike | None = None, overrides: list[str] | tuple[str, ...] = ()) -> Config:
     """Load and validate a configuration.
 
     Args:
         path: a YAML file; ``None`` gives the embedded default (NANO-SLAM on a simulated log).
         overrides: ``key=value`` strings applied after the file, e.g. ``filter.n_particles=20``.
+
+    A file may start from another with ``base: other.yaml`` (relative to the file): its keys are
+    merged over the base's, section by section; the resolved config holds every key.
     """
     if path is None:
         # NANO-SLAM on the default simulated log, with a filter noise model that covers the
@@ -385,18 +438,7 @@ def load_config(path: str | os.PathLike | None = None, overrides: list[str] | tu
     else:
         p = Path(path)
         source = str(p)
-        if not p.is_file():
-            raise ConfigError(f"{p}: config file not found")
-        try:
-            raw = _yaml_load(p.read_text())
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            line = f" line {mark.line + 1}" if mark is not None else ""
-            raise ConfigError(f"{p}:{line} is not valid YAML: {getattr(e, 'problem', e)}") from None
-        if raw is None:
-            raw = {}
-        if not isinstance(raw, dict):
-            raise ConfigError(f"{p}: expected a mapping of config keys at the top level, got {type(raw).__name__}")
+        raw = _read_with_base(p, ())
         raw.setdefault("name", p.stem)
     raw = apply_overrides(raw, list(overrides))
     if overrides:

@@ -24,7 +24,7 @@ import yaml
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
-from .filter import AVAILABLE_METHODS, dead_reckoning, run_filter, settings_from_config, text_progress
+from .filter import AVAILABLE_METHODS, dead_reckoning, reported_map, run_filter, settings_from_config, text_progress
 from .metrics import error_over_time, evaluate, landmark_errors, relative_gps
 
 
@@ -150,16 +150,15 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
         est = best_pose if static.estimate == "best" else mean
-        ess = np.asarray(o.ess)
-        b = int(run.state.best)
-        lm = jax.tree.map(lambda a: np.asarray(a[b]), run.state.particles.landmarks)
+        ess = np.asarray(o.ess) if cfg.filter.method != "ekf_slam" else None
+        lm = jax.tree.map(np.asarray, reported_map(run.state))
         act = lm.active
         landmarks = np.c_[lm.mean[act], lm.cov[act][:, 0, 0], lm.cov[act][:, 0, 1], lm.cov[act][:, 1, 1], lm.hits[act]]
         has = np.asarray(o.n_associated) > 0
         metrics.update(
             n_landmarks=int(act.sum()), landmark_overflow=int(run.state.overflow),
             window_overflow_max=int(np.max(o.window_overflow)), resample_count=int(run.state.resample_count),
-            ess_mean=float(ess.mean()), ess_min=float(ess.min()),
+            ess_mean=float(np.mean(o.ess)), ess_min=float(np.min(o.ess)),
             nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,
             proposal_capped=int(np.sum(o.n_capped)), proposal_nonfinite=int(np.sum(o.n_nonfinite)),
             weight_resets=int(np.sum(o.weight_reset)), associations_per_scan=float(np.mean(o.n_associated)),

@@ -49,20 +49,24 @@ def plot_trajectory(
 
 
 def plot_series(path: Path, series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str, title: str = "",
-                hline: Optional[float] = None) -> None:
-    """Time series, e.g. position error (Fig. 4) or ESS.
+                hline: Optional[float] = None, logy: bool = False, marker: str = "") -> None:
+    """Time series, e.g. position error (Fig. 4), time per scan (Fig. 5) or ESS.
 
     Args:
         path: output PNG.
         series: ``(label, t, values)`` triples.
         ylabel: y-axis label.
         hline: optional horizontal reference line (e.g. the resampling threshold).
+        logy: logarithmic y axis.
+        marker: matplotlib marker for the points.
     """
     fig, ax = plt.subplots(figsize=(9, 3.5))
     for label, t, v in series:
-        ax.plot(t, v, lw=0.8, label=label)
+        ax.plot(t, v, lw=0.8, marker=marker, ms=3, label=label)
     if hline is not None:
         ax.axhline(hline, color="0.5", ls="--", lw=0.8)
+    if logy:
+        ax.set_yscale("log")
     ax.set_xlabel("time [s]")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
@@ -71,4 +75,46 @@ def plot_series(path: Path, series: Sequence[tuple[str, np.ndarray, np.ndarray]]
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def plot_trajectory_grid(
+    path: Path,
+    reference: np.ndarray,
+    panels: Sequence[tuple[str, np.ndarray, Optional[np.ndarray]]],
+    true_landmarks: Optional[np.ndarray] = None,
+    reference_label: str = "GPS",
+    title: str = "",
+) -> None:
+    """One panel per method: its trajectory and map against the reference (the paper's Fig. 3).
+
+    Args:
+        path: output PNG.
+        reference: ``(G, 2)`` GPS (or true) positions in the comparison frame.
+        panels: ``(label, (T, 2) trajectory, (L, 2) landmarks or None)`` per method.
+        true_landmarks: true landmarks (simulated logs).
+        reference_label: legend label of the reference.
+        title: figure title.
+    """
+    n = len(panels)
+    cols = min(n, 3)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 4.6 * rows), squeeze=False)
+    for ax, (label, xy, lm) in zip(axes.flat, panels):
+        ax.plot(reference[:, 0], reference[:, 1], ".", ms=1, color="0.6", label=reference_label)
+        if true_landmarks is not None and len(true_landmarks):
+            ax.plot(true_landmarks[:, 0], true_landmarks[:, 1], "o", mfc="none", ms=4, color="g", label="true landmarks")
+        ax.plot(xy[:, 0], xy[:, 1], "-", lw=0.8, color="C0", label="estimate")
+        if lm is not None and len(lm):
+            ax.plot(lm[:, 0], lm[:, 1], "+", ms=3, color="k", label=f"map ({len(lm)})")
+        ax.set_aspect("equal")
+        ax.set_title(label, fontsize=10)
+        ax.legend(loc="best", fontsize=6)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
     plt.close(fig)

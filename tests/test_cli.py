@@ -362,9 +362,9 @@ def test_dead_reckoning_drifts_to_order_150_m_over_the_run(dr_real):
 
 def test_method_not_available_yet_is_a_clear_error(tmp_path, capsys):
     out = tmp_path / "never"
-    code = main(["run", "--out", str(out), "--set", "filter.method=ufastslam"])
+    code = main(["run", "--out", str(out), "--set", "filter.method=nasrukf"])
     err = capsys.readouterr().err
     assert code == 2
-    assert "filter.method" in err and "ufastslam" in err and "available" in err
+    assert "filter.method" in err and "nasrukf" in err and "available" in err
     assert "Traceback" not in err
     assert not out.exists()

@@ -20,7 +20,8 @@ from nanoslam_jax.config import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
+# Run configs; comparisons (table*.yaml) and sweeps (sweep*.yaml) have their own schemas and tests.
+CONFIGS = sorted(p for p in (ROOT / "configs").glob("*.yaml") if not p.name.startswith(("table", "sweep")))
 
 
 def _write(path: Path, text: str) -> Path:
@@ -421,3 +422,40 @@ def test_dataset_help_says_where_to_get_the_files():
     _check_help(DATASET_HELP)
     for name in ("inputs.dat", "measurements.dat", "gps.dat"):
         assert name in DATASET_HELP
+
+
+# ----------------------------------------------------------------------------- base configs
+
+
+def test_base_config_is_merged_section_by_section(tmp_path):
+    (tmp_path / "a.yaml").write_text("name: a\nnoise: {sigma_v: 1.5, sigma_r: 0.7}\nfilter: {method: nano, gate: 9.0}\n")
+    (tmp_path / "b.yaml").write_text("base: a.yaml\nfilter: {method: fastslam2}\nnoise: {sigma_r: 0.2}\n")
+    cfg = load_config(tmp_path / "b.yaml", ["filter.gate=7.0"])
+    assert cfg.name == "b"  # named after its own file
+    assert cfg.filter.method == "fastslam2" and cfg.filter.gate == 7.0
+    assert cfg.noise.sigma_v == 1.5 and cfg.noise.sigma_r == 0.2
+
+
+def test_base_config_errors_name_the_file(tmp_path):
+    (tmp_path / "b.yaml").write_text("base: missing.yaml\n")
+    with pytest.raises(ConfigError, match=r"missing\.yaml: config file not found \(base of .*b\.yaml\)"):
+        load_config(tmp_path / "b.yaml")
+    (tmp_path / "c.yaml").write_text("base: d.yaml\n")
+    (tmp_path / "d.yaml").write_text("base: c.yaml\n")
+    with pytest.raises(ConfigError, match="cycle"):
+        load_config(tmp_path / "c.yaml")
+    (tmp_path / "e.yaml").write_text("base: 3\n")
+    with pytest.raises(ConfigError, match=r"e\.yaml: key 'base'"):
+        load_config(tmp_path / "e.yaml")
+
+
+@pytest.mark.parametrize("method", ["fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam"])
+def test_method_configs_differ_from_nano_only_in_method(method):
+    root = Path(__file__).resolve().parent.parent / "configs"
+    nano = config_to_dict(load_config(root / "victoria_park_nano.yaml"))
+    other = config_to_dict(load_config(root / f"victoria_park_{method}.yaml"))
+    assert other["filter"]["method"] == method
+    assert other["name"] == f"victoria_park_{method}"
+    for section in ("noise", "data", "vehicle", "metrics"):
+        assert other[section] == nano[section]
+    assert {k: v for k, v in other["filter"].items() if k != "method"} == {k: v for k, v in nano["filter"].items() if k != "method"}

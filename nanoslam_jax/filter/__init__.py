@@ -21,7 +21,9 @@ from ._scan import (
     FilterRun as FilterRun,
     dead_reckoning as dead_reckoning,
     filter_scan as filter_scan,
+    initial_state as initial_state,
     make_proposal as make_proposal,
+    reported_map as reported_map,
     run_batch as run_batch,
     run_filter as run_filter,
     stack_params as stack_params,
@@ -29,3 +31,4 @@ from ._scan import (
 )
 from ._state import FilterState as FilterState, LandmarkMap as LandmarkMap, Particles as Particles, init_state as init_state
 from ._step import StepOutput as StepOutput, filter_step as filter_step
+from ._ekf_slam import EkfSlamState as EkfSlamState, init_ekf_state as init_ekf_state, ekf_slam_step as ekf_slam_step

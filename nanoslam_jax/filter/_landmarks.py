@@ -1,4 +1,5 @@
-"""Landmark map operations: the local window, EKF update, initialisation (eq. 16), write-back.
+"""Landmark map operations: the local window, EKF update, initialisation (eq. 16), write-back,
+and their unscented counterparts (UFastSLAM).
 
 A scan touches only landmarks near the particle. :func:`gather_window` copies the (at most
 ``window``) active landmarks within the sensor range plus a margin into a small local map, followed by one provisional slot per
@@ -9,12 +10,15 @@ per-detection work is over ``window + k_max`` slots instead of the full capacity
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .._linalg import gaussian_logpdf, inv2, mm, mt, mv, sandwich, sym
-from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians
+from .._linalg import chol2, det2, gaussian_logpdf, inv2, mm, mmt, mt, mv, sandwich, sym
+from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
+from ..quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
 from ._state import LandmarkMap
 
 
@@ -118,3 +122,87 @@ def ekf_update(
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""
     return ekf_update_loglik(x, z, mean, cov, R)[:2]
+
+
+def _unscented_landmark_points(
+    centre: Float[Array, "2"], cov: Float[Array, "2 2"], alpha, beta, kappa
+) -> tuple[Float[Array, "5 2"], Float[Array, "5"], Float[Array, "5"]]:
+    """The ``2n + 1 = 5`` unscented sigma points of ``N(centre, cov)`` in 2-D and their weights."""
+    xi, wm, wc = Unscented(alpha=alpha, beta=beta, kappa=kappa).unit_points(2)
+    return centre + mmt(xi, chol2(sym(cov))), wm, wc
+
+
+def ukf_update_loglik(
+    x: Float[Array, "3"],
+    z: Float[Array, "2"],
+    mean: Float[Array, "2"],
+    cov: Float[Array, "2 2"],
+    R: Float[Array, "2 2"],
+    alpha: Float[ArrayLike, ""],
+    beta: Float[ArrayLike, ""],
+    kappa: Float[ArrayLike, ""],
+    *,
+    h: Callable[[Float[Array, "3"], Float[Array, "2"]], Float[Array, "2"]] = range_bearing,
+    z_angle_index: int | None = 1,
+) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
+    """Unscented (UKF) update of one landmark at pose ``x`` with detection ``z`` (UFastSLAM).
+
+    Sigma points of ``N(mean, cov)`` go through the range-bearing model; the predicted
+    detection is their weighted mean relative to the centre point's prediction (bearing
+    deviations wrapped), ``S = Pzz + R``, ``K = Pmz S^-1``, ``mean + K nu`` and
+    ``cov - K S K'`` (symmetrised; ``cov`` is kept should the result not be positive definite).
+
+    Args:
+        x: the (sampled) pose (3,).
+        z: the detection ``(range, bearing)`` (2,).
+        mean: the landmark mean (2,).
+        cov: the landmark covariance (2, 2).
+        R: measurement noise covariance (2, 2).
+        alpha, beta, kappa: unscented parameters (scalars; may be traced).
+        h: measurement function ``h(pose, landmark) -> z_hat`` (the range-bearing model).
+        z_angle_index: static index of the angle component of a detection (deviations and the
+            innovation wrapped), or None.
+
+    Returns:
+        The updated mean and covariance and the detection's log-likelihood
+        ``log N(nu; 0, S)``, as :func:`ekf_update_loglik`.
+    """
+    M, wm, wc = _unscented_landmark_points(mean, cov, alpha, beta, kappa)
+    Z = jax.vmap(h, (None, 0))(x, M)
+    dZ = Z - Z[0]
+    if z_angle_index is not None:
+        dZ = dZ.at[:, z_angle_index].set(wrap_angle(dZ[:, z_angle_index]))
+    dz_mean, Pzz = sigma_point_stats(dZ, wm, wc)
+    Pmz = sigma_point_cross_cov(M, mean, dZ, dz_mean, wc)
+    S = sym(Pzz + R)
+    K = mm(Pmz, inv2(S))
+    nu = z - (Z[0] + dz_mean)
+    if z_angle_index is not None:
+        nu = nu.at[z_angle_index].set(wrap_angle(nu[z_angle_index]))
+    new_cov = sym(cov - mmt(mm(K, S), K))
+    pd = (new_cov[0, 0] > 0) & (det2(new_cov) > 0)
+    return mean + mv(K, nu), jnp.where(pd, new_cov, cov), gaussian_logpdf(nu, S)
+
+
+def ukf_init_landmark(
+    x: Float[Array, "3"],
+    z: Float[Array, "2"],
+    R: Float[Array, "2 2"],
+    alpha: Float[ArrayLike, ""],
+    beta: Float[ArrayLike, ""],
+    kappa: Float[ArrayLike, ""],
+) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+    """New landmark by the unscented transform of the inverse model over ``z ~ N(z, R)`` (UFastSLAM).
+
+    The unscented counterpart of :func:`init_landmark` (eq. 16): sigma points of the detection
+    noise go through ``g^-1(x, .)``; the landmark is their weighted mean and covariance.
+
+    Args:
+        x: the (sampled) pose (3,).
+        z: the detection ``(range, bearing)`` (2,).
+        R: measurement noise covariance (2, 2).
+        alpha, beta, kappa: unscented parameters (scalars; may be traced).
+    """
+    Zs, wm, wc = _unscented_landmark_points(z, R, alpha, beta, kappa)
+    M = jax.vmap(inverse_range_bearing, (None, 0))(x, Zs)
+    return sigma_point_stats(M, wm, wc)

@@ -41,6 +41,11 @@ class Static:
     landmark_noise: bool = False
     nano_init: str = "prior"
     nano_solver: str = "while_loop"
+    landmark_update: str = "ekf"
+    iterated_solver: str = "gauss_newton"
+    iterated_max_iter: int = 10
+    iterated_tol: float = 1e-8
+    iterated_landmark_noise: bool = True
 
     @property
     def window_size(self) -> int:
@@ -119,6 +124,9 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         resampler=f.resampler, estimate=f.estimate, prune=f.prune, quadrature=n.quadrature,
         gh_order=n.gh_order, hessian=n.hessian, max_iter=n.max_iter, landmark_noise=n.landmark_noise,
         nano_init=n.init, nano_solver=n.solver,
+        landmark_update="unscented" if f.method == "ufastslam" else "ekf",
+        iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
+        iterated_landmark_noise=cfg.iterated.landmark_noise,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     params = Params(

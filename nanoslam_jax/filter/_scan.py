@@ -22,12 +22,12 @@ from ..proposals import AbstractProposal, LinearizedProposal, NanoProposal, Prio
 from ..quadrature import make_rule
 from ._params import Params, Static
 from ._prior import predict_mean
-from ._state import FilterState, init_state
+from ._state import FilterState, LandmarkMap, init_state
 from ._step import StepOutput, filter_step
 
 
 #: Methods that run today (the config also names the comparison methods still to come).
-AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2")
+AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam")
 
 
 def make_proposal(static: Static, params: Params) -> AbstractProposal:
@@ -41,12 +41,44 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
         return PriorProposal()
     if static.method == "fastslam2":
         return LinearizedProposal(landmark_noise=True)
+    if static.method == "ufastslam":
+        from ..proposals._ufastslam import UnscentedProposal
+
+        return UnscentedProposal(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa)
+    if static.method == "iterated":
+        from ..proposals._iterated import IteratedProposal
+
+        return IteratedProposal(solver=static.iterated_solver, max_iter=static.iterated_max_iter,
+                                tol=static.iterated_tol, landmark_noise=static.iterated_landmark_noise)
     raise ValueError(f"filter.method: {static.method!r} is not available yet; available: {', '.join(AVAILABLE_METHODS)}")
 
 
-def _masked_step(static: Static, params: Params, state: FilterState, inp: tuple[Segments, Bool[Array, ""]]):
+def _masked_step(static: Static, params: Params, state, inp: tuple[Segments, Bool[Array, ""]]):
     seg, valid = inp
+    if static.method == "ekf_slam":
+        from ._ekf_slam import ekf_slam_step
+
+        return ekf_slam_step(static, params, state, seg, valid)
     return filter_step(static, params, make_proposal(static, params), state, seg, valid)
+
+
+def initial_state(static: Static, params: Params, key: Key[Array, ""]):
+    """The state a run starts from: a :class:`FilterState`, or an ``EkfSlamState`` for EKF-SLAM."""
+    if static.method == "ekf_slam":
+        from ._ekf_slam import init_ekf_state
+
+        return init_ekf_state(static, params, key)
+    return init_state(static, params, key)
+
+
+def reported_map(state) -> LandmarkMap:
+    """The map of the reported estimate: the best particle's, or EKF-SLAM's marginals.
+
+    Works on a single state; ``jax.vmap`` it over a batched state.
+    """
+    if isinstance(state, FilterState):
+        return jax.tree.map(lambda a: a[state.best], state.particles.landmarks)
+    return state.landmark_map()
 
 
 def filter_scan(
@@ -67,7 +99,7 @@ def filter_scan(
         The final state and a :class:`StepOutput` per segment.
     """
     if state is None:
-        state = init_state(static, params, key)
+        state = initial_state(static, params, key)
     if valid is None:
         valid = jnp.ones(segments.time.shape[0], bool)
     return jax.lax.scan(functools.partial(_masked_step, static, params), state, (segments, valid))
@@ -80,7 +112,7 @@ def _chunk(static: Static, params: Params, state: FilterState, segments: Segment
 
 @functools.partial(jax.jit, static_argnames=("static",))
 def _init(static: Static, params: Params, key) -> FilterState:
-    return init_state(static, params, key)
+    return initial_state(static, params, key)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
@@ -91,7 +123,7 @@ def _chunk_batch(static: Static, params: Params, state: FilterState, segments: S
 
 @functools.partial(jax.jit, static_argnames=("static",))
 def _init_batch(static: Static, params: Params, keys) -> FilterState:
-    return jax.vmap(lambda p, k: init_state(static, p, k))(params, keys)
+    return jax.vmap(lambda p, k: initial_state(static, p, k))(params, keys)
 
 
 class FilterRun(NamedTuple):
@@ -102,12 +134,16 @@ class FilterRun(NamedTuple):
         outputs: per-segment records (numpy).
         compile_s: compilation time of the chunk program.
         run_s: run time after compilation (all chunks).
+        chunk_s: wall time of each chunk call (only when timed or with progress; else empty).
+        chunk_size: segments per chunk.
     """
 
     state: FilterState
     outputs: StepOutput
     compile_s: float
     run_s: float
+    chunk_s: tuple = ()
+    chunk_size: int = 0
 
 
 def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
@@ -118,7 +154,7 @@ def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
 
 
 def _drive(chunk_fn, static: Static, params: Params, state: FilterState, segments: Segments, chunk: int,
-           progress, time_axis: int) -> FilterRun:
+           progress, time_axis: int, timed: bool = False) -> FilterRun:
     """Compile ``chunk_fn`` once for ``chunk`` segments and call it over the padded log."""
     n = segments.time.shape[0]
     chunk = max(1, min(chunk, n))
@@ -129,18 +165,22 @@ def _drive(chunk_fn, static: Static, params: Params, state: FilterState, segment
     t0 = time.perf_counter()
     compiled = chunk_fn.lower(static, params, state, *piece(0)).compile()
     compile_s = time.perf_counter() - t0
-    outs = []
-    t1 = time.perf_counter()
+    outs, chunk_s = [], []
+    t1 = tc = time.perf_counter()
     for c in range(n_chunks):
         state, out = compiled(params, state, *piece(c))
         outs.append(out)
-        if progress is not None:
+        if progress is not None or timed:
             jax.block_until_ready(state)
-            progress(min((c + 1) * chunk, n), n, time.perf_counter() - t1)
+            now = time.perf_counter()
+            chunk_s.append(now - tc)
+            tc = now
+            if progress is not None:
+                progress(min((c + 1) * chunk, n), n, now - t1)
     jax.block_until_ready(state)
     run_s = time.perf_counter() - t1
     cat = lambda *a: np.take(np.concatenate([np.asarray(x) for x in a], axis=time_axis), np.arange(n), axis=time_axis)  # noqa: E731
-    return FilterRun(state, jax.tree.map(cat, *outs), compile_s, run_s)
+    return FilterRun(state, jax.tree.map(cat, *outs), compile_s, run_s, tuple(chunk_s), chunk)
 
 
 def run_filter(
@@ -151,6 +191,7 @@ def run_filter(
     *,
     chunk: int = 500,
     progress: Optional[Callable[[int, int, float], None]] = None,
+    timed: bool = False,
 ) -> FilterRun:
     """Run the filter over a log in compiled chunks of ``chunk`` segments.
 
@@ -163,9 +204,11 @@ def run_filter(
         seed: PRNG seed.
         chunk: segments per compiled call.
         progress: called as ``progress(done, total, elapsed_s)`` after each chunk.
+        timed: record each chunk's wall time (``FilterRun.chunk_s``; the computation time per
+            scan over the log, e.g. EKF-SLAM's growth with the map).
     """
     state = _init(static, params, jax.random.key(seed))
-    return _drive(_chunk, static, params, state, segments, chunk, progress, time_axis=0)
+    return _drive(_chunk, static, params, state, segments, chunk, progress, time_axis=0, timed=timed)
 
 
 def run_batch(

@@ -14,7 +14,14 @@ from ..data import Segments
 from ..models import circular_mean, innovation, range_bearing, wrap_angle
 from ..proposals import AbstractProposal, Detections
 from ._association import associate, predicted_measurements
-from ._landmarks import ekf_update_loglik, gather_window, init_landmark, scatter_window
+from ._landmarks import (
+    ekf_update_loglik,
+    gather_window,
+    init_landmark,
+    scatter_window,
+    ukf_init_landmark,
+    ukf_update_loglik,
+)
 from ._params import Params, Static
 from ._prior import predict
 from ._resampling import effective_sample_size, normalise, resample
@@ -112,8 +119,14 @@ def particle_update(
     ll = gaussian_logpdf(jax.vmap(innovation)(z, z_hat), S)
     dlogw = jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
 
-    # New landmarks at the sampled pose (eq. 16), in their provisional slots.
-    new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None))(x_s, z, R)
+    # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM),
+    # in their provisional slots.
+    unscented = static.landmark_update == "unscented"
+    ut = (params.ut_alpha, params.ut_beta, params.ut_kappa)
+    if unscented:
+        new_mean, new_cov = jax.vmap(ukf_init_landmark, (None, 0, None, None, None, None))(x_s, z, R, *ut)
+    else:
+        new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None))(x_s, z, R)
     isn = assoc.is_new
     local = local._replace(
         mean=local.mean.at[W:].set(jnp.where(isn[:, None], new_mean, local.mean[W:])),
@@ -122,10 +135,14 @@ def particle_update(
         hits=local.hits.at[W:].set(isn.astype(jnp.int32)),
     )
 
-    # EKF updates at the sampled pose; each slot is matched at most once per scan.
-    # A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
+    # EKF (UFastSLAM: unscented) updates at the sampled pose; each slot is matched at most once
+    # per scan. A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
     cur_mean, cur_cov = local.mean[slot], local.cov[slot]
-    upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
+    if unscented:
+        upd_mean, upd_cov, llp = jax.vmap(ukf_update_loglik, (None, 0, 0, 0, None, None, None, None))(
+            x_s, z, cur_mean, cur_cov, R, *ut)
+    else:
+        upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
     dlogw = dlogw + jnp.sum(jnp.where(matched & ~existing, llp, 0.0))
     target = jnp.where(matched, assoc.slot, W + K)
     local = local._replace(

@@ -8,7 +8,7 @@ from ._base import (
 )
 from ._fastslam1 import PriorProposal as PriorProposal
 from ._fastslam2 import LinearizedProposal as LinearizedProposal
-from ._iterated import gauss_newton_map as gauss_newton_map
+from ._iterated import IteratedProposal as IteratedProposal, gauss_newton_map as gauss_newton_map, map_estimate as map_estimate
 from ._nano import NanoProposal as NanoProposal
 from ._natural_gradient import (
     Gaussian as Gaussian,
@@ -17,3 +17,4 @@ from ._natural_gradient import (
     kl_gaussian as kl_gaussian,
     natural_gradient_gaussian as natural_gradient_gaussian,
 )
+from ._ufastslam import UnscentedProposal as UnscentedProposal

@@ -5,9 +5,34 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
 
 from .._linalg import inv3, mm, mt, mv, sym
 from ._base import AbstractProposal, Detections, ProposalResult, noise_information, range_bearing_residuals, wrap_pose
+from ._natural_gradient import Gaussian
+
+
+def linearized_gaussian(
+    prior: Gaussian, residual, weights: Float[Array, "k d d"], mask: Bool[Array, "k"], project=wrap_pose,
+) -> Gaussian:
+    """One EKF (Gauss-Newton) update of the prior with residuals linearised at the prior mean.
+
+    ``P = (P0^-1 + sum J' W J)^-1``, ``x = x0 - P sum J' W r(x0)`` with ``J = dr/dx`` at ``x0``.
+
+    Args:
+        prior: the prior Gaussian (mean, precision).
+        residual: ``x -> r`` of shape ``(k, d)`` (measurement minus prediction, angles wrapped).
+        weights: the residuals' information matrices.
+        mask: which residual rows count.
+        project: applied to the updated mean (heading wrap for poses).
+    """
+    W = weights * mask[:, None, None]
+    r = jnp.where(mask[:, None], residual(prior.mean), 0.0)
+    J = jnp.where(mask[:, None, None], jax.jacfwd(residual)(prior.mean), 0.0)
+    JtW = mm(mt(J), W)
+    lam = sym(prior.precision + jnp.sum(mm(JtW, J), axis=0))
+    P = sym(inv3(lam)) if lam.shape[-1] == 3 else sym(jnp.linalg.inv(lam))
+    return Gaussian(project(prior.mean - mv(P, jnp.sum(mv(JtW, r), axis=0))), lam, P)
 
 
 class LinearizedProposal(AbstractProposal):
@@ -20,13 +45,8 @@ class LinearizedProposal(AbstractProposal):
     landmark_noise: bool = eqx.field(static=True, default=True)
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
-        residual = range_bearing_residuals(det)
-        W = noise_information(x0, det, R, self.landmark_noise) * det.mask[:, None, None]
-        r = residual(x0)
-        J = jax.jacfwd(residual)(x0)  # d r / d x = -Gx
-        JtW = mm(mt(J), W)
-        lam = sym(inv3(P0) + jnp.sum(mm(JtW, J), axis=0))
-        P = sym(inv3(lam))
-        x = wrap_pose(x0 - mv(P, jnp.sum(mv(JtW, r), axis=0)))
+        W = noise_information(x0, det, R, self.landmark_noise)
+        W = jnp.where(det.mask[:, None, None], W, jnp.eye(2))
+        q = linearized_gaussian(Gaussian(x0, sym(inv3(P0)), P0), range_bearing_residuals(det), W, det.mask)
         zero = jnp.zeros((), jnp.int32)
-        return ProposalResult(x, P, zero, zero)
+        return ProposalResult(q.mean, q.cov, zero, zero)
