@@ -3,6 +3,7 @@
     nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--set sim.key=value ...]
     nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
+    nanoslam sweep SWEEP [--out DIR] [--resume] [--data DIR] [--set key=value ...] [--backend local|ray]
 """
 
 from __future__ import annotations
@@ -43,7 +44,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config key for every method (repeatable)")
     c.add_argument("--no-plots", action="store_true", help="skip Figures 3-5")
+    from .sweep._cli import add_sweep_parser
 
+    add_sweep_parser(sub)
     return p
 
 
@@ -58,6 +61,12 @@ def _compare(args) -> int:
     print((out / "table1.md").read_text())
     print(out)
     return 0 if all(r["status"] == "ok" for r in rows) else 1
+
+
+def _sweep(args) -> int:
+    from .sweep._cli import sweep_command
+
+    return sweep_command(args)
 
 
 def _run(args) -> int:
@@ -91,7 +100,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     args = _parser().parse_args(argv)
     try:
-        return {"run": _run, "simulate": _simulate, "compare": _compare}[args.command](args)
+        return {"run": _run, "simulate": _simulate, "compare": _compare, "sweep": _sweep}[args.command](args)
     except (ConfigError, LogFormatError, FileNotFoundError, ValueError, FloatingPointError) as e:
         print(f"nanoslam: error: {e}", file=sys.stderr)
         return 2

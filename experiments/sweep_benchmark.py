@@ -1,0 +1,211 @@
+"""Sweep throughput benchmark: prints Markdown tables.
+
+    python experiments/sweep_benchmark.py                       # both tables (about 8 minutes on 2 cores)
+    python experiments/sweep_benchmark.py --only throughput     # batched programs against sequential runs
+    python experiments/sweep_benchmark.py --only multicore      # one device, JAX devices, pinned processes
+
+The workload: 64 configurations (random samples of gate, new-landmark threshold, range and
+bearing noise) of NANO-SLAM with 10 particles over the first 500 segments of the Victoria Park
+log, float64.
+
+1. *Throughput* (one process, one device): the 64 configurations as one vmapped batch of the
+   sweep program (``batch_program``, ``vectorize='vmap'``) and as one ``lax.map`` batch
+   (``vectorize='map'``) against 64 sequential calls of the single-run program
+   (``single_program``, the same computation without the batch axis), all compiled once
+   beforehand, timed ``--repeat`` times interleaved (best shown); configurations per second after
+   compilation, and how far the batch members' poses are from the same runs alone.
+2. *Multi-core* (each in fresh processes, through ``run_sweep`` end to end, compile included,
+   no compilation cache, ``--vectorize`` as given): ``single``: one process, one device, the whole
+   batch; ``devices``: one process with one JAX CPU device per core (``jax_num_cpu_devices``), each
+   batch split over them (``shard_map``); ``processes``: one process pinned to each core
+   (``os.sched_setaffinity``), half the batch each. "cores busy" is the CPU time of all the
+   mode's processes over its wall time.
+
+The package's defaults (``run.parallel: auto`` = devices, ``run.vectorize: auto`` = vmap)
+are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PARALLEL`` and
+``AUTO_VECTORIZE`` in ``nanoslam_jax/sweep/_runner.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+WORKLOAD = dict(n=64, particles=10, segments=500)
+
+
+def sweep_dict(config: str, n: int, particles: int, segments: int, batch: int) -> dict:
+    """The benchmark's sweep: ``n`` random configurations, one seed."""
+    return {
+        "name": "bench", "base": os.path.abspath(config), "set": [f"filter.n_particles={particles}"],
+        "segments": segments, "seeds": [0],
+        "random": {"n": n, "seed": 0, "params": {
+            "filter.gate": {"low": 4.0, "high": 9.0},
+            "filter.new_landmark": {"low": 13.0, "high": 20.0},
+            "noise.sigma_r": {"low": 0.5, "high": 2.0, "log": True},
+            "noise.sigma_beta_deg": {"low": 1.5, "high": 6.0}}},
+        "run": {"batch": batch, "compile_cache": False, "fail_on_overflow": False}, "plots": False,
+    }
+
+
+def throughput(args) -> dict:
+    """Vmapped batch against sequential single runs, both after compilation (this process)."""
+    import jax
+    import numpy as np
+
+    import nanoslam_jax  # noqa: F401
+    from nanoslam_jax.filter import settings_from_config
+    from nanoslam_jax.sweep import batch_program, expand, load_log_data, single_program, sweep_from_dict
+
+    spec = sweep_from_dict(sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs),
+                           source="benchmark")
+    points, runs, _ = expand(spec)
+    log = load_log_data(points[0].config, args.data, spec.segments)
+    seg = jax.tree.map(jax.numpy.asarray, log.segments)
+    plist = [settings_from_config(p.config, log.segments.k_max) for p in points]
+    static = plist[0][0]
+    params = [p for _, p in plist]
+    stacked = jax.tree.map(lambda *a: jax.numpy.stack(a), *params)
+    seeds = jax.numpy.zeros(len(params), dtype=int)
+
+    t0 = time.perf_counter()
+    single = single_program.lower(static, params[0], seeds[0], seg).compile()
+    single_compile = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    batched = batch_program.lower(static, "vmap", 1, stacked, seeds, seg).compile()
+    batch_compile = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    mapped = batch_program.lower(static, "map", 1, stacked, seeds, seg).compile()
+    map_compile = time.perf_counter() - t0
+
+    jax.block_until_ready(single(params[0], seeds[0], seg))  # warm
+    seq_t, vmap_t, map_t = [], [], []
+    for _ in range(args.repeat):  # interleaved, so a burst of load on the machine hits all three
+        t0 = time.perf_counter()
+        seq = [jax.block_until_ready(single(p, s, seg)) for p, s in zip(params, seeds)]
+        seq_t.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(batched(stacked, seeds, seg))
+        vmap_t.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        out_map = jax.block_until_ready(mapped(stacked, seeds, seg))
+        map_t.append(time.perf_counter() - t0)
+    seq_s, vmap_s, map_s = min(seq_t), min(vmap_t), min(map_t)
+    diff = max(float(np.max(np.abs(np.asarray(out.best_pose[i]) - np.asarray(seq[i].best_pose))))
+               for i in range(len(params)))
+    diff_map = max(float(np.max(np.abs(np.asarray(out_map.best_pose[i]) - np.asarray(seq[i].best_pose))))
+                   for i in range(len(params)))
+    return dict(configs=len(params), particles=static.n_particles, segments=int(seg.time.shape[0]),
+                single_compile_s=single_compile, batch_compile_s=batch_compile, sequential_s=seq_s, vmapped_s=vmap_s,
+                map_compile_s=map_compile, mapped_s=map_s, max_abs_pose_diff=diff, repeats=dict(
+                    sequential=seq_t, vmapped=vmap_t, mapped=map_t), max_abs_pose_diff_map=diff_map, cpu_count=len(os.sched_getaffinity(0)))
+
+
+def multicore_one(args) -> dict:
+    """One mode of the multi-core comparison, end to end through run_sweep (run in a fresh process)."""
+    mode = args.worker
+    if mode == "devices":
+        import jax
+
+        jax.config.update("jax_num_cpu_devices", 2)
+    import csv
+
+    import nanoslam_jax  # noqa: F401
+    from nanoslam_jax.sweep import run_sweep, sweep_from_dict
+
+    spec = sweep_from_dict(sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs),
+                           source="benchmark")
+    with tempfile.TemporaryDirectory() as d:
+        t0 = time.perf_counter()
+        run_sweep(spec, os.path.join(d, "s"), data_dir=args.data, progress=False, parallel=mode, workers=2,
+                  vectorize=args.vectorize)
+        wall = time.perf_counter() - t0
+        rows = list(csv.DictReader(open(os.path.join(d, "s", "results.csv"))))
+    compile_s = max(float(r["compile_s"]) for r in rows)
+    return dict(mode=mode, vectorize=args.vectorize, configs=len(rows), wall_s=wall, compile_s=compile_s,
+                ok=sum(r["status"] == "ok" for r in rows))
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--only", choices=["throughput", "multicore"])
+    p.add_argument("--config", default="configs/victoria_park_nano.yaml", help="base config")
+    p.add_argument("--data", help="log directory")
+    p.add_argument("--configs", type=int, default=WORKLOAD["n"])
+    p.add_argument("--particles", type=int, default=WORKLOAD["particles"])
+    p.add_argument("--segments", type=int, default=WORKLOAD["segments"])
+    p.add_argument("--repeat", type=int, default=3, help="timed repetitions of the throughput runs (best is shown)")
+    p.add_argument("--modes", nargs="*", default=["single", "devices", "processes"])
+    p.add_argument("--vectorize", default="vmap", choices=["vmap", "map"], help="batch computation of the multi-core runs")
+    p.add_argument("--json", help="also write the measurements here")
+    p.add_argument("--worker", help=argparse.SUPPRESS)
+    p.add_argument("--throughput-worker", action="store_true", help=argparse.SUPPRESS)
+    args = p.parse_args()
+
+    if args.worker:
+        print(json.dumps(multicore_one(args)))
+        return
+    if args.throughput_worker:
+        print(json.dumps(throughput(args)))
+        return
+
+    common = ["--config", args.config, "--configs", str(args.configs), "--particles", str(args.particles),
+              "--segments", str(args.segments), "--vectorize", args.vectorize, "--repeat", str(args.repeat)] + (["--data", args.data] if args.data else [])
+    results: dict = {}
+    if args.only in (None, "throughput"):
+        res = subprocess.run([sys.executable, __file__, "--throughput-worker", *common], capture_output=True, text=True)
+        if res.returncode:
+            sys.exit(f"throughput run failed:\n{res.stderr[-3000:]}")
+        t = results["throughput"] = json.loads(res.stdout.strip().splitlines()[-1])
+        print(f"\nThroughput: {t['configs']} configurations x {t['particles']} particles x {t['segments']} segments "
+              f"(NANO, Victoria Park), {t['cpu_count']} CPU cores, after compilation, best of {args.repeat}\n")
+        print("| execution | compile [s] | run [s] | configs/s | speed-up |")
+        print("|---|---|---|---|---|")
+        seq_rate, vm_rate = t["configs"] / t["sequential_s"], t["configs"] / t["vmapped_s"]
+        print(f"| {t['configs']} sequential calls of the single-run program | {t['single_compile_s']:.1f} | "
+              f"{t['sequential_s']:.2f} | {seq_rate:.2f} | 1.00 |")
+        print(f"| one vmapped batch of {t['configs']} | {t['batch_compile_s']:.1f} | {t['vmapped_s']:.2f} | "
+              f"{vm_rate:.2f} | {vm_rate / seq_rate:.2f} |")
+        map_rate = t["configs"] / t["mapped_s"]
+        print(f"| one batch of {t['configs']} with lax.map (vectorize: map) | {t['map_compile_s']:.1f} | "
+              f"{t['mapped_s']:.2f} | {map_rate:.2f} | {map_rate / seq_rate:.2f} |")
+        print(f"\nlargest difference between a batch member's reported poses and the same run alone: "
+              f"vmap {t['max_abs_pose_diff']:.2e} m, map {t['max_abs_pose_diff_map']:.2e} m")
+        print("all timings [s]: " + "; ".join(f"{k} " + ", ".join(f"{x:.2f}" for x in v) for k, v in t["repeats"].items()),
+              flush=True)
+    if args.only in (None, "multicore"):
+        rows = []
+        for mode in args.modes:
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            res = subprocess.run([sys.executable, __file__, "--worker", mode, *common], capture_output=True, text=True)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            if res.returncode:
+                print(f"{mode}: failed\n{res.stderr[-3000:]}", file=sys.stderr)
+                continue
+            rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
+            # CPU time of the mode's processes (workers included): cores kept busy = cpu / wall.
+            rows[-1]["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            print(f"{mode}: {rows[-1]['wall_s']:.1f} s", file=sys.stderr, flush=True)
+        results["multicore"] = rows
+        print(f"\nMulti-core: the same {args.configs}-configuration sweep through run_sweep (vectorize: "
+              f"{args.vectorize}), fresh processes, no compilation cache\n")
+        print("| mode | wall incl. compile [s] | compile [s] | wall - compile [s] | configs/s after compile | "
+              "CPU [s] | cores busy | ok |")
+        print("|---|---|---|---|---|---|---|---|")
+        for r in rows:
+            run = r["wall_s"] - r["compile_s"]
+            print(f"| {r['mode']} | {r['wall_s']:.1f} | {r['compile_s']:.1f} | {run:.1f} | {r['configs'] / run:.2f} | "
+                  f"{r['cpu_s']:.1f} | {r['cpu_s'] / r['wall_s']:.2f} | {r['ok']}/{r['configs']} |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(results, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()

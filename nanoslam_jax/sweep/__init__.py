@@ -1,0 +1,56 @@
+"""Batch hyperparameter sweeps: one compiled program per shape, vmapped over configs and seeds.
+
+    from nanoslam_jax.sweep import load_sweep, run_sweep
+    spec = load_sweep("configs/sweep_example.yaml")
+    result = run_sweep(spec, "results/sweep1")          # results.csv, summary.md, best.yaml, plots/
+
+The names are loaded on first use, so ``nanoslam`` starts quickly whatever the command.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+_EXPORTS = {
+    "_spec": ("SweepSpec", "RunOptions", "RandomSpec", "RandomParam", "ConfigPoint", "Run", "load_sweep",
+              "sweep_from_dict", "expand", "sample_random", "spec_identity", "METRIC_KEYS", "MAP_METRIC_KEYS"),
+    "_runner": ("run_sweep", "SweepResult", "LogData", "BatchTask", "BatchOutput", "Group", "batch_program",
+                "single_program", "execute_batch", "batch_outputs", "load_log_data", "plan_groups", "make_tasks", "compile_events",
+                "resolve_parallel", "enable_compile_cache", "AUTO_PARALLEL"),
+    "_results": ("ResultsFile", "read_results", "summarize", "select_best", "write_summary", "write_best_yaml",
+                 "TIMING_COLUMNS"),
+    "_plots": ("plot_sweep", "plot_metric_vs_param", "plot_heatmap"),
+    "_ray": ("ray_iter", "import_ray"),
+    "_cli": ("add_sweep_parser", "sweep_command"),
+}
+_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    mod = _WHERE.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'nanoslam_jax.sweep' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{mod}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return __all__
+
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ._cli import add_sweep_parser, sweep_command  # noqa: F401
+    from ._plots import plot_heatmap, plot_metric_vs_param, plot_sweep  # noqa: F401
+    from ._ray import import_ray, ray_iter  # noqa: F401
+    from ._results import (  # noqa: F401
+        TIMING_COLUMNS, ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary)
+    from ._runner import (  # noqa: F401
+        AUTO_PARALLEL, BatchOutput, BatchTask, Group, LogData, SweepResult, batch_program, compile_events,
+        batch_outputs, enable_compile_cache, execute_batch, load_log_data, make_tasks, plan_groups, resolve_parallel, run_sweep,
+        single_program)
+    from ._spec import (  # noqa: F401
+        MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, expand,
+        load_sweep, sample_random, spec_identity, sweep_from_dict)

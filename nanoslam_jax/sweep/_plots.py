@@ -1,0 +1,154 @@
+"""Figures of a sweep: a metric against each swept parameter (per-seed points and the median),
+and a heat map of the median for each pair of grid parameters."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from pathlib import Path
+from typing import Any, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ._spec import ConfigPoint, SweepSpec  # noqa: E402
+
+__all__ = ["plot_sweep", "plot_metric_vs_param", "plot_heatmap"]
+
+
+def _num(s: str) -> float:
+    try:
+        return float(s) if s != "" else math.nan
+    except ValueError:
+        return math.nan
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[float], metric: str,
+                         title: str = "", log_x: bool | None = None) -> None:
+    """Scatter of per-run values of ``metric`` against ``key`` and the median per distinct value.
+
+    Args:
+        path: output PNG.
+        key: the swept parameter.
+        xs: its value in each run (numbers, or anything else drawn as categories).
+        ys: the metric of each run (runs that failed are left out by the caller).
+        metric: the metric's name (axis label).
+        title: figure title.
+        log_x: logarithmic x axis (default: positive values spanning more than a factor 20).
+    """
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    numeric = all(_is_number(x) for x in xs)
+    distinct = sorted(set(xs), key=lambda v: (v if numeric else str(v)))
+    if numeric:
+        pos = {v: float(v) for v in distinct}
+    else:
+        pos = {v: float(i) for i, v in enumerate(distinct)}
+        ax.set_xticks(list(pos.values()), [str(v) for v in distinct])
+    x = np.array([pos[v] for v in xs], float)
+    y = np.asarray(ys, float)
+    jitter = 0.0 if numeric else 0.08
+    rng = np.random.default_rng(0)
+    ax.scatter(x + jitter * rng.uniform(-1, 1, x.shape), y, s=14, alpha=0.5, label="runs (each seed)")
+    med = [np.nanmedian(y[x == pos[v]]) if np.any(x == pos[v]) else np.nan for v in distinct]
+    ax.plot([pos[v] for v in distinct], med, "-o", color="C3", ms=4, label="median")
+    if log_x is None:
+        vals = [pos[v] for v in distinct]
+        log_x = numeric and min(vals) > 0 and max(vals) / min(vals) > 20
+    if log_x:
+        ax.set_xscale("log")
+    ax.set_xlabel(key)
+    ax.set_ylabel(metric)
+    ax.set_title(title or f"{metric} against {key}")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_heatmap(path: Path, kx: str, ky: str, xvals: Sequence[Any], yvals: Sequence[Any], table: np.ndarray,
+                 metric: str, title: str = "") -> None:
+    """Heat map of ``table[iy, ix]`` (the metric's median) over two grid parameters, annotated."""
+    fig, ax = plt.subplots(figsize=(1.2 * len(xvals) + 2.5, 0.7 * len(yvals) + 2.0))
+    masked = np.ma.masked_invalid(table)
+    im = ax.imshow(masked, origin="lower", aspect="auto", cmap="viridis_r")
+    ax.set_xticks(range(len(xvals)), [f"{v:.4g}" if _is_number(v) else str(v) for v in xvals])
+    ax.set_yticks(range(len(yvals)), [f"{v:.4g}" if _is_number(v) else str(v) for v in yvals])
+    ax.set_xlabel(kx)
+    ax.set_ylabel(ky)
+    finite = table[np.isfinite(table)]
+    mid = (finite.min() + finite.max()) / 2 if finite.size else 0.0
+    for iy in range(len(yvals)):
+        for ix in range(len(xvals)):
+            v = table[iy, ix]
+            ax.text(ix, iy, "failed" if not np.isfinite(v) else f"{v:.3g}", ha="center", va="center", fontsize=8,
+                    color="white" if np.isfinite(v) and v > mid else "black")
+    fig.colorbar(im, ax=ax, label=f"median {metric}")
+    ax.set_title(title or f"median {metric}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_sweep(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: Sequence[dict],
+               metrics: Sequence[str]) -> list[Path]:
+    """All figures of a sweep in ``out`` (created); returns the files written.
+
+    ``<metric>_vs_<key>.png`` for every swept key with more than one value, and
+    ``heatmap_<metric>_<key1>_<key2>.png`` for every pair of grid keys (median over seeds and
+    over the other swept keys). Runs that failed are left out.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    values = {p.config_id: p.values for p in points}
+    ok = [r for r in rows if r["status"] == "ok" and r["config_id"] in values]
+    written = []
+    for metric in metrics:
+        ys = np.array([_num(r.get(metric, "")) for r in ok], float)
+        keep = np.isfinite(ys)
+        runs = [r for r, k in zip(ok, keep) if k]
+        ys = ys[keep]
+        if not runs:
+            continue
+        log_keys = {p.key for p in spec.random.params if p.log} if spec.random else set()
+        for key in spec.swept_keys:
+            xs = [values[r["config_id"]][key] for r in runs]
+            if len(set(map(repr, xs))) < 2:
+                continue
+            path = out / f"{_safe(metric)}_vs_{_safe(key)}.png"
+            plot_metric_vs_param(path, key, xs, ys, metric, title=f"{spec.name}: {metric} against {key}",
+                                 log_x=True if key in log_keys else None)
+            written.append(path)
+        grid = [(k, list(v)) for k, v in spec.grid if len(v) > 1]
+        for (kx, vx), (ky, vy) in itertools.combinations(grid, 2):
+            cfgx = {p.config_id: p for p in points}
+            table = np.full((len(vy), len(vx)), np.nan)
+            for iy, yv in enumerate(vy):
+                for ix, xv in enumerate(vx):
+                    sel = [y for r, y in zip(runs, ys)
+                           if _match(cfgx[r["config_id"]].values[kx], xv) and _match(cfgx[r["config_id"]].values[ky], yv)]
+                    if sel:
+                        table[iy, ix] = float(np.median(sel))
+            path = out / f"heatmap_{_safe(metric)}_{_safe(kx)}_{_safe(ky)}.png"
+            others = [k for k in spec.swept_keys if k not in (kx, ky)]
+            note = f" (median over seeds{' and ' + ', '.join(others) if others else ''})"
+            plot_heatmap(path, kx, ky, vx, vy, table, metric, title=f"{spec.name}: {metric}{note}")
+            written.append(path)
+    return written
+
+
+def _match(a: Any, b: Any) -> bool:
+    if _is_number(a) and _is_number(b):
+        return math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=0.0)
+    return a == b

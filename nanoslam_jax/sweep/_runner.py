@@ -1,0 +1,903 @@
+"""Executes a sweep: groups runs by static shape, compiles one program per group and runs it in
+fixed-size batches over the traced hyperparameters and seeds (``jax.vmap``, or ``lax.map`` for
+runs bit-identical to single runs); appends each batch's rows to ``results.csv`` atomically;
+resumes; records failed runs; reports progress.
+
+The compiled program of a group depends only on ``(Static, vectorize, devices, batch size,
+segment shapes)``:
+a group's last batch is padded with copies of its first run so every batch reuses the program,
+and the programs are kept in :data:`_PROGRAMS` (and in JAX's persistent compilation cache in
+``OUT/jax_cache``, so a resumed sweep and worker processes load instead of compiling).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import functools
+import json
+import math
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable, Iterator, NamedTuple, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import yaml
+
+from .._version import __version__
+from ..config import Config, ConfigError
+from ..data import Segments
+from ..filter import AVAILABLE_METHODS, Params, Static, filter_scan, reported_map, settings_from_config
+from ..metrics import evaluate, landmark_errors
+from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
+from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, Run, SweepSpec, expand, spec_identity, spec_to_dict
+
+__all__ = [
+    "LogData",
+    "BatchOutput",
+    "BatchTask",
+    "Group",
+    "SweepResult",
+    "batch_program",
+    "single_program",
+    "execute_batch",
+    "batch_outputs",
+    "load_log_data",
+    "plan_groups",
+    "run_sweep",
+    "resolve_parallel",
+    "resolve_vectorize",
+    "compile_events",
+    "enable_compile_cache",
+]
+
+#: Default cap of runs per compiled call (progress and resume granularity; memory permitting).
+DEFAULT_MAX_BATCH = 64
+
+#: The fastest local mode measured on 2 CPU cores (experiments/sweep_benchmark.py): one process,
+#: the batch split over one JAX CPU device per core.
+AUTO_PARALLEL = "devices"
+#: How a batch is computed on CPU by default. Measured on 2 cores (experiments/sweep_benchmark.py,
+#: 64 configurations of NANO, 10 particles, 500 scans, quiet machine): vmap 1.36-1.56x and lax.map
+#: 1.14-1.27x the throughput of sequential single runs (the filter step is compute-bound on CPU,
+#: so batching amortises little). lax.map reproduces single runs bit for bit; vmap agrees with them
+#: to rounding at each step, which the filter can amplify (a near-tie of weights picks another
+#: particle). On accelerators ``auto`` is ``vmap``.
+AUTO_VECTORIZE = "vmap"
+
+
+# --------------------------------------------------------------------------- the log
+
+
+@dataclasses.dataclass(frozen=True)
+class LogData:
+    """A log as host arrays, ready to ship to a worker process or a Ray task.
+
+    Attributes:
+        segments: the (possibly truncated) segments, numpy arrays.
+        gps: ``(G, 3)`` GPS fixes (or the truth of a simulated log).
+        frame: metrics frame (``'relative'`` or ``'slam'``).
+        truth_landmarks: true trees of a simulated log (or ``None``).
+        source: where the log came from.
+    """
+
+    segments: Segments
+    gps: np.ndarray
+    frame: str
+    truth_landmarks: Optional[np.ndarray]
+    source: str
+
+    @property
+    def time(self) -> np.ndarray:
+        return np.asarray(self.segments.time)
+
+
+def log_key(cfg: Config) -> tuple:
+    """What determines the log of a configuration (its data section; and the simulator's inputs)."""
+    if cfg.data.kind == "simulated":
+        return (cfg.data, cfg.sim, cfg.vehicle)
+    return (cfg.data,)
+
+
+def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optional[int] = None) -> LogData:
+    """Read (or simulate) the log of ``cfg`` and keep its first ``segments`` segments.
+
+    Args:
+        cfg: a configuration (its ``data``, ``sim`` and, for simulated logs, ``vehicle`` sections).
+        data_dir: a ``--data`` directory overriding ``data.path``.
+        segments: keep only this many leading segments (``None``: all).
+    """
+    from ..experiment import load_log
+
+    log = load_log(cfg, data_dir)
+    seg = log.segments
+    n = seg.time.shape[0] if segments is None else min(segments, seg.time.shape[0])
+    seg = type(seg)(*(np.asarray(a)[:n] for a in seg))
+    return LogData(seg, np.asarray(log.raw.gps), log.frame,
+                   None if log.raw.truth_landmarks is None else np.asarray(log.raw.truth_landmarks), log.source)
+
+
+# --------------------------------------------------------------------------- the compiled program
+
+
+class BatchOutput(NamedTuple):
+    """What the sweep program returns per run (a leading batch axis when batched).
+
+    Attributes:
+        best_pose, mean_pose: ``(segments, 3)`` estimates.
+        ess, iterations, n_associated: ``(segments,)`` per-segment records.
+        n_capped, n_nonfinite, window_overflow: ``(segments,)`` counts.
+        weight_reset: ``(segments,)`` all weights were reset.
+        n_landmarks: landmarks in the reported map.
+        overflow: new landmarks dropped for lack of capacity.
+        resample_count: resampling steps.
+        map_mean, map_active: the reported map (for the map metrics of simulated logs).
+    """
+
+    best_pose: Any
+    mean_pose: Any
+    ess: Any
+    iterations: Any
+    n_associated: Any
+    n_capped: Any
+    n_nonfinite: Any
+    window_overflow: Any
+    weight_reset: Any
+    n_landmarks: Any
+    overflow: Any
+    resample_count: Any
+    map_mean: Any
+    map_active: Any
+
+
+def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
+    """One run: the filter from ``jax.random.key(seed)`` over all segments (as ``run_filter`` does)."""
+    state, out = filter_scan(static, params, segments, jax.random.key(seed))
+    lm = reported_map(state)
+    n = segments.time.shape[0]
+
+    def rec(name, dtype):
+        v = getattr(out, name, None)
+        return jnp.zeros(n, dtype) if v is None else v
+
+    zero = jnp.zeros((), jnp.int32)
+    return BatchOutput(
+        best_pose=out.best_pose, mean_pose=out.mean_pose, ess=rec("ess", float), iterations=rec("iterations", float),
+        n_associated=rec("n_associated", float), n_capped=rec("n_capped", jnp.int32),
+        n_nonfinite=rec("n_nonfinite", jnp.int32), window_overflow=rec("window_overflow", jnp.int32),
+        weight_reset=rec("weight_reset", bool), n_landmarks=jnp.sum(lm.active).astype(jnp.int32),
+        overflow=getattr(state, "overflow", zero), resample_count=getattr(state, "resample_count", zero),
+        map_mean=lm.mean, map_active=lm.active,
+    )
+
+
+def _local_batch(static: Static, vectorize: str, params: Params, seeds, segments: Segments) -> BatchOutput:
+    member = functools.partial(_member, static)
+    if vectorize == "vmap":
+        return jax.vmap(member, in_axes=(0, 0, None))(params, seeds, segments)
+    return jax.lax.map(lambda ps: member(ps[0], ps[1], segments), (params, seeds))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+def batch_program(static: Static, vectorize: str, devices: int, params: Params, seeds, segments: Segments) -> BatchOutput:
+    """A batch of runs in one compiled program.
+
+    Args:
+        static: the group's static settings.
+        vectorize: ``'vmap'``: :func:`_member` vectorised over the batch (``jax.vmap``);
+            ``'map'``: the members one after another in the program (``lax.map``), each computed
+            exactly as a run alone (bit-identical to ``run_filter``).
+        devices: split the batch over this many JAX devices (``shard_map``; 1: no split).
+        params: hyperparameters with a leading batch axis on every leaf.
+        seeds: ``(batch,)`` integer seeds.
+        segments: the log's segments (shared by the batch).
+    """
+    local = functools.partial(_local_batch, static, vectorize)
+    if devices == 1:
+        return local(params, seeds, segments)
+    from jax.sharding import Mesh, PartitionSpec
+
+    mesh = Mesh(np.array(jax.devices()[:devices]), ("batch",))
+    split = PartitionSpec("batch")
+    return jax.shard_map(local, mesh=mesh, in_specs=(split, split, PartitionSpec()), out_specs=split,
+                         check_vma=False)(params, seeds, segments)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def single_program(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
+    """One run as its own program (the sequential baseline of the benchmark)."""
+    return _member(static, params, seed, segments)
+
+
+#: Compiled programs of this process: (Static, batch, segment shapes, devices) -> executable.
+_PROGRAMS: dict[tuple, Any] = {}
+#: Programs that failed to compile: key -> error message (later batches fail at once).
+_FAILED: dict[tuple, str] = {}
+#: One entry per compilation made by this process: dict(static, batch, devices, seconds).
+_COMPILE_EVENTS: list[dict] = []
+
+
+def compile_events() -> list[dict]:
+    """The compilations this process made for sweeps (one per group shape, if all is well)."""
+    return list(_COMPILE_EVENTS)
+
+
+def enable_compile_cache(path: str | os.PathLike) -> str:
+    """Use JAX's persistent compilation cache in ``path`` unless one is configured already.
+
+    Returns:
+        The cache directory in use.
+    """
+    current = jax.config.jax_compilation_cache_dir
+    if current:
+        return str(current)
+    Path(path).mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    return str(path)
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchTask:
+    """One compiled call: up to ``batch`` runs of one group (padded to ``batch``).
+
+    Attributes:
+        group: the group label.
+        static: the group's static settings.
+        log_id: which log (index into the sweep's logs).
+        params: stacked hyperparameters (numpy), ``batch`` long (padding repeats the first run).
+        seeds: ``(batch,)`` seeds (padded likewise).
+        n_real: how many leading members are real runs.
+        metrics_opts: ``(gps_rotation_deg, jump_speed)`` of each real run.
+        fail_on_overflow: a landmark capacity overflow fails the run.
+        run_ids: ids of the real runs.
+        devices: split the batch over this many JAX devices (1: no split).
+        vectorize: ``'vmap'`` or ``'map'`` (see :func:`batch_program`).
+    """
+
+    group: str
+    static: Static
+    log_id: int
+    params: Params
+    seeds: np.ndarray
+    n_real: int
+    metrics_opts: tuple
+    fail_on_overflow: bool
+    run_ids: tuple
+    devices: int = 1
+    vectorize: str = "vmap"
+
+    @property
+    def batch(self) -> int:
+        return int(self.seeds.shape[0])
+
+
+def _program_key(task: BatchTask, segments: Segments) -> tuple:
+    return (task.static, task.vectorize, task.devices, task.batch, tuple((a.shape, str(a.dtype)) for a in segments))
+
+
+def _place(task: BatchTask, segments: Segments):
+    if task.devices > len(jax.devices()):
+        raise RuntimeError(f"{task.devices} JAX devices requested, {len(jax.devices())} available")
+    return jax.tree.map(jnp.asarray, task.params), jnp.asarray(task.seeds), jax.tree.map(jnp.asarray, segments)
+
+
+def _first_line(e: BaseException, limit: int = 300) -> str:
+    msg = str(e).strip().splitlines()
+    text = f"{type(e).__name__}: {msg[0] if msg else ''}".strip()
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, float]:
+    """Run one batch with the group's compiled program (compiled on first use).
+
+    Returns:
+        ``(outputs, compile_s, run_s)``: host outputs of all ``task.batch`` members (padding
+        included), the time spent compiling (0 when the program was reused) and the execution time.
+
+    Raises:
+        Whatever compilation or execution raises.
+    """
+    key = _program_key(task, log.segments)
+    if key in _FAILED:
+        raise RuntimeError(_FAILED[key])
+    args = _place(task, log.segments)
+    compiled = _PROGRAMS.get(key)
+    compile_s = 0.0
+    if compiled is None:
+        t0 = time.perf_counter()
+        try:
+            compiled = batch_program.lower(task.static, task.vectorize, task.devices, *args).compile()
+        except Exception as e:
+            _FAILED[key] = f"compilation failed: {_first_line(e)}"
+            raise RuntimeError(_FAILED[key]) from e
+        compile_s = time.perf_counter() - t0
+        _PROGRAMS[key] = compiled
+        _COMPILE_EVENTS.append(dict(static=task.static, batch=task.batch, devices=task.devices, seconds=compile_s))
+    t1 = time.perf_counter()
+    out = jax.block_until_ready(compiled(*args))
+    run_s = time.perf_counter() - t1
+    return jax.tree.map(np.asarray, out), compile_s, run_s
+
+
+def execute_batch(task: BatchTask, log: LogData) -> list[dict]:
+    """Run one batch and score each real run.
+
+    Never raises for a failing run: an exception (compilation or execution) fails every run of
+    the batch with its reason; a non-finite estimate or (with ``fail_on_overflow``) a landmark
+    capacity overflow fails that run.
+
+    Returns:
+        One dict per real run: ``status`` (``ok``/``failed``), ``reason``, the metrics, ``run_s``
+        (the batch's execution time divided by its real runs) and ``compile_s`` (time spent
+        compiling or loading the program for this batch, on the batch's first run; 0 otherwise).
+    """
+    try:
+        host, compile_s, run_s = batch_outputs(task, log)
+    except Exception as e:  # a failing group must not stop the sweep
+        return [dict(status="failed", reason=f"error: {_first_line(e)}", run_s=math.nan, compile_s=0.0)
+                for _ in range(task.n_real)]
+    run_s /= max(task.n_real, 1)
+    rows = []
+    for i in range(task.n_real):
+        try:
+            r = _score(i, host, log, task)
+        except Exception as e:
+            r = dict(status="failed", reason=f"metrics: {_first_line(e)}")
+        r.update(run_s=run_s, compile_s=compile_s if i == 0 else 0.0)
+        rows.append(r)
+    return rows
+
+
+def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
+    """Metrics of member ``i`` (as ``run_experiment`` computes them) and its status."""
+    static = task.static
+    est = out.best_pose[i] if static.estimate == "best" else out.mean_pose[i]
+    t = log.time
+    m: dict = {}
+    reasons = []
+    finite = np.isfinite(est).all(axis=1)
+    if finite.all():
+        rot, jump = task.metrics_opts[i]
+        m.update({k: v for k, v in evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump,
+                                             frame=log.frame).items() if k in METRIC_KEYS})
+    else:
+        j = int(np.argmin(finite))
+        reasons.append(f"non-finite estimate from segment {j} (t = {t[j]:.2f} s)")
+    has = out.n_associated[i] > 0
+    overflow = int(out.overflow[i])
+    m.update(
+        n_landmarks=int(out.n_landmarks[i]), landmark_overflow=overflow,
+        window_overflow_max=int(np.max(out.window_overflow[i], initial=0)), resample_count=int(out.resample_count[i]),
+        ess_mean=float(np.mean(out.ess[i])), ess_min=float(np.min(out.ess[i])),
+        nano_iterations_mean=float(np.mean(out.iterations[i][has])) if has.any() else 0.0,
+        proposal_capped=int(np.sum(out.n_capped[i])), proposal_nonfinite=int(np.sum(out.n_nonfinite[i])),
+        weight_resets=int(np.sum(out.weight_reset[i])), associations_per_scan=float(np.mean(out.n_associated[i])),
+    )
+    if log.truth_landmarks is not None:
+        act = out.map_active[i]
+        le = landmark_errors(out.map_mean[i][act], log.truth_landmarks)
+        m.update({f"map_{k}": le[k] for k in ("n_matched", "n_spurious", "n_found", "rmse_matched", "median_est_to_true")})
+    if overflow > 0 and task.fail_on_overflow:
+        reasons.append(f"landmark capacity overflow: {overflow} new landmarks dropped (filter.capacity = {static.capacity})")
+    m["status"] = "failed" if reasons else "ok"
+    m["reason"] = "; ".join(reasons)
+    return m
+
+
+# --------------------------------------------------------------------------- planning
+
+
+@dataclasses.dataclass
+class Group:
+    """Runs sharing one compiled program.
+
+    Attributes:
+        label: ``g0``, ``g1``... in order of first appearance.
+        static: their static settings.
+        log_id: their log.
+        runs: their runs, in sweep order.
+        batch: runs per compiled call (every call of the group has this size).
+        shape_values: the swept shape keys' values of the group.
+    """
+
+    label: str
+    static: Static
+    log_id: int
+    runs: list
+    batch: int = 1
+    shape_values: dict = dataclasses.field(default_factory=dict)
+
+
+def _bytes_per_run(static: Static, n_segments: int) -> int:
+    """A generous estimate of one run's memory in a batch (state copies, window work, outputs)."""
+    state = static.n_particles * static.capacity * (2 + 4 + 1 + 1 + 1) * 8
+    window = static.n_particles * static.window_size * (2 + 4 + 3) * 8 * static.k_max
+    outputs = n_segments * 16 * 8
+    return 4 * state + 2 * window + 2 * outputs + (1 << 16)
+
+
+def plan_groups(spec: SweepSpec, runs: Sequence[Run], logs: dict, *, batch: Optional[int] = None,
+                split: int = 1, devices: int = 1) -> list[Group]:
+    """Group runs by (log, static settings) and choose each group's batch size.
+
+    Args:
+        spec: the sweep.
+        runs: all its runs.
+        logs: ``log_key -> (log_id, LogData)``.
+        batch: runs per call (``None``: from ``spec.run``; automatic: at most
+            :data:`DEFAULT_MAX_BATCH` and within ``run.memory_gb``).
+        split: spread each group over at least this many batches when it is large enough
+            (one per worker), so every worker gets work.
+        devices: make the batch size a multiple of this (sharding).
+
+    A group of ``n`` runs and a largest batch ``b`` gets ``ceil(n / b)`` batches of
+    ``ceil(n / ceil(n / b))`` runs, so the padding of its last batch is as small as possible.
+
+    The batch size depends only on the whole group (never on which runs are finished), so a
+    resumed sweep makes the same calls as an uninterrupted one.
+    """
+    groups: dict[tuple, Group] = {}
+    shape_keys = [k for k, _ in spec.shapes]
+    for r in runs:
+        lid, log = logs[log_key(r.point.config)]
+        static, _ = settings_from_config(r.point.config, log.segments.k_max)
+        g = groups.get((lid, static))
+        if g is None:
+            g = groups[(lid, static)] = Group(f"g{len(groups)}", static, lid, [],
+                                               shape_values={k: r.point.values[k] for k in shape_keys})
+        g.runs.append(r)
+    want = batch if batch is not None else spec.run.batch
+    for g in groups.values():
+        n = len(g.runs)
+        if want is None:
+            n_seg = logs_by_id(logs)[g.log_id].segments.time.shape[0]
+            cap = max(1, int(spec.run.memory_gb * 2**30 // _bytes_per_run(g.static, n_seg)))
+            b = min(DEFAULT_MAX_BATCH, cap, n)
+        else:
+            b = min(want, n)
+        if split > 1:
+            b = min(b, -(-n // split))
+        b = -(-n // -(-n // b))  # as many batches as needed, of equal size: the least padding
+        if devices > 1:
+            b = -(-b // devices) * devices
+        g.batch = max(1, b)
+    return list(groups.values())
+
+
+def logs_by_id(logs: dict) -> dict[int, LogData]:
+    """``log_id -> LogData`` from ``log_key -> (log_id, LogData)``."""
+    return {lid: log for lid, log in logs.values()}
+
+
+def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, devices: int = 1,
+               vectorize: Optional[str] = None) -> list[BatchTask]:
+    """The batches still to run (finished run ids in ``done`` are skipped).
+
+    Args:
+        spec, groups, logs: the sweep, its groups and logs (see :func:`plan_groups`).
+        done: finished run ids.
+        devices: split each batch over this many JAX devices.
+        vectorize: ``'vmap'`` or ``'map'`` (default: from ``spec.run.vectorize``).
+    """
+    vectorize = resolve_vectorize(vectorize or spec.run.vectorize)
+    tasks = []
+    by_id = logs_by_id(logs)
+    for g in groups:
+        pending = [r for r in g.runs if r.run_id not in done]
+        k_max = by_id[g.log_id].segments.k_max
+        for start in range(0, len(pending), g.batch):
+            chunk = pending[start:start + g.batch]
+            members = chunk + [chunk[0]] * (g.batch - len(chunk))
+            plist = [settings_from_config(r.point.config, k_max)[1] for r in members]
+            params = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *plist)
+            tasks.append(BatchTask(
+                group=g.label, static=g.static, log_id=g.log_id, params=params,
+                seeds=np.array([r.seed for r in members], dtype=np.int64), n_real=len(chunk),
+                metrics_opts=tuple((r.point.config.metrics.gps_rotation_deg, r.point.config.metrics.jump_speed)
+                                   for r in chunk),
+                fail_on_overflow=spec.run.fail_on_overflow, run_ids=tuple(r.run_id for r in chunk), devices=devices,
+                vectorize=vectorize,
+            ))
+    return tasks
+
+
+# --------------------------------------------------------------------------- executors
+
+
+def _available_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def resolve_vectorize(vectorize: str) -> str:
+    """``auto`` is :data:`AUTO_VECTORIZE` on CPU and ``vmap`` on accelerators."""
+    if vectorize == "auto":
+        return AUTO_VECTORIZE if jax.default_backend() == "cpu" else "vmap"
+    return vectorize
+
+
+def resolve_parallel(parallel: str, workers: Optional[int]) -> tuple[str, int]:
+    """The local execution mode and worker count: ``auto`` is :data:`AUTO_PARALLEL` on several
+    cores and ``single`` on one; ``workers`` defaults to the cores this process may use.
+
+    (``devices`` needs JAX's CPU device count set before JAX's first computation; when that is
+    too late, :func:`run_sweep` turns ``auto`` into ``processes``.)"""
+    n = workers or _available_cores()
+    if parallel == "auto":
+        parallel = AUTO_PARALLEL if n > 1 else "single"
+    if parallel == "single":
+        n = 1
+    return parallel, max(1, n)
+
+
+def setup_devices(n: int) -> int:
+    """Ask JAX for ``n`` CPU devices (possible only before JAX's first computation).
+
+    Returns:
+        The number of devices available (less than ``n`` when JAX had started already).
+    """
+    if n > 1:
+        try:
+            jax.config.update("jax_num_cpu_devices", n)
+        except RuntimeError:
+            pass
+    return len(jax.devices())
+
+
+def _local_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData]) -> Iterator[tuple[BatchTask, list[dict]]]:
+    for t in tasks:
+        yield t, execute_batch(t, logs[t.log_id])
+
+
+def _worker_init(cores, cache_dir: Optional[str]) -> None:
+    """Process-pool initializer: pin this worker to one core and share the compilation cache.
+
+    The XLA flags stay those of the driver: JAX's persistent cache keys include them, so a
+    worker loads the program the driver (or another worker) compiled instead of compiling it.
+    """
+    core = cores.get()
+    if core is not None and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {core})
+    if cache_dir:
+        enable_compile_cache(cache_dir)
+
+
+def _process_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData], workers: int,
+                  cache_dir: Optional[str]) -> Iterator[tuple[BatchTask, list[dict]]]:
+    """Run batches in ``workers`` spawned processes, each pinned to its own core."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    cores = ctx.Queue()
+    avail = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    for i in range(workers):
+        cores.put(avail[i] if len(avail) >= workers else None)
+    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                                  initargs=(cores, cache_dir))
+    queue = list(tasks)
+    running: dict = {}
+    try:
+        while queue or running:
+            while queue and len(running) < 2 * workers:
+                t = queue.pop(0)
+                running[pool.submit(execute_batch, t, logs[t.log_id])] = t
+            done, _ = cf.wait(list(running), return_when=cf.FIRST_COMPLETED)
+            for f in done:
+                t = running.pop(f)
+                try:
+                    res = f.result()
+                except Exception as e:  # a worker died (e.g. out of memory): fail its batch, go on
+                    res = [dict(status="failed", reason=f"error: worker process: {_first_line(e)}",
+                                run_s=math.nan, compile_s=0.0) for _ in range(t.n_real)]
+                yield t, res
+    finally:
+        if queue or running:  # interrupted: do not wait for the batches in flight (they are not saved)
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+        pool.shutdown(wait=not (queue or running), cancel_futures=True)
+
+
+# --------------------------------------------------------------------------- progress
+
+
+class Progress:
+    """A progress bar ``sweep [###   ] done/total runs (pct), failed, elapsed, ETA`` on a stream (stderr).
+
+    The estimate of the time left leaves compilation out (it is paid once per group).
+
+    Args:
+        total: runs in the sweep.
+        done: runs finished before this session (resume).
+        stream: where to write.
+        enabled: write anything at all.
+    """
+
+    def __init__(self, total: int, done: int, stream=sys.stderr, enabled: bool = True):
+        self.total, self.done, self.start_done = total, done, done
+        self.failed = 0
+        self.compile_s = 0.0
+        self.stream, self.enabled = stream, enabled
+        self.t0 = time.perf_counter()
+        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+
+    def line(self) -> str:
+        elapsed = time.perf_counter() - self.t0
+        new = self.done - self.start_done
+        left = self.total - self.done
+        running = max(elapsed - self.compile_s, 1e-9)  # compilation is paid once per group, not per run
+        eta = f"~{_hms(running / new * left)} left" if new and left else ("done" if not left else "ETA after the first batch")
+        frac = self.done / max(self.total, 1)
+        bar = "#" * int(round(24 * frac))
+        return (f"sweep [{bar:<24}] {self.done}/{self.total} runs ({100 * frac:5.1f}%), {self.failed} failed, "
+                f"{_hms(elapsed)} elapsed, {eta}")
+
+    def update(self, n_new: int, n_failed: int, compile_s: float = 0.0) -> None:
+        self.done += n_new
+        self.failed += n_failed
+        self.compile_s += compile_s
+        if self.enabled:
+            end = "\n" if (self.done >= self.total or not self.tty) else "\r"
+            self.stream.write(self.line() + end)
+            self.stream.flush()
+
+    def message(self, text: str) -> None:
+        if self.enabled:
+            self.stream.write(text + "\n")
+            self.stream.flush()
+
+
+def _hms(s: float) -> str:
+    s = int(round(s))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+# --------------------------------------------------------------------------- the driver
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepResult:
+    """What :func:`run_sweep` did.
+
+    Attributes:
+        out_dir: the sweep directory.
+        n_runs: runs in the sweep.
+        n_new: runs made in this call.
+        n_skipped: runs found finished (``--resume``).
+        n_failed: failed runs in ``results.csv``.
+        best: the best configuration's summary (``None`` if none finished ok).
+        groups: the shape groups.
+    """
+
+    out_dir: Path
+    n_runs: int
+    n_new: int
+    n_skipped: int
+    n_failed: int
+    best: Optional[dict]
+    groups: tuple
+
+
+def _columns(spec: SweepSpec, metric_keys: Sequence[str]) -> list[str]:
+    return ["run_id", "config_id", "group", *spec.swept_keys, "seed", "status", "reason", *metric_keys, "run_s", "compile_s"]
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _first_difference(a: Any, b: Any, prefix: str = "") -> str:
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in list(dict.fromkeys([*a, *b])):
+            if a.get(k) != b.get(k):
+                return _first_difference(a.get(k), b.get(k), f"{prefix}{k}.")
+    return prefix.rstrip(".") or "(top level)"
+
+
+def _write_metadata(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], groups: Sequence[Group],
+                    logs: dict, skipped: list, vectorize: str) -> None:
+    from ..experiment import versions
+
+    stamp = _dt.datetime.now().isoformat(timespec="seconds")
+    d = spec_to_dict(spec)
+    d["identity"] = spec_identity(spec)
+    d["vectorize"] = vectorize  # resolved; a resumed sweep keeps it (see run_sweep)
+    d["skipped_invalid"] = [{"values": v, "reason": r} for v, r in skipped]
+    _write_atomic(out / "sweep.yaml", f"# resolved sweep, nanoslam-jax {__version__}, written {stamp}\n"
+                  + yaml.safe_dump(d, sort_keys=False))
+    _write_atomic(out / "base_config.yaml", f"# base configuration of sweep '{spec.name}'\n"
+                  + yaml.safe_dump(spec.base, sort_keys=False))
+    _write_atomic(out / "version.json", json.dumps({**versions(), "written": stamp, "command": " ".join(sys.argv)},
+                                                   indent=2) + "\n")
+    by_id = logs_by_id(logs)
+    gd = {g.label: {"shapes": g.shape_values, "runs": len(g.runs), "batch": g.batch,
+                    "log": by_id[g.log_id].source, "segments": int(by_id[g.log_id].segments.time.shape[0]),
+                    "static": dataclasses.asdict(g.static)} for g in groups}
+    _write_atomic(out / "groups.yaml", yaml.safe_dump(gd, sort_keys=False))
+    lines = ["config_id,group," + ",".join(spec.swept_keys)]
+    cfg_group = {r.config_id: g.label for g in groups for r in g.runs}
+    from ._results import format_value
+
+    for p in points:
+        lines.append(",".join([p.config_id, cfg_group[p.config_id]] + [format_value(p.values[k]) for k in spec.swept_keys]))
+    _write_atomic(out / "configs.csv", "\n".join(lines) + "\n")
+
+
+def run_sweep(
+    spec: SweepSpec,
+    out_dir: str | os.PathLike,
+    *,
+    resume: bool = False,
+    data_dir: Optional[str] = None,
+    progress: bool = True,
+    stream=sys.stderr,
+    on_batch: Optional[Callable[[list[dict]], None]] = None,
+    backend: Optional[str] = None,
+    parallel: Optional[str] = None,
+    workers: Optional[int] = None,
+    batch: Optional[int] = None,
+    vectorize: Optional[str] = None,
+) -> SweepResult:
+    """Run (or resume) a sweep and write its directory.
+
+    Args:
+        spec: the validated sweep.
+        out_dir: the sweep directory (created). It keeps ``sweep.yaml`` (the resolved sweep),
+            ``base_config.yaml``, ``version.json``, ``configs.csv``, ``groups.yaml``,
+            ``results.csv``, and at the end ``summary.csv``, ``summary.md``, ``best.yaml`` and
+            ``plots/``.
+        resume: continue the sweep in ``out_dir``, skipping the runs ``results.csv`` holds.
+        data_dir: log directory overriding ``data.path``.
+        progress: report progress on ``stream``.
+        stream: where progress goes (stderr).
+        on_batch: called with each batch's rows after they are on disk (a hook for callers).
+        backend, parallel, workers, batch, vectorize: override ``spec.run``.
+
+    Raises:
+        ConfigError: ``out_dir`` holds a sweep already (without ``resume``), or a different one.
+        KeyboardInterrupt: passed on after the finished batches are saved (resume later).
+    """
+    opts = spec.run
+    backend = backend or opts.backend
+    out = Path(out_dir)
+    results_path = out / "results.csv"
+    if resume:
+        if not (out / "sweep.yaml").is_file():
+            raise ConfigError(f"{out}: no sweep to resume here (sweep.yaml not found)")
+        old = yaml.safe_load((out / "sweep.yaml").read_text()) or {}
+        if old.get("identity") != spec_identity(spec):
+            key = _first_difference(old.get("identity") or {}, spec_identity(spec))
+            raise ConfigError(f"{out}: was made by a different sweep ('{key}' differs from {spec.source}); "
+                              f"resume it with the same sweep file, or choose another --out")
+    elif results_path.exists():
+        raise ConfigError(f"{out}: holds a sweep already (results.csv); pass --resume to continue it, "
+                          f"or choose another --out")
+
+    stored_vectorize = None
+    if resume:
+        stored_vectorize = old.get("vectorize")
+        explicit = vectorize or (opts.vectorize if opts.vectorize != "auto" else None)
+        if stored_vectorize and explicit and explicit != stored_vectorize:
+            raise ConfigError(f"{out}: was run with vectorize '{stored_vectorize}'; resuming with '{explicit}' would "
+                              f"mix results that differ in rounding; resume with the same vectorize")
+        vectorize = vectorize or stored_vectorize
+
+    points, runs, skipped = expand(spec)
+    for p in points:
+        if p.config.filter.method not in AVAILABLE_METHODS:
+            raise ConfigError(f"{spec.source}: filter.method {p.config.filter.method!r} is not available yet; "
+                              f"available: {', '.join(AVAILABLE_METHODS)}")
+    prog = Progress(len(runs), 0, stream, progress)
+
+    if backend == "ray":
+        mode, n_workers, devices = "ray", 1, 1
+    else:
+        requested = parallel or opts.parallel
+        mode, n_workers = resolve_parallel(requested, workers or opts.workers)
+        devices = 1
+        if mode == "devices":
+            devices = min(setup_devices(n_workers), n_workers)
+            if devices < n_workers and requested == "auto":  # JAX started before the sweep: next best
+                mode, devices = "processes", 1
+            elif devices < n_workers:
+                prog.message(f"sweep: only {devices} JAX device(s) (JAX had started before the sweep); "
+                             f"set jax_num_cpu_devices first, or use parallel: processes")
+                if devices == 1:
+                    mode = "single"
+
+    vectorize = resolve_vectorize(vectorize or opts.vectorize)
+    logs: dict = {}
+    for p in points:
+        k = log_key(p.config)
+        if k not in logs:
+            logs[k] = (len(logs), load_log_data(p.config, data_dir, spec.segments))
+    split = n_workers if mode == "processes" else (spec.ray_num_cpus or 2) if mode == "ray" else 1
+    groups = plan_groups(spec, runs, logs, batch=batch, split=split, devices=devices)
+    metric_keys = list(METRIC_KEYS) + (list(MAP_METRIC_KEYS) if any(l.truth_landmarks is not None
+                                                                       for _, l in logs.values()) else [])
+    rf = ResultsFile(results_path, _columns(spec, metric_keys))
+
+    out.mkdir(parents=True, exist_ok=True)
+    done: set = set()
+    if resume and results_path.exists():
+        try:
+            rf.check_header()
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        rf.repair()
+        done = {r["run_id"] for r in read_results(results_path)}
+    else:
+        _write_metadata(out, spec, points, groups, logs, skipped, vectorize)
+        rf.create()
+    cache_dir = enable_compile_cache(out / "jax_cache") if opts.compile_cache else None
+
+    tasks = make_tasks(spec, groups, logs, done, devices=devices, vectorize=vectorize)
+    n_skipped = sum(1 for r in runs if r.run_id in done)
+    prog.done = prog.start_done = n_skipped
+    prog.message(f"sweep {spec.name}: {len(points)} configurations x {len(spec.seeds)} seeds = {len(runs)} runs in "
+                 f"{len(groups)} shape group(s), {len(tasks)} batches ({mode}, {vectorize}"
+                 f"{f', {n_workers} workers' if mode == 'processes' else ''}"
+                 f"{f', {devices} devices' if devices > 1 else ''}); "
+                 f"{n_skipped} finished before" + (f", {len(skipped)} invalid configurations skipped" if skipped else ""))
+
+    by_id = logs_by_id(logs)
+    if mode == "ray":
+        from ._ray import ray_iter
+
+        it = ray_iter(tasks, by_id, address=spec.ray_address, num_cpus=spec.ray_num_cpus, cache_dir=cache_dir)
+    elif mode == "processes" and tasks:
+        it = _process_iter(tasks, by_id, n_workers, cache_dir)
+    else:
+        it = _local_iter(tasks, by_id)
+    run_meta = {r.run_id: r for r in runs}
+    groups_of = {r.run_id: g.label for g in groups for r in g.runs}
+    n_new = 0
+    try:
+        for task, results in it:
+            rows = []
+            for rid, res in zip(task.run_ids, results):
+                r = run_meta[rid]
+                rows.append({"run_id": rid, "config_id": r.config_id, "group": groups_of[rid], **r.point.values,
+                             "seed": r.seed, **res})
+            rf.append(rows)
+            n_new += len(rows)
+            compile_s = sum(float(row.get("compile_s") or 0.0) for row in rows)
+            # Workers compile side by side: their compile time overlaps.
+            prog.update(len(rows), sum(row["status"] != "ok" for row in rows), compile_s / max(split, 1))
+            if on_batch is not None:
+                on_batch(rows)
+    finally:
+        close = getattr(it, "close", None)
+        if close is not None:
+            close()
+
+    rows = read_results(results_path)
+    cfg_group = {r.config_id: g.label for g in groups for r in g.runs}
+    summary = summarize(rows, points, cfg_group, metric_keys)
+    best = select_best(summary, spec.metric, len(spec.seeds), spec.goal)
+    complete = len({r["run_id"] for r in rows} & set(run_meta)) == len(runs)
+    write_summary(out, summary, spec, metric_keys, best, complete)
+    if best is not None:
+        point = next(p for p in points if p.config_id == best["config_id"])
+        write_best_yaml(out / "best.yaml", spec, point, best)
+    if spec.plots:
+        from ._plots import plot_sweep
+
+        try:
+            plot_sweep(out / "plots", spec, points, rows, [spec.metric])
+        except Exception as e:  # figures must never lose a sweep
+            prog.message(f"sweep: plots failed: {_first_line(e)}\n{traceback.format_exc(limit=3)}")
+    n_failed = sum(r["status"] != "ok" for r in rows)
+    prog.message(f"sweep {spec.name}: {len(rows)} runs recorded ({n_failed} failed), {n_new} now; "
+                 + (f"best {best['config_id']} ({spec.metric} median {best[f'{spec.metric}_median']:.4g})"
+                    if best else "no configuration finished ok"))
+    return SweepResult(out, len(runs), n_new, n_skipped, n_failed, best, tuple(groups))
