@@ -46,7 +46,7 @@ import numpy as np
 import yaml
 
 from ._version import __version__
-from .config import Config, ConfigError, _yaml_load, config_to_dict, load_config
+from .config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
 from .filter import dead_reckoning, reported_map, run_batch, run_filter, settings_from_config, stack_params
 
 DETERMINISTIC = ("ekf_slam", "dead_reckoning")
@@ -137,16 +137,7 @@ def load_compare_spec(path: str | Path, overrides: tuple[str, ...] = (), seeds: 
     """
     p = Path(path)
     where = str(p)
-    if not p.is_file():
-        raise ConfigError(f"{p}: comparison file not found")
-    try:
-        raw = _yaml_load(p.read_text())
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        line = f" line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{p}:{line} is not valid YAML: {getattr(e, 'problem', e)}") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{where}: expected a mapping with keys {sorted(_TOP)}")
+    raw = read_yaml_mapping(p, "comparison")
     unknown = set(raw) - _TOP
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; expected some of {sorted(_TOP)}")

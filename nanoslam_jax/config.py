@@ -391,11 +391,19 @@ def _merge(base: dict, top: dict) -> dict:
     return out
 
 
-def _read_with_base(p: Path, chain: tuple[Path, ...]) -> dict:
-    """The raw mapping of a config file, merged over the file named by its ``base`` key (if any)."""
+def read_yaml_mapping(p: Path, what: str = "config", note: str = "") -> dict:
+    """A YAML file whose top level is a mapping (an empty file is ``{}``).
+
+    Args:
+        p: the file.
+        what: what the file is, for messages (``'config'``, ``'sweep'``, ``'comparison'``).
+        note: appended to the not-found message (e.g. which file named it).
+
+    Raises:
+        ConfigError: naming the file (and line) when it is missing, not YAML, or not a mapping.
+    """
     if not p.is_file():
-        where = f" (base of {chain[-1]})" if chain else ""
-        raise ConfigError(f"{p}: config file not found{where}")
+        raise ConfigError(f"{p}: {what} file not found{note}")
     try:
         raw = _yaml_load(p.read_text())
     except yaml.YAMLError as e:
@@ -405,7 +413,13 @@ def _read_with_base(p: Path, chain: tuple[Path, ...]) -> dict:
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
-        raise ConfigError(f"{p}: expected a mapping of config keys at the top level, got {type(raw).__name__}")
+        raise ConfigError(f"{p}: expected a mapping of {what} keys at the top level, got {type(raw).__name__}")
+    return raw
+
+
+def _read_with_base(p: Path, chain: tuple[Path, ...]) -> dict:
+    """The raw mapping of a config file, merged over the file named by its ``base`` key (if any)."""
+    raw = read_yaml_mapping(p, "config", f" (base of {chain[-1]})" if chain else "")
     base = raw.pop("base", None)
     if base is None:
         return raw

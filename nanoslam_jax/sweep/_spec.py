@@ -21,9 +21,8 @@ from pathlib import Path
 from typing import Any, Literal, Optional
 
 import numpy as np
-import yaml
 
-from ..config import Config, ConfigError, _yaml_load, apply_overrides, config_from_dict, config_to_dict, load_config
+from ..config import Config, ConfigError, apply_overrides, config_from_dict, config_to_dict, load_config, read_yaml_mapping
 
 __all__ = [
     "RandomParam",
@@ -511,16 +510,7 @@ def load_sweep(path: str | os.PathLike, overrides: tuple[str, ...] | list[str] =
         overrides: ``key=value`` strings applied to the base configuration.
     """
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"{p}: sweep file not found")
-    try:
-        raw = _yaml_load(p.read_text())
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        line = f" line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{p}:{line} is not valid YAML: {getattr(e, 'problem', e)}") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{p}: expected a mapping of sweep keys at the top level")
+    raw = read_yaml_mapping(p, "sweep")
     return sweep_from_dict(raw, source=str(p), path=p, overrides=tuple(overrides))
 
 
