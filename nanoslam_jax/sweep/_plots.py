@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import math
 import re
+import textwrap
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -70,7 +71,7 @@ def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[f
         ax.set_xscale("log")
     ax.set_xlabel(key)
     ax.set_ylabel(metric)
-    ax.set_title(title or f"{metric} against {key}")
+    ax.set_title(textwrap.fill(title or f"{metric} against {key}", 70), fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -96,7 +97,7 @@ def plot_heatmap(path: Path, kx: str, ky: str, xvals: Sequence[Any], yvals: Sequ
             ax.text(ix, iy, "failed" if not np.isfinite(v) else f"{v:.3g}", ha="center", va="center", fontsize=8,
                     color="white" if np.isfinite(v) and v > mid else "black")
     fig.colorbar(im, ax=ax, label=f"median {metric}")
-    ax.set_title(title or f"median {metric}")
+    ax.set_title(textwrap.fill(title or f"median {metric}", 60), fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
