@@ -406,7 +406,7 @@ def _write_outputs(out: Path, spec: CompareSpec, results: list[MethodResult]) ->
 
 
 def _figures(out: Path, spec: CompareSpec, results: list[MethodResult], logs: dict, configs: dict) -> None:
-    from .metrics import error_over_time, relative_gps
+    from .metrics import error_over_time, jump_mask, relative_gps
     from .plotting import plot_series, plot_trajectory_grid
 
     ok = [r for r in results if r.trajectory is not None and np.all(np.isfinite(r.trajectory))]
@@ -422,10 +422,12 @@ def _figures(out: Path, spec: CompareSpec, results: list[MethodResult], logs: di
                          true_landmarks=log.raw.truth_landmarks, reference_label=ref_label,
                          title=f"{spec.name}: seed {spec.first_seed}")
     series = []
+    keep = jump_mask(gps[:, 0], gps[:, 1:3], cfg.metrics.jump_speed)  # GPS jumps would dwarf the errors
     for r in ok:
-        te, err = error_over_time(t, r.trajectory[:, :2], gps, rotation_deg=cfg.metrics.gps_rotation_deg, frame=log.frame)
+        te, err = error_over_time(t, r.trajectory[:, :2], gps[keep], rotation_deg=cfg.metrics.gps_rotation_deg, frame=log.frame)
         series.append((r.spec.label, te, err))
-    plot_series(out / "fig4_error.png", series, "position error [m]", f"{spec.name}: error against {ref_label} (seed {spec.first_seed})")
+    plot_series(out / "fig4_error.png", series, "position error [m]",
+                f"{spec.name}: error against {ref_label}, GPS jumps removed (seed {spec.first_seed})")
     timed = [(r.spec.label, r.chunk_t, r.chunk_ms) for r in results if r.chunk_ms is not None]
     if timed:
         plot_series(out / "fig5_time.png", timed, "computation time per scan [ms]",
