@@ -26,7 +26,7 @@ def linearized_gaussian(
         mask: which residual rows count.
         project: applied to the updated mean (heading wrap for poses).
     """
-    W = weights * mask[:, None, None]
+    W = jnp.where(mask[:, None, None], weights, 0.0)  # masked rows may be non-finite (dummy landmarks)
     r = jnp.where(mask[:, None], residual(prior.mean), 0.0)
     J = jnp.where(mask[:, None, None], jax.jacfwd(residual)(prior.mean), 0.0)
     JtW = mm(mt(J), W)
@@ -46,7 +46,6 @@ class LinearizedProposal(AbstractProposal):
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         W = noise_information(x0, det, R, self.landmark_noise)
-        W = jnp.where(det.mask[:, None, None], W, jnp.eye(2))
         q = linearized_gaussian(Gaussian(x0, sym(inv3(P0)), P0), range_bearing_residuals(det), W, det.mask)
         zero = jnp.zeros((), jnp.int32)
         return ProposalResult(q.mean, q.cov, zero, zero)

@@ -447,20 +447,8 @@ def sweep_from_dict(raw: Any, *, source: str = "<sweep>", path: Optional[Path] =
     if segments is not None and (isinstance(segments, bool) or not isinstance(segments, int) or segments < 1):
         raise ConfigError(f"{where}: key 'segments': expected a positive integer or null, got {segments!r}")
 
-    grid_raw = top.get("grid") or {}
-    if not isinstance(grid_raw, dict):
-        raise ConfigError(f"{where}: key 'grid': expected a mapping of config keys to lists of values, got {grid_raw!r}")
-    grid = []
-    for key, values in grid_raw.items():
-        _check_sweep_key(key, "grid", where, want_static=False)
-        grid.append((key, _value_list(values, key, "grid", where)))
-    shapes_raw = top.get("shapes") or {}
-    if not isinstance(shapes_raw, dict):
-        raise ConfigError(f"{where}: key 'shapes': expected a mapping of config keys to lists of values, got {shapes_raw!r}")
-    shapes = []
-    for key, values in shapes_raw.items():
-        _check_sweep_key(key, "shapes", where, want_static=True)
-        shapes.append((key, _value_list(values, key, "shapes", where)))
+    grid = _key_lists(top, "grid", where, want_static=False)
+    shapes = _key_lists(top, "shapes", where, want_static=True)
     random = _parse_random(top.get("random"), where)
 
     seen: dict[str, str] = {}
@@ -500,6 +488,18 @@ def sweep_from_dict(raw: Any, *, source: str = "<sweep>", path: Optional[Path] =
         if key == "filter.method" and "dead_reckoning" in values:
             raise ConfigError(f"{where}: key 'shapes.filter.method': 'dead_reckoning' has no filter to sweep")
     return spec
+
+
+def _key_lists(top: dict, section: str, where: str, want_static: bool) -> list:
+    """``[(key, values), ...]`` of the ``grid`` (traced keys) or ``shapes`` (static keys) section."""
+    raw = top.get(section) or {}
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: key '{section}': expected a mapping of config keys to lists of values, got {raw!r}")
+    out = []
+    for key, values in raw.items():
+        _check_sweep_key(key, section, where, want_static=want_static)
+        out.append((key, _value_list(values, key, section, where)))
+    return out
 
 
 def load_sweep(path: str | os.PathLike, overrides: tuple[str, ...] | list[str] = ()) -> SweepSpec:
