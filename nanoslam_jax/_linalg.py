@@ -44,6 +44,15 @@ def dot(u: Float[Array, "... n"], v: Float[Array, "... n"]) -> Float[Array, "...
     return sum(u[..., l] * v[..., l] for l in range(u.shape[-1]))
 
 
+def tsum(a: Float[Array, "..."], axis: int = 0) -> Float[Array, "..."]:
+    """Sum over a short axis as a chain of additions of its slices.
+
+    XLA:CPU emits reductions whose result keeps tiny minor axes (``(k, 3, 3) -> (3, 3)``) as
+    scalar loops, several times slower than the unrolled element-wise sum, which fuses.
+    """
+    return sum(jnp.take(a, i, axis=axis) for i in range(a.shape[axis]))
+
+
 def mt(a: Float[Array, "... n m"]) -> Float[Array, "... m n"]:
     """Transpose of the last two axes."""
     return jnp.swapaxes(a, -1, -2)

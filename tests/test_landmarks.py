@@ -14,6 +14,7 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.filter import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
+from nanoslam_jax.filter._landmarks import first_true, prefix_count
 
 
 def wrap(a):
@@ -359,3 +360,18 @@ def test_contiguous_placement_equals_free_slot_search_on_prefix_maps(n_active, n
     b, ov_b = jax.jit(scatter_window, static_argnums=4)(lm, local, idx, is_new, True)
     assert int(ov_a) == int(ov_b) == max(n_active + n_new - CAP, 0)
     assert_maps_equal(a, b)
+
+
+@pytest.mark.parametrize("n", [1, 31, 32, 77, 512])
+def test_first_true_and_prefix_count_equal_numpy(n):
+    rng = np.random.default_rng(n)
+    for p in (0.0, 0.05, 0.5, 1.0):
+        mask = rng.uniform(size=n) < p
+        np.testing.assert_array_equal(np.asarray(prefix_count(jnp.asarray(mask))), np.cumsum(mask))
+        for size in (1, 8, 64):
+            idx, count = first_true(jnp.asarray(mask), size)
+            (ref,) = np.nonzero(mask)
+            expect = np.full(size, n)
+            expect[: min(size, ref.size)] = ref[:size]
+            np.testing.assert_array_equal(np.asarray(idx), expect)
+            assert int(count) == mask.sum()

@@ -92,17 +92,23 @@ def associate(
 
     slots = jnp.arange(mean.shape[0])
 
-    def body(avail, inp):
-        k, zk, mk = inp
+    def body(k, carry):
+        avail, slot, is_new, d2_best = carry
+        zk, mk = z[k], z_mask[k]
         d2 = jnp.where(avail, distances(zk), jnp.inf)
-        j = jnp.argmin(d2)
         best = jnp.min(d2)
+        # The first slot attaining the minimum, by two min-reductions (cheaper than argmin on CPU).
+        j = jnp.min(jnp.where(d2 == best, slots, slots.shape[0] - 1))
         matched = mk & (best < gate)
         new = mk & (best > new_landmark)
         # One-hot updates (element-wise, fused) rather than scatters.
         avail = (avail & ~((slots == j) & matched)) | ((slots == window + k) & new)
-        return avail, (jnp.where(matched, j, -1), new, jnp.where(mk, best, jnp.inf))
+        return (avail, slot.at[k].set(jnp.where(matched, j, -1)), is_new.at[k].set(new),
+                d2_best.at[k].set(jnp.where(mk, best, jnp.inf)))
 
-    avail0 = local.active & (slots < window)
-    _, (slot, is_new, d2) = jax.lax.scan(body, avail0, (jnp.arange(k_max), z, z_mask))
+    # Only up to the last real detection: the count does not depend on the particle, so under
+    # vmap this stays one loop of that many steps (a scan's mean is ~5 detections, k_max 14).
+    n_steps = jnp.max(jnp.where(z_mask, jnp.arange(k_max) + 1, 0))
+    init = (local.active & (slots < window), jnp.full(k_max, -1), jnp.zeros(k_max, bool), jnp.full(k_max, jnp.inf, z.dtype))
+    _, slot, is_new, d2 = jax.lax.fori_loop(0, n_steps, body, init)
     return Association(slot, is_new, d2)

@@ -17,9 +17,9 @@ def _ut_piece(x, P, u, dt, params: Params):
 
     The augmented covariance is block-diagonal, so each sigma point of the rule (the centre and
     ``+-s`` along each Cholesky column) perturbs either the pose or the controls: the 11 points
-    hold only 7 distinct poses and 5 distinct controls. The vehicle model is split accordingly
-    (:func:`vehicle_rates` per distinct control, :func:`vehicle_move` per point), which halves
-    the transcendental functions evaluated; the moments are those of the full rule.
+    hold only 7 distinct poses and 5 distinct controls. The vehicle model is split accordingly:
+    :func:`vehicle_rates` once per distinct control, then :func:`vehicle_move` per point; the
+    moments are those of the full rule.
     """
     xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(5)
     s = xi[1, 0]  # the rule's points: centre, then +s e_i, then -s e_i (i = 0..4)
@@ -28,10 +28,11 @@ def _ut_piece(x, P, u, dt, params: Params):
     du = s * jnp.stack([params.sigma_v, params.sigma_alpha])
     ctrl = jnp.stack([u, u.at[0].add(du[0]), u.at[1].add(du[1]), u.at[0].add(-du[0]), u.at[1].add(-du[1])])
     rates = jax.vmap(vehicle_rates, (0, None))(ctrl, params.vehicle)
-    y_pose = jax.vmap(vehicle_move, (0, None, None, None))(poses, rates[0], dt, params.vehicle)
-    y_ctrl = jax.vmap(vehicle_move, (None, 0, None, None))(x, rates[1:], dt, params.vehicle)
-    # Rule order: centre, +pose(3), +ctrl(2), -pose(3), -ctrl(2).
-    y = jnp.concatenate([y_pose[:4], y_ctrl[:2], y_pose[4:], y_ctrl[2:]])
+    # The 11 points in the rule's order (centre, +pose(3), +ctrl(2), -pose(3), -ctrl(2)), moved by
+    # one vectorised call: 7 distinct poses at the nominal rates, the centre at 4 perturbed ones.
+    pts = jnp.concatenate([poses[:4], jnp.broadcast_to(x, (2, 3)), poses[4:], jnp.broadcast_to(x, (2, 3))])
+    rts = jnp.concatenate([jnp.broadcast_to(rates[0], (4, 2)), rates[1:3], jnp.broadcast_to(rates[0], (3, 2)), rates[3:]])
+    y = jax.vmap(vehicle_move, (0, 0, None, None))(pts, rts, dt, params.vehicle)
     centre = y[0]
     dev = (y - centre).at[:, 2].set(wrap_angle(y[:, 2] - centre[2]))
     delta = mv(mt(dev), wm)

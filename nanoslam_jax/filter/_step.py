@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, Key
+from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol3, gaussian_logpdf, mv
 from ..data import Segments
@@ -88,10 +88,12 @@ def particle_update(
     dr_mask: Bool[Array, "dr"],
     z: Float[Array, "k 2"],
     z_mask: Bool[Array, "k"],
-    key: Key[Array, ""],
+    eps: Float[Array, "3"],
     valid: Bool[Array, ""] = True,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
+
+    ``eps`` is the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
 
     ``valid`` False marks a padding segment: pruning then counts no misses (the caller masks the
     pose and weight; with no detections the map is unchanged).
@@ -109,7 +111,6 @@ def particle_update(
     det = Detections(z, local.mean[slot], local.cov[slot], existing)
 
     prop = proposal(x0, P0, det, R)
-    eps = jax.random.normal(key, (3,), dtype=x0.dtype)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
     x_s = x_s.at[2].set(wrap_angle(x_s[2]))
 
@@ -188,11 +189,13 @@ def filter_step(
     """
     n = static.n_particles
     key, k_part, k_res = jax.random.split(state.key, 3)
+    # All particles' standard normal draws in one call (per-particle keys cost ~7 % of a step).
+    eps = jax.random.normal(k_part, (n, 3), dtype=state.particles.pose.dtype)
     p = state.particles
     valid = jnp.asarray(valid)
     out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None))(
         static, params, proposal, p.pose, p.pose_cov, p.landmarks,
-        seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, jax.random.split(k_part, n), valid,
+        seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, eps, valid,
     )
     out = out._replace(
         pose=jnp.where(valid, out.pose, p.pose),

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._trig import atan2, sincos
 from ._angles import wrap_angle
 
 
@@ -17,14 +18,14 @@ def range_bearing(x: Float[ArrayLike, "3"], m: Float[ArrayLike, "2"]) -> Float[A
     dx, dy = m[0] - x[0], m[1] - x[1]
     # sqrt(q) with a floor keeps the derivative finite at r = 0 (never reached by real data).
     r = jnp.sqrt(jnp.maximum(dx * dx + dy * dy, 1e-24))
-    return jnp.stack([r, wrap_angle(jnp.arctan2(dy, dx) - x[2])])
+    return jnp.stack([r, wrap_angle(atan2(dy, dx) - x[2])])
 
 
 def inverse_range_bearing(x: Float[ArrayLike, "3"], z: Float[ArrayLike, "2"]) -> Float[Array, "2"]:
     """Landmark position from pose ``x`` and detection ``z = (r, beta)``: ``p + r (cos, sin)(phi + beta)``."""
     x, z = jnp.asarray(x), jnp.asarray(z)
-    ang = x[2] + z[1]
-    return jnp.stack([x[0] + z[0] * jnp.cos(ang), x[1] + z[0] * jnp.sin(ang)])
+    s, c = sincos(x[2] + z[1])
+    return jnp.stack([x[0] + z[0] * c, x[1] + z[0] * s])
 
 
 def innovation(z: Float[ArrayLike, "2"], z_hat: Float[ArrayLike, "2"]) -> Float[Array, "2"]:

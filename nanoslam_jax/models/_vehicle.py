@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._trig import sincos, tan
 from ._angles import wrap_angle
 
 
@@ -33,14 +34,15 @@ class VehicleParams(NamedTuple):
 
 def centre_speed(ve: Float[ArrayLike, ""], alpha: Float[ArrayLike, ""], params: VehicleParams) -> Float[Array, ""]:
     """Rear-axle centre speed from the encoder speed: ``vc = ve / (1 - tan(alpha) H / L)``."""
-    return ve / (1.0 - jnp.tan(alpha) * params.encoder_offset / params.wheelbase)
+    return ve / (1.0 - tan(alpha) * params.encoder_offset / params.wheelbase)
 
 
 def vehicle_rates(u: Float[ArrayLike, "2"], params: VehicleParams) -> Float[Array, "2"]:
     """Centre speed and yaw rate ``(vc, vc tan(alpha) / L)`` from the controls ``u = (ve, alpha)``."""
     u = jnp.asarray(u)
-    vc = centre_speed(u[0], u[1], params)
-    return jnp.stack([vc, vc / params.wheelbase * jnp.tan(u[1])])
+    t = tan(u[1])
+    vc = u[0] / (1.0 - t * params.encoder_offset / params.wheelbase)  # centre_speed, sharing tan
+    return jnp.stack([vc, vc / params.wheelbase * t])
 
 
 def vehicle_move(
@@ -50,7 +52,7 @@ def vehicle_move(
     x, rates = jnp.asarray(x), jnp.asarray(rates)
     vc, w = rates[0], rates[1]
     a, b = params.laser_a, params.laser_b
-    s, c = jnp.sin(x[2]), jnp.cos(x[2])
+    s, c = sincos(x[2])
     dx = vc * c - w * (a * s + b * c)
     dy = vc * s + w * (a * c - b * s)
     return jnp.stack([x[0] + dt * dx, x[1] + dt * dy, wrap_angle(x[2] + dt * w)])

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._linalg import inv3, mm, mt, mv, sym
+from .._linalg import inv3, mm, mt, mv, sym, tsum
 from ._base import AbstractProposal, Detections, ProposalResult, noise_information, range_bearing_residuals, wrap_pose
 from ._natural_gradient import Gaussian
 
@@ -30,9 +30,9 @@ def linearized_gaussian(
     r = jnp.where(mask[:, None], residual(prior.mean), 0.0)
     J = jnp.where(mask[:, None, None], jax.jacfwd(residual)(prior.mean), 0.0)
     JtW = mm(mt(J), W)
-    lam = sym(prior.precision + jnp.sum(mm(JtW, J), axis=0))
+    lam = sym(prior.precision + tsum(mm(JtW, J)))
     P = sym(inv3(lam)) if lam.shape[-1] == 3 else sym(jnp.linalg.inv(lam))
-    return Gaussian(project(prior.mean - mv(P, jnp.sum(mv(JtW, r), axis=0))), lam, P)
+    return Gaussian(project(prior.mean - mv(P, tsum(mv(JtW, r)))), lam, P)
 
 
 class LinearizedProposal(AbstractProposal):

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import chol3, inv3, logdet_spd, mm, mt, mv, quad_form, sym
+from .._linalg import chol3, inv3, logdet_spd, mm, mt, mv, quad_form, sym, tsum
 from ..quadrature import QuadratureRule
 
 
@@ -54,7 +54,7 @@ def kl_gaussian(q: Gaussian, p: Gaussian, diff: Callable = jnp.subtract) -> Floa
     d = diff(p.mean, q.mean)
     # Clamped at 0: near convergence round-off can make the value slightly negative.
     return jnp.maximum(0.0, 0.5 * (
-        jnp.sum(p.precision * mt(q.cov)) - n + quad_form(d, p.precision) + _logdet(q.precision) - _logdet(p.precision)
+        tsum(tsum(p.precision * mt(q.cov), -1), -1) - n + quad_form(d, p.precision) + _logdet(q.precision) - _logdet(p.precision)
     ))
 
 
@@ -85,16 +85,16 @@ def expected_grad_hess(
         r = residual(x)
         J = jax.jacfwd(residual)(x)  # (k, d, n)
         JtW = mm(mt(J), Wm)  # (k, n, d)
-        g = jnp.sum(mv(JtW, r), axis=0)
+        g = tsum(mv(JtW, r))
         if hessian == "exact":
             nll = lambda y: 0.5 * jnp.sum(residual(y) * mv(Wm, residual(y)))  # noqa: E731
             H = jax.hessian(nll)(x)
         else:
-            H = jnp.sum(mm(JtW, J), axis=0)
+            H = tsum(mm(JtW, J))
         return g, H
 
     g, H = jax.vmap(at_point)(X)
-    return jnp.sum(wm[:, None] * g, axis=0), sym(jnp.sum(wm[:, None, None] * H, axis=0))
+    return tsum(wm[:, None] * g), sym(tsum(wm[:, None, None] * H))
 
 
 def _guard_pd(precision: Float[Array, "n n"], floor: Float[Array, "n n"]) -> Float[Array, "n n"]:
