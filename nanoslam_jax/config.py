@@ -339,30 +339,46 @@ def config_to_dict(cfg: Config) -> dict:
     return dataclasses.asdict(cfg)
 
 
-def _set_path(raw: dict, dotted: str, value: Any, source: str) -> None:
+def config_key_info(dotted: str, where: str) -> tuple[Any, bool]:
+    """The type of a dotted config key and whether it is static (a shape setting).
+
+    Args:
+        dotted: dotted key, e.g. ``filter.gate``.
+        where: prefix of error messages (the file, and the key's place in it).
+
+    Raises:
+        ConfigError: naming the key when it is not a config key, or is a section.
+    """
     parts = dotted.split(".")
-    node = raw
     cls: Any = Config
     for i, part in enumerate(parts):
         fields = {f.name: f for f in dataclasses.fields(cls)}
         if part not in fields:
             prefix = ".".join(parts[:i])
             here = f" under '{prefix}'" if prefix else ""
-            raise ConfigError(f"{source}: unknown key '{dotted}'{here}; known keys: {', '.join(sorted(fields))}")
+            raise ConfigError(f"{where}: unknown key '{dotted}'{here}; known keys: {', '.join(sorted(fields))}")
         tp = typing.get_type_hints(cls)[part]
         if i == len(parts) - 1:
             if dataclasses.is_dataclass(tp):
-                raise ConfigError(f"{source}: key '{dotted}' is a section; set one of its keys, e.g. {dotted}.<key>=...")
-            node[part] = value
-        else:
-            if not dataclasses.is_dataclass(tp):
-                raise ConfigError(f"{source}: key '{'.'.join(parts[:i + 1])}' is not a section")
-            if node.get(part) is None:
-                node[part] = {}
-            if not isinstance(node[part], dict):
-                raise ConfigError(f"{source}: key '{'.'.join(parts[:i + 1])}' must be a mapping to set '{dotted}'")
-            node = node[part]
-            cls = tp
+                raise ConfigError(f"{where}: key '{dotted}' is a section; set one of its keys, e.g. {dotted}.<key>")
+            return tp, bool(fields[part].metadata.get("static", False))
+        if not dataclasses.is_dataclass(tp):
+            raise ConfigError(f"{where}: key '{'.'.join(parts[:i + 1])}' is not a section (in '{dotted}')")
+        cls = tp
+    raise AssertionError("unreachable")
+
+
+def _set_path(raw: dict, dotted: str, value: Any, source: str) -> None:
+    config_key_info(dotted, source)  # the whole key against the schema first
+    parts = dotted.split(".")
+    node = raw
+    for i, part in enumerate(parts[:-1]):
+        if node.get(part) is None:
+            node[part] = {}
+        if not isinstance(node[part], dict):
+            raise ConfigError(f"{source}: key '{'.'.join(parts[:i + 1])}' must be a mapping to set '{dotted}'")
+        node = node[part]
+    node[parts[-1]] = value
 
 
 def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...]) -> dict:

@@ -10,7 +10,6 @@ sweep file and the key) and :func:`expand` turns it into the list of :class:`Run
 from __future__ import annotations
 
 import copy
-import dataclasses
 import itertools
 import math
 import os
@@ -22,7 +21,16 @@ from typing import Any, Literal, Optional
 
 import numpy as np
 
-from ..config import Config, ConfigError, apply_overrides, config_from_dict, config_to_dict, load_config, read_yaml_mapping
+from ..config import (
+    Config,
+    ConfigError,
+    apply_overrides,
+    config_from_dict,
+    config_key_info,
+    config_to_dict,
+    load_config,
+    read_yaml_mapping,
+)
 
 __all__ = [
     "RandomParam",
@@ -217,34 +225,6 @@ class Run:
 
 
 # --------------------------------------------------------------------------- config keys
-
-
-def config_key_info(key: str, where: str) -> tuple[Any, bool]:
-    """The type and staticness of a dotted config key.
-
-    Args:
-        key: dotted key, e.g. ``filter.gate``.
-        where: prefix of error messages (the sweep file and the sweep key).
-
-    Raises:
-        ConfigError: when ``key`` is not a config key (or is a section).
-    """
-    cls: Any = Config
-    parts = key.split(".")
-    for i, part in enumerate(parts):
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        if part not in fields:
-            here = f" under '{'.'.join(parts[:i])}'" if i else ""
-            raise ConfigError(f"{where}: '{key}' is not a config key{here}; known keys: {', '.join(sorted(fields))}")
-        tp = typing.get_type_hints(cls)[part]
-        if i == len(parts) - 1:
-            if dataclasses.is_dataclass(tp):
-                raise ConfigError(f"{where}: '{key}' is a config section; name one of its keys, e.g. {key}.<key>")
-            return tp, bool(fields[part].metadata.get("static", False))
-        if not dataclasses.is_dataclass(tp):
-            raise ConfigError(f"{where}: '{'.'.join(parts[:i + 1])}' is not a config section (in '{key}')")
-        cls = tp
-    raise AssertionError
 
 
 def _get(cfg: Config, key: str) -> Any:
