@@ -40,9 +40,8 @@ def centre_speed(ve: Float[ArrayLike, ""], alpha: Float[ArrayLike, ""], params: 
 def vehicle_rates(u: Float[ArrayLike, "2"], params: VehicleParams) -> Float[Array, "2"]:
     """Centre speed and yaw rate ``(vc, vc tan(alpha) / L)`` from the controls ``u = (ve, alpha)``."""
     u = jnp.asarray(u)
-    t = tan(u[1])
-    vc = u[0] / (1.0 - t * params.encoder_offset / params.wheelbase)  # centre_speed, sharing tan
-    return jnp.stack([vc, vc / params.wheelbase * t])
+    vc = centre_speed(u[0], u[1], params)
+    return jnp.stack([vc, vc / params.wheelbase * tan(u[1])])
 
 
 def vehicle_move(
