@@ -29,6 +29,7 @@ are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PA
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import resource
@@ -60,7 +61,7 @@ def throughput(args) -> dict:
     import numpy as np
 
     import nanoslam_jax  # noqa: F401
-    from nanoslam_jax.filter import settings_from_config
+    from nanoslam_jax.filter import row_buckets, settings_from_config
     from nanoslam_jax.sweep import batch_program, expand, load_log_data, single_program, sweep_from_dict
 
     spec = sweep_from_dict(sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs),
@@ -78,7 +79,11 @@ def throughput(args) -> dict:
     single = single_program.lower(static, params[0], seeds[0], seg).compile()
     single_compile = time.perf_counter() - t0
     t0 = time.perf_counter()
-    batched = batch_program.lower(static, "vmap", 1, stacked, seeds, seg).compile()
+    # As the sweep runner does: a vmapped call carries configs x particles, enough for the
+    # proposal's row buckets (filter.row_buckets: auto); one config at a time does not.
+    bstatic = dataclasses.replace(static, row_buckets=row_buckets(
+        points[0].config.filter.row_buckets, static.n_particles * len(params)))
+    batched = batch_program.lower(bstatic, "vmap", 1, stacked, seeds, seg).compile()
     batch_compile = time.perf_counter() - t0
     t0 = time.perf_counter()
     mapped = batch_program.lower(static, "map", 1, stacked, seeds, seg).compile()

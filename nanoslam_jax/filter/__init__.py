@@ -8,7 +8,12 @@ from ._landmarks import (
     init_landmark as init_landmark,
     scatter_window as scatter_window,
 )
-from ._params import Params as Params, Static as Static, settings_from_config as settings_from_config
+from ._params import (
+    Params as Params,
+    Static as Static,
+    row_buckets as row_buckets,
+    settings_from_config as settings_from_config,
+)
 from ._prior import predict as predict, predict_mean as predict_mean
 from ._resampling import (
     RESAMPLERS as RESAMPLERS,

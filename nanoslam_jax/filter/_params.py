@@ -14,7 +14,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ..config import Config
+from ..config import ROW_BUCKETS_FROM, Config
 from ..models import VehicleParams
 
 
@@ -27,6 +27,7 @@ class Static:
     capacity: int = 512
     window: int = 64
     k_max: int = 14
+    row_buckets: tuple[int, ...] = ()
     prior: str = "unscented"
     prior_cov: str = "reset"
     sequential: bool = True
@@ -110,6 +111,17 @@ class Params(NamedTuple):
         return jnp.diag(jnp.stack([jnp.square(self.sigma_v), jnp.square(self.sigma_alpha)]))
 
 
+#: Detection-row counts the proposal may run over (then ``k_max``): see ``filter.row_buckets``.
+ROW_BUCKETS = (4, 8)
+
+
+def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
+    """The proposal's row buckets for ``filter.row_buckets`` and the particles one program
+    carries (for a vmapped sweep batch: particles times runs)."""
+    on = setting == "on" or (setting == "auto" and particles >= ROW_BUCKETS_FROM)
+    return ROW_BUCKETS if on else ()
+
+
 def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
     """Split a :class:`Config` into the static settings and the traced hyperparameters.
 
@@ -126,7 +138,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         nano_init=n.init, nano_solver=n.solver,
         landmark_update="unscented" if f.method == "ufastslam" else "ekf",
         iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
-        iterated_landmark_noise=cfg.iterated.landmark_noise,
+        iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     params = Params(

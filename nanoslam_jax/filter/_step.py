@@ -76,6 +76,29 @@ class _ParticleOut(NamedTuple):
     overflow: Int[Array, ""]
 
 
+def _proposal_over_rows(
+    proposal: AbstractProposal, x0: Float[Array, "3"], P0: Float[Array, "3 3"], det: Detections, R: Float[Array, "2 2"],
+    z_mask: Bool[Array, "k"], buckets: tuple[int, ...],
+):
+    """The proposal over the first ``b`` detection rows only, ``b`` the smallest of ``buckets``
+    (then ``k_max``) that holds the scan's last real detection.
+
+    Rows past the last real detection are never associated, so the result is the same as over
+    all ``k_max`` rows; the work of an iterative proposal is proportional to its rows, and most
+    scans have far fewer detections than the log's busiest one. The bucket depends only on the
+    scan (``z_mask`` is shared by all particles), so under ``vmap`` this stays a branch
+    (``lax.switch`` with an unbatched index) and does not turn into computing every bucket.
+    """
+    k_max = z_mask.shape[0]
+    sizes = sorted({b for b in buckets if 0 < b < k_max} | {k_max})
+    if len(sizes) == 1:
+        return proposal(x0, P0, det, R)
+    n_rows = jnp.max(jnp.where(z_mask, jnp.arange(1, k_max + 1), 0))
+    index = jnp.sum(n_rows > jnp.asarray(sizes[:-1]))
+    branches = [lambda d, b=b: proposal(x0, P0, jax.tree.map(lambda a: a[:b], d), R) for b in sizes]
+    return jax.lax.switch(index, branches, det)
+
+
 def particle_update(
     static: Static,
     params: Params,
@@ -110,7 +133,7 @@ def particle_update(
     slot = jnp.maximum(assoc.slot, 0)
     det = Detections(z, local.mean[slot], local.cov[slot], existing)
 
-    prop = proposal(x0, P0, det, R)
+    prop = _proposal_over_rows(proposal, x0, P0, det, R, z_mask, static.row_buckets)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
     x_s = x_s.at[2].set(wrap_angle(x_s[2]))
 

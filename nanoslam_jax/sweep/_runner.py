@@ -32,7 +32,7 @@ import yaml
 from .._version import __version__
 from ..config import Config, ConfigError
 from ..data import Segments
-from ..filter import AVAILABLE_METHODS, Params, Static, filter_scan, reported_map, settings_from_config
+from ..filter import AVAILABLE_METHODS, Params, Static, filter_scan, reported_map, row_buckets, settings_from_config
 from ..metrics import evaluate, landmark_errors
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
 from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, Run, SweepSpec, expand, spec_identity, spec_to_dict
@@ -490,13 +490,16 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
     for g in groups:
         pending = [r for r in g.runs if r.run_id not in done]
         k_max = by_id[g.log_id].segments.k_max
+        # The proposal's row buckets pay off by the particles one call carries (per device).
+        per_call = g.static.n_particles * (max(1, g.batch // devices) if vectorize == "vmap" else 1)
+        static = dataclasses.replace(g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call))
         for start in range(0, len(pending), g.batch):
             chunk = pending[start:start + g.batch]
             members = chunk + [chunk[0]] * (g.batch - len(chunk))
             plist = [settings_from_config(r.point.config, k_max)[1] for r in members]
             params = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *plist)
             tasks.append(BatchTask(
-                group=g.label, static=g.static, log_id=g.log_id, params=params,
+                group=g.label, static=static, log_id=g.log_id, params=params,
                 seeds=np.array([r.seed for r in members], dtype=np.int64), n_real=len(chunk),
                 metrics_opts=tuple((r.point.config.metrics.gps_rotation_deg, r.point.config.metrics.jump_speed)
                                    for r in chunk),
