@@ -46,11 +46,14 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
     """Run one configuration in this process and return its measurements."""
     import jax
 
-    from nanoslam_jax.config import load_config
+    from nanoslam_jax._devices import available_cores, setup_devices
+    from nanoslam_jax.config import ROW_BUCKETS_FROM, load_config
     from nanoslam_jax.experiment import load_log
     from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
 
     cfg = load_config(config, overrides)
+    if cfg.filter.split_devices == "auto" and cfg.filter.n_particles >= ROW_BUCKETS_FROM:
+        setup_devices(available_cores())  # as `nanoslam run` does
     log = load_log(cfg, data)
     seg = log.segments
     if segments is not None:
@@ -64,6 +67,7 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
         "name": name,
         "method": cfg.filter.method,
         "particles": static.n_particles,
+        "devices": static.devices,
         "capacity": static.capacity,
         "scans": n,
         "compile_s": run.compile_s,
@@ -105,11 +109,11 @@ def main() -> None:
         r = rows[-1]
         print(f"{name}: {r['run_s']:.2f} s run, {r['compile_s']:.1f} s compile", file=sys.stderr, flush=True)
 
-    head = "| row | method | particles | capacity | scans | compile [s] | run [s] | ms/scan | peak RSS [MB] | landmarks |"
+    head = "| row | method | particles | devices | capacity | scans | compile [s] | run [s] | ms/scan | peak RSS [MB] | landmarks |"
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     for r in rows:
-        print(f"| {r['name']} | {r['method']} | {r['particles']} | {r['capacity']} | {r['scans']} | {r['compile_s']:.1f} | "
+        print(f"| {r['name']} | {r['method']} | {r['particles']} | {r['devices']} | {r['capacity']} | {r['scans']} | {r['compile_s']:.1f} | "
               f"{r['run_s']:.2f} | {r['ms_per_scan']:.3f} | {r['peak_rss_mb']:.0f} | {r['landmarks']} |")
     if args.json:
         with open(args.json, "w") as f:

@@ -8,9 +8,10 @@ The workload: 64 configurations (random samples of gate, new-landmark threshold,
 bearing noise) of NANO-SLAM with 10 particles over the first 500 segments of the Victoria Park
 log, float64.
 
-1. *Throughput* (one process, one device): the 64 configurations as one vmapped batch of the
-   sweep program (``batch_program``, ``vectorize='vmap'``) and as one ``lax.map`` batch
-   (``vectorize='map'``) against 64 sequential calls of the single-run program
+1. *Throughput* (one process): the 64 configurations as one vmapped batch of the sweep program
+   (``batch_program``, ``vectorize='vmap'``), as one ``lax.map`` batch (``vectorize='map'``) and,
+   on several cores, as the sweep's default (the vmapped batch split over one JAX CPU device per
+   core) against 64 sequential calls of the single-run program
    (``single_program``, the same computation without the batch axis), all compiled once
    beforehand, timed ``--repeat`` times interleaved (best shown); configurations per second after
    compilation, and how far the batch members' poses are from the same runs alone.
@@ -58,6 +59,10 @@ def sweep_dict(config: str, n: int, particles: int, segments: int, batch: int) -
 def throughput(args) -> dict:
     """Vmapped batch against sequential single runs, both after compilation (this process)."""
     import jax
+
+    cores = len(os.sched_getaffinity(0))
+    if cores > 1:  # for the sweep's default row (the batch split over one JAX device per core)
+        jax.config.update("jax_num_cpu_devices", cores)
     import numpy as np
 
     import nanoslam_jax  # noqa: F401
@@ -88,9 +93,19 @@ def throughput(args) -> dict:
     t0 = time.perf_counter()
     mapped = batch_program.lower(static, "map", 1, stacked, seeds, seg).compile()
     map_compile = time.perf_counter() - t0
+    # The sweep's default on several cores (run.parallel: devices): the vmapped batch split over
+    # one JAX CPU device per core; each device carries configs / cores runs.
+    ndev = len(jax.devices()) if len(params) % len(jax.devices()) == 0 else 1
+    sharded, shard_compile = None, 0.0
+    if ndev > 1:
+        dstatic = dataclasses.replace(static, row_buckets=row_buckets(
+            points[0].config.filter.row_buckets, static.n_particles * len(params) // ndev))
+        t0 = time.perf_counter()
+        sharded = batch_program.lower(dstatic, "vmap", ndev, stacked, seeds, seg).compile()
+        shard_compile = time.perf_counter() - t0
 
     jax.block_until_ready(single(params[0], seeds[0], seg))  # warm
-    seq_t, vmap_t, map_t = [], [], []
+    seq_t, vmap_t, map_t, shard_t = [], [], [], []
     for _ in range(args.repeat):  # interleaved, so a burst of load on the machine hits all three
         t0 = time.perf_counter()
         seq = [jax.block_until_ready(single(p, s, seg)) for p, s in zip(params, seeds)]
@@ -101,6 +116,10 @@ def throughput(args) -> dict:
         t0 = time.perf_counter()
         out_map = jax.block_until_ready(mapped(stacked, seeds, seg))
         map_t.append(time.perf_counter() - t0)
+        if sharded is not None:
+            t0 = time.perf_counter()
+            out_shard = jax.block_until_ready(sharded(stacked, seeds, seg))
+            shard_t.append(time.perf_counter() - t0)
     seq_s, vmap_s, map_s = min(seq_t), min(vmap_t), min(map_t)
     diff = max(float(np.max(np.abs(np.asarray(out.best_pose[i]) - np.asarray(seq[i].best_pose))))
                for i in range(len(params)))
@@ -109,7 +128,10 @@ def throughput(args) -> dict:
     return dict(configs=len(params), particles=static.n_particles, segments=int(seg.time.shape[0]),
                 single_compile_s=single_compile, batch_compile_s=batch_compile, sequential_s=seq_s, vmapped_s=vmap_s,
                 map_compile_s=map_compile, mapped_s=map_s, max_abs_pose_diff=diff, repeats=dict(
-                    sequential=seq_t, vmapped=vmap_t, mapped=map_t), max_abs_pose_diff_map=diff_map, cpu_count=len(os.sched_getaffinity(0)))
+                    sequential=seq_t, vmapped=vmap_t, mapped=map_t, sharded=shard_t), max_abs_pose_diff_map=diff_map,
+                cpu_count=cores, devices=ndev, shard_compile_s=shard_compile, sharded_s=min(shard_t) if shard_t else None,
+                max_abs_pose_diff_sharded=max(float(np.max(np.abs(np.asarray(out_shard.best_pose[i]) - np.asarray(seq[i].best_pose))))
+                                              for i in range(len(params))) if sharded is not None else None)
 
 
 def multicore_one(args) -> dict:
@@ -180,8 +202,13 @@ def main() -> None:
         map_rate = t["configs"] / t["mapped_s"]
         print(f"| one batch of {t['configs']} with lax.map (vectorize: map) | {t['map_compile_s']:.1f} | "
               f"{t['mapped_s']:.2f} | {map_rate:.2f} | {map_rate / seq_rate:.2f} |")
+        if t.get("sharded_s"):
+            sh_rate = t["configs"] / t["sharded_s"]
+            print(f"| one vmapped batch of {t['configs']} split over {t['devices']} JAX devices (the sweep's default) | "
+                  f"{t['shard_compile_s']:.1f} | {t['sharded_s']:.2f} | {sh_rate:.2f} | {sh_rate / seq_rate:.2f} |")
         print(f"\nlargest difference between a batch member's reported poses and the same run alone: "
-              f"vmap {t['max_abs_pose_diff']:.2e} m, map {t['max_abs_pose_diff_map']:.2e} m")
+              f"vmap {t['max_abs_pose_diff']:.2e} m, map {t['max_abs_pose_diff_map']:.2e} m"
+              + (f", split {t['max_abs_pose_diff_sharded']:.2e} m" if t.get("sharded_s") else ""))
         print("all timings [s]: " + "; ".join(f"{k} " + ", ".join(f"{x:.2f}" for x in v) for k, v in t["repeats"].items()),
               flush=True)
     if args.only in (None, "multicore"):

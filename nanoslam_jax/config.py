@@ -141,10 +141,13 @@ class FilterConfig:
     prune: bool = _f(False, static=True, doc="remove landmarks by negative evidence")
     prune_threshold: float = _f(-2.0, doc="log-odds below which a landmark is removed")
     fov_deg: float = _f(180.0, lo=0.0, lo_open=True, hi=360.0, doc="sensor field of view used by pruning")
-    row_buckets: Literal["auto", "on", "off"] = _f("auto", static=True,
+    row_buckets: Literal["auto", "always", "never"] = _f("auto", static=True,
         doc="run the proposal over only 4, 8 or k_max detection rows, the fewest that hold the scan's "
             "detections (same results; the proposal compiled three times, ~10 s more): 'auto' from "
             f"{ROW_BUCKETS_FROM} particles up, where the particles' arithmetic outweighs per-operation overhead")
+    split_devices: Literal["auto", "never"] = _f("auto", static=True,
+        doc="split a single run's particles over the JAX CPU devices (one per core; `nanoslam run` sets them "
+            f"up) from {ROW_BUCKETS_FROM} particles up, when they divide evenly; same results")
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,11 @@ bit-level reproducibility. One static configuration is compiled for all simulate
 (about 20-25 s on 2 CPU cores); the real-log test compiles a second one.
 """
 
+import json
 import math
+import subprocess
+import sys
+import textwrap
 
 import jax
 import jax.numpy as jnp
@@ -270,3 +274,39 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
         np.testing.assert_array_equal(got.iterations, want.iterations)
     jaxpr = str(jax.make_jaxpr(bucketed)(x0, P0, det, jnp.arange(k) < 3))
     assert "cond[" in jaxpr and jaxpr.count("while[") == 3  # one branch each for 2, 4 and 8 rows
+
+
+def test_particles_split_over_devices_give_the_same_run():
+    """A run whose particles are split over two JAX CPU devices (``shard_map``;
+    ``filter.split_devices: auto`` from 64 particles) computes the same run as on one device.
+    JAX fixes its device count at start-up, so this runs in a fresh interpreter."""
+    code = textwrap.dedent("""
+        import dataclasses, json
+        import jax
+        jax.config.update("jax_num_cpu_devices", 2)
+        import numpy as np
+        import nanoslam_jax
+        from nanoslam_jax.config import load_config
+        from nanoslam_jax.experiment import load_log
+        from nanoslam_jax.filter import run_filter, settings_from_config
+        cfg = load_config(None, ["data.t_end=40", "filter.n_particles=64", "filter.row_buckets=never"])
+        log = load_log(cfg)
+        static, params = settings_from_config(cfg, log.segments.k_max)
+        one = run_filter(dataclasses.replace(static, devices=1), params, log.segments, 0)
+        two = run_filter(static, params, log.segments, 0)
+        a, b = one.state.particles, two.state.particles
+        print(json.dumps(dict(
+            devices=static.devices, shards=len(b.pose.sharding.device_set),
+            pose=float(np.max(np.abs(np.asarray(one.outputs.best_pose) - np.asarray(two.outputs.best_pose)))),
+            log_w=float(np.max(np.abs(np.asarray(a.log_w) - np.asarray(b.log_w)))),
+            maps=float(np.max(np.abs(np.asarray(a.landmarks.mean) - np.asarray(b.landmarks.mean)))),
+            resamples=[int(one.state.resample_count), int(two.state.resample_count)],
+            landmarks=[int(np.sum(a.landmarks.active)), int(np.sum(b.landmarks.active))])))
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    r = json.loads(res.stdout.strip().splitlines()[-1])
+    assert r["devices"] == 2 and r["shards"] == 2
+    assert r["resamples"][0] == r["resamples"][1] > 0
+    assert r["landmarks"][0] == r["landmarks"][1] > 0
+    assert r["pose"] < 1e-9 and r["log_w"] < 1e-9 and r["maps"] < 1e-9, r

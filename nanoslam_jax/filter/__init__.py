@@ -11,6 +11,7 @@ from ._landmarks import (
 from ._params import (
     Params as Params,
     Static as Static,
+    particle_devices as particle_devices,
     row_buckets as row_buckets,
     settings_from_config as settings_from_config,
 )

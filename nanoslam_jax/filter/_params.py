@@ -28,6 +28,7 @@ class Static:
     window: int = 64
     k_max: int = 14
     row_buckets: tuple[int, ...] = ()
+    devices: int = 1
     prior: str = "unscented"
     prior_cov: str = "reset"
     sequential: bool = True
@@ -118,8 +119,20 @@ ROW_BUCKETS = (4, 8)
 def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
     """The proposal's row buckets for ``filter.row_buckets`` and the particles one program
     carries (for a vmapped sweep batch: particles times runs)."""
-    on = setting == "on" or (setting == "auto" and particles >= ROW_BUCKETS_FROM)
+    on = setting == "always" or (setting == "auto" and particles >= ROW_BUCKETS_FROM)
     return ROW_BUCKETS if on else ()
+
+
+def particle_devices(setting: str, particles: int) -> int:
+    """JAX devices a single run's particles are split over for ``filter.split_devices``: all of
+    them for ``auto`` from :data:`~nanoslam_jax.config.ROW_BUCKETS_FROM` particles up when the
+    particles divide evenly, else 1."""
+    if setting != "auto" or particles < ROW_BUCKETS_FROM:
+        return 1
+    import jax
+
+    n = len(jax.devices())
+    return n if particles % n == 0 else 1
 
 
 def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
@@ -139,6 +152,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         landmark_update="unscented" if f.method == "ufastslam" else "ekf",
         iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
         iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
+        devices=particle_devices(f.split_devices, f.n_particles),
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     params = Params(

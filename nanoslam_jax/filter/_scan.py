@@ -7,6 +7,7 @@ fixed-size chunks of the log (padding the last), reporting progress between chun
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import sys
 import time
@@ -231,7 +232,10 @@ def run_batch(
 
     Returns:
         A :class:`FilterRun` whose state and outputs carry a leading batch axis.
+
+    Each member's particles stay on one device (``static.devices`` is ignored).
     """
+    static = dataclasses.replace(static, devices=1)  # a batch member's particles stay on one device
     keys = jax.vmap(jax.random.key)(jnp.asarray(np.asarray(seeds)))
     state = _init_batch(static, params, keys)
     return _drive(_chunk_batch, static, params, state, segments, chunk, progress, time_axis=1)

@@ -7,6 +7,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol3, gaussian_logpdf, mv
@@ -216,10 +218,19 @@ def filter_step(
     eps = jax.random.normal(k_part, (n, 3), dtype=state.particles.pose.dtype)
     p = state.particles
     valid = jnp.asarray(valid)
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None))(
-        static, params, proposal, p.pose, p.pose_cov, p.landmarks,
-        seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, eps, valid,
-    )
+
+    def update(pose, pose_cov, landmarks, eps, params, seg, valid):
+        return jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None))(
+            static, params, proposal, pose, pose_cov, landmarks, seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, eps, valid)
+
+    if static.devices > 1:
+        # Each device updates its share of the particles (shard_map); the particle-set work below
+        # (weights, estimate, resampling) sees all of them.
+        mesh = Mesh(np.array(jax.devices()[:static.devices]), ("particles",))
+        part, rep = PartitionSpec("particles"), PartitionSpec()
+        update = jax.shard_map(update, mesh=mesh, in_specs=(part, part, part, part, rep, rep, rep), out_specs=part,
+                               check_vma=False)
+    out = update(p.pose, p.pose_cov, p.landmarks, eps, params, seg, valid)
     out = out._replace(
         pose=jnp.where(valid, out.pose, p.pose),
         pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),

@@ -32,6 +32,7 @@ import yaml
 from .._version import __version__
 from ..config import Config, ConfigError
 from ..data import Segments
+from .._devices import available_cores, setup_devices
 from ..filter import AVAILABLE_METHODS, Params, Static, filter_scan, reported_map, row_buckets, settings_from_config
 from ..metrics import evaluate, landmark_errors
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
@@ -492,7 +493,8 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
         k_max = by_id[g.log_id].segments.k_max
         # The proposal's row buckets pay off by the particles one call carries (per device).
         per_call = g.static.n_particles * (max(1, g.batch // devices) if vectorize == "vmap" else 1)
-        static = dataclasses.replace(g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call))
+        static = dataclasses.replace(g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call),
+                                     devices=1)  # the batch, not a run's particles, is split over devices
         for start in range(0, len(pending), g.batch):
             chunk = pending[start:start + g.batch]
             members = chunk + [chunk[0]] * (g.batch - len(chunk))
@@ -512,13 +514,6 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
 # --------------------------------------------------------------------------- executors
 
 
-def _available_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
 def resolve_vectorize(vectorize: str) -> str:
     """``auto`` is :data:`AUTO_VECTORIZE` on CPU and ``vmap`` on accelerators."""
     if vectorize == "auto":
@@ -532,26 +527,12 @@ def resolve_parallel(parallel: str, workers: Optional[int]) -> tuple[str, int]:
 
     (``devices`` needs JAX's CPU device count set before JAX's first computation; when that is
     too late, :func:`run_sweep` turns ``auto`` into ``processes``.)"""
-    n = workers or _available_cores()
+    n = workers or available_cores()
     if parallel == "auto":
         parallel = AUTO_PARALLEL if n > 1 else "single"
     if parallel == "single":
         n = 1
     return parallel, max(1, n)
-
-
-def setup_devices(n: int) -> int:
-    """Ask JAX for ``n`` CPU devices (possible only before JAX's first computation).
-
-    Returns:
-        The number of devices available (less than ``n`` when JAX had started already).
-    """
-    if n > 1:
-        try:
-            jax.config.update("jax_num_cpu_devices", n)
-        except RuntimeError:
-            pass
-    return len(jax.devices())
 
 
 def _local_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData]) -> Iterator[tuple[BatchTask, list[dict]]]:
