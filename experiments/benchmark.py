@@ -47,12 +47,12 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
     import jax
 
     from nanoslam_jax._devices import available_cores, setup_devices
-    from nanoslam_jax.config import ROW_BUCKETS_FROM, load_config
+    from nanoslam_jax.config import load_config
     from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
+    from nanoslam_jax.filter import particle_devices, reported_map, run_filter, settings_from_config
 
     cfg = load_config(config, overrides)
-    if cfg.filter.split_devices == "auto" and cfg.filter.n_particles >= ROW_BUCKETS_FROM:
+    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, available_cores()) > 1:
         setup_devices(available_cores())  # as `nanoslam run` does
     log = load_log(cfg, data)
     seg = log.segments

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Optional, Sequence
 
-from .config import ROW_BUCKETS_FROM, ConfigError, load_config
+from .config import ConfigError, load_config
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -70,12 +70,12 @@ def _sweep(args) -> int:
 
 
 def _run(args) -> int:
+    from ._devices import available_cores, setup_devices
     from .experiment import default_out_dir, run_experiment
+    from .filter import particle_devices
 
     cfg = load_config(args.config, args.overrides)
-    if cfg.filter.split_devices == "auto" and cfg.filter.n_particles >= ROW_BUCKETS_FROM:
-        from ._devices import available_cores, setup_devices
-
+    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, available_cores()) > 1:
         setup_devices(available_cores())  # one JAX device per core, for the particles' split
     out = Path(args.out) if args.out else default_out_dir(cfg)
     metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)

@@ -278,7 +278,7 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
 
 def test_particles_split_over_devices_give_the_same_run():
     """A run whose particles are split over two JAX CPU devices (``shard_map``;
-    ``filter.split_devices: auto`` from 64 particles) computes the same run as on one device.
+    ``filter.split_devices``) computes the same run as on one device.
     JAX fixes its device count at start-up, so this runs in a fresh interpreter."""
     code = textwrap.dedent("""
         import dataclasses, json
@@ -289,7 +289,8 @@ def test_particles_split_over_devices_give_the_same_run():
         from nanoslam_jax.config import load_config
         from nanoslam_jax.experiment import load_log
         from nanoslam_jax.filter import run_filter, settings_from_config
-        cfg = load_config(None, ["data.t_end=40", "filter.n_particles=64", "filter.row_buckets=never"])
+        cfg = load_config(None, ["data.t_end=40", "filter.n_particles=64", "filter.row_buckets=never",
+                                 "filter.split_devices=always"])
         log = load_log(cfg)
         static, params = settings_from_config(cfg, log.segments.k_max)
         one = run_filter(dataclasses.replace(static, devices=1), params, log.segments, 0)

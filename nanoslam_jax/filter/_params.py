@@ -14,7 +14,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from ..config import ROW_BUCKETS_FROM, Config
+from ..config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
 from ..models import VehicleParams
 
 
@@ -123,16 +123,18 @@ def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
     return ROW_BUCKETS if on else ()
 
 
-def particle_devices(setting: str, particles: int) -> int:
-    """JAX devices a single run's particles are split over for ``filter.split_devices``: all of
-    them for ``auto`` from :data:`~nanoslam_jax.config.ROW_BUCKETS_FROM` particles up when the
-    particles divide evenly, else 1."""
-    if setting != "auto" or particles < ROW_BUCKETS_FROM:
+def particle_devices(setting: str, particles: int, devices: int | None = None) -> int:
+    """JAX devices a single run's particles are split over for ``filter.split_devices``: all
+    ``devices`` (default: JAX's device count) for ``always``, and for ``auto`` from
+    :data:`~nanoslam_jax.config.SPLIT_DEVICES_FROM` particles up, when the particles divide
+    evenly; else 1."""
+    if setting == "never" or (setting == "auto" and particles < SPLIT_DEVICES_FROM):
         return 1
-    import jax
+    if devices is None:
+        import jax
 
-    n = len(jax.devices())
-    return n if particles % n == 0 else 1
+        devices = len(jax.devices())
+    return devices if particles % devices == 0 else 1
 
 
 def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
