@@ -214,6 +214,12 @@ def test_groups_and_batches():
     assert plan_groups(spec, runs, logs, batch=100, split=2)[0].batch == 33
     tasks = make_tasks(spec, groups, logs, done={r.run_id for r in runs[:40]})
     assert [t.n_real for t in tasks] == [25, 33, 32] and all(t.batch == 33 for t in tasks)
+    # filter.row_buckets: auto counts the particles one call carries per device: 4 x 33 and
+    # 8 x 33 vmapped (>= 64), 4 x 16 per device of two, but one run at a time under lax.map.
+    assert [t.static.row_buckets for t in tasks] == [(4, 8)] * 3
+    assert {t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set(), devices=2)} == {(4, 8)}
+    assert {t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set(), vectorize="map")} == {()}
+    assert all(t.static.devices == 1 for t in tasks)
     assert tasks[0].run_ids[0] == runs[40].run_id and tasks[0].seeds.shape == (33,)
     # Padding repeats the first run of the batch.
     assert tasks[2].seeds[32] == tasks[2].seeds[0] and tasks[2].params.sigma_r[32] == tasks[2].params.sigma_r[0]
