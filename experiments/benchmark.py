@@ -52,8 +52,9 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
     from nanoslam_jax.filter import particle_devices, reported_map, run_filter, settings_from_config
 
     cfg = load_config(config, overrides)
-    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, available_cores()) > 1:
-        setup_devices(available_cores())  # as `nanoslam run` does
+    cores = available_cores()
+    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, cores) > 1:
+        setup_devices(cores)  # as `nanoslam run` does
     log = load_log(cfg, data)
     seg = log.segments
     if segments is not None:

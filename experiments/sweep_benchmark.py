@@ -86,9 +86,11 @@ def throughput(args) -> dict:
     t0 = time.perf_counter()
     # As the sweep runner does: a vmapped call carries configs x particles, enough for the
     # proposal's row buckets (filter.row_buckets: auto); one config at a time does not.
-    bstatic = dataclasses.replace(static, row_buckets=row_buckets(
-        points[0].config.filter.row_buckets, static.n_particles * len(params)))
-    batched = batch_program.lower(bstatic, "vmap", 1, stacked, seeds, seg).compile()
+    def for_call(runs_per_device):  # the static settings of a call carrying this many runs per device
+        return dataclasses.replace(static, row_buckets=row_buckets(
+            points[0].config.filter.row_buckets, static.n_particles * runs_per_device))
+
+    batched = batch_program.lower(for_call(len(params)), "vmap", 1, stacked, seeds, seg).compile()
     batch_compile = time.perf_counter() - t0
     t0 = time.perf_counter()
     mapped = batch_program.lower(static, "map", 1, stacked, seeds, seg).compile()
@@ -98,10 +100,8 @@ def throughput(args) -> dict:
     ndev = len(jax.devices()) if len(params) % len(jax.devices()) == 0 else 1
     sharded, shard_compile = None, 0.0
     if ndev > 1:
-        dstatic = dataclasses.replace(static, row_buckets=row_buckets(
-            points[0].config.filter.row_buckets, static.n_particles * len(params) // ndev))
         t0 = time.perf_counter()
-        sharded = batch_program.lower(dstatic, "vmap", ndev, stacked, seeds, seg).compile()
+        sharded = batch_program.lower(for_call(len(params) // ndev), "vmap", ndev, stacked, seeds, seg).compile()
         shard_compile = time.perf_counter() - t0
 
     jax.block_until_ready(single(params[0], seeds[0], seg))  # warm

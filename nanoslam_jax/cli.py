@@ -75,8 +75,9 @@ def _run(args) -> int:
     from .filter import particle_devices
 
     cfg = load_config(args.config, args.overrides)
-    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, available_cores()) > 1:
-        setup_devices(available_cores())  # one JAX device per core, for the particles' split
+    cores = available_cores()
+    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, cores) > 1:
+        setup_devices(cores)  # one JAX device per core, for the particles' split
     out = Path(args.out) if args.out else default_out_dir(cfg)
     metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)
     keys = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "n_landmarks", "ms_per_scan", "compile_s"]
