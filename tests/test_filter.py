@@ -276,6 +276,45 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     assert "cond[" in jaxpr and jaxpr.count("while[") == 3  # one branch each for 2, 4 and 8 rows
 
 
+@pytest.mark.parametrize("buckets", [(), (2,)])
+def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets):
+    """Two detections of one unmapped landmark in one scan: the first creates it at the sampled
+    pose (eq. 16), the second matches that provisional landmark and updates it (EKF) at the same
+    pose, and the weight gains p0 for the first and the second's likelihood. Reference: the
+    tested closed forms ``init_landmark`` and ``ekf_update_loglik`` called directly; with and
+    without the proposal's row buckets (the scan's 3 rows: a bucket of 4 of k_max = 6)."""
+    import dataclasses
+
+    from nanoslam_jax.filter._landmarks import ekf_update_loglik, init_landmark
+    from nanoslam_jax.filter._scan import make_proposal
+    from nanoslam_jax.filter._state import LandmarkMap
+    from nanoslam_jax.filter._step import particle_update
+
+    cfg = load_config(None, ["filter.capacity=16", "filter.window=8"])
+    static, params = settings_from_config(cfg, 6)
+    static = dataclasses.replace(static, row_buckets=tuple(b + 2 for b in buckets))
+    z1 = jnp.array([12.0, 0.3])
+    z = jnp.stack([z1, z1 + jnp.array([0.3, 0.01]), jnp.array([20.0, -0.8])] + [jnp.zeros(2)] * 3)
+    z_mask = jnp.arange(6) < 3
+    pose = jnp.array([1.0, -2.0, 0.4])
+    out = jax.jit(lambda eps: particle_update(
+        static, params, make_proposal(static, params), pose, 1e-4 * jnp.eye(3), LandmarkMap.empty(16),
+        jnp.zeros(2), jnp.zeros((2, 2)), jnp.zeros(2, bool), z, z_mask, eps))(jnp.array([0.3, -1.2, 0.5]))
+    R = params.R
+    m1, S1 = init_landmark(out.pose, z[0], R)
+    m, S, llp = ekf_update_loglik(out.pose, z[1], m1, S1, R)
+    m3, S3 = init_landmark(out.pose, z[2], R)
+    lm = out.landmarks
+    np.testing.assert_array_equal(lm.active, jnp.arange(16) < 2)
+    np.testing.assert_array_equal(lm.hits[:2], [2, 1])
+    np.testing.assert_allclose(lm.mean[0], m, rtol=1e-12)
+    np.testing.assert_allclose(lm.cov[0], S, rtol=1e-10)
+    np.testing.assert_allclose(lm.mean[1], m3, rtol=1e-12)
+    np.testing.assert_allclose(lm.cov[1], S3, rtol=1e-10)
+    np.testing.assert_allclose(out.dlogw, 2 * params.log_p0 + llp, rtol=1e-12)
+    assert int(out.n_new) == 2 and int(out.n_associated) == 1
+
+
 def test_particles_split_over_devices_give_the_same_run():
     """A run whose particles are split over two JAX CPU devices (``shard_map``;
     ``filter.split_devices``) computes the same run as on one device.
