@@ -317,7 +317,8 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets)
 
 def test_particles_split_over_devices_give_the_same_run():
     """A run whose particles are split over two JAX CPU devices (``shard_map``;
-    ``filter.split_devices``) computes the same run as on one device.
+    ``filter.split_devices``: each device keeps its share of the maps) computes the same run,
+    records and resampling included, as on one device.
     JAX fixes its device count at start-up, so this runs in a fresh interpreter."""
     code = textwrap.dedent("""
         import dataclasses, json
@@ -336,7 +337,11 @@ def test_particles_split_over_devices_give_the_same_run():
         two = run_filter(static, params, log.segments, 0)
         a, b = one.state.particles, two.state.particles
         print(json.dumps(dict(
-            devices=static.devices, shards=len(b.pose.sharding.device_set),
+            devices=static.devices, shards=len(b.landmarks.mean.sharding.device_set),
+            maps_split=not b.landmarks.mean.sharding.is_fully_replicated,
+            records_equal=all(np.array_equal(np.asarray(u), np.asarray(v)) for u, v in zip(
+                [one.outputs.n_landmarks, one.outputs.resampled, one.outputs.n_new],
+                [two.outputs.n_landmarks, two.outputs.resampled, two.outputs.n_new])),
             pose=float(np.max(np.abs(np.asarray(one.outputs.best_pose) - np.asarray(two.outputs.best_pose)))),
             log_w=float(np.max(np.abs(np.asarray(a.log_w) - np.asarray(b.log_w)))),
             maps=float(np.max(np.abs(np.asarray(a.landmarks.mean) - np.asarray(b.landmarks.mean)))),
@@ -346,7 +351,7 @@ def test_particles_split_over_devices_give_the_same_run():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     r = json.loads(res.stdout.strip().splitlines()[-1])
-    assert r["devices"] == 2 and r["shards"] == 2
+    assert r["devices"] == 2 and r["shards"] == 2 and r["maps_split"] and r["records_equal"]
     assert r["resamples"][0] == r["resamples"][1] > 0
     assert r["landmarks"][0] == r["landmarks"][1] > 0
     assert r["pose"] < 1e-9 and r["log_w"] < 1e-9 and r["maps"] < 1e-9, r

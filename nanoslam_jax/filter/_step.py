@@ -3,6 +3,7 @@ particle-set work (weights, estimate, resampling)."""
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -76,6 +77,7 @@ class _ParticleOut(NamedTuple):
     n_new: Int[Array, ""]
     window_overflow: Int[Array, ""]
     overflow: Int[Array, ""]
+    n_landmarks: Int[Array, ""]
 
 
 def _proposal_over_rows(
@@ -192,8 +194,23 @@ def particle_update(
         pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
         result=jnp.where(has_assoc, prop.result, 0), has_assoc=has_assoc,
         n_associated=jnp.sum(matched), n_new=jnp.sum(assoc.is_new),
-        window_overflow=window_overflow, overflow=overflow,
+        window_overflow=window_overflow, overflow=overflow, n_landmarks=count_landmarks(lm).astype(jnp.int32),
     )
+
+
+def _gather_small(fields: dict, skip: str, axis_name: str = "particles") -> dict:
+    """All-gather (tiled, inside ``shard_map``) every field but ``skip`` in one collective: the
+    fields are packed as float64 columns of one ``(particles, columns)`` array (the integer and
+    boolean fields are small counts, exact in float64) and unpacked after."""
+    names = [f for f in fields if f != skip]
+    cols = [fields[f].reshape(fields[f].shape[0], -1).astype(jnp.float64) for f in names]
+    packed = jax.lax.all_gather(jnp.concatenate(cols, axis=1), axis_name, tiled=True)
+    out, i = {}, 0
+    for f, c in zip(names, cols):
+        a = fields[f]
+        out[f] = packed[:, i:i + c.shape[1]].reshape((-1,) + a.shape[1:]).astype(a.dtype)
+        i += c.shape[1]
+    return out
 
 
 def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, "n"]) -> Float[Array, "3"]:
@@ -211,26 +228,48 @@ def filter_step(
     A padding segment (``valid`` False; it has no detections and ``dt = 0``) leaves the state
     unchanged: its maps are untouched already, and the poses, weights and resampling decision
     are masked here (small arrays), which is cheaper than a conditional around the whole step.
+
+    With ``static.devices > 1`` the whole step runs under ``shard_map``: each device keeps and
+    updates its share of the particles' maps, while the poses, weights and key are replicated;
+    the particles' small outputs are gathered in one collective per step, and the maps cross
+    devices only when the particles are resampled.
     """
+    if static.devices == 1:
+        return _step(static, None, params, proposal, state, seg, valid)
+    mesh = Mesh(np.array(jax.devices()[:static.devices]), ("particles",))
+    part, rep = PartitionSpec("particles"), PartitionSpec()
+    spec = jax.tree.map(lambda _: rep, state)
+    spec = spec._replace(particles=spec.particles._replace(
+        landmarks=jax.tree.map(lambda _: part, state.particles.landmarks)))
+    step = functools.partial(_step, static, "particles")
+    return jax.shard_map(step, mesh=mesh, in_specs=(rep, rep, spec, rep, rep), out_specs=(spec, rep),
+                         check_vma=False)(params, proposal, state, seg, jnp.asarray(valid))
+
+
+def _step(
+    static: Static, axis: str | None, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
+    valid: Bool[Array, ""],
+) -> tuple[FilterState, StepOutput]:
+    """:func:`filter_step` on one device; ``axis`` names the device axis when the maps are split
+    (``state.particles.landmarks`` then holds this device's share, everything else all particles)."""
     n = static.n_particles
     key, k_part, k_res = jax.random.split(state.key, 3)
     # All particles' standard normal draws in one call (per-particle keys cost ~7 % of a step).
     eps = jax.random.normal(k_part, (n, 3), dtype=state.particles.pose.dtype)
     p = state.particles
     valid = jnp.asarray(valid)
+    if axis is None:
+        mine = lambda a: a  # noqa: E731
+    else:
+        share = n // static.devices
+        first = jax.lax.axis_index(axis) * share
+        mine = lambda a: jax.lax.dynamic_slice_in_dim(a, first, share)  # noqa: E731
 
-    def update(pose, pose_cov, landmarks, eps, params, seg, valid):
-        return jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None))(
-            static, params, proposal, pose, pose_cov, landmarks, seg.dt, seg.u, seg.dr_mask, seg.z, seg.z_mask, eps, valid)
-
-    if static.devices > 1:
-        # Each device updates its share of the particles (shard_map); the particle-set work below
-        # (weights, estimate, resampling) sees all of them.
-        mesh = Mesh(np.array(jax.devices()[:static.devices]), ("particles",))
-        part, rep = PartitionSpec("particles"), PartitionSpec()
-        update = jax.shard_map(update, mesh=mesh, in_specs=(part, part, part, part, rep, rep, rep), out_specs=part,
-                               check_vma=False)
-    out = update(p.pose, p.pose_cov, p.landmarks, eps, params, seg, valid)
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None))(
+        static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
+        seg.z_mask, mine(eps), valid)
+    if axis is not None:
+        out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
         pose=jnp.where(valid, out.pose, p.pose),
         pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),
@@ -250,7 +289,9 @@ def filter_step(
         mean_pose=weighted_mean_pose(out.pose, log_w),
         ess=ess,
         resampled=valid & (ess < params.resample_threshold * n),
-        n_landmarks=count_landmarks(jax.tree.map(lambda a: a[best], out.landmarks)).astype(jnp.int32),
+        # Counted per particle where the maps are (indexing the best particle's map instead would
+        # move every map between the devices at every step when the particles are split).
+        n_landmarks=out.n_landmarks[best],
         iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
         n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
         n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),
@@ -267,7 +308,12 @@ def filter_step(
         # A copy of the best particle if it survived (always, for systematic and residual
         # resampling, since its weight is >= 1/N), else the best survivor.
         best_after = jnp.argmax(parts.log_w[anc]).astype(jnp.int32)
-        parts = jax.tree.map(lambda a: a[anc], parts)
+        if axis is None:
+            parts = jax.tree.map(lambda a: a[anc], parts)
+        else:
+            # This device's new particles may descend from any device's: gather all maps.
+            lms = jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], parts.landmarks)
+            parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
         parts = parts._replace(log_w=jnp.full((n,), -jnp.log(n), dtype=parts.log_w.dtype))
         return parts, best_after
 
