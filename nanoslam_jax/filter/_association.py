@@ -116,4 +116,3 @@ def associate(
     init = (local.active & (slots < window), jnp.full(k_max, -1), jnp.zeros(k_max, bool), jnp.full(k_max, jnp.inf, z.dtype))
     _, slot, is_new, d2 = jax.lax.fori_loop(0, n_steps, body, init)
     return Association(slot, is_new, d2)
-

@@ -198,12 +198,12 @@ def particle_update(
     )
 
 
-def _gather_small(fields: dict, skip: str, axis_name: str = "particles") -> dict:
+def _gather_small(fields: dict, skip: str, axis_name: str) -> dict:
     """All-gather (tiled, inside ``shard_map``) every field but ``skip`` in one collective: the
-    fields are packed as float64 columns of one ``(particles, columns)`` array (the integer and
-    boolean fields are small counts, exact in float64) and unpacked after."""
+    fields are packed as floating-point columns of one ``(particles, columns)`` array (the
+    integer and boolean fields are small counts, exact as floats) and unpacked after."""
     names = [f for f in fields if f != skip]
-    cols = [fields[f].reshape(fields[f].shape[0], -1).astype(jnp.float64) for f in names]
+    cols = [fields[f].reshape(fields[f].shape[0], -1).astype(float) for f in names]
     packed = jax.lax.all_gather(jnp.concatenate(cols, axis=1), axis_name, tiled=True)
     out, i = {}, 0
     for f, c in zip(names, cols):
