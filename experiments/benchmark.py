@@ -46,15 +46,13 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
     """Run one configuration in this process and return its measurements."""
     import jax
 
-    from nanoslam_jax._devices import available_cores, setup_devices
+    from nanoslam_jax._devices import setup_run_devices
     from nanoslam_jax.config import load_config
     from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import particle_devices, reported_map, run_filter, settings_from_config
+    from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
 
     cfg = load_config(config, overrides)
-    cores = available_cores()
-    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, cores) > 1:
-        setup_devices(cores)  # as `nanoslam run` does
+    setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)  # as `nanoslam run` does
     log = load_log(cfg, data)
     seg = log.segments
     if segments is not None:

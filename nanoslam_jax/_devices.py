@@ -33,3 +33,19 @@ def setup_devices(n: int) -> int:
         except RuntimeError:
             pass
     return len(jax.devices())
+
+
+def setup_run_devices(split_devices: str, n_particles: int) -> int:
+    """Set up one JAX CPU device per core when a single run's particles will be split over them
+    (``filter.split_devices``; see :func:`~nanoslam_jax.filter.particle_devices`). Call first
+    thing, before JAX's first computation.
+
+    Returns:
+        The number of JAX devices available.
+    """
+    from .filter import particle_devices
+
+    cores = available_cores()
+    if particle_devices(split_devices, n_particles, cores) > 1:
+        return setup_devices(cores)
+    return len(jax.devices())

@@ -70,14 +70,11 @@ def _sweep(args) -> int:
 
 
 def _run(args) -> int:
-    from ._devices import available_cores, setup_devices
+    from ._devices import setup_run_devices
     from .experiment import default_out_dir, run_experiment
-    from .filter import particle_devices
 
     cfg = load_config(args.config, args.overrides)
-    cores = available_cores()
-    if particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, cores) > 1:
-        setup_devices(cores)  # one JAX device per core, for the particles' split
+    setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)
     out = Path(args.out) if args.out else default_out_dir(cfg)
     metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)
     keys = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "n_landmarks", "ms_per_scan", "compile_s"]
