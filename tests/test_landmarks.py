@@ -14,6 +14,7 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.filter import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
+from nanoslam_jax.filter._association import innovation_information
 from nanoslam_jax.filter._landmarks import first_true, prefix_count
 
 
@@ -139,6 +140,23 @@ def local_map():
 
 def hand_S(m, cov):
     return Gx_hand(X, m) @ P @ Gx_hand(X, m).T + Gm_hand(X, m) @ cov @ Gm_hand(X, m).T + R
+
+
+def test_innovation_information_is_inverse_of_hand_S():
+    # Per-component predicted detections and S^-1 over a window, against the closed form with
+    # correlated pose and landmark covariances.
+    rng = np.random.default_rng(7)
+    x = np.array([3.0, -2.0, 0.7])
+    A = rng.normal(size=(3, 3))
+    Px = A @ A.T * 0.05 + 0.01 * np.eye(3)
+    m = x[:2] + rng.uniform(-25, 25, size=(20, 2))
+    B = rng.normal(size=(20, 2, 2))
+    cov = B @ np.swapaxes(B, 1, 2) * 0.2 + 0.01 * np.eye(2)
+    (zr, zb), (a00, a01, a11) = jax.jit(innovation_information)(x, Px, m, cov, jnp.asarray(R))
+    for k in range(20):
+        S = Gx_hand(x, m[k]) @ Px @ Gx_hand(x, m[k]).T + Gm_hand(x, m[k]) @ cov[k] @ Gm_hand(x, m[k]).T + R
+        np.testing.assert_allclose([[a00[k], a01[k]], [a01[k], a11[k]]], np.linalg.inv(S), rtol=1e-10)
+        np.testing.assert_allclose([zr[k], zb[k]], g(x, m[k]), rtol=1e-12, atol=1e-12)
 
 
 def detection_at_d2(j, d2, direction):

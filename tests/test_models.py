@@ -15,6 +15,8 @@ from nanoslam_jax.models import (
     inverse_range_bearing,
     inverse_range_bearing_jacobians,
     range_bearing,
+    range_bearing_components,
+    range_bearing_jacobian_components,
     range_bearing_jacobians,
     vehicle_jacobians,
     vehicle_step,
@@ -185,6 +187,22 @@ def test_range_bearing_jacobians_match_closed_form():
             Gx_h, Gm_h = range_bearing_jacobians_by_hand(xs[k], ms[k])
             np.testing.assert_allclose(Gx[k], Gx_h, rtol=1e-12, atol=1e-14)
             np.testing.assert_allclose(Gm[k], Gm_h, rtol=1e-12, atol=1e-14)
+
+
+def test_range_bearing_component_jacobian_matches_closed_form():
+    # The per-component form (one array per coordinate, a jvp per input) used over a window of
+    # landmarks: the same model and the same Jacobian entries, evaluated on a whole batch at once.
+    xs, ms, _ = landmark_cases(101)
+    (r, b), J = jax.jit(range_bearing_jacobian_components)(xs[:, 0], xs[:, 1], xs[:, 2], ms[:, 0], ms[:, 1])
+    rb = jax.vmap(range_bearing)(xs, ms)
+    np.testing.assert_allclose(np.stack([r, b], -1), rb, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(np.stack(range_bearing_components(xs[:, 0], xs[:, 1], xs[:, 2], ms[:, 0], ms[:, 1]), -1),
+                               rb, rtol=1e-14, atol=1e-15)
+    J = np.asarray(J)  # (2 outputs, 5 inputs, cases)
+    for k in range(N_CASES):
+        Gx_h, Gm_h = range_bearing_jacobians_by_hand(xs[k], ms[k])
+        np.testing.assert_allclose(J[:, :3, k], Gx_h, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(J[:, 3:, k], Gm_h, rtol=1e-12, atol=1e-14)
 
 
 def test_range_bearing_check_grads_one_side_of_cut():

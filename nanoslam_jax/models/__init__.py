@@ -6,6 +6,8 @@ from ._range_bearing import (
     inverse_range_bearing as inverse_range_bearing,
     inverse_range_bearing_jacobians as inverse_range_bearing_jacobians,
     range_bearing as range_bearing,
+    range_bearing_components as range_bearing_components,
+    range_bearing_jacobian_components as range_bearing_jacobian_components,
     range_bearing_jacobians as range_bearing_jacobians,
 )
 from ._vehicle import (
