@@ -14,6 +14,7 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.filter import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
+from nanoslam_jax.filter._landmarks import add_landmarks, update_slots
 from nanoslam_jax.filter._association import innovation_information
 from nanoslam_jax.filter._landmarks import first_true, prefix_count
 
@@ -133,9 +134,8 @@ GATE, NEW = 5.991, 13.816
 
 
 def local_map():
-    lm = LandmarkMap.empty(W + K)
-    return lm._replace(mean=lm.mean.at[:W].set(LANDMARKS), cov=lm.cov.at[:W].set(LM_COV),
-                       active=lm.active.at[:W].set(ACTIVE))
+    lm = LandmarkMap.empty(W)
+    return lm._replace(mean=jnp.asarray(LANDMARKS), cov=jnp.asarray(LM_COV), active=jnp.asarray(ACTIVE))
 
 
 def hand_S(m, cov):
@@ -273,7 +273,7 @@ def assert_maps_equal(a, b):
         np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
 
 
-gather = jax.jit(gather_window, static_argnums=(2, 3))
+gather = jax.jit(gather_window, static_argnums=2)
 scatter = jax.jit(scatter_window)
 
 
@@ -281,23 +281,24 @@ scatter = jax.jit(scatter_window)
 def test_gather_within_radius_and_round_trip(n_active, radius):
     lm = full_map(n_active)
     pos = jnp.asarray([5.0, -3.0])
-    local, idx, over = gather(lm, pos, W, K, jnp.asarray(radius))
-    assert local.mean.shape == (W + K, 2) and idx.shape == (W,)
+    local, idx, over = gather(lm, pos, W, jnp.asarray(radius))
+    assert local.mean.shape == (W, 2) and idx.shape == (W,)
     act = np.asarray(lm.active)
     d = np.linalg.norm(np.asarray(lm.mean) - np.asarray(pos), axis=1)
     near = np.flatnonzero(act & (d < radius))  # the independent truth: slots within the radius
-    idx_np, loc_act = np.asarray(idx), np.asarray(local.active[:W])
+    idx_np, loc_act = np.asarray(idx), np.asarray(local.active)
     got = idx_np[loc_act]
     assert len(set(got.tolist())) == len(got)  # no slot twice
     # All near landmarks when they fit, else the W lowest (oldest) slots among them.
     assert got.tolist() == near[:W].tolist()
     assert np.all(idx_np[~loc_act] == CAP)  # unused window slots point nowhere
     assert int(np.sum(loc_act)) == min(W, len(near))
-    assert not np.any(local.active[W:])
-    np.testing.assert_array_equal(np.asarray(local.mean[:W])[loc_act], np.asarray(lm.mean)[got])
+    np.testing.assert_array_equal(np.asarray(local.mean)[loc_act], np.asarray(lm.mean)[got])
+    np.testing.assert_array_equal(np.asarray(local.cov)[loc_act], np.asarray(lm.cov)[got])
     assert int(over) == max(len(near) - W, 0)
     # Nothing updated, nothing new: the map comes back unchanged.
-    back, overflow = scatter(lm, local, idx, jnp.zeros(K, bool))
+    assert_maps_equal(scatter(lm, local, idx), lm)
+    back, overflow = jax.jit(add_landmarks)(lm, LandmarkMap.empty(K), jnp.zeros(K, bool))
     assert int(overflow) == 0
     assert_maps_equal(back, lm)
 
@@ -307,27 +308,36 @@ def test_window_overflow_counts_only_near_landmarks():
     pos = jnp.asarray([0.0, 0.0])
     d = np.linalg.norm(np.asarray(lm.mean), axis=1)
     radius = float(np.sort(d)[6]) + 1e-6  # exactly 7 landmarks within the radius
-    _, _, over = gather(lm, pos, W, K, jnp.asarray(radius))
+    _, _, over = gather(lm, pos, W, jnp.asarray(radius))
     assert int(over) == 7 - W
 
 
-def test_scatter_updates_and_new_landmarks_to_free_slots():
+def new_landmarks(means, is_new, covs=None):
+    covs = np.broadcast_to(np.eye(2), (len(means), 2, 2)) if covs is None else covs
+    return LandmarkMap(mean=jnp.asarray(means, float), cov=jnp.asarray(covs, float), active=jnp.asarray(is_new),
+                       hits=jnp.asarray(is_new, jnp.int32), misses=jnp.zeros(len(means), jnp.int32))
+
+
+@pytest.mark.parametrize("contiguous", [False, True])
+def test_updates_and_new_landmarks_to_free_slots(contiguous):
     lm = full_map(5, seed=1)
-    local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, K, jnp.asarray(1000.0))
-    # Update the first window slot (an active landmark) and create two landmarks (provisional slots 0 and 2).
-    j_upd = int(np.flatnonzero(np.asarray(local.active[:W]))[0])
-    new_means = np.array([[100.0, 1.0], [0.0, 0.0], [102.0, 3.0]])
-    is_new = np.array([True, False, True])
-    local = local._replace(
-        mean=local.mean.at[j_upd].set(jnp.asarray([-7.0, 7.0])).at[W:].set(jnp.asarray(new_means)),
-        cov=local.cov.at[W:].set(jnp.asarray([np.eye(2) * 0.3, np.eye(2), np.eye(2) * 0.5])),
-        active=local.active.at[W:].set(jnp.asarray(is_new)),
-        hits=local.hits.at[j_upd].add(1).at[W:].set(jnp.asarray(is_new, jnp.int32)),
-    )
-    back, overflow = scatter(lm, local, idx, jnp.asarray(is_new))
-    assert int(overflow) == 0
+    if contiguous:  # without pruning the active slots are a prefix and no landmark has misses
+        lm = lm._replace(active=jnp.asarray(np.arange(CAP) < 5), misses=jnp.zeros(CAP, jnp.int32))
+    local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, jnp.asarray(1000.0))
+    # Update the first window slot's landmark (an active one; the other two rows change nothing)
+    # and create two landmarks (candidates 0 and 2).
+    j_upd = int(np.flatnonzero(np.asarray(local.active))[0])
     g_upd = int(idx[j_upd])
+    rows = jnp.asarray([CAP, g_upd, CAP])
+    upd_mean = jnp.asarray([[1e3, 1e3], [-7.0, 7.0], [1e3, 1e3]])
+    upd_cov = jnp.asarray([np.eye(2) * 9.0, np.eye(2) * 0.25, np.eye(2) * 9.0])
+    back = jax.jit(update_slots)(lm, rows, upd_mean, upd_cov)
+    is_new = np.array([True, False, True])
+    new = new_landmarks([[100.0, 1.0], [0.0, 0.0], [102.0, 3.0]], is_new)
+    back, overflow = jax.jit(add_landmarks, static_argnums=3)(back, new, jnp.asarray(is_new), contiguous)
+    assert int(overflow) == 0
     np.testing.assert_array_equal(back.mean[g_upd], [-7.0, 7.0])
+    np.testing.assert_array_equal(back.cov[g_upd], np.eye(2) * 0.25)
     assert int(back.hits[g_upd]) == int(lm.hits[g_upd]) + 1
     free_before = np.flatnonzero(~np.asarray(lm.active))
     placed = np.flatnonzero(np.asarray(back.active) & ~np.asarray(lm.active))
@@ -335,7 +345,7 @@ def test_scatter_updates_and_new_landmarks_to_free_slots():
     placed_means = {tuple(np.asarray(back.mean[p]).tolist()) for p in placed}
     assert placed_means == {(100.0, 1.0), (102.0, 3.0)}
     for p in placed:
-        assert int(back.hits[p]) == 1
+        assert int(back.hits[p]) == 1 and int(back.misses[p]) == 0
     # Every other slot is untouched.
     untouched = np.ones(CAP, bool)
     untouched[placed] = False
@@ -345,14 +355,29 @@ def test_scatter_updates_and_new_landmarks_to_free_slots():
     assert int(np.sum(back.active)) == int(np.sum(lm.active)) + 2
 
 
+def test_scatter_window_writes_every_field_back():
+    lm = full_map(7, seed=4)
+    local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, jnp.asarray(1000.0))
+    # What pruning does to a window: scores change and a landmark is removed.
+    j = int(np.flatnonzero(np.asarray(local.active))[1])
+    local = local._replace(misses=local.misses + 1, active=local.active.at[j].set(False))
+    back = scatter(lm, local, idx)
+    used = np.asarray(idx) < CAP
+    np.testing.assert_array_equal(np.asarray(back.misses)[np.asarray(idx)[used]], np.asarray(lm.misses)[np.asarray(idx)[used]] + 1)
+    assert not bool(back.active[int(idx[j])])
+    assert int(np.sum(back.active)) == int(np.sum(lm.active)) - 1
+    rest = np.ones(CAP, bool)
+    rest[np.asarray(idx)[used]] = False
+    for u, v in zip(back, lm):
+        np.testing.assert_array_equal(np.asarray(u)[rest], np.asarray(v)[rest])
+
+
 @pytest.mark.parametrize("n_active,n_new,expect_overflow", [(CAP - 1, 2, 1), (CAP, 3, 3), (CAP - 3, 3, 0)])
 def test_scatter_overflow_is_counted(n_active, n_new, expect_overflow):
     lm = full_map(n_active, seed=2)
-    local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, K, jnp.asarray(1000.0))
     is_new = np.arange(K) < n_new
-    local = local._replace(mean=local.mean.at[W:].set(jnp.asarray([[500.0, 0.0], [501.0, 0.0], [502.0, 0.0]])),
-                           active=local.active.at[W:].set(jnp.asarray(is_new)))
-    back, overflow = scatter(lm, local, idx, jnp.asarray(is_new))
+    new = new_landmarks([[500.0, 0.0], [501.0, 0.0], [502.0, 0.0]], is_new)
+    back, overflow = jax.jit(add_landmarks)(lm, new, jnp.asarray(is_new))
     assert int(overflow) == expect_overflow
     # No silent loss: every new landmark is either in the map or counted.
     placed = int(np.sum(np.asarray(back.active))) - n_active
@@ -370,12 +395,10 @@ def test_contiguous_placement_equals_free_slot_search_on_prefix_maps(n_active, n
     lm = full_map(CAP, seed=3)
     # Without pruning the active slots are a prefix and no landmark ever has misses.
     lm = lm._replace(active=jnp.asarray(np.arange(CAP) < n_active), misses=jnp.zeros(CAP, jnp.int32))
-    local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, K, jnp.asarray(1000.0))
     is_new = jnp.asarray(np.arange(K) < n_new)
-    local = local._replace(mean=local.mean.at[W:].set(jnp.asarray([[50.0, 1.0], [51.0, 2.0], [52.0, 3.0]])),
-                           active=local.active.at[W:].set(is_new))
-    a, ov_a = scatter_window(lm, local, idx, is_new, contiguous=False)
-    b, ov_b = jax.jit(scatter_window, static_argnums=4)(lm, local, idx, is_new, True)
+    new = new_landmarks([[50.0, 1.0], [51.0, 2.0], [52.0, 3.0]], is_new)
+    a, ov_a = add_landmarks(lm, new, is_new, contiguous=False)
+    b, ov_b = jax.jit(add_landmarks, static_argnums=3)(lm, new, is_new, True)
     assert int(ov_a) == int(ov_b) == max(n_active + n_new - CAP, 0)
     assert_maps_equal(a, b)
 

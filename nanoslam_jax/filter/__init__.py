@@ -2,11 +2,13 @@
 
 from ._association import Association as Association, associate as associate
 from ._landmarks import (
+    add_landmarks as add_landmarks,
     ekf_update as ekf_update,
     ekf_update_loglik as ekf_update_loglik,
     gather_window as gather_window,
     init_landmark as init_landmark,
     scatter_window as scatter_window,
+    update_slots as update_slots,
 )
 from ._params import (
     Params as Params,

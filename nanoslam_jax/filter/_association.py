@@ -15,7 +15,7 @@ from ._state import LandmarkMap
 
 
 class Association(NamedTuple):
-    """Result of associating ``k_max`` detections with a local map of ``window + k_max`` slots.
+    """Result of associating ``k_max`` detections with a local map of ``window`` slots.
 
     Attributes:
         slot: local slot matched by each detection, -1 if none. Slots ``>= window`` are
@@ -74,7 +74,9 @@ def associate(
     """Nearest-neighbour association with a chi-square gate and a new-landmark threshold.
 
     Args:
-        local: the particle's local map (``window`` existing slots then ``k_max`` provisional).
+        local: the particle's local map (``window`` slots). Detection ``k`` may also match the
+            provisional landmark of an earlier detection (slot ``window + k``): one per
+            detection, initialised at the prior mean.
         x, P: the particle's prior mean and covariance.
         z, z_mask: the scan's detections and which are real.
         R: measurement noise covariance.
@@ -86,14 +88,14 @@ def associate(
             landmark, only the closer keeps it.
     """
     k_max = z.shape[0]
-    window = local.active.shape[0] - k_max
+    window = local.active.shape[0]
     # Provisional landmarks, one per detection, initialised at the prior mean.
     prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None))(x, z, R)
-    mean = local.mean.at[window:].set(prov_mean)
-    cov = local.cov.at[window:].set(prov_cov)
     # Components kept apart: stacking each detection's innovations (range, bearing) into one array
     # per loop step cost ~12 % of the association on CPU.
-    (zr, zb), (a00, a01, a11) = innovation_information(x, P, mean, cov, R)
+    parts = [innovation_information(x, P, m, c, R) for m, c in ((local.mean, local.cov), (prov_mean, prov_cov))]
+    (zr, zb), (a00, a01, a11) = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), *parts)
+    active = jnp.concatenate([local.active, jnp.zeros(k_max, bool)])
 
     def distances(zk):
         nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)
@@ -101,7 +103,7 @@ def associate(
 
     if not sequential:
         d2 = jax.vmap(distances)(z)
-        d2 = jnp.where(local.active[None, :], d2, jnp.inf)
+        d2 = jnp.where(active[None, :], d2, jnp.inf)
         j = jnp.argmin(d2, axis=1)
         best = jnp.take_along_axis(d2, j[:, None], 1)[:, 0]
         matched = z_mask & (best < gate)
@@ -112,7 +114,7 @@ def associate(
         is_new = z_mask & (best > new_landmark)
         return Association(jnp.where(matched, j, -1), is_new, jnp.where(z_mask, best, jnp.inf))
 
-    slots = jnp.arange(mean.shape[0])
+    slots = jnp.arange(window + k_max)
 
     def body(k, carry):
         avail, slot, is_new, d2_best = carry
@@ -131,6 +133,6 @@ def associate(
     # Only up to the last real detection: the count does not depend on the particle, so under
     # vmap this stays one loop of that many steps (a scan's mean is ~5 detections, k_max 14).
     n_steps = jnp.max(jnp.where(z_mask, jnp.arange(k_max) + 1, 0))
-    init = (local.active & (slots < window), jnp.full(k_max, -1), jnp.zeros(k_max, bool), jnp.full(k_max, jnp.inf, z.dtype))
+    init = (active, jnp.full(k_max, -1), jnp.zeros(k_max, bool), jnp.full(k_max, jnp.inf, z.dtype))
     _, slot, is_new, d2 = jax.lax.fori_loop(0, n_steps, body, init)
     return Association(slot, is_new, d2)

@@ -2,10 +2,11 @@
 and their unscented counterparts (UFastSLAM).
 
 A scan touches only landmarks near the particle. :func:`gather_window` copies the (at most
-``window``) active landmarks within the sensor range plus a margin into a small local map, followed by one provisional slot per
-detection (slot ``window + k`` holds the landmark that detection ``k`` may create), so all
-per-detection work is over ``window + k_max`` slots instead of the full capacity;
-:func:`scatter_window` writes the local map back and places the new landmarks in free slots.
+``window``) active landmarks within the sensor range plus a margin into a small local map, so
+all per-detection work is over ``window`` slots (and one provisional landmark per detection)
+instead of the full capacity. :func:`update_slots` writes back only the landmarks the scan's
+detections updated, :func:`add_landmarks` places the new ones in free slots, and
+:func:`scatter_window` writes a whole local map back (when pruning changes every slot's score).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def first_true(mask: Bool[Array, "n"], size: int) -> tuple[Int[Array, "size"], I
 
 
 def gather_window(
-    lm: LandmarkMap, position: Float[Array, "2"], window: int, k_max: int, radius: Float[Array, ""]
+    lm: LandmarkMap, position: Float[Array, "2"], window: int, radius: Float[Array, ""]
 ) -> tuple[LandmarkMap, Int[Array, "window"], Int[Array, ""]]:
     """The local map of one particle.
 
@@ -55,15 +56,14 @@ def gather_window(
         lm: the particle's map (capacity slots).
         position: where the particle is (its prior mean position).
         window: how many landmarks the local map holds.
-        k_max: provisional slots appended (one per detection), empty.
         radius: landmarks within this distance of ``position`` are copied (the sensor range
             plus a margin for the pose uncertainty).
 
     Returns:
-        The local map (``window + k_max`` slots), the global slot index of each of the first
-        ``window`` local slots (``capacity`` for unused ones), and how many landmarks within
-        ``radius`` did not fit the window (0 unless the window is too small for the local
-        landmark density; the lowest slots, i.e. the oldest landmarks, are kept).
+        The local map (``window`` slots; unused ones inactive, zero mean, unit covariance), the
+        global slot index of each local slot (``capacity`` for unused ones), and how many
+        landmarks within ``radius`` did not fit the window (0 unless the window is too small for
+        the local landmark density; the lowest slots, i.e. the oldest landmarks, are kept).
     """
     capacity = lm.active.shape[0]
     # Components written out: a reduction over a trailing axis of 2 is ~10x slower on XLA:CPU.
@@ -73,38 +73,49 @@ def gather_window(
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
     local = local._replace(active=idx < capacity,
                            cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(2)))
-    extra = LandmarkMap.empty(k_max)
-    local = jax.tree.map(lambda a, b: jnp.concatenate([a, b], axis=0), local, extra)
     return local, idx, jnp.maximum(n_near - window, 0)
 
 
-def scatter_window(
-    lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"], is_new: Bool[Array, "k_max"],
-    contiguous: bool = False,
-) -> tuple[LandmarkMap, Int[Array, ""]]:
-    """Write a local map back into the particle's map.
+def scatter_window(lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"]) -> LandmarkMap:
+    """Write every field of a local map back to its slots (``idx``; ``capacity`` is dropped)."""
+    return jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), lm, local)
 
-    The first ``window`` local slots return to their slots; the provisional slot of each new
-    landmark goes to the next free slot. New landmarks that find no free slot are dropped and
-    counted (overflow), never silently.
+
+def update_slots(
+    lm: LandmarkMap, slots: Int[Array, "k"], mean: Float[Array, "k 2"], cov: Float[Array, "k 2 2"]
+) -> LandmarkMap:
+    """Set the mean and covariance of the landmarks in ``slots`` and count a hit for each.
+
+    ``slots`` are distinct, or ``capacity`` (or beyond) for rows that change nothing: a scan
+    changes only the landmarks its detections matched, so this writes ``k`` rows rather than
+    the whole window.
+    """
+    return lm._replace(
+        mean=lm.mean.at[slots].set(mean, mode="drop"),
+        cov=lm.cov.at[slots].set(cov, mode="drop"),
+        hits=lm.hits.at[slots].add(1, mode="drop"),
+    )
+
+
+def add_landmarks(
+    lm: LandmarkMap, new: LandmarkMap, is_new: Bool[Array, "k"], contiguous: bool = False
+) -> tuple[LandmarkMap, Int[Array, ""]]:
+    """Place new landmarks in free slots, in order.
+
+    New landmarks that find no free slot are dropped and counted (overflow), never silently.
 
     Args:
-        lm, local, idx: the particle's map, its local map and the window index.
-        is_new: which provisional slots hold new landmarks.
+        lm: the particle's map.
+        new: candidate landmarks (``k`` slots), of which those with ``is_new`` are placed.
+        is_new: which candidates are placed.
         contiguous: the active slots are a prefix of the map (always so without pruning, since
             landmarks are only added): the free slots then start at the active count, which
-            avoids a search over the whole capacity.
+            avoids a search over the whole capacity; a free slot then already holds zero misses.
 
     Returns:
         The updated map and the number of landmarks dropped for lack of capacity.
     """
-    window = idx.shape[0]
     capacity = lm.active.shape[0]
-    # Without pruning a scan changes only the window's means, covariances and hits, and a free
-    # slot already holds zero misses: fewer fields to scatter.
-    back = ("mean", "cov", "hits") if contiguous else LandmarkMap._fields
-    new_fields = ("mean", "cov", "active", "hits") if contiguous else LandmarkMap._fields
-    lm = lm._replace(**{f: getattr(lm, f).at[idx].set(getattr(local, f)[:window], mode="drop") for f in back})
     k_max = is_new.shape[0]
     order = jnp.clip(jnp.cumsum(is_new) - 1, 0, k_max - 1)
     if contiguous:
@@ -113,7 +124,8 @@ def scatter_window(
     else:
         free, _ = first_true(~lm.active, k_max)
     target = jnp.where(is_new, free[order], capacity)
-    lm = lm._replace(**{f: getattr(lm, f).at[target].set(getattr(local, f)[window:], mode="drop") for f in new_fields})
+    fields = ("mean", "cov", "active", "hits") if contiguous else LandmarkMap._fields
+    lm = lm._replace(**{f: getattr(lm, f).at[target].set(getattr(new, f), mode="drop") for f in fields})
     return lm, jnp.sum(is_new & (target == capacity))
 
 

@@ -18,12 +18,14 @@ from ..models import circular_mean, innovation, range_bearing, wrap_angle
 from ..proposals import AbstractProposal, Detections
 from ._association import associate, predicted_measurements
 from ._landmarks import (
+    add_landmarks,
     ekf_update_loglik,
     gather_window,
     init_landmark,
     scatter_window,
     ukf_init_landmark,
     ukf_update_loglik,
+    update_slots,
 )
 from ._params import Params, Static
 from ._prior import predict
@@ -130,12 +132,15 @@ def particle_update(
     P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
     x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
 
-    local, idx, window_overflow = gather_window(lm, x0[:2], W, K, params.max_range + params.window_margin)
+    local, idx, window_overflow = gather_window(lm, x0[:2], W, params.max_range + params.window_margin)
     assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential)
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
-    slot = jnp.maximum(assoc.slot, 0)
-    det = Detections(z, local.mean[slot], local.cov[slot], existing)
+    provisional = matched & ~existing  # matched the landmark an earlier detection of this scan created
+    ws = jnp.clip(assoc.slot, 0, W - 1)  # local slot of a row that matched an existing landmark
+    ps = jnp.clip(assoc.slot - W, 0, K - 1)  # detection that created the landmark a row matched
+    # Rows that match no existing landmark are masked out everywhere they are used.
+    det = Detections(z, local.mean[ws], local.cov[ws], existing)
 
     prop = _proposal_over_rows(proposal, x0, P0, det, R, z_mask, static.row_buckets)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
@@ -147,48 +152,52 @@ def particle_update(
     ll = gaussian_logpdf(jax.vmap(innovation)(z, z_hat), S)
     dlogw = jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
 
-    # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM),
-    # in their provisional slots.
+    # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM).
     unscented = static.landmark_update == "unscented"
     ut = (params.ut_alpha, params.ut_beta, params.ut_kappa)
     if unscented:
         new_mean, new_cov = jax.vmap(ukf_init_landmark, (None, 0, None, None, None, None))(x_s, z, R, *ut)
     else:
         new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None))(x_s, z, R)
-    isn = assoc.is_new
-    local = local._replace(
-        mean=local.mean.at[W:].set(jnp.where(isn[:, None], new_mean, local.mean[W:])),
-        cov=local.cov.at[W:].set(jnp.where(isn[:, None, None], new_cov, local.cov[W:])),
-        active=local.active.at[W:].set(isn),
-        hits=local.hits.at[W:].set(isn.astype(jnp.int32)),
-    )
 
-    # EKF (UFastSLAM: unscented) updates at the sampled pose; each slot is matched at most once
+    # EKF (UFastSLAM: unscented) updates at the sampled pose; each landmark is matched at most once
     # per scan. A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
-    cur_mean, cur_cov = local.mean[slot], local.cov[slot]
+    cur_mean = jnp.where(existing[:, None], local.mean[ws], new_mean[ps])
+    cur_cov = jnp.where(existing[:, None, None], local.cov[ws], new_cov[ps])
     if unscented:
         upd_mean, upd_cov, llp = jax.vmap(ukf_update_loglik, (None, 0, 0, 0, None, None, None, None))(
             x_s, z, cur_mean, cur_cov, R, *ut)
     else:
         upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
-    dlogw = dlogw + jnp.sum(jnp.where(matched & ~existing, llp, 0.0))
-    target = jnp.where(matched, assoc.slot, W + K)
-    local = local._replace(
-        mean=local.mean.at[target].set(upd_mean, mode="drop"),
-        cov=local.cov.at[target].set(upd_cov, mode="drop"),
-        hits=local.hits.at[target].add(1, mode="drop"),
+    dlogw = dlogw + jnp.sum(jnp.where(provisional, llp, 0.0))
+
+    # The new landmarks as they leave the scan (a later detection of the scan may have updated one).
+    isn = assoc.is_new
+    pt = jnp.where(provisional, ps, K)
+    new = LandmarkMap(
+        mean=new_mean.at[pt].set(upd_mean, mode="drop"),
+        cov=new_cov.at[pt].set(upd_cov, mode="drop"),
+        active=isn,
+        hits=isn.astype(jnp.int32).at[pt].add(1, mode="drop"),
+        misses=jnp.zeros(K, jnp.int32),
     )
 
     if static.prune:
-        seen = jnp.zeros(W + K, bool).at[target].set(True, mode="drop")
+        wt = jnp.where(existing, ws, W)
+        local = update_slots(local, wt, upd_mean, upd_cov)
+        seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
         zl = jax.vmap(range_bearing, (None, 0))(x_s, local.mean)
         in_view = (zl[:, 0] < params.max_range) & (jnp.abs(zl[:, 1]) < params.half_fov)
-        missed = valid & local.active & in_view & ~seen & (jnp.arange(W + K) < W)
+        missed = valid & local.active & in_view & ~seen
         misses = local.misses + missed.astype(jnp.int32)
         keep = (local.hits - misses) >= params.prune_threshold
         local = local._replace(misses=misses, active=local.active & keep)
-
-    lm, overflow = scatter_window(lm, local, idx, assoc.is_new, contiguous=not static.prune)
+        new = new._replace(active=new.active & (new.hits >= params.prune_threshold))
+        lm = scatter_window(lm, local, idx)
+    else:
+        # Only the landmarks the scan's detections matched change: write those rows back.
+        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov)
+    lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.prune)
     has_assoc = jnp.any(existing)
     return _ParticleOut(
         pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
