@@ -8,15 +8,41 @@ both; the table gives the minimum and the median of the repeats.
     python experiments/ab_step.py --particles 1000 --b filter.row_buckets=always --a filter.row_buckets=never
     python experiments/ab_step.py --particles 100 --b filter.split_devices=always --a filter.split_devices=never \
         --devices 2 --start 1000 --scans 300 --repeat 5
+    python experiments/ab_step.py --particles 1000 --a-rev HEAD~1 --start 1500 --scans 200 --repeat 6
 
-The state at ``--start`` comes from running setting A over the scans before it (on one device).
+``--a-rev REV`` compares code instead of settings: setting A runs the filter step of git revision
+REV (its ``filter/_step.py``, ``_landmarks.py`` and ``_association.py``; the rest of the package is
+the working tree's), setting B the working tree's. The state at ``--start`` comes from running
+setting A's config over the scans before it (on one device, working tree). The largest difference
+between the two programs' outputs (final state and per-scan records) is printed too.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import subprocess
+import sys
 import time
+import types
+
+
+def step_at_revision(rev: str):
+    """``filter_step`` of git revision ``rev``: its filter step, landmark and association modules
+    loaded under other names, everything else the working tree's."""
+    import nanoslam_jax.filter  # noqa: F401  (the package the modules' relative imports resolve in)
+
+    mods = {"_landmarks": "_ab_landmarks", "_association": "_ab_association", "_step": "_ab_step"}
+    for name, alias in mods.items():
+        path = f"nanoslam_jax/filter/{name}.py"
+        src = subprocess.run(["git", "show", f"{rev}:{path}"], capture_output=True, text=True, check=True).stdout
+        for other, other_alias in mods.items():
+            src = src.replace(f"from .{other} import", f"from .{other_alias} import")
+        module = types.ModuleType(f"nanoslam_jax.filter.{alias}")
+        module.__package__ = "nanoslam_jax.filter"
+        sys.modules[module.__name__] = module
+        exec(compile(src, f"{rev}:{path}", "exec"), module.__dict__)
+    return sys.modules["nanoslam_jax.filter._ab_step"].filter_step
 
 
 def main() -> None:
@@ -30,6 +56,7 @@ def main() -> None:
     p.add_argument("--scans", type=int, default=300, help="scans in the timed stretch")
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--devices", type=int, default=1, help="JAX CPU devices to expose (for split_devices)")
+    p.add_argument("--a-rev", help="setting A runs the filter step of this git revision (see above)")
     args = p.parse_args()
 
     import jax
@@ -52,17 +79,22 @@ def main() -> None:
     state = run_filter(dataclasses.replace(static_a, devices=1), params_a, before, 0, chunk=args.start).state
     stretch = jax.tree.map(jax.numpy.asarray, type(seg)(*(a[args.start:args.start + args.scans] for a in seg)))
 
-    programs = {}
+    steps = {"A": step_at_revision(args.a_rev) if args.a_rev else filter_step, "B": filter_step}
+    programs, outputs = {}, {}
     for k, (static, params) in settings.items():
         proposal = make_proposal(static, params)
 
-        def scan(st, sg, pr, static=static, proposal=proposal):
-            return jax.lax.scan(lambda c, x: filter_step(static, pr, proposal, c, x), st, sg)[0]
+        def scan(st, sg, pr, static=static, proposal=proposal, step=steps[k]):
+            return jax.lax.scan(lambda c, x: step(static, pr, proposal, c, x), st, sg)
 
         t0 = time.perf_counter()
         programs[k] = jax.jit(scan).lower(state, stretch, params).compile()
         print(f"{k}: compiled in {time.perf_counter() - t0:.1f} s ({static.row_buckets=}, {static.devices=})", flush=True)
-        jax.block_until_ready(programs[k](state, stretch, params))
+        outputs[k] = jax.block_until_ready(programs[k](state, stretch, params))
+    diffs = [float(np.max(np.abs(np.asarray(a, float) - np.asarray(b, float)), initial=0.0))
+             for a, b in zip(*(jax.tree.leaves(o) for o in outputs.values()))
+             if not jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key)]
+    print(f"largest difference between the outputs of A and B: {max(diffs):.3g}")
 
     times = {k: [] for k in programs}
     for _ in range(args.repeat):
