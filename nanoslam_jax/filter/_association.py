@@ -74,9 +74,9 @@ def associate(
     """Nearest-neighbour association with a chi-square gate and a new-landmark threshold.
 
     Args:
-        local: the particle's local map (``window`` slots). Detection ``k`` may also match the
-            provisional landmark of an earlier detection (slot ``window + k``): one per
-            detection, initialised at the prior mean.
+        local: the particle's local map (``window`` slots). Each detection ``k`` also has a
+            provisional landmark (slot ``window + k``, initialised at the prior mean), which a
+            later detection may match if detection ``k`` starts a landmark.
         x, P: the particle's prior mean and covariance.
         z, z_mask: the scan's detections and which are real.
         R: measurement noise covariance.
