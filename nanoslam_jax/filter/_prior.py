@@ -73,14 +73,15 @@ def predict(
     """
     piece = _ut_piece if kind == "unscented" else _linear_piece
 
-    def body(carry, inp):
+    def body(i, carry):
         xc, Pc = carry
-        dti, ui, mi = inp
-        xn, Pn = piece(xc, Pc, ui, dti, params)
-        return (jnp.where(mi, xn, xc), jnp.where(mi, Pn, Pc)), None
+        xn, Pn = piece(xc, Pc, u[i], dt[i], params)
+        return jnp.where(dr_mask[i], xn, xc), jnp.where(dr_mask[i], Pn, Pc)
 
-    (x, P), _ = jax.lax.scan(body, (x, P), (dt, u, dr_mask), unroll=True)
-    return x, P
+    # Only up to the last real piece (most segments have 9-10 of 12): under vmap over particles,
+    # whose segment is shared, the count stays one loop bound for all of them.
+    n_pieces = jnp.max(jnp.where(dr_mask, jnp.arange(1, dr_mask.shape[0] + 1), 0))
+    return jax.lax.fori_loop(0, n_pieces, body, (x, P))
 
 
 def predict_mean(x: Float[Array, "3"], dt: Float[Array, "dr"], u: Float[Array, "dr 2"], params: Params) -> Float[Array, "3"]:
