@@ -17,7 +17,12 @@ from ._params import (
     row_buckets as row_buckets,
     settings_from_config as settings_from_config,
 )
-from ._prior import predict as predict, predict_mean as predict_mean
+from ._prior import (
+    compose_prior as compose_prior,
+    predict as predict,
+    predict_mean as predict_mean,
+    relative_prior as relative_prior,
+)
 from ._resampling import (
     RESAMPLERS as RESAMPLERS,
     effective_sample_size as effective_sample_size,

@@ -1,4 +1,14 @@
-"""Prediction of a particle's pose through the DR pieces of one segment (the prior)."""
+"""Prediction of a particle's pose through the DR pieces of one segment (the prior).
+
+The vehicle model moves a pose by a body-frame increment that depends on the controls only
+(``x' = x (+) delta(u)``), so a rigid motion of the plane commutes with it. Both priors keep that
+symmetry: the linearised one exactly, the unscented one because its square root is the Cholesky
+factor in the order (heading, x, y), whose columns either perturb the heading (one column, the
+same in every frame) or only the position, which the model moves linearly. A segment's prior
+from an isotropic start covariance is therefore the same for every particle in the particle's
+own frame: :func:`relative_prior` computes it once per segment and :func:`compose_prior` places
+it at each particle's pose.
+"""
 
 from __future__ import annotations
 
@@ -7,23 +17,33 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from .._linalg import chol3, mm, mt, mv, sandwich, sym
+from .._trig import sincos
 from ..models import vehicle_jacobians, vehicle_move, vehicle_rates, vehicle_step, wrap_angle
 from ..quadrature import Unscented
 from ._params import Params
 
 
+def _sqrt_heading_first(P: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    """A square root ``L L' = P`` whose first column holds all the heading spread: the Cholesky
+    factor of ``P`` in the order (heading, x, y), rows returned in the order (x, y, heading)."""
+    order, back = jnp.array([2, 0, 1]), jnp.array([1, 2, 0])
+    return chol3(P[order][:, order])[back]
+
+
 def _ut_piece(x, P, u, dt, params: Params):
     """Unscented transform over the augmented state (pose, control noise) for one DR piece.
 
-    The augmented covariance is block-diagonal, so each sigma point of the rule (the centre and
-    ``+-s`` along each Cholesky column) perturbs either the pose or the controls: the 11 points
-    hold only 7 distinct poses and 5 distinct controls. The vehicle model is split accordingly:
+    The pose's square root is :func:`_sqrt_heading_first` (which makes the transform commute with
+    rigid motions; see the module docstring). The augmented covariance is block-diagonal, so each
+    sigma point of the rule (the centre and ``+-s`` along each column of the square root) perturbs
+    either the pose or the controls: the 11 points hold only 7 distinct poses and 5 distinct
+    controls. The vehicle model is split accordingly:
     :func:`vehicle_rates` once per distinct control, then :func:`vehicle_move` per point; the
     moments are those of the full rule.
     """
     xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(5)
     s = xi[1, 0]  # the rule's points: centre, then +s e_i, then -s e_i (i = 0..4)
-    dxs = s * mt(chol3(P))  # row i: s L[:, i]
+    dxs = s * mt(_sqrt_heading_first(P))  # row i: s L[:, i]
     poses = jnp.concatenate([x[None], x + dxs, x - dxs])  # centre, +pose axes, -pose axes
     du = s * jnp.stack([params.sigma_v, params.sigma_alpha])
     ctrl = jnp.stack([u, u.at[0].add(du[0]), u.at[1].add(du[1]), u.at[0].add(-du[0]), u.at[1].add(-du[1])])
@@ -92,3 +112,34 @@ def predict_mean(x: Float[Array, "3"], dt: Float[Array, "dr"], u: Float[Array, "
 
     x, _ = jax.lax.scan(body, x, (dt, u), unroll=True)
     return x
+
+
+def relative_prior(
+    dt: Float[Array, "dr"],
+    u: Float[Array, "dr 2"],
+    dr_mask: Bool[Array, "dr"],
+    params: Params,
+    kind: str = "unscented",
+) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+    """The prior of a segment in the frame of its start pose, from covariance ``init_cov * I``.
+
+    It does not depend on the start pose, so it is computed once per segment for all particles
+    (whose start covariance is ``init_cov * I`` with ``filter.prior_cov: reset``);
+    ``compose_prior(x, *relative_prior(...))`` equals ``predict(x, init_cov * I, ...)`` up to
+    rounding. Arguments as for :func:`predict`.
+    """
+    zero = jnp.zeros(3, dtype=jnp.result_type(dt, float))
+    return predict(zero, params.init_cov * jnp.eye(3, dtype=zero.dtype), dt, u, dr_mask, params, kind)
+
+
+def compose_prior(
+    x: Float[Array, "3"], rel_mean: Float[Array, "3"], rel_cov: Float[Array, "3 3"]
+) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+    """Place a :func:`relative_prior` at the pose ``x``: mean ``x (+) rel_mean`` and covariance
+    ``A rel_cov A'`` with ``A`` the rotation of the plane by the heading of ``x``."""
+    s, c = sincos(x[2])
+    one, zero = jnp.ones_like(s), jnp.zeros_like(s)
+    A = jnp.stack([jnp.stack([c, -s, zero]), jnp.stack([s, c, zero]), jnp.stack([zero, zero, one])])
+    mean = jnp.stack([x[0] + c * rel_mean[0] - s * rel_mean[1], x[1] + s * rel_mean[0] + c * rel_mean[1],
+                      wrap_angle(x[2] + rel_mean[2])])
+    return mean, sym(sandwich(A, rel_cov))

@@ -28,7 +28,7 @@ from ._landmarks import (
     update_slots,
 )
 from ._params import Params, Static
-from ._prior import predict
+from ._prior import compose_prior, predict, relative_prior
 from ._resampling import effective_sample_size, normalise, resample
 from ._state import FilterState, LandmarkMap, Particles, count_landmarks
 
@@ -119,6 +119,7 @@ def particle_update(
     z_mask: Bool[Array, "k"],
     eps: Float[Array, "3"],
     valid: Bool[Array, ""] = True,
+    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
@@ -126,11 +127,18 @@ def particle_update(
 
     ``valid`` False marks a padding segment: pruning then counts no misses (the caller masks the
     pose and weight; with no detections the map is unchanged).
+
+    ``rel_prior``: the segment's :func:`relative_prior`, shared by all particles, with
+    ``static.prior_cov == 'reset'``; the prior is then placed at ``pose`` instead of propagated
+    per particle (the same Gaussian up to rounding). ``None``: propagated here.
     """
     R = params.R
     W, K = static.window_size - static.k_max, static.k_max
-    P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
-    x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
+    if rel_prior is not None:
+        x0, P0 = compose_prior(pose, *rel_prior)
+    else:
+        P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
+        x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
 
     local, idx, window_overflow = gather_window(lm, x0[:2], W, params.max_range + params.window_margin)
     assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential)
@@ -274,9 +282,12 @@ def _step(
         first = jax.lax.axis_index(axis) * share
         mine = lambda a: jax.lax.dynamic_slice_in_dim(a, first, share)  # noqa: E731
 
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None))(
+    # With a reset start covariance the segment's prior is the same for all particles in their own
+    # frame: propagate it once here instead of once per particle.
+    rel = relative_prior(seg.dt, seg.u, seg.dr_mask, params, static.prior) if static.prior_cov == "reset" else None
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None, None))(
         static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
-        seg.z_mask, mine(eps), valid)
+        seg.z_mask, mine(eps), valid, rel)
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
