@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import subprocess
 import sys
 import time
@@ -69,6 +70,7 @@ def main() -> None:
     from nanoslam_jax.config import load_config
     from nanoslam_jax.experiment import load_log
     from nanoslam_jax.filter import filter_step, make_proposal, run_filter, settings_from_config
+    from nanoslam_jax.filter._scan import segment_priors
 
     base = [f"filter.n_particles={args.particles}"]
     cfgs = {k: load_config(args.config, base + list(v)) for k, v in (("A", args.a), ("B", args.b))}
@@ -85,6 +87,11 @@ def main() -> None:
         proposal = make_proposal(static, params)
 
         def scan(st, sg, pr, static=static, proposal=proposal, step=steps[k]):
+            # A step that takes the segments' shared priors gets them computed before the scan,
+            # as filter_scan does (revisions before f7f1244 propagate the prior in the step).
+            if "rel_prior" in inspect.signature(step).parameters:
+                rel = segment_priors(static, pr, sg)
+                return jax.lax.scan(lambda c, x: step(static, pr, proposal, c, x[0], True, x[1]), st, (sg, rel))
             return jax.lax.scan(lambda c, x: step(static, pr, proposal, c, x), st, sg)
 
         t0 = time.perf_counter()

@@ -22,7 +22,7 @@ from ..data import Segments
 from ..proposals import AbstractProposal, LinearizedProposal, NanoProposal, PriorProposal
 from ..quadrature import make_rule
 from ._params import Params, Static
-from ._prior import predict_mean
+from ._prior import predict_mean, relative_prior
 from ._state import FilterState, LandmarkMap, init_state
 from ._step import StepOutput, filter_step
 
@@ -54,13 +54,25 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
     raise ValueError(f"filter.method: {static.method!r} is not available yet; available: {', '.join(AVAILABLE_METHODS)}")
 
 
-def _masked_step(static: Static, params: Params, state, inp: tuple[Segments, Bool[Array, ""]]):
-    seg, valid = inp
+def _masked_step(static: Static, params: Params, state, inp: tuple):
+    seg, valid, rel_prior = inp
     if static.method == "ekf_slam":
         from ._ekf_slam import ekf_slam_step
 
         return ekf_slam_step(static, params, state, seg, valid)
-    return filter_step(static, params, make_proposal(static, params), state, seg, valid)
+    return filter_step(static, params, make_proposal(static, params), state, seg, valid, rel_prior)
+
+
+def segment_priors(
+    static: Static, params: Params, segments: Segments
+) -> Optional[tuple[Float[Array, "segments 3"], Float[Array, "segments 3 3"]]]:
+    """Every segment's :func:`relative_prior` (the prior in the frame of the segment's start pose,
+    shared by all particles), or None where the particles' priors are their own (EKF-SLAM,
+    ``filter.prior_cov: carry``). It depends on the controls and the hyperparameters only, so
+    :func:`filter_scan` computes it for all segments at once, before the scan."""
+    if static.method == "ekf_slam" or static.prior_cov != "reset":
+        return None
+    return jax.vmap(relative_prior, (0, 0, 0, None, None))(segments.dt, segments.u, segments.dr_mask, params, static.prior)
 
 
 def initial_state(static: Static, params: Params, key: Key[Array, ""]):
@@ -103,7 +115,8 @@ def filter_scan(
         state = initial_state(static, params, key)
     if valid is None:
         valid = jnp.ones(segments.time.shape[0], bool)
-    return jax.lax.scan(functools.partial(_masked_step, static, params), state, (segments, valid))
+    inputs = (segments, valid, segment_priors(static, params, segments))
+    return jax.lax.scan(functools.partial(_masked_step, static, params), state, inputs)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))

@@ -239,8 +239,12 @@ def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, "n"]) -> F
 def filter_step(
     static: Static, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
     valid: Bool[Array, ""] = True,
+    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
 ) -> tuple[FilterState, StepOutput]:
     """Advance the particle set through one segment.
+
+    ``rel_prior``: the segment's :func:`relative_prior`, used with ``static.prior_cov == 'reset'``
+    (computed here when None; :func:`filter_scan` computes every segment's before its scan).
 
     A padding segment (``valid`` False; it has no detections and ``dt = 0``) leaves the state
     unchanged: its maps are untouched already, and the poses, weights and resampling decision
@@ -251,21 +255,25 @@ def filter_step(
     the particles' small outputs are gathered in one collective per step, and the maps cross
     devices only when the particles are resampled.
     """
+    if static.prior_cov != "reset":
+        rel_prior = None
+    elif rel_prior is None:
+        rel_prior = relative_prior(seg.dt, seg.u, seg.dr_mask, params, static.prior)
     if static.devices == 1:
-        return _step(static, None, params, proposal, state, seg, valid)
+        return _step(static, None, params, proposal, state, seg, valid, rel_prior)
     mesh = Mesh(np.array(jax.devices()[:static.devices]), ("particles",))
     part, rep = PartitionSpec("particles"), PartitionSpec()
     spec = jax.tree.map(lambda _: rep, state)
     spec = spec._replace(particles=spec.particles._replace(
         landmarks=jax.tree.map(lambda _: part, state.particles.landmarks)))
     step = functools.partial(_step, static, "particles")
-    return jax.shard_map(step, mesh=mesh, in_specs=(rep, rep, spec, rep, rep), out_specs=(spec, rep),
-                         check_vma=False)(params, proposal, state, seg, jnp.asarray(valid))
+    return jax.shard_map(step, mesh=mesh, in_specs=(rep, rep, spec, rep, rep, rep), out_specs=(spec, rep),
+                         check_vma=False)(params, proposal, state, seg, jnp.asarray(valid), rel_prior)
 
 
 def _step(
     static: Static, axis: str | None, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
-    valid: Bool[Array, ""],
+    valid: Bool[Array, ""], rel_prior,
 ) -> tuple[FilterState, StepOutput]:
     """:func:`filter_step` on one device; ``axis`` names the device axis when the maps are split
     (``state.particles.landmarks`` then holds this device's share, everything else all particles)."""
@@ -282,12 +290,9 @@ def _step(
         first = jax.lax.axis_index(axis) * share
         mine = lambda a: jax.lax.dynamic_slice_in_dim(a, first, share)  # noqa: E731
 
-    # With a reset start covariance the segment's prior is the same for all particles in their own
-    # frame: propagate it once here instead of once per particle.
-    rel = relative_prior(seg.dt, seg.u, seg.dr_mask, params, static.prior) if static.prior_cov == "reset" else None
     out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None, None))(
         static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
-        seg.z_mask, mine(eps), valid, rel)
+        seg.z_mask, mine(eps), valid, rel_prior)
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
