@@ -17,8 +17,8 @@ log, float64.
    compilation, and how far the batch members' poses are from the same runs alone.
 2. *Multi-core* (each in fresh processes, through ``run_sweep`` end to end, compile included,
    no compilation cache, ``--vectorize`` as given): ``single``: one process, one device, the whole
-   batch; ``devices``: one process with one JAX CPU device per core (``jax_num_cpu_devices``), each
-   batch split over them (``shard_map``); ``processes``: one process pinned to each core
+   batch; ``devices``: one process with two JAX CPU devices per core (``jax_num_cpu_devices``;
+   ``DEVICES_PER_CORE``), each batch split over them (``shard_map``); ``processes``: one process pinned to each core
    (``os.sched_setaffinity``), half the batch each. "cores busy" is the CPU time of all the
    mode's processes over its wall time.
 
@@ -61,8 +61,10 @@ def throughput(args) -> dict:
     import jax
 
     cores = len(os.sched_getaffinity(0))
-    if cores > 1:  # for the sweep's default row (the batch split over one JAX device per core)
-        jax.config.update("jax_num_cpu_devices", cores)
+    if cores > 1:  # for the sweep's default row (the batch split over JAX devices, DEVICES_PER_CORE per core)
+        from nanoslam_jax._devices import DEVICES_PER_CORE
+
+        jax.config.update("jax_num_cpu_devices", cores * DEVICES_PER_CORE)
     import numpy as np
 
     import nanoslam_jax  # noqa: F401
@@ -96,7 +98,7 @@ def throughput(args) -> dict:
     mapped = batch_program.lower(static, "map", 1, stacked, seeds, seg).compile()
     map_compile = time.perf_counter() - t0
     # The sweep's default on several cores (run.parallel: devices): the vmapped batch split over
-    # one JAX CPU device per core; each device carries configs / cores runs.
+    # the JAX CPU devices (DEVICES_PER_CORE per core); each device carries configs / devices runs.
     ndev = len(jax.devices()) if len(params) % len(jax.devices()) == 0 else 1
     sharded, shard_compile = None, 0.0
     if ndev > 1:
@@ -140,7 +142,9 @@ def multicore_one(args) -> dict:
     if mode == "devices":
         import jax
 
-        jax.config.update("jax_num_cpu_devices", 2)
+        from nanoslam_jax._devices import DEVICES_PER_CORE
+
+        jax.config.update("jax_num_cpu_devices", 2 * DEVICES_PER_CORE)
     import csv
 
     import nanoslam_jax  # noqa: F401

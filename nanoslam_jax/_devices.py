@@ -1,4 +1,4 @@
-"""The CPU cores this process may use, exposed to JAX as devices (one per core).
+"""The CPU cores this process may use, exposed to JAX as devices (:data:`DEVICES_PER_CORE` each).
 
 Several CPU devices let one process run work on every core side by side: a sweep splits each
 batch of runs over them, a single run with many particles splits its particles
@@ -11,6 +11,16 @@ from __future__ import annotations
 import os
 
 import jax
+
+
+#: JAX CPU devices per core. The devices of a split step wait for each other at every scan (the
+#: particles' outputs are gathered); with two devices per core one device's wait is another's
+#: work. Measured on the 2-core development machine (in-process A/B, same program otherwise):
+#: 1000 particles 18.0 -> 16.7 ms per scan (median of 5) with 4 devices instead of 2, 8 devices
+#: no better than 4; a sweep batch of 64 x 10 particles split over 4 devices instead of 2 runs
+#: 2.0x instead of 1.8x faster than the same batch on one device, over 8 devices 1.7x
+#: (``experiments/sweep_benchmark.py``).
+DEVICES_PER_CORE = 2
 
 
 def available_cores() -> int:
@@ -36,9 +46,10 @@ def setup_devices(n: int) -> int:
 
 
 def setup_run_devices(split_devices: str, n_particles: int) -> int:
-    """Set up one JAX CPU device per core when a single run's particles will be split over them
-    (``filter.split_devices``; see :func:`~nanoslam_jax.filter.particle_devices`). Call first
-    thing, before JAX's first computation.
+    """Set up :data:`DEVICES_PER_CORE` JAX CPU devices per core when a single run's particles
+    will be split over them (``filter.split_devices``; see
+    :func:`~nanoslam_jax.filter.particle_devices`). Call first thing, before JAX's first
+    computation.
 
     Returns:
         The number of JAX devices available.
@@ -46,6 +57,6 @@ def setup_run_devices(split_devices: str, n_particles: int) -> int:
     from .filter import particle_devices
 
     cores = available_cores()
-    if particle_devices(split_devices, n_particles, cores) > 1:
-        return setup_devices(cores)
+    if cores > 1 and particle_devices(split_devices, n_particles, cores * DEVICES_PER_CORE) > 1:
+        return setup_devices(cores * DEVICES_PER_CORE)
     return len(jax.devices())

@@ -355,3 +355,17 @@ def test_particles_split_over_devices_give_the_same_run():
     assert r["resamples"][0] == r["resamples"][1] > 0
     assert r["landmarks"][0] == r["landmarks"][1] > 0
     assert r["pose"] < 1e-9 and r["log_w"] < 1e-9 and r["maps"] < 1e-9, r
+
+
+def test_particle_devices_takes_the_most_devices_that_divide_the_particles():
+    """``filter.split_devices``: the split uses as many of the available devices as divide the
+    particles evenly, none below SPLIT_DEVICES_FROM particles with ``auto``, none with ``never``."""
+    from nanoslam_jax.config import SPLIT_DEVICES_FROM
+    from nanoslam_jax.filter import particle_devices
+
+    assert particle_devices("auto", 1000, 4) == 4
+    assert particle_devices("auto", 100, 8) == 5
+    assert particle_devices("always", 30, 4) == 3
+    assert particle_devices("always", 101, 4) == 1
+    assert particle_devices("auto", SPLIT_DEVICES_FROM - 1, 4) == 1
+    assert particle_devices("never", 1000, 4) == 1

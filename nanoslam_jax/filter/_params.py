@@ -124,17 +124,17 @@ def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
 
 
 def particle_devices(setting: str, particles: int, devices: int | None = None) -> int:
-    """JAX devices a single run's particles are split over for ``filter.split_devices``: all
-    ``devices`` (default: JAX's device count) for ``always``, and for ``auto`` from
-    :data:`~nanoslam_jax.config.SPLIT_DEVICES_FROM` particles up, when the particles divide
-    evenly; else 1."""
+    """JAX devices a single run's particles are split over for ``filter.split_devices``: for
+    ``always``, and for ``auto`` from :data:`~nanoslam_jax.config.SPLIT_DEVICES_FROM` particles
+    up, the most of the ``devices`` available (default: JAX's device count) that divide the
+    particles evenly; else 1."""
     if setting == "never" or (setting == "auto" and particles < SPLIT_DEVICES_FROM):
         return 1
     if devices is None:
         import jax
 
         devices = len(jax.devices())
-    return devices if particles % devices == 0 else 1
+    return next((d for d in range(devices, 1, -1) if particles % d == 0), 1)
 
 
 def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
