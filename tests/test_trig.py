@@ -95,3 +95,19 @@ def test_float32_inputs_stay_float32_and_accurate():
     a = trig.atan2(jnp.asarray(x), jnp.asarray(x[::-1]))
     assert a.dtype == jnp.float32
     np.testing.assert_allclose(np.asarray(a), np.arctan2(x.astype(np.float64), x[::-1].astype(np.float64)), atol=1e-6)
+
+
+def test_computed_once_changes_no_value_under_jit_vmap_and_jvp():
+    """The fusion barrier is the identity: same values, and derivatives pass through it."""
+    rng = np.random.default_rng(3)
+    x = jnp.asarray(rng.uniform(-10, 10, (7,)))
+
+    def f(a):
+        s, c = trig.computed_once(trig.sincos(a))
+        return s * c + s
+
+    ref = np.sin(np.asarray(x)) * np.cos(np.asarray(x)) + np.sin(np.asarray(x))
+    np.testing.assert_allclose(jax.jit(jax.vmap(f))(x), ref, rtol=1e-14, atol=1e-14)
+    _, tangent = jax.jvp(jax.vmap(f), (x,), (jnp.ones_like(x),))
+    xs = np.asarray(x)
+    np.testing.assert_allclose(tangent, np.cos(2 * xs) + np.cos(xs), rtol=1e-12, atol=1e-12)

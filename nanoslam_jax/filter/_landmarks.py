@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._linalg import chol2, det2, gaussian_logpdf, inv2, mm, mmt, mt, mv, sandwich, sym
+from .._trig import computed_once
 from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
 from ..quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
 from ._state import LandmarkMap
@@ -133,7 +134,7 @@ def init_landmark(
     x: Float[Array, "3"], z: Float[Array, "2"], R: Float[Array, "2 2"]
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
     """New landmark from pose ``x`` and detection ``z`` (eq. 16): ``g^-1(x, z)``, ``Gm^-1 R Gm^-T``."""
-    m = inverse_range_bearing(x, z)
+    m = computed_once(inverse_range_bearing(x, z))
     _, Gm = range_bearing_jacobians(x, m)
     Gi = inv2(Gm)
     return m, sym(sandwich(Gi, R))
@@ -144,7 +145,7 @@ def ekf_update_loglik(
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form), and the
     detection's log-likelihood ``log N(z; g(x, mean), Gm cov Gm' + R)`` from the same quantities."""
-    z_hat = range_bearing(x, mean)
+    z_hat = computed_once(range_bearing(x, mean))
     _, Gm = range_bearing_jacobians(x, mean)
     S = sandwich(Gm, cov) + R
     K = mm(mm(cov, mt(Gm)), inv2(S))

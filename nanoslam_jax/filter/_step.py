@@ -13,6 +13,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol3, gaussian_logpdf, mv
+from .._trig import computed_once
 from ..data import Segments
 from ..models import circular_mean, innovation, range_bearing, wrap_angle
 from ..proposals import AbstractProposal, Detections
@@ -139,6 +140,7 @@ def particle_update(
     else:
         P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
         x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
+    x0, P0 = computed_once((x0, P0))
 
     local, idx, window_overflow = gather_window(lm, x0[:2], W, params.max_range + params.window_margin)
     assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential)
@@ -152,7 +154,7 @@ def particle_update(
 
     prop = _proposal_over_rows(proposal, x0, P0, det, R, z_mask, static.row_buckets)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
-    x_s = x_s.at[2].set(wrap_angle(x_s[2]))
+    x_s = computed_once(x_s.at[2].set(wrap_angle(x_s[2])))
 
     # Weight of the associations with existing landmarks (eq. 17, or the marginal at the prior).
     xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
