@@ -9,6 +9,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import sandwich
+from .._trig import computed_once
 from ..models import range_bearing, range_bearing_jacobian_components, range_bearing_jacobians, wrap_angle
 from ._landmarks import init_landmark
 from ._state import LandmarkMap
@@ -55,7 +56,7 @@ def innovation_information(
         return (sum(J[a][i] * J[b][j] * P[i, j] for i in range(3) for j in range(3))
                 + sum(J[a][3 + i] * J[b][3 + j] * cov[:, i, j] for i in range(2) for j in range(2)) + R[a, b])
 
-    s00, s01, s11 = s(0, 0), s(0, 1), s(1, 1)
+    s00, s01, s11 = computed_once((s(0, 0), s(0, 1), s(1, 1)))  # else each entry of S^-1 recomputes all three
     det = s00 * s11 - s01 * s01
     return (zr, zb), (s11 / det, -s01 / det, s00 / det)
 

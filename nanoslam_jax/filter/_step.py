@@ -160,7 +160,6 @@ def particle_update(
     xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
     z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R)
     ll = gaussian_logpdf(jax.vmap(innovation)(z, z_hat), S)
-    dlogw = jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
 
     # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM).
     unscented = static.landmark_update == "unscented"
@@ -179,7 +178,10 @@ def particle_update(
             x_s, z, cur_mean, cur_cov, R, *ut)
     else:
         upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
-    dlogw = dlogw + jnp.sum(jnp.where(provisional, llp, 0.0))
+    # Both computed before the masked sums (a reduction fusion does not vectorise its operand).
+    ll, llp = computed_once((ll, llp))
+    dlogw = (jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
+             + jnp.sum(jnp.where(provisional, llp, 0.0)))
 
     # The new landmarks as they leave the scan (a later detection of the scan may have updated one).
     isn = assoc.is_new
