@@ -170,6 +170,8 @@ def computed_once(tree):
     particles: 14.2 -> 11.8 ms per mid-log scan. It changes no value (nor derivative).
     """
     leaves, treedef = jax.tree.flatten(tree)
+    if len({jnp.result_type(a) for a in leaves}) > 1:
+        raise TypeError(f"computed_once: the leaves must share one dtype, got {[jnp.result_type(a) for a in leaves]}")
     if len(leaves) == 1 and leaves[0].ndim == 1:
         return jax.tree.unflatten(treedef, [jax.lax.optimization_barrier(leaves[0])])
     flat = jax.lax.optimization_barrier(jnp.concatenate([jnp.ravel(a) for a in leaves]))

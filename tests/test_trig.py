@@ -111,3 +111,14 @@ def test_computed_once_changes_no_value_under_jit_vmap_and_jvp():
     _, tangent = jax.jvp(jax.vmap(f), (x,), (jnp.ones_like(x),))
     xs = np.asarray(x)
     np.testing.assert_allclose(tangent, np.cos(2 * xs) + np.cos(xs), rtol=1e-12, atol=1e-12)
+
+
+def test_computed_once_keeps_a_pytree_and_rejects_mixed_dtypes():
+    tree = {"a": jnp.arange(6.0).reshape(2, 3), "b": (jnp.array(2.5), jnp.ones(4))}
+    out = jax.jit(trig.computed_once)(tree)
+    assert jax.tree.structure(out) == jax.tree.structure(tree)
+    for x, y in zip(jax.tree.leaves(out), jax.tree.leaves(tree)):
+        assert x.shape == y.shape
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(TypeError, match="one dtype"):
+        trig.computed_once((jnp.ones(2), jnp.ones(2, jnp.int32)))
