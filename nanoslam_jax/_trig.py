@@ -19,10 +19,13 @@ from __future__ import annotations
 
 import math
 from fractions import Fraction
+from typing import TypeVar
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
+
+T = TypeVar("T")
 
 # pi to 60 digits, for the Cody-Waite split of pi/2 below.
 _PI = "3.14159265358979323846264338327950288419716939937510582097494459"
@@ -148,13 +151,7 @@ def _atan2_jvp(primals, tangents):
     return atan2(y, x), (x * dy - y * dx) / q
 
 
-__all__ = ["atan2", "computed_once", "cos", "sin", "sincos", "tan"]
-
-# The split must reproduce pi/2 far below float64 resolution (a guard against editing mistakes).
-assert abs(Fraction(_P1) + Fraction(_P2) + Fraction(_P3) - Fraction(_PI) / 2) < Fraction(1, 10**30)
-
-
-def computed_once(tree):
+def computed_once(tree: T) -> T:
     """``tree`` (an array or a pytree of arrays of one dtype) unchanged, but written to memory once
     where it is computed, rather than recomputed inside each computation that reads it.
 
@@ -180,3 +177,10 @@ def computed_once(tree):
         out.append(flat[start:start + a.size].reshape(a.shape))
         start += a.size
     return jax.tree.unflatten(treedef, out)
+
+
+__all__ = ["atan2", "computed_once", "cos", "sin", "sincos", "tan"]
+
+# The split must reproduce pi/2 far below float64 resolution (a guard against editing mistakes).
+assert abs(Fraction(_P1) + Fraction(_P2) + Fraction(_P3) - Fraction(_PI) / 2) < Fraction(1, 10**30)
+
