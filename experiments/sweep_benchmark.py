@@ -8,17 +8,20 @@ The workload: 64 configurations (random samples of gate, new-landmark threshold,
 bearing noise) of NANO-SLAM with 10 particles over the first 500 segments of the Victoria Park
 log, float64.
 
-1. *Throughput* (one process): the 64 configurations as one vmapped batch of the sweep program
+1. *Throughput*: the 64 configurations as one vmapped batch of the sweep program
    (``batch_program``, ``vectorize='vmap'``), as one ``lax.map`` batch (``vectorize='map'``) and,
-   on several cores, as the sweep's default (the vmapped batch split over one JAX CPU device per
-   core) against 64 sequential calls of the single-run program
-   (``single_program``, the same computation without the batch axis), all compiled once
-   beforehand, timed ``--repeat`` times interleaved (best shown); configurations per second after
-   compilation, and how far the batch members' poses are from the same runs alone.
+   on several cores, as the sweep's default (the vmapped batch split over
+   ``SWEEP_DEVICES_PER_CORE`` JAX CPU devices per core) against 64 sequential calls of the
+   single-run program (``single_program``, the same computation without the batch axis), all
+   compiled once beforehand, timed ``--repeat`` times (best shown); configurations per second
+   after compilation, and how far the batch members' poses are from the same runs alone. The
+   sequential runs and the one-device batches run interleaved in a process with one JAX device
+   (as a single 10-particle run has); the split batch runs in a second process that exposes the
+   devices, since exposing several devices slows single-device programs.
 2. *Multi-core* (each in fresh processes, through ``run_sweep`` end to end, compile included,
    no compilation cache, ``--vectorize`` as given): ``single``: one process, one device, the whole
-   batch; ``devices``: one process with two JAX CPU devices per core (``jax_num_cpu_devices``;
-   ``DEVICES_PER_CORE``), each batch split over them (``shard_map``); ``processes``: one process pinned to each core
+   batch; ``devices``: one process with four JAX CPU devices per core (``jax_num_cpu_devices``;
+   ``SWEEP_DEVICES_PER_CORE``), each batch split over them (``shard_map``); ``processes``: one process pinned to each core
    (``os.sched_setaffinity``), half the batch each. "cores busy" is the CPU time of all the
    mode's processes over its wall time.
 
@@ -57,14 +60,21 @@ def sweep_dict(config: str, n: int, particles: int, segments: int, batch: int) -
 
 
 def throughput(args) -> dict:
-    """Vmapped batch against sequential single runs, both after compilation (this process)."""
+    """One part of the throughput comparison, after compilation (run in a fresh process).
+
+    ``args.split_devices`` 0: this process has one JAX device (as a single run of 10 particles
+    has): the sequential single runs, the vmapped batch and the ``lax.map`` batch, interleaved.
+    ``args.split_devices`` N > 1: this process exposes N JAX CPU devices: the vmapped batch split
+    over them, and one untimed pass of the single runs for the pose differences. The two parts run
+    in separate processes because exposing several devices slows single-device programs
+    (measured: 16 sequential runs took 2.7-3.0 s with one device exposed, 3.5 s with 4 and
+    4.2-4.4 s with 8), which would flatter the split batch.
+    """
     import jax
 
-    cores = len(os.sched_getaffinity(0))
-    if cores > 1:  # for the sweep's default row (the batch split over JAX devices, DEVICES_PER_CORE per core)
-        from nanoslam_jax._devices import DEVICES_PER_CORE
-
-        jax.config.update("jax_num_cpu_devices", cores * DEVICES_PER_CORE)
+    split = args.split_devices
+    if split > 1:
+        jax.config.update("jax_num_cpu_devices", split)
     import numpy as np
 
     import nanoslam_jax  # noqa: F401
@@ -82,32 +92,48 @@ def throughput(args) -> dict:
     stacked = jax.tree.map(lambda *a: jax.numpy.stack(a), *params)
     seeds = jax.numpy.zeros(len(params), dtype=int)
 
-    t0 = time.perf_counter()
-    single = single_program.lower(static, params[0], seeds[0], seg).compile()
-    single_compile = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    # As the sweep runner does: a vmapped call carries configs x particles, enough for the
-    # proposal's row buckets (filter.row_buckets: auto); one config at a time does not.
     def for_call(runs_per_device):  # the static settings of a call carrying this many runs per device
+        # As the sweep runner does: a vmapped call carries configs x particles, enough for the
+        # proposal's row buckets (filter.row_buckets: auto); one config at a time does not.
         return dataclasses.replace(static, row_buckets=row_buckets(
             points[0].config.filter.row_buckets, static.n_particles * runs_per_device))
 
-    batched = batch_program.lower(for_call(len(params)), "vmap", 1, stacked, seeds, seg).compile()
-    batch_compile = time.perf_counter() - t0
+    def pose_diff(out, seq):
+        return max(float(np.max(np.abs(np.asarray(out.best_pose[i]) - np.asarray(seq[i].best_pose))))
+                   for i in range(len(params)))
+
     t0 = time.perf_counter()
-    mapped = batch_program.lower(static, "map", 1, stacked, seeds, seg).compile()
-    map_compile = time.perf_counter() - t0
-    # The sweep's default on several cores (run.parallel: devices): the vmapped batch split over
-    # the JAX CPU devices (DEVICES_PER_CORE per core); each device carries configs / devices runs.
-    ndev = len(jax.devices()) if len(params) % len(jax.devices()) == 0 else 1
-    sharded, shard_compile = None, 0.0
-    if ndev > 1:
+    single = single_program.lower(static, params[0], seeds[0], seg).compile()
+    single_compile = time.perf_counter() - t0
+    jax.block_until_ready(single(params[0], seeds[0], seg))  # warm
+    res = dict(configs=len(params), particles=static.n_particles, segments=int(seg.time.shape[0]),
+               cpu_count=len(os.sched_getaffinity(0)), single_compile_s=single_compile)
+    if split > 1:
+        ndev = len(jax.devices())
+        if len(params) % ndev:
+            raise SystemExit(f"{len(params)} configurations do not split over {ndev} devices")
         t0 = time.perf_counter()
         sharded = batch_program.lower(for_call(len(params) // ndev), "vmap", ndev, stacked, seeds, seg).compile()
-        shard_compile = time.perf_counter() - t0
+        res["shard_compile_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        seq = [jax.block_until_ready(single(p, s, seg)) for p, s in zip(params, seeds)]
+        res["sequential_here_s"] = time.perf_counter() - t0  # for reference only (slowed by the devices)
+        shard_t = []
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            out_shard = jax.block_until_ready(sharded(stacked, seeds, seg))
+            shard_t.append(time.perf_counter() - t0)
+        res.update(devices=ndev, sharded_s=min(shard_t), repeats=dict(sharded=shard_t),
+                   max_abs_pose_diff_sharded=pose_diff(out_shard, seq))
+        return res
 
-    jax.block_until_ready(single(params[0], seeds[0], seg))  # warm
-    seq_t, vmap_t, map_t, shard_t = [], [], [], []
+    t0 = time.perf_counter()
+    batched = batch_program.lower(for_call(len(params)), "vmap", 1, stacked, seeds, seg).compile()
+    res["batch_compile_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    mapped = batch_program.lower(static, "map", 1, stacked, seeds, seg).compile()
+    res["map_compile_s"] = time.perf_counter() - t0
+    seq_t, vmap_t, map_t = [], [], []
     for _ in range(args.repeat):  # interleaved, so a burst of load on the machine hits all three
         t0 = time.perf_counter()
         seq = [jax.block_until_ready(single(p, s, seg)) for p, s in zip(params, seeds)]
@@ -118,22 +144,10 @@ def throughput(args) -> dict:
         t0 = time.perf_counter()
         out_map = jax.block_until_ready(mapped(stacked, seeds, seg))
         map_t.append(time.perf_counter() - t0)
-        if sharded is not None:
-            t0 = time.perf_counter()
-            out_shard = jax.block_until_ready(sharded(stacked, seeds, seg))
-            shard_t.append(time.perf_counter() - t0)
-    seq_s, vmap_s, map_s = min(seq_t), min(vmap_t), min(map_t)
-    diff = max(float(np.max(np.abs(np.asarray(out.best_pose[i]) - np.asarray(seq[i].best_pose))))
-               for i in range(len(params)))
-    diff_map = max(float(np.max(np.abs(np.asarray(out_map.best_pose[i]) - np.asarray(seq[i].best_pose))))
-                   for i in range(len(params)))
-    return dict(configs=len(params), particles=static.n_particles, segments=int(seg.time.shape[0]),
-                single_compile_s=single_compile, batch_compile_s=batch_compile, sequential_s=seq_s, vmapped_s=vmap_s,
-                map_compile_s=map_compile, mapped_s=map_s, max_abs_pose_diff=diff, repeats=dict(
-                    sequential=seq_t, vmapped=vmap_t, mapped=map_t, sharded=shard_t), max_abs_pose_diff_map=diff_map,
-                cpu_count=cores, devices=ndev, shard_compile_s=shard_compile, sharded_s=min(shard_t) if shard_t else None,
-                max_abs_pose_diff_sharded=max(float(np.max(np.abs(np.asarray(out_shard.best_pose[i]) - np.asarray(seq[i].best_pose))))
-                                              for i in range(len(params))) if sharded is not None else None)
+    res.update(sequential_s=min(seq_t), vmapped_s=min(vmap_t), mapped_s=min(map_t),
+               repeats=dict(sequential=seq_t, vmapped=vmap_t, mapped=map_t),
+               max_abs_pose_diff=pose_diff(out, seq), max_abs_pose_diff_map=pose_diff(out_map, seq))
+    return res
 
 
 def multicore_one(args) -> dict:
@@ -142,9 +156,9 @@ def multicore_one(args) -> dict:
     if mode == "devices":
         import jax
 
-        from nanoslam_jax._devices import DEVICES_PER_CORE
+        from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
 
-        jax.config.update("jax_num_cpu_devices", 2 * DEVICES_PER_CORE)
+        jax.config.update("jax_num_cpu_devices", 2 * SWEEP_DEVICES_PER_CORE)
     import csv
 
     import nanoslam_jax  # noqa: F401
@@ -177,6 +191,7 @@ def main() -> None:
     p.add_argument("--json", help="also write the measurements here")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     p.add_argument("--throughput-worker", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--split-devices", type=int, default=0, help=argparse.SUPPRESS)
     args = p.parse_args()
 
     if args.worker:
@@ -190,16 +205,29 @@ def main() -> None:
               "--segments", str(args.segments), "--vectorize", args.vectorize, "--repeat", str(args.repeat)] + (["--data", args.data] if args.data else [])
     results: dict = {}
     if args.only in (None, "throughput"):
-        res = subprocess.run([sys.executable, __file__, "--throughput-worker", *common], capture_output=True, text=True)
-        if res.returncode:
-            sys.exit(f"throughput run failed:\n{res.stderr[-3000:]}")
-        t = results["throughput"] = json.loads(res.stdout.strip().splitlines()[-1])
+        from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
+
+        cores = len(os.sched_getaffinity(0))
+        parts = {}
+        for split in [0] + ([cores * SWEEP_DEVICES_PER_CORE] if cores > 1 else []):
+            res = subprocess.run([sys.executable, __file__, "--throughput-worker", "--split-devices", str(split), *common],
+                                 capture_output=True, text=True)
+            if res.returncode:
+                sys.exit(f"throughput run failed:\n{res.stderr[-3000:]}")
+            parts[split] = json.loads(res.stdout.strip().splitlines()[-1])
+        t = dict(parts[0])
+        t["repeats"] = dict(parts[0]["repeats"])
+        for split, part in parts.items():
+            if split:
+                t.update({k: v for k, v in part.items() if k not in ("repeats", "single_compile_s")})
+                t["repeats"].update(part["repeats"])
+        results["throughput"] = t
         print(f"\nThroughput: {t['configs']} configurations x {t['particles']} particles x {t['segments']} segments "
               f"(NANO, Victoria Park), {t['cpu_count']} CPU cores, after compilation, best of {args.repeat}\n")
         print("| execution | compile [s] | run [s] | configs/s | speed-up |")
         print("|---|---|---|---|---|")
         seq_rate, vm_rate = t["configs"] / t["sequential_s"], t["configs"] / t["vmapped_s"]
-        print(f"| {t['configs']} sequential calls of the single-run program | {t['single_compile_s']:.1f} | "
+        print(f"| {t['configs']} sequential calls of the single-run program (one device) | {t['single_compile_s']:.1f} | "
               f"{t['sequential_s']:.2f} | {seq_rate:.2f} | 1.00 |")
         print(f"| one vmapped batch of {t['configs']} | {t['batch_compile_s']:.1f} | {t['vmapped_s']:.2f} | "
               f"{vm_rate:.2f} | {vm_rate / seq_rate:.2f} |")
@@ -208,11 +236,14 @@ def main() -> None:
               f"{t['mapped_s']:.2f} | {map_rate:.2f} | {map_rate / seq_rate:.2f} |")
         if t.get("sharded_s"):
             sh_rate = t["configs"] / t["sharded_s"]
-            print(f"| one vmapped batch of {t['configs']} split over {t['devices']} JAX devices (the sweep's default) | "
-                  f"{t['shard_compile_s']:.1f} | {t['sharded_s']:.2f} | {sh_rate:.2f} | {sh_rate / seq_rate:.2f} |")
+            print(f"| one vmapped batch of {t['configs']} split over {t['devices']} JAX devices (the sweep's default; "
+                  f"its own process) | {t['shard_compile_s']:.1f} | {t['sharded_s']:.2f} | {sh_rate:.2f} | {sh_rate / seq_rate:.2f} |")
         print(f"\nlargest difference between a batch member's reported poses and the same run alone: "
               f"vmap {t['max_abs_pose_diff']:.2e} m, map {t['max_abs_pose_diff_map']:.2e} m"
               + (f", split {t['max_abs_pose_diff_sharded']:.2e} m" if t.get("sharded_s") else ""))
+        if t.get("sequential_here_s"):
+            print(f"(the {t['configs']} sequential runs in the split batch's process, with {t['devices']} devices exposed: "
+                  f"{t['sequential_here_s']:.2f} s, one pass)")
         print("all timings [s]: " + "; ".join(f"{k} " + ", ".join(f"{x:.2f}" for x in v) for k, v in t["repeats"].items()),
               flush=True)
     if args.only in (None, "multicore"):

@@ -23,6 +23,13 @@ import jax
 #: 144.0 s over 2 devices, 126.3 s over 4.
 DEVICES_PER_CORE = 2
 
+#: JAX CPU devices per core for a sweep's batches (``run.parallel: devices``). A batch's devices
+#: carry whole runs and never wait for each other inside a scan, so more devices only share the
+#: cores more finely. After the fusion barriers (commit d8ff90d), a batch of 64 x 10 particles over
+#: 500 scans, alternated in separate processes on the 2-core development machine: 8 devices
+#: 3.96 / 4.03 / 3.69 s (best of 3 each), 4 devices 4.64 / 5.04 / 5.52 s, 2 devices 5.53 s.
+SWEEP_DEVICES_PER_CORE = 4
+
 
 def available_cores() -> int:
     """CPU cores this process may run on."""

@@ -32,7 +32,7 @@ import yaml
 from .._version import __version__
 from ..config import Config, ConfigError
 from ..data import Segments
-from .._devices import DEVICES_PER_CORE, available_cores, setup_devices
+from .._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
 from ..filter import AVAILABLE_METHODS, Params, Static, filter_scan, reported_map, row_buckets, settings_from_config
 from ..metrics import evaluate, landmark_errors
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
@@ -61,7 +61,7 @@ __all__ = [
 DEFAULT_MAX_BATCH = 64
 
 #: The fastest local mode measured on 2 CPU cores (experiments/sweep_benchmark.py): one process,
-#: the batch split over JAX CPU devices (``DEVICES_PER_CORE`` per core, see ``_devices.py``).
+#: the batch split over JAX CPU devices (``SWEEP_DEVICES_PER_CORE`` per core, see ``_devices.py``).
 AUTO_PARALLEL = "devices"
 #: How a batch is computed on CPU by default. Measured on 2 cores (experiments/sweep_benchmark.py,
 #: 64 configurations of NANO, 10 particles, 500 scans, quiet machine): vmap 1.36-1.56x and lax.map
@@ -789,7 +789,7 @@ def run_sweep(
         mode, n_workers = resolve_parallel(requested, workers or opts.workers)
         devices = 1
         if mode == "devices":
-            wanted = n_workers * DEVICES_PER_CORE
+            wanted = n_workers * SWEEP_DEVICES_PER_CORE
             devices = min(setup_devices(wanted), wanted)
             if devices < n_workers and requested == "auto":  # JAX started before the sweep: next best
                 mode, devices = "processes", 1

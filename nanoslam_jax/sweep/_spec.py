@@ -119,7 +119,7 @@ class RunOptions:
             same run alone) or ``'auto'`` (see ``AUTO_VECTORIZE``; ``vmap`` on accelerators).
         backend: ``'local'`` (this machine) or ``'ray'`` (a Ray cluster; ``pip install nanoslam-jax[ray]``).
         parallel: how the local backend uses several cores: ``'single'`` (one process, one device),
-            ``'devices'`` (one process, the batch sharded over JAX CPU devices, ``DEVICES_PER_CORE`` per core),
+            ``'devices'`` (one process, the batch sharded over JAX CPU devices, ``SWEEP_DEVICES_PER_CORE`` per core),
             ``'processes'`` (one process pinned to each core) or ``'auto'``.
         workers: cores to use (``None``: all cores this process may run on).
         fail_on_overflow: a run whose landmark capacity overflowed is recorded as failed.
