@@ -1,4 +1,5 @@
-"""The CPU cores this process may use, exposed to JAX as devices (:data:`DEVICES_PER_CORE` each).
+"""The CPU cores this process may use, exposed to JAX as devices (:data:`DEVICES_PER_CORE` each for a
+single run, :data:`SWEEP_DEVICES_PER_CORE` each for a sweep).
 
 Several CPU devices let one process run work on every core side by side: a sweep splits each
 batch of runs over them, a single run with many particles splits its particles
