@@ -18,10 +18,8 @@ import jax
 #: particles' outputs are gathered); with two devices per core one device's wait is another's
 #: work. Measured on the 2-core development machine (in-process A/B, same program otherwise):
 #: 1000 particles 18.0 -> 16.7 ms per scan (median of 5) with 4 devices instead of 2, 8 devices
-#: no better than 4; a sweep batch of 64 x 10 particles split over 4 devices instead of 2 runs
-#: 2.0x instead of 1.8x faster than the same batch on one device, over 8 devices 1.7x
-#: (``experiments/sweep_benchmark.py``); the whole log at 1000 particles, both in one process,
-#: 144.0 s over 2 devices, 126.3 s over 4.
+#: no better than 4; the whole log at 1000 particles, both in one process, 144.0 s over 2 devices,
+#: 126.3 s over 4. Sweeps have their own count (:data:`SWEEP_DEVICES_PER_CORE`).
 DEVICES_PER_CORE = 2
 
 #: JAX CPU devices per core for a sweep's batches (``run.parallel: devices``). A batch's devices

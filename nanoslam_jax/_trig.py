@@ -169,8 +169,6 @@ def computed_once(tree: T) -> T:
     leaves, treedef = jax.tree.flatten(tree)
     if len({jnp.result_type(a) for a in leaves}) > 1:
         raise TypeError(f"computed_once: the leaves must share one dtype, got {[jnp.result_type(a) for a in leaves]}")
-    if len(leaves) == 1 and leaves[0].ndim == 1:
-        return jax.tree.unflatten(treedef, [jax.lax.optimization_barrier(leaves[0])])
     flat = jax.lax.optimization_barrier(jnp.concatenate([jnp.ravel(a) for a in leaves]))
     out, start = [], 0
     for a in leaves:
@@ -183,4 +181,3 @@ __all__ = ["atan2", "computed_once", "cos", "sin", "sincos", "tan"]
 
 # The split must reproduce pi/2 far below float64 resolution (a guard against editing mistakes).
 assert abs(Fraction(_P1) + Fraction(_P2) + Fraction(_P3) - Fraction(_PI) / 2) < Fraction(1, 10**30)
-
