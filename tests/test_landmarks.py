@@ -17,6 +17,8 @@ from nanoslam_jax.filter import LandmarkMap, associate, ekf_update, gather_windo
 from nanoslam_jax.filter._landmarks import add_landmarks, update_slots
 from nanoslam_jax.filter._association import innovation_information
 from nanoslam_jax.filter._landmarks import first_true, prefix_count
+from nanoslam_jax.filter._params import Static
+from nanoslam_jax.filter._state import slots_in_use
 
 
 def wrap(a):
@@ -301,6 +303,36 @@ def test_gather_within_radius_and_round_trip(n_active, radius):
     back, overflow = jax.jit(add_landmarks)(lm, LandmarkMap.empty(K), jnp.zeros(K, bool))
     assert int(overflow) == 0
     assert_maps_equal(back, lm)
+
+
+@pytest.mark.parametrize("n_active,slots", [(0, 3), (4, 4), (6, 7), (6, CAP), (6, 2 * CAP)])
+def test_gather_over_a_prefix_holding_every_landmark_equals_the_whole_map(n_active, slots):
+    """Searching only the first ``slots`` slots changes nothing when no active landmark lies beyond
+    them (unused window slots still point at ``capacity``, so write-backs drop them)."""
+    lm = full_map(CAP, seed=n_active)
+    lm = lm._replace(active=jnp.arange(CAP) < n_active)  # a prefix map, as without pruning
+    assert int(slots_in_use(lm)) == n_active  # one past the highest active slot
+    pos, radius = jnp.asarray([5.0, -3.0]), jnp.asarray(55.0)
+    whole = gather(lm, pos, W, radius)
+    prefix = jax.jit(gather_window, static_argnums=(2, 4))(lm, pos, W, radius, slots)
+    for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(prefix)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_slots_in_use_is_one_past_the_highest_active_slot_of_any_particle():
+    active = np.zeros((3, CAP), bool)
+    assert int(slots_in_use(LandmarkMap.empty(CAP)._replace(active=jnp.asarray(active)))) == 0
+    active[0, [0, 2]] = True
+    active[2, 6] = True  # a gap below it (a pruned landmark): still counted up to slot 6
+    lm = jax.vmap(lambda _: LandmarkMap.empty(CAP))(jnp.arange(3))._replace(active=jnp.asarray(active))
+    assert int(slots_in_use(lm)) == 7
+
+
+def test_slot_buckets_are_powers_of_two_from_64_then_the_capacity():
+    assert Static(capacity=512).slot_buckets == (64, 128, 256, 512)
+    assert Static(capacity=300).slot_buckets == (64, 128, 256, 300)
+    assert Static(capacity=64).slot_buckets == (64,)
+    assert Static(capacity=20).slot_buckets == (20,)
 
 
 def test_window_overflow_counts_only_near_landmarks():

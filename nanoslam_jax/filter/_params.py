@@ -54,6 +54,16 @@ class Static:
         """Local slots: the window plus one provisional slot per detection."""
         return min(self.window, self.capacity) + self.k_max
 
+    @property
+    def slot_buckets(self) -> tuple[int, ...]:
+        """Map prefixes the local-window search runs over (the smallest holding every active
+        landmark is searched): powers of two from 64 below the capacity, then the capacity."""
+        sizes, b = [], 64
+        while b < self.capacity:
+            sizes.append(b)
+            b *= 2
+        return (*sizes, self.capacity)
+
 
 class Params(NamedTuple):
     """Traced hyperparameters (all scalars; angles in radians).

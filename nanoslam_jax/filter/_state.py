@@ -89,3 +89,10 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
 def count_landmarks(landmarks: LandmarkMap) -> Int[Array, "*particles"]:
     """Active landmarks per particle."""
     return jnp.sum(landmarks.active, axis=-1)
+
+
+def slots_in_use(landmarks: LandmarkMap) -> Int[Array, ""]:
+    """One past the highest active slot over all particles (0 when no landmark is active): every
+    active landmark lies in the slots below."""
+    active = landmarks.active.reshape(-1, landmarks.active.shape[-1])
+    return jnp.max(jnp.where(active, jnp.arange(1, active.shape[-1] + 1, dtype=jnp.int32), 0), initial=0)

@@ -12,6 +12,7 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 
+from .._batching import batch_max, take_if
 from .._linalg import chol3, gaussian_logpdf, mv
 from .._trig import computed_once
 from ..data import Segments
@@ -31,7 +32,7 @@ from ._landmarks import (
 from ._params import Params, Static
 from ._prior import compose_prior, predict, relative_prior
 from ._resampling import effective_sample_size, normalise, resample
-from ._state import FilterState, LandmarkMap, Particles, count_landmarks
+from ._state import FilterState, LandmarkMap, Particles, count_landmarks, slots_in_use
 
 
 class StepOutput(NamedTuple):
@@ -121,6 +122,7 @@ def particle_update(
     eps: Float[Array, "3"],
     valid: Bool[Array, ""] = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
+    slot_bucket: Int[Array, ""] | None = None,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
@@ -132,6 +134,10 @@ def particle_update(
     ``rel_prior``: the segment's :func:`relative_prior`, shared by all particles, with
     ``static.prior_cov == 'reset'``; the prior is then placed at ``pose`` instead of propagated
     per particle (the same Gaussian up to rounding). ``None``: propagated here.
+
+    ``slot_bucket``: index into ``static.slot_buckets`` of a map prefix that holds every active
+    landmark (the local window is searched there; ``None``: the whole map). The same for all
+    particles, so under ``vmap`` it stays a branch.
     """
     R = params.R
     W, K = static.window_size - static.k_max, static.k_max
@@ -142,7 +148,12 @@ def particle_update(
         x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
     x0, P0 = computed_once((x0, P0))
 
-    local, idx, window_overflow = gather_window(lm, x0[:2], W, params.max_range + params.window_margin)
+    radius = params.max_range + params.window_margin
+    if slot_bucket is None or len(static.slot_buckets) == 1:
+        local, idx, window_overflow = gather_window(lm, x0[:2], W, radius)
+    else:
+        branches = [lambda lm, x, b=b: gather_window(lm, x, W, radius, b) for b in static.slot_buckets]
+        local, idx, window_overflow = jax.lax.switch(slot_bucket, branches, lm, x0[:2])
     assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential)
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
@@ -294,9 +305,13 @@ def _step(
         first = jax.lax.axis_index(axis) * share
         mine = lambda a: jax.lax.dynamic_slice_in_dim(a, first, share)  # noqa: E731
 
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None, None))(
+    # The smallest map prefix holding every active landmark of this device's particles (under a
+    # sweep's vmap: of the batch), where the local windows are searched.
+    in_use = slots_in_use(p.landmarks)
+    slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None, None, None))(
         static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
-        seg.z_mask, mine(eps), valid, rel_prior)
+        seg.z_mask, mine(eps), valid, rel_prior, slot_bucket)
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
@@ -331,22 +346,29 @@ def _step(
         weight_reset=~finite,
     )
 
-    def do_resample(args):
-        parts, _ = args
+    def ancestors(parts):
         anc = resample(static.resampler, k_res, parts.log_w)
         # A copy of the best particle if it survived (always, for systematic and residual
         # resampling, since its weight is >= 1/N), else the best survivor.
-        best_after = jnp.argmax(parts.log_w[anc]).astype(jnp.int32)
-        if axis is None:
-            parts = jax.tree.map(lambda a: a[anc], parts)
-        else:
+        return anc, jnp.argmax(parts.log_w[anc]).astype(jnp.int32)
+
+    uniform = jnp.full((n,), -jnp.log(n), dtype=particles.log_w.dtype)
+    if axis is None:
+        # A conditional copy; under a sweep's vmap each run copies its maps only when it resamples.
+        anc, best_after = ancestors(particles)
+        particles = take_if(record.resampled, anc, particles)
+        particles = particles._replace(log_w=jnp.where(record.resampled, uniform, particles.log_w))
+        best = jnp.where(record.resampled, best_after, best)
+    else:
+        def do_resample(args):
+            parts, _ = args
+            anc, best_after = ancestors(parts)
             # This device's new particles may descend from any device's: gather all maps.
             lms = jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], parts.landmarks)
             parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
-        parts = parts._replace(log_w=jnp.full((n,), -jnp.log(n), dtype=parts.log_w.dtype))
-        return parts, best_after
+            return parts._replace(log_w=uniform), best_after
 
-    particles, best = jax.lax.cond(record.resampled, do_resample, lambda a: a, (particles, best))
+        particles, best = jax.lax.cond(record.resampled, do_resample, lambda a: a, (particles, best))
     new_state = FilterState(
         particles=particles, key=key, best=best,
         resample_count=state.resample_count + record.resampled.astype(jnp.int32),
