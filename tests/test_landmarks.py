@@ -315,6 +315,12 @@ def test_gather_over_a_prefix_holding_every_landmark_equals_the_whole_map(n_acti
     pos, radius = jnp.asarray([5.0, -3.0]), jnp.asarray(55.0)
     whole = gather(lm, pos, W, radius)
     prefix = jax.jit(gather_window, static_argnums=(2, 4))(lm, pos, W, radius, slots)
+    # The independent truth: the active slots within the radius, from numpy.
+    d = np.linalg.norm(np.asarray(lm.mean) - np.asarray(pos), axis=1)
+    near = np.flatnonzero(np.asarray(lm.active) & (d < float(radius)))
+    idx = np.asarray(prefix[1])
+    assert idx[np.asarray(prefix[0].active)].tolist() == near[:W].tolist()
+    assert np.all(idx[~np.asarray(prefix[0].active)] == CAP)
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(prefix)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 

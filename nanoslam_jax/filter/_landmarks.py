@@ -75,7 +75,8 @@ def gather_window(
     d2 = jnp.square(mean[:, 0] - position[0]) + jnp.square(mean[:, 1] - position[1])
     near = lm.active[:slots] & (d2 < jnp.square(radius))
     idx, n_near = first_true(near, window)
-    idx = jnp.where(idx < slots, idx, capacity)
+    if slots < capacity:
+        idx = jnp.where(idx < slots, idx, capacity)  # unused window slots point at ``capacity``
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
     local = local._replace(active=idx < capacity,
                            cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(2)))

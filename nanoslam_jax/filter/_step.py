@@ -355,9 +355,12 @@ def _step(
     uniform = jnp.full((n,), -jnp.log(n), dtype=particles.log_w.dtype)
     if axis is None:
         # A conditional copy; under a sweep's vmap each run copies its maps only when it resamples.
+        # The ancestors are drawn at every step (one uniform and a search over the weights, well
+        # under a microsecond) so that only the copy is conditional. Uniform weights taken by
+        # ancestor are uniform, so they can be set before the copy.
         anc, best_after = ancestors(particles)
-        particles = take_if(record.resampled, anc, particles)
-        particles = particles._replace(log_w=jnp.where(record.resampled, uniform, particles.log_w))
+        log_w = jnp.where(record.resampled, uniform, particles.log_w)
+        particles = take_if(record.resampled, anc, particles._replace(log_w=log_w))
         best = jnp.where(record.resampled, best_after, best)
     else:
         def do_resample(args):
