@@ -11,7 +11,11 @@ stacked 2- or 3-vectors until the 3 + 9 sums), in three variants of the final su
 * ``components, jnp.sum``: each sum a reduction over (points, rows);
 * ``components, unrolled``: each sum unrolled into additions of slices (as ``_linalg.tsum``);
 * ``components, unrolled, once``: as above, with the residuals and Jacobian entries written to
-  memory once (``computed_once``) instead of recomputed inside every sum.
+  memory once (``computed_once``) instead of recomputed inside every sum;
+
+and ``hybrid``: the Jacobian entries by one ``jvp`` per pose component (so the other components'
+tangents are symbolic zeros rather than multiplications by the zeros of an identity basis), then
+stacked per point and summed as the library does.
 
 All on a sweep batch's shape (64 runs x 10 particles, vmapped; cubature, 6 points) and ``--rows``
 detection rows, float64, compiled once each and called alternately ``--repeat`` times (best and
@@ -31,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax._linalg import chol3, inv3, sym, tsum
+from nanoslam_jax._linalg import chol3, inv3, mm, mt, mv, sym, tsum
 from nanoslam_jax._trig import computed_once
 from nanoslam_jax.models import range_bearing_components, wrap_angle
 from nanoslam_jax.proposals import Detections
@@ -79,6 +83,34 @@ def components(total: str, once: bool):
     return f
 
 
+def hybrid(x, P, m, z, cov, mask, R):
+    """Jacobian entries by one jvp per pose component (symbolic zeros elsewhere), then stacked and
+    summed as the library does."""
+    det = Detections(z, m, cov, mask)
+    Wm = noise_information(x, det, R, False) * mask[:, None, None]
+    xi, wm, _ = RULE.unit_points(3)
+    X = x + mm(xi, mt(chol3(P)))
+
+    def at_point(xp):
+        def residual(px, py, phi):
+            r, b = range_bearing_components(px, py, phi, m[:, 0], m[:, 1])
+            return z[:, 0] - r, wrap_angle(z[:, 1] - b)
+
+        comps = (xp[0], xp[1], xp[2])
+        cols = []
+        for i in range(3):
+            along = lambda a, i=i: residual(*[a if j == i else comps[j] for j in range(3)])  # noqa: E731
+            r, dr = jax.jvp(along, (comps[i],), (jnp.ones_like(comps[i]),))
+            cols.append(jnp.broadcast_to(jnp.stack(dr, -1), (m.shape[0], 2)))
+        J = jnp.stack(cols, -1)  # (k, 2, 3)
+        r = jnp.stack(r, -1)
+        JtW = mm(mt(J), Wm)
+        return tsum(mv(JtW, r)), tsum(mm(JtW, J))
+
+    g, H = jax.vmap(at_point)(X)
+    return tsum(wm[:, None] * g), sym(tsum(wm[:, None, None] * H))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--batch", type=int, default=640, help="particles in the batch (runs x particles)")
@@ -104,6 +136,7 @@ def main() -> None:
         "components, jnp.sum": components("sum", False),
         "components, unrolled": components("unrolled", False),
         "components, unrolled, once": components("unrolled", True),
+        "hybrid": hybrid,
     }
     fns = {name: jax.jit(jax.vmap(f, (0, 0, 0, 0, 0, 0, None))) for name, f in cases.items()}
     ref = jax.block_until_ready(fns["library (jacfwd, _linalg helpers)"](*inputs, R))
