@@ -52,6 +52,16 @@ def library(x, P, m, z, cov, mask, R):
     return expected_grad_hess(RULE, Gaussian(x, inv3(P), P), range_bearing_residuals(det), W, mask)
 
 
+def residual_components(m, z):
+    """``(px, py, phi) -> (range, bearing)`` residuals of every row, one array per component
+    (the pose components broadcast against the rows)."""
+    def residual(px, py, phi):
+        r, b = range_bearing_components(px, py, phi, m[:, 0], m[:, 1])
+        return z[:, 0] - r, wrap_angle(z[:, 1] - b)
+
+    return residual
+
+
 def components(total: str, once: bool):
     def f(x, P, m, z, cov, mask, R):
         det = Detections(z, m, cov, mask)
@@ -59,10 +69,7 @@ def components(total: str, once: bool):
         xi, wm, _ = RULE.unit_points(3)
         L = chol3(P)
         X = [(x[i] + sum(xi[:, j] * L[i, j] for j in range(3)))[:, None] for i in range(3)]  # (points, 1)
-
-        def residual(px, py, phi):
-            r, b = range_bearing_components(px, py, phi, m[:, 0], m[:, 1])
-            return z[:, 0] - r, wrap_angle(z[:, 1] - b)
+        residual = residual_components(m, z)
 
         cols = []
         for i in range(3):
@@ -91,11 +98,9 @@ def hybrid(x, P, m, z, cov, mask, R):
     xi, wm, _ = RULE.unit_points(3)
     X = x + mm(xi, mt(chol3(P)))
 
-    def at_point(xp):
-        def residual(px, py, phi):
-            r, b = range_bearing_components(px, py, phi, m[:, 0], m[:, 1])
-            return z[:, 0] - r, wrap_angle(z[:, 1] - b)
+    residual = residual_components(m, z)
 
+    def at_point(xp):
         comps = (xp[0], xp[1], xp[2])
         cols = []
         for i in range(3):

@@ -26,7 +26,9 @@ DEVICES_PER_CORE = 2
 #: carry whole runs and never wait for each other inside a scan, so more devices only share the
 #: cores more finely. After the fusion barriers (commit d8ff90d), a batch of 64 x 10 particles over
 #: 500 scans, alternated in separate processes on the 2-core development machine: 8 devices
-#: 3.96 / 4.03 / 3.69 s (best of 3 each), 4 devices 4.64 / 5.04 / 5.52 s, 2 devices 5.53 s.
+#: 3.96 / 4.03 / 3.69 s (best of 3 each), 4 devices 4.64 / 5.04 / 5.52 s, 2 devices 5.53 s. After
+#: ``take_if`` and ``batch_max`` (commit 8ae07ca), 4 and 8 devices were within the machine's drift
+#: (medians of 10-11 alternated processes 3.2 and 3.45 s), so the count was left as it is.
 SWEEP_DEVICES_PER_CORE = 4
 
 
