@@ -3,6 +3,7 @@
     python experiments/sweep_benchmark.py                       # both tables (about 8 minutes on 2 cores)
     python experiments/sweep_benchmark.py --only throughput     # batched programs against sequential runs
     python experiments/sweep_benchmark.py --only multicore      # one device, JAX devices, pinned processes
+    python experiments/sweep_benchmark.py --only ceiling        # what any batch could gain at most
 
 The workload: 64 configurations (random samples of gate, new-landmark threshold, range and
 bearing noise) of NANO-SLAM with 10 particles over the first 500 segments of the Victoria Park
@@ -24,6 +25,18 @@ log, float64.
    ``SWEEP_DEVICES_PER_CORE``), each batch split over them (``shard_map``); ``processes``: one process pinned to each core
    (``os.sched_setaffinity``), half the batch each. "cores busy" is the CPU time of all the
    mode's processes over its wall time.
+3. *Ceiling* (not part of the default run): the most any batching of these runs could gain on
+   this machine. The single-run program at 10 particles and at the counts of
+   ``--ceiling-particles`` (default 1, 40, 80, 160) runs on each of the first
+   ``--ceiling-configs`` configurations, the counts alternated, three times (the median counts),
+   in a process pinned to one core (``os.sched_setaffinity`` before JAX starts); the 10-particle
+   runs run again in an unpinned process. A batch of configurations evaluates the same
+   per-particle arithmetic as one run with as many particles (a vmapped batch computes the same
+   numbers) plus its per-configuration work, so on one core it costs no less per particle than
+   the cheapest particle count measured here (the batch pinned to one core measured about 10 %
+   more than one configuration with 640 particles), and two cores at best halve that. The
+   printed ceiling is twice the ratio of the 10-particle runs' time to the cheapest time per 10
+   particles.
 
 The package's defaults (``run.parallel: auto`` = devices, ``run.vectorize: auto`` = vmap)
 are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PARALLEL`` and
@@ -177,9 +190,46 @@ def multicore_one(args) -> dict:
                 ok=sum(r["status"] == "ok" for r in rows))
 
 
+def ceiling_one(args) -> dict:
+    """The single-run program at each particle count of ``args.ceiling_particles`` (run in a fresh process)."""
+    if args.ceiling_worker == "pinned":
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # before JAX starts its threads
+    import jax
+    import numpy as np
+
+    import nanoslam_jax  # noqa: F401
+    from nanoslam_jax.filter import settings_from_config
+    from nanoslam_jax.sweep import expand, load_log_data, single_program, sweep_from_dict
+
+    counts = [10] if args.ceiling_worker == "free" else sorted(set([10, *args.ceiling_particles]))
+    progs = {}
+    for n in counts:
+        spec = sweep_from_dict(sweep_dict(args.config, args.configs, n, args.segments, args.configs), source="benchmark")
+        points, _, _ = expand(spec)
+        log = load_log_data(points[0].config, args.data, spec.segments)
+        seg = jax.tree.map(jax.numpy.asarray, log.segments)
+        settings = [settings_from_config(p.config, log.segments.k_max) for p in points[:args.ceiling_configs]]
+        seed = jax.numpy.zeros((), dtype=int)
+        # One config at a time: the static settings (row buckets included) of a single run of n particles.
+        prog = single_program.lower(settings[0][0], settings[0][1], seed, seg).compile()
+        jax.block_until_ready(prog(settings[0][1], seed, seg))  # warm
+        progs[n] = (prog, [p for _, p in settings], seed, seg, settings[0][0].row_buckets)
+    times = {n: np.zeros((3, args.ceiling_configs)) for n in counts}
+    for rep in range(3):  # alternated, so a burst of load on the machine hits every count
+        for c in range(args.ceiling_configs):
+            for n in counts:
+                prog, params, seed, seg, _ = progs[n]
+                t0 = time.perf_counter()
+                jax.block_until_ready(prog(params[c], seed, seg))
+                times[n][rep, c] = time.perf_counter() - t0
+    return dict(mode=args.ceiling_worker, configs=args.ceiling_configs, cores=len(os.sched_getaffinity(0)),
+                runs={str(n): dict(sum_of_medians_s=float(np.median(times[n], axis=0).sum()),
+                                   row_buckets=list(progs[n][4]), sums_s=times[n].sum(axis=1).tolist()) for n in counts})
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--only", choices=["throughput", "multicore"])
+    p.add_argument("--only", choices=["throughput", "multicore", "ceiling"])
     p.add_argument("--config", default="configs/victoria_park_nano.yaml", help="base config")
     p.add_argument("--data", help="log directory")
     p.add_argument("--configs", type=int, default=WORKLOAD["n"])
@@ -188,17 +238,26 @@ def main() -> None:
     p.add_argument("--repeat", type=int, default=3, help="timed repetitions of the throughput runs (best is shown)")
     p.add_argument("--modes", nargs="*", default=["single", "devices", "processes"])
     p.add_argument("--vectorize", default="vmap", choices=["vmap", "map"], help="batch computation of the multi-core runs")
+    p.add_argument("--ceiling-particles", type=int, nargs="+", default=[1, 40, 80, 160],
+                   help="particle counts of the ceiling's single runs (10 is always included)")
+    p.add_argument("--ceiling-configs", type=int, default=16, help="configurations the ceiling's runs cover")
     p.add_argument("--json", help="also write the measurements here")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     p.add_argument("--throughput-worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--split-devices", type=int, default=0, help=argparse.SUPPRESS)
+    p.add_argument("--ceiling-worker", choices=["pinned", "free"], help=argparse.SUPPRESS)
     args = p.parse_args()
+    if args.ceiling_configs > args.configs:
+        p.error(f"--ceiling-configs {args.ceiling_configs} is more than --configs {args.configs}")
 
     if args.worker:
         print(json.dumps(multicore_one(args)))
         return
     if args.throughput_worker:
         print(json.dumps(throughput(args)))
+        return
+    if args.ceiling_worker:
+        print(json.dumps(ceiling_one(args)))
         return
 
     common = ["--config", args.config, "--configs", str(args.configs), "--particles", str(args.particles),
@@ -269,6 +328,36 @@ def main() -> None:
             run = r["wall_s"] - r["compile_s"]
             print(f"| {r['mode']} | {r['wall_s']:.1f} | {r['compile_s']:.1f} | {run:.1f} | {r['configs'] / run:.2f} | "
                   f"{r['cpu_s']:.1f} | {r['cpu_s'] / r['wall_s']:.2f} | {r['ok']}/{r['configs']} |")
+    if args.only == "ceiling":
+        parts = {}
+        for mode in ("pinned", "free"):
+            res = subprocess.run([sys.executable, __file__, "--ceiling-worker", mode, "--ceiling-configs",
+                                  str(args.ceiling_configs), "--ceiling-particles", *map(str, args.ceiling_particles),
+                                  *common], capture_output=True, text=True)
+            if res.returncode:
+                sys.exit(f"ceiling run ({mode}) failed:\n{res.stderr[-3000:]}")
+            parts[mode] = json.loads(res.stdout.strip().splitlines()[-1])
+        results["ceiling"] = parts
+        pinned, free = parts["pinned"]["runs"], parts["free"]["runs"]
+        alone = pinned["10"]["sum_of_medians_s"]
+        print(f"\nCeiling: the single-run program on the first {args.ceiling_configs} configurations x "
+              f"{args.segments} segments, median of 3 alternated runs each, summed\n")
+        print("| runs | row buckets | run time [s] | per 10 particles [s] | per-particle cost vs 10 alone |")
+        print("|---|---|---|---|---|")
+        per10 = {}
+        for n, r in sorted(pinned.items(), key=lambda kv: int(kv[0])):
+            per10[n] = r["sum_of_medians_s"] * 10 / int(n)
+            print(f"| {n} particle{'s' if n != '1' else ''}, one core | {tuple(r['row_buckets']) or '-'} | {r['sum_of_medians_s']:.2f} | "
+                  f"{per10[n]:.2f} | {per10[n] / alone:.2f} |")
+        f10 = free["10"]["sum_of_medians_s"]
+        print(f"| 10 particles, unpinned ({parts['free']['cores']} cores, as the throughput table's sequential runs) "
+              f"| - | {f10:.2f} | {f10:.2f} | {f10 / alone:.2f} |")
+        best = min(per10, key=per10.get)
+        print(f"\ncheapest per particle: {best} particles per run; two cores at most halve that, so no batch of "
+              f"10-particle runs can be more than {2 * alone / per10[best]:.2f}x faster than the same runs one "
+              f"after another on one core, or {2 * f10 / per10[best]:.2f}x than the unpinned sequential runs")
+        print("all sums [s]: " + "; ".join(f"{mode} {n} " + ", ".join(f"{x:.2f}" for x in r["sums_s"])
+                                           for mode, part in parts.items() for n, r in part["runs"].items()), flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=2)
