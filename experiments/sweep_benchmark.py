@@ -34,9 +34,9 @@ log, float64.
    per-particle arithmetic as one run with as many particles (a vmapped batch computes the same
    numbers) plus its per-configuration work, so on one core it costs no less per particle than
    the cheapest particle count measured here (the batch pinned to one core measured about 10 %
-   more than one configuration with 640 particles), and two cores at best halve that. The
-   printed ceiling is twice the ratio of the 10-particle runs' time to the cheapest time per 10
-   particles.
+   more than one configuration with 640 particles), and C cores at best divide that by C. The
+   printed ceiling is C times the ratio of the 10-particle runs' time to the cheapest time per
+   10 particles.
 
 The package's defaults (``run.parallel: auto`` = devices, ``run.vectorize: auto`` = vmap)
 are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PARALLEL`` and
@@ -352,10 +352,10 @@ def main() -> None:
         f10 = free["10"]["sum_of_medians_s"]
         print(f"| 10 particles, unpinned ({parts['free']['cores']} cores, as the throughput table's sequential runs) "
               f"| - | {f10:.2f} | {f10:.2f} | {f10 / alone:.2f} |")
-        best = min(per10, key=per10.get)
-        print(f"\ncheapest per particle: {best} particles per run; two cores at most halve that, so no batch of "
-              f"10-particle runs can be more than {2 * alone / per10[best]:.2f}x faster than the same runs one "
-              f"after another on one core, or {2 * f10 / per10[best]:.2f}x than the unpinned sequential runs")
+        best, cores = min(per10, key=per10.get), parts["free"]["cores"]
+        print(f"\ncheapest per particle: {best} particles per run; {cores} cores at most divide that by {cores}, so no "
+              f"batch of 10-particle runs can be more than {cores * alone / per10[best]:.2f}x faster than the same "
+              f"runs one after another on one core, or {cores * f10 / per10[best]:.2f}x than the unpinned sequential runs")
         print("all sums [s]: " + "; ".join(f"{mode} {n} " + ", ".join(f"{x:.2f}" for x in r["sums_s"])
                                            for mode, part in parts.items() for n, r in part["runs"].items()), flush=True)
     if args.json:
