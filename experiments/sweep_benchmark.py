@@ -72,6 +72,26 @@ def sweep_dict(config: str, n: int, particles: int, segments: int, batch: int) -
     }
 
 
+def workload(args, particles: int):
+    """The benchmark's configurations with ``particles`` particles each.
+
+    Returns:
+        The sweep's points, the log's segments as JAX arrays, and each point's ``(static, params)``.
+    """
+    import jax
+
+    import nanoslam_jax  # noqa: F401  (float64 before any array exists)
+    from nanoslam_jax.filter import settings_from_config
+    from nanoslam_jax.sweep import expand, load_log_data, sweep_from_dict
+
+    spec = sweep_from_dict(sweep_dict(args.config, args.configs, particles, args.segments, args.configs),
+                           source="benchmark")
+    points, _, _ = expand(spec)
+    log = load_log_data(points[0].config, args.data, spec.segments)
+    seg = jax.tree.map(jax.numpy.asarray, log.segments)
+    return points, seg, [settings_from_config(p.config, log.segments.k_max) for p in points]
+
+
 def throughput(args) -> dict:
     """One part of the throughput comparison, after compilation (run in a fresh process).
 
@@ -90,16 +110,10 @@ def throughput(args) -> dict:
         jax.config.update("jax_num_cpu_devices", split)
     import numpy as np
 
-    import nanoslam_jax  # noqa: F401
-    from nanoslam_jax.filter import row_buckets, settings_from_config
-    from nanoslam_jax.sweep import batch_program, expand, load_log_data, single_program, sweep_from_dict
+    from nanoslam_jax.filter import row_buckets
+    from nanoslam_jax.sweep import batch_program, single_program
 
-    spec = sweep_from_dict(sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs),
-                           source="benchmark")
-    points, runs, _ = expand(spec)
-    log = load_log_data(points[0].config, args.data, spec.segments)
-    seg = jax.tree.map(jax.numpy.asarray, log.segments)
-    plist = [settings_from_config(p.config, log.segments.k_max) for p in points]
+    points, seg, plist = workload(args, args.particles)
     static = plist[0][0]
     params = [p for _, p in plist]
     stacked = jax.tree.map(lambda *a: jax.numpy.stack(a), *params)
@@ -197,18 +211,13 @@ def ceiling_one(args) -> dict:
     import jax
     import numpy as np
 
-    import nanoslam_jax  # noqa: F401
-    from nanoslam_jax.filter import settings_from_config
-    from nanoslam_jax.sweep import expand, load_log_data, single_program, sweep_from_dict
+    from nanoslam_jax.sweep import single_program
 
     counts = [10] if args.ceiling_worker == "free" else sorted(set([10, *args.ceiling_particles]))
     progs = {}
     for n in counts:
-        spec = sweep_from_dict(sweep_dict(args.config, args.configs, n, args.segments, args.configs), source="benchmark")
-        points, _, _ = expand(spec)
-        log = load_log_data(points[0].config, args.data, spec.segments)
-        seg = jax.tree.map(jax.numpy.asarray, log.segments)
-        settings = [settings_from_config(p.config, log.segments.k_max) for p in points[:args.ceiling_configs]]
+        _, seg, settings = workload(args, n)
+        settings = settings[:args.ceiling_configs]
         seed = jax.numpy.zeros((), dtype=int)
         # One config at a time: the static settings (row buckets included) of a single run of n particles.
         prog = single_program.lower(settings[0][0], settings[0][1], seed, seg).compile()
@@ -240,15 +249,17 @@ def main() -> None:
     p.add_argument("--vectorize", default="vmap", choices=["vmap", "map"], help="batch computation of the multi-core runs")
     p.add_argument("--ceiling-particles", type=int, nargs="+", default=[1, 40, 80, 160],
                    help="particle counts of the ceiling's single runs (10 is always included)")
-    p.add_argument("--ceiling-configs", type=int, default=16, help="configurations the ceiling's runs cover")
+    p.add_argument("--ceiling-configs", type=int, help="configurations the ceiling's runs cover (default: the first 16)")
     p.add_argument("--json", help="also write the measurements here")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     p.add_argument("--throughput-worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--split-devices", type=int, default=0, help=argparse.SUPPRESS)
     p.add_argument("--ceiling-worker", choices=["pinned", "free"], help=argparse.SUPPRESS)
     args = p.parse_args()
-    if args.ceiling_configs > args.configs:
-        p.error(f"--ceiling-configs {args.ceiling_configs} is more than --configs {args.configs}")
+    if args.ceiling_configs is None:
+        args.ceiling_configs = min(16, args.configs)
+    elif not 1 <= args.ceiling_configs <= args.configs:
+        p.error(f"--ceiling-configs must be between 1 and --configs ({args.configs}), not {args.ceiling_configs}")
 
     if args.worker:
         print(json.dumps(multicore_one(args)))
