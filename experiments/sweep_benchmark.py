@@ -33,8 +33,8 @@ log, float64.
    runs run again in an unpinned process. A batch of configurations evaluates the same
    per-particle arithmetic as one run with as many particles (a vmapped batch computes the same
    numbers) plus its per-configuration work, so on one core it costs no less per particle than
-   the cheapest particle count measured here (the batch pinned to one core measured about 10 %
-   more than one configuration with 640 particles), and C cores at best divide that by C. The
+   the cheapest particle count measured here (the pinned process also times that batch of the
+   same configurations at 10 particles, for comparison), and C cores at best divide that by C. The
    printed ceiling is C times the ratio of the 10-particle runs' time to the cheapest time per
    10 particles.
 
@@ -205,35 +205,48 @@ def multicore_one(args) -> dict:
 
 
 def ceiling_one(args) -> dict:
-    """The single-run program at each particle count of ``args.ceiling_particles`` (run in a fresh process)."""
-    if args.ceiling_worker == "pinned":
+    """The single-run program at each particle count of ``args.ceiling_particles`` and, pinned, the
+    vmapped batch of the same configurations at 10 particles (run in a fresh process)."""
+    pinned = args.ceiling_worker == "pinned"
+    if pinned:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # before JAX starts its threads
     import jax
     import numpy as np
 
-    from nanoslam_jax.sweep import single_program
+    from nanoslam_jax.filter import row_buckets
+    from nanoslam_jax.sweep import batch_program, single_program
 
-    counts = [10] if args.ceiling_worker == "free" else sorted(set([10, *args.ceiling_particles]))
-    progs = {}
+    C = args.ceiling_configs
+    counts = sorted({10, *args.ceiling_particles}) if pinned else [10]
+    seed = jax.numpy.zeros((), dtype=int)
+    calls, buckets = {}, {}  # name -> list of one zero-argument call per configuration (or one for the batch)
     for n in counts:
-        _, seg, settings = workload(args, n)
-        settings = settings[:args.ceiling_configs]
-        seed = jax.numpy.zeros((), dtype=int)
-        # One config at a time: the static settings (row buckets included) of a single run of n particles.
-        prog = single_program.lower(settings[0][0], settings[0][1], seed, seg).compile()
-        jax.block_until_ready(prog(settings[0][1], seed, seg))  # warm
-        progs[n] = (prog, [p for _, p in settings], seed, seg, settings[0][0].row_buckets)
-    times = {n: np.zeros((3, args.ceiling_configs)) for n in counts}
-    for rep in range(3):  # alternated, so a burst of load on the machine hits every count
-        for c in range(args.ceiling_configs):
-            for n in counts:
-                prog, params, seed, seg, _ = progs[n]
-                t0 = time.perf_counter()
-                jax.block_until_ready(prog(params[c], seed, seg))
-                times[n][rep, c] = time.perf_counter() - t0
-    return dict(mode=args.ceiling_worker, configs=args.ceiling_configs, cores=len(os.sched_getaffinity(0)),
-                runs={str(n): dict(sum_of_medians_s=float(np.median(times[n], axis=0).sum()),
-                                   row_buckets=list(progs[n][4]), sums_s=times[n].sum(axis=1).tolist()) for n in counts})
+        points, seg, settings = workload(args, n)
+        static = settings[0][0]  # one config at a time: the static settings of a single run of n particles
+        prog = single_program.lower(static, settings[0][1], seed, seg).compile()
+        calls[str(n)] = [lambda prog=prog, p=p, seg=seg: prog(p, seed, seg) for _, p in settings[:C]]
+        buckets[str(n)] = list(static.row_buckets)
+        if pinned and n == 10:  # the same configurations as one vmapped batch, as the sweep computes them
+            batch_static = dataclasses.replace(static, row_buckets=row_buckets(
+                points[0].config.filter.row_buckets, static.n_particles * C))
+            stacked = jax.tree.map(lambda *a: jax.numpy.stack(a), *[p for _, p in settings[:C]])
+            seeds = jax.numpy.zeros(C, dtype=int)
+            batch = batch_program.lower(batch_static, "vmap", 1, stacked, seeds, seg).compile()
+            calls["batch"] = [lambda: batch(stacked, seeds, seg)]
+            buckets["batch"] = list(batch_static.row_buckets)
+    for cs in calls.values():
+        jax.block_until_ready(cs[0]())  # warm
+    times = {k: np.zeros((3, len(cs))) for k, cs in calls.items()}
+    for rep in range(3):  # alternated, so a burst of load on the machine hits every kind of run
+        for c in range(C):
+            for k, cs in calls.items():
+                if c < len(cs):
+                    t0 = time.perf_counter()
+                    jax.block_until_ready(cs[c]())
+                    times[k][rep, c] = time.perf_counter() - t0
+    return dict(mode=args.ceiling_worker, configs=C, cores=len(os.sched_getaffinity(0)),
+                runs={k: dict(sum_of_medians_s=float(np.median(t, axis=0).sum()), row_buckets=buckets[k],
+                              sums_s=t.sum(axis=1).tolist()) for k, t in times.items()})
 
 
 def main() -> None:
@@ -356,15 +369,21 @@ def main() -> None:
         print("| runs | row buckets | run time [s] | per 10 particles [s] | per-particle cost vs 10 alone |")
         print("|---|---|---|---|---|")
         per10 = {}
-        for n, r in sorted(pinned.items(), key=lambda kv: int(kv[0])):
+        for n, r in sorted(((k, r) for k, r in pinned.items() if k != "batch"), key=lambda kv: int(kv[0])):
             per10[n] = r["sum_of_medians_s"] * 10 / int(n)
             print(f"| {n} particle{'s' if n != '1' else ''}, one core | {tuple(r['row_buckets']) or '-'} | {r['sum_of_medians_s']:.2f} | "
                   f"{per10[n]:.2f} | {per10[n] / alone:.2f} |")
+        b = pinned["batch"]
+        print(f"| the {args.ceiling_configs} configurations x 10 particles as one vmapped batch, one core | "
+              f"{tuple(b['row_buckets']) or '-'} | {b['sum_of_medians_s']:.2f} | {b['sum_of_medians_s']:.2f} | "
+              f"{b['sum_of_medians_s'] / alone:.2f} |")
+        per10["batch"] = b["sum_of_medians_s"]  # counted too, should a batch ever beat every single run
         f10 = free["10"]["sum_of_medians_s"]
         print(f"| 10 particles, unpinned ({parts['free']['cores']} cores, as the throughput table's sequential runs) "
               f"| - | {f10:.2f} | {f10:.2f} | {f10 / alone:.2f} |")
         best, cores = min(per10, key=per10.get), parts["free"]["cores"]
-        print(f"\ncheapest per particle: {best} particles per run; {cores} cores at most divide that by {cores}, so no "
+        label = "the vmapped batch" if best == "batch" else f"{best} particles per run"
+        print(f"\ncheapest per particle: {label}; {cores} cores at most divide that by {cores}, so no "
               f"batch of 10-particle runs can be more than {cores * alone / per10[best]:.2f}x faster than the same "
               f"runs one after another on one core, or {cores * f10 / per10[best]:.2f}x than the unpinned sequential runs")
         print("all sums [s]: " + "; ".join(f"{mode} {n} " + ", ".join(f"{x:.2f}" for x in r["sums_s"])
