@@ -16,12 +16,12 @@ INPUTS = "".join(f"{1 + i / 10:.1f} {i + 1} {0.01 * i:.2f}\n" for i in range(11)
 # and its 30 m detection is dropped (max_range is exclusive).
 MEASUREMENTS = """\
 0.5  10.0 1.5707963267948966 0.3
-1.15  5.0 1.0 0.2
-1.15 40.0 1.2 0.2
-1.15  7.0 2.0 0.2
-1.38 35.0 1.0 0.2
-2.3  12.0 0.5 0.2
-2.3  30.0 0.6 0.2
+1.15  5.0 1.0 0.21
+1.15 40.0 1.2 0.22
+1.15  7.0 2.0 0.23
+1.38 35.0 1.0 0.24
+2.3  12.0 0.5 0.25
+2.3  30.0 0.6 0.26
 """
 GPS = "0.0 0.0 0.0\n"
 
@@ -71,6 +71,10 @@ def test_tiny_log_split_into_extra_segments(tiny):
     mask[[0, 1, 1, 5], [0, 0, 1, 0]] = True
     assert np.array_equal(seg.z_mask, mask)
     assert np.allclose(seg.z, z, rtol=0, atol=1e-12)
+    # each detection keeps its own diameter (4th column), padding 0
+    diam = np.zeros((6, 2))
+    diam[0, 0], diam[1, 0], diam[1, 1], diam[5, 0] = 0.3, 0.21, 0.23, 0.25
+    assert np.allclose(seg.diam, diam, rtol=0, atol=1e-12)
 
 
 def test_tiny_log_without_split(tiny):
@@ -91,6 +95,7 @@ def test_range_filter_k_max_padding_and_t_end(tiny):
     assert seg.z.shape == (3, 4, 2)
     # file order kept: 40 m before 7 m; 5 m dropped by min_range
     assert np.allclose(seg.z[1, :2, 0], [40.0, 7.0]) and np.array_equal(seg.z_mask[1], [True, True, False, False])
+    assert np.allclose(seg.diam[1, :2], [0.22, 0.23]) and seg.diam.shape == (3, 4)
     assert np.array_equal(seg.z_mask.sum(axis=1), [1, 2, 1])
     assert np.all(seg.z[~seg.z_mask] == 0.0)
 

@@ -51,6 +51,8 @@ class Segments(NamedTuple):
         dr_mask: which DR pieces are real.
         z: detections ``(range, bearing)``, bearing in the vehicle frame, wrapped.
         z_mask: which detections are real.
+        diam: the tree diameter reported with each detection (m; the 4th column of
+            ``measurements.dat``; 0 for padding).
     """
 
     time: Float[Array, "segments"]
@@ -59,6 +61,7 @@ class Segments(NamedTuple):
     dr_mask: Bool[Array, "segments dr"]
     z: Float[Array, "segments k_max 2"]
     z_mask: Bool[Array, "segments k_max"]
+    diam: Float[Array, "segments k_max"]
 
     @property
     def n_segments(self) -> int:
