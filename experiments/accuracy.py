@@ -4,8 +4,8 @@
     python experiments/accuracy.py configs/victoria_park_nano.yaml --seeds 8 --set filter.estimate=mean
 
 Reports, per seed and summarised (median, interquartile range, min, max): ``rmse_fixed``,
-``rmse_aligned`` and their ``*_clean`` variants (victoria_park.md section 5), and the landmarks in
-the best particle's map.
+``rmse_aligned`` and their ``*_clean`` variants (victoria_park.md section 5), and the landmarks
+(all, and confirmed) in the best particle's map.
 """
 
 from __future__ import annotations
@@ -46,18 +46,20 @@ def main() -> None:
         m = evaluate(t, est[i][:, :2], log.raw.gps, rotation_deg=cfg.metrics.gps_rotation_deg,
                      jump_speed=cfg.metrics.jump_speed, frame=log.frame)
         best = int(run.state.best[i])
+        lm = run.state.particles.landmarks
         rows.append({"seed": int(s), **{k: m[k] for k in KEYS},
-                     "n_landmarks": int(run.state.particles.landmarks.active[i, best].sum()),
+                     "n_landmarks": int(lm.active[i, best].sum()),
+                     "n_confirmed": int((lm.active[i, best] & lm.confirmed[i, best]).sum()),
                      "finite": bool(np.all(np.isfinite(est[i])))})
 
     print(f"\n{cfg.name}: {cfg.filter.method}, {static.n_particles} particles, {len(seeds)} seeds, "
           f"{t.shape[0]} scans, batch run {run.run_s:.1f} s (compile {run.compile_s:.1f} s)\n")
-    print("| seed | " + " | ".join(KEYS) + " | landmarks |")
-    print("|---" * (len(KEYS) + 2) + "|")
+    print("| seed | " + " | ".join(KEYS) + " | landmarks | confirmed |")
+    print("|---" * (len(KEYS) + 3) + "|")
     for r in rows:
-        print(f"| {r['seed']} | " + " | ".join(f"{r[k]:.3f}" for k in KEYS) + f" | {r['n_landmarks']} |")
+        print(f"| {r['seed']} | " + " | ".join(f"{r[k]:.3f}" for k in KEYS) + f" | {r['n_landmarks']} | {r['n_confirmed']} |")
     summary = {}
-    for k in KEYS + ("n_landmarks",):
+    for k in KEYS + ("n_landmarks", "n_confirmed"):
         v = np.array([r[k] for r in rows], float)
         q1, med, q3 = np.percentile(v, [25, 50, 75])
         summary[k] = {"median": med, "q1": q1, "q3": q3, "min": v.min(), "max": v.max()}

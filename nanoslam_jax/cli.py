@@ -77,8 +77,12 @@ def _run(args) -> int:
     setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)
     out = Path(args.out) if args.out else default_out_dir(cfg)
     metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)
-    keys = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "n_landmarks", "ms_per_scan", "compile_s"]
+    keys = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "dr_rmse_fixed", "n_landmarks",
+            "n_confirmed", "map_found_fraction", "map_spurious_fraction", "ms_per_scan", "compile_s"]
     summary = {k: round(metrics[k], 3) if isinstance(metrics[k], float) else metrics[k] for k in keys if k in metrics}
+    if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:
+        print(f"{cfg.filter.method}: RMSE {metrics['rmse_fixed']:.2f} m against the {'truth' if metrics['frame'] == 'slam' else 'GPS'}; "
+              f"dead reckoning on the same log: {metrics['dr_rmse_fixed']:.2f} m ({metrics['dr_over_slam']:.1f}x the error)")
     print(json.dumps(summary))
     print(out)
     return 0

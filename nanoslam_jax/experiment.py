@@ -25,7 +25,7 @@ from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
 from .filter import AVAILABLE_METHODS, dead_reckoning, reported_map, run_filter, settings_from_config, text_progress
-from .metrics import error_over_time, evaluate, landmark_errors, relative_gps
+from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,12 +37,15 @@ class LoadedLog:
         segments: its fixed-shape segments.
         frame: metrics frame: ``'relative'`` (real GPS) or ``'slam'`` (simulated, GPS = truth).
         source: where it came from.
+        map_truth: the true landmarks a map is judged against (those observable from the true
+            path, :func:`~nanoslam_jax.metrics.observable_landmarks`), or None without ground truth.
     """
 
     raw: RawLog
     segments: Segments
     frame: str
     source: str
+    map_truth: Optional[np.ndarray] = None
 
 
 def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
@@ -64,7 +67,28 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
     d = cfg.data
     segments = make_segments(raw, min_range=d.min_range, max_range=d.max_range, k_max=d.k_max,
                              max_dr_per_segment=d.max_dr_per_segment, t_end=d.t_end)
-    return LoadedLog(raw, segments, frame, source)
+    map_truth = None
+    if raw.truth_landmarks is not None and raw.truth_poses is not None:
+        t = np.asarray(segments.time)[np.asarray(segments.z_mask).any(axis=1)]
+        seen = observable_landmarks(raw.truth_landmarks, raw.truth_poses, t, d.max_range, cfg.map.fov_deg, d.min_range)
+        map_truth = np.asarray(raw.truth_landmarks)[seen]
+    return LoadedLog(raw, segments, frame, source, map_truth)
+
+
+#: Columns of ``map.csv``.
+MAP_COLUMNS = ["x", "y", "cov_xx", "cov_xy", "cov_yy", "hits", "misses", "existence", "confirmed", "diameter",
+               "diameter_sd"]
+
+
+def map_table(lm) -> np.ndarray:
+    """The rows of ``map.csv`` (:data:`MAP_COLUMNS`) of a reported map's active landmarks (host arrays):
+    ``existence`` is the existence probability, ``confirmed`` 1 or 0 (0: tentative)."""
+    act = np.asarray(lm.active)
+    cov = np.asarray(lm.cov)[act]
+    existence = 1.0 / (1.0 + np.exp(-np.asarray(lm.log_odds, float)[act]))
+    return np.c_[np.asarray(lm.mean)[act], cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1], np.asarray(lm.hits)[act],
+                 np.asarray(lm.misses)[act], existence, np.asarray(lm.confirmed)[act],
+                 np.asarray(lm.diam)[act], np.sqrt(np.asarray(lm.diam_var)[act])]
 
 
 def default_out_dir(cfg: Config, root: str | Path = "results") -> Path:
@@ -133,30 +157,37 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     seg = log.segments
     static, params = settings_from_config(cfg, seg.k_max)
     t = np.asarray(seg.time)
-    metrics: dict = {"method": cfg.filter.method, "seed": cfg.seed, "version": __version__, "data": log.source, "n_segments": int(t.shape[0]),
+    metrics: dict = {"method": cfg.filter.method, "seed": cfg.seed, "version": __version__, "data": log.source,
+                     "frame": log.frame, "n_segments": int(t.shape[0]),
                      "versions": versions(), "command": " ".join(sys.argv)}
     show = cfg.output.progress if progress is None else progress
 
     landmarks = None
+    mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
+    t0 = time.perf_counter()
+    dr_poses = np.asarray(jax.block_until_ready(dead_reckoning(params, seg)))
+    dr_s = time.perf_counter() - t0
     if cfg.filter.method == "dead_reckoning":
-        t0 = time.perf_counter()
-        poses = np.asarray(jax.block_until_ready(dead_reckoning(params, seg)))
-        metrics.update(run_s=time.perf_counter() - t0)
-        est = mean = poses
+        metrics.update(run_s=dr_s)
+        est = mean = dr_poses
         ess = None
     else:
+        # The baseline every result is read against: the vehicle model alone on the same log.
+        if np.all(np.isfinite(dr_poses)):
+            dr = evaluate(t, dr_poses[:, :2], log.raw.gps, **mk)
+            metrics.update({f"dr_{k}": dr[k] for k in ("rmse_fixed", "rmse_aligned", "final_error")})
         run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk,
                          progress=text_progress(cfg.name) if show else None)
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
         est = best_pose if static.estimate == "best" else mean
         ess = np.asarray(o.ess) if cfg.filter.method != "ekf_slam" else None
-        lm = jax.tree.map(np.asarray, reported_map(run.state))
-        act = lm.active
-        landmarks = np.c_[lm.mean[act], lm.cov[act][:, 0, 0], lm.cov[act][:, 0, 1], lm.cov[act][:, 1, 1], lm.hits[act]]
+        landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
+        metrics.update(map_summary(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, log.map_truth,
+                                   cfg.metrics.map_radius))
         metrics.update(
-            n_landmarks=int(act.sum()), landmark_overflow=int(run.state.overflow),
+            landmark_overflow=int(run.state.overflow),
             window_overflow_max=int(np.max(o.window_overflow)), resample_count=int(run.state.resample_count),
             ess_mean=float(np.mean(o.ess)), ess_min=float(np.min(o.ess)),
             nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,
@@ -168,20 +199,18 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
 
     finite = bool(np.all(np.isfinite(est)))
     metrics["finite"] = finite
-    mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
     if finite:
         metrics.update(evaluate(t, est[:, :2], log.raw.gps, **mk))
         if cfg.filter.method != "dead_reckoning":
             other = evaluate(t, (mean if static.estimate == "best" else best_pose)[:, :2], log.raw.gps, **mk)
             tag = "wmean" if static.estimate == "best" else "best"
             metrics.update({f"rmse_fixed_{tag}": other["rmse_fixed"], f"rmse_aligned_{tag}": other["rmse_aligned"]})
-    if landmarks is not None and log.raw.truth_landmarks is not None:
-        le = landmark_errors(landmarks[:, :2], log.raw.truth_landmarks)
-        metrics.update({f"map_{k}": v for k, v in le.items() if np.ndim(v) == 0})
+        if "dr_rmse_fixed" in metrics:
+            metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
 
     _write_csv(out / "trajectory.csv", ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, mean])
     if landmarks is not None:
-        _write_csv(out / "map.csv", ["x", "y", "cov_xx", "cov_xy", "cov_yy", "hits"], landmarks, fmt="%.9g")
+        _write_csv(out / "map.csv", MAP_COLUMNS, landmarks, fmt="%.9g")
     (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2) + "\n")
 
     if cfg.output.plots and finite:
@@ -197,9 +226,10 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk):
     gps = log.raw.gps
     ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" else gps[:, 1:3]
     label = "GPS (relative frame)" if log.frame == "relative" else "truth"
+    confirmed = None if landmarks is None else landmarks[:, MAP_COLUMNS.index("confirmed")] > 0
     plot_trajectory(out / "trajectory.png", ref, [(cfg.filter.method, est[:, :2])],
                     None if landmarks is None else landmarks[:, :2], log.raw.truth_landmarks,
-                    title=f"{cfg.name}: {cfg.filter.method}", reference_label=label)
+                    title=f"{cfg.name}: {cfg.filter.method}", reference_label=label, confirmed=confirmed)
     te, err = error_over_time(t, est[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"])
     plot_series(out / "error.png", [(cfg.filter.method, te, err)], "position error [m]", f"{cfg.name}: error against {label}")
     if ess is not None:

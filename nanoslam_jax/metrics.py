@@ -43,6 +43,10 @@ __all__ = [
     "evaluate",
     "error_over_time",
     "landmark_errors",
+    "observable_landmarks",
+    "map_quality",
+    "map_summary",
+    "MIN_SCANS_OBSERVABLE",
 ]
 
 #: Rotation (deg) already applied to the raw GPS in ``gps.dat``: ``R(-33 deg) (Lo + 67, La + 39)``.
@@ -336,3 +340,81 @@ def landmark_errors(est_landmarks: np.ndarray, true_landmarks: np.ndarray, radiu
         "rmse_matched": _rmse(e2t[matched]),
         "median_est_to_true": float(np.median(e2t)) if e2t.size else float("nan"),
     }
+
+
+#: A true landmark counts as observable when the sensor footprint held it at this many scans.
+MIN_SCANS_OBSERVABLE = 10
+
+
+def observable_landmarks(
+    true_landmarks: np.ndarray, truth_poses: np.ndarray, scan_times: np.ndarray, max_range: float,
+    fov_deg: float = 180.0, min_range: float = 0.0, min_scans: int = MIN_SCANS_OBSERVABLE,
+) -> np.ndarray:
+    """Which true landmarks a filter could map: those inside the sensor footprint of the true pose
+    at ``min_scans`` scans or more (a tree never or only fleetingly in view cannot be mapped, and a
+    map's completeness is judged against the others).
+
+    Args:
+        true_landmarks: ``(L, 2)`` true positions.
+        truth_poses: ``(T, 4)`` true laser poses ``time, x, y, phi`` (sorted by time).
+        scan_times: times of the scans.
+        max_range: the sensor's range (m): a landmark is in view at ``min_range <= r < max_range``.
+        fov_deg: the field of view (deg), centred on the forward axis.
+        min_range: the sensor's minimum range (m).
+        min_scans: scans in view needed.
+
+    Returns:
+        ``(L,)`` boolean mask.
+    """
+    tru = np.asarray(true_landmarks, dtype=float).reshape(-1, 2)
+    tp = np.asarray(truth_poses, dtype=float)
+    t = np.asarray(scan_times, dtype=float)
+    x, y = np.interp(t, tp[:, 0], tp[:, 1]), np.interp(t, tp[:, 0], tp[:, 2])
+    phi = np.interp(t, tp[:, 0], np.unwrap(tp[:, 3]))
+    dx, dy = tru[None, :, 0] - x[:, None], tru[None, :, 1] - y[:, None]
+    r = np.hypot(dx, dy)
+    b = np.mod(np.arctan2(dy, dx) - phi[:, None] + np.pi, 2 * np.pi) - np.pi
+    inside = (r >= min_range) & (r < max_range) & (np.abs(b) <= np.radians(fov_deg) / 2)
+    return inside.sum(axis=0) >= min_scans
+
+
+def map_quality(est_landmarks: np.ndarray, true_landmarks: np.ndarray, radius: float = 1.0) -> dict:
+    """Map-quality figures of a simulated log (what ``metrics.json`` reports as ``map_*``).
+
+    Args:
+        est_landmarks: ``(E, 2)`` the map's (confirmed) landmarks.
+        true_landmarks: ``(L, 2)`` the true landmarks it is judged against (the observable ones).
+        radius: a landmark within this distance of a true one matches it (m).
+
+    Returns:
+        ``n_est``, ``n_true``, ``n_found`` (true landmarks with an estimate within ``radius``),
+        ``found_fraction = n_found / n_true``, ``n_spurious`` (estimates with no true landmark
+        within ``radius``), ``spurious_fraction = n_spurious / n_est``, ``rmse_matched`` and
+        ``median_est_to_true`` (see :func:`landmark_errors`).
+    """
+    le = landmark_errors(est_landmarks, true_landmarks, radius)
+    out = {k: le[k] for k in ("n_est", "n_true", "n_found", "n_spurious", "rmse_matched", "median_est_to_true")}
+    out["found_fraction"] = le["n_found"] / le["n_true"] if le["n_true"] else float("nan")
+    out["spurious_fraction"] = le["n_spurious"] / le["n_est"] if le["n_est"] else float("nan")
+    return out
+
+
+def map_summary(xy: np.ndarray, confirmed: np.ndarray, map_truth: np.ndarray | None, radius: float) -> dict:
+    """What ``metrics.json`` (and a sweep's results) report of a map.
+
+    Args:
+        xy: ``(L, 2)`` the map's active landmarks (tentative and confirmed).
+        confirmed: ``(L,)`` which of them are confirmed.
+        map_truth: the true landmarks the map is judged against (the observable ones of a simulated
+            log), or None without ground truth.
+        radius: matching radius (m) of :func:`map_quality`.
+
+    Returns:
+        ``n_landmarks`` and ``n_confirmed``, and with ``map_truth`` the ``map_*`` figures of
+        :func:`map_quality` over the confirmed landmarks.
+    """
+    confirmed = np.asarray(confirmed, bool)
+    out: dict = {"n_landmarks": int(confirmed.shape[0]), "n_confirmed": int(confirmed.sum())}
+    if map_truth is not None:
+        out.update({f"map_{k}": v for k, v in map_quality(np.asarray(xy)[confirmed], map_truth, radius).items()})
+    return out

@@ -20,6 +20,7 @@ def plot_trajectory(
     true_landmarks: Optional[np.ndarray] = None,
     title: str = "",
     reference_label: str = "GPS",
+    confirmed: Optional[np.ndarray] = None,
 ) -> None:
     """Estimated trajectories (and the best particle's map) against the reference positions.
 
@@ -29,6 +30,8 @@ def plot_trajectory(
         trajectories: ``(label, (T, 2) positions)`` pairs.
         landmarks: ``(L, 2)`` estimated landmarks.
         true_landmarks: ``(L', 2)`` true landmarks (simulated logs).
+        confirmed: ``(L,)`` which landmarks are confirmed (drawn dark; tentative ones light);
+            None: all are drawn as confirmed.
     """
     fig, ax = plt.subplots(figsize=(8, 8))
     ax.plot(reference[:, 0], reference[:, 1], ".", ms=1.5, color="0.6", label=reference_label)
@@ -37,7 +40,12 @@ def plot_trajectory(
     if true_landmarks is not None and len(true_landmarks):
         ax.plot(true_landmarks[:, 0], true_landmarks[:, 1], "o", mfc="none", ms=5, color="g", label="true landmarks")
     if landmarks is not None and len(landmarks):
-        ax.plot(landmarks[:, 0], landmarks[:, 1], "+", ms=4, color="k", label=f"map ({len(landmarks)} landmarks)")
+        conf = np.ones(len(landmarks), bool) if confirmed is None else np.asarray(confirmed, bool)
+        ax.plot(landmarks[conf, 0], landmarks[conf, 1], "+", ms=4, color="k",
+                label=f"map ({int(conf.sum())} confirmed landmarks)")
+        if (~conf).any():
+            ax.plot(landmarks[~conf, 0], landmarks[~conf, 1], "+", ms=4, color="0.75",
+                    label=f"tentative ({int((~conf).sum())})")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")

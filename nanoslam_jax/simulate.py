@@ -316,7 +316,8 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None)
           frame in ``[-fov/2, fov/2]``, ``0 < range < max_range``;
         * ``gps``: ``(G, 3)`` ``time, x, y`` true laser positions at 5 Hz in the SLAM frame;
         * ``truth_poses``: ``(N + S, 4)`` ``time, x, y, phi`` at every DR and scan time, sorted;
-        * ``truth_landmarks``: ``(n_trees, 2)`` tree positions.
+        * ``truth_landmarks``: ``(n_trees, 2)`` tree positions;
+        * ``truth_diameters``: ``(n_trees,)`` tree diameters.
     """
     sim = SimConfig() if sim is None else sim
     vehicle = VehicleConfig() if vehicle is None else vehicle
@@ -405,6 +406,7 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None)
         gps=np.concatenate([gps_t[:, None], gps_xy], axis=1),
         truth_poses=truth_poses,
         truth_landmarks=trees,
+        truth_diameters=tree_diam,
         source="simulated",
     )
 
@@ -419,7 +421,7 @@ def simulate_to_dir(
     Args:
         directory: output directory (created if needed); receives ``inputs.dat``,
             ``measurements.dat`` (bearing + pi/2, as in the real file), ``gps.dat``,
-            ``truth_poses.dat`` and ``truth_landmarks.dat`` through
+            ``truth_poses.dat``, ``truth_landmarks.dat`` and ``truth_diameters.dat`` through
             :func:`nanoslam_jax.data._loader.write_victoria_park`.
         sim: simulator settings; ``None``: defaults.
         vehicle: car constants; ``None``: defaults.

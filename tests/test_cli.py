@@ -28,7 +28,7 @@ DR_CONFIG = ROOT / "configs" / "dead_reckoning.yaml"
 TRAJECTORY_HEADER = "t,x,y,phi,mean_x,mean_y,mean_phi"
 PROTOCOL_METRICS = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean",
                     "mean_error", "max_error", "final_error", "n_fixes"]
-SIM_FILES = ["inputs.dat", "measurements.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat"]
+SIM_FILES = ["inputs.dat", "measurements.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat", "truth_diameters.dat"]
 STAMPED = re.compile(r"^(?P<name>.+)-\d{8}-\d{6}$")
 
 

@@ -86,11 +86,11 @@ def test_missing_config_file_is_a_config_error(tmp_path):
 def test_set_overrides_the_file_and_the_default(tmp_path):
     p = _write(tmp_path / "c.yaml", "filter:\n  n_particles: 7\n")
     cfg = load_config(p, ["filter.n_particles=20", "nano.quadrature=gauss_hermite", "noise.sigma_r=0.25",
-                          "filter.prune=true", "data.t_end=30"])
+                          "map.manage=false", "data.t_end=30"])
     assert cfg.filter.n_particles == 20
     assert cfg.nano.quadrature == "gauss_hermite"
     assert cfg.noise.sigma_r == 0.25
-    assert cfg.filter.prune is True
+    assert cfg.map.manage is False
     assert cfg.data.t_end == 30.0
     assert load_config(None, ["filter.n_particles=20"]).filter.n_particles == 20
 
@@ -174,7 +174,7 @@ def test_unknown_key_in_yaml_is_named_with_the_file(tmp_path, text, key):
     ("noise.sigma_v=true", "noise.sigma_v", "number"),
     ("noise.sigma_v=fast", "noise.sigma_v", "number"),
     ("noise.sigma_v=.nan", "noise.sigma_v", "finite"),
-    ("filter.prune=1", "filter.prune", "true or false"),
+    ("map.manage=1", "map.manage", "true or false"),
     ("name=3", "name", "string"),
     ("data.path=[1, 2]", "data.path", "string"),
 ])
@@ -275,6 +275,22 @@ def test_min_range_must_be_below_max_range(items):
 def test_new_landmark_threshold_must_not_be_below_the_gate():
     msg = _error(["filter.gate=20", "filter.new_landmark=10"])
     assert "filter.new_landmark" in msg
+
+
+@pytest.mark.parametrize("items, key", [
+    (["map.p_false=0.9", "map.p_detect=0.8"], "map.p_false"),
+    (["map.birth_probability=0.01", "map.remove_probability=0.05"], "map.birth_probability"),
+    (["map.birth_probability=0.999", "map.max_probability=0.99"], "map.birth_probability"),
+    (["map.confirm_probability=0.999", "map.max_probability=0.99"], "map.confirm_probability"),
+])
+def test_inconsistent_landmark_management_is_named(items, key):
+    msg = _error(items)
+    assert f"'{key}'" in msg
+
+
+def test_inconsistent_management_keys_are_accepted_with_management_off():
+    cfg = load_config(None, ["map.manage=false", "map.p_false=0.9", "map.p_detect=0.8"])
+    assert cfg.map.p_false == 0.9
 
 
 def test_config_error_is_a_value_error():

@@ -229,7 +229,7 @@ def test_padding_segments_are_exact_no_ops():
     from nanoslam_jax.experiment import load_log
     from nanoslam_jax.filter import run_filter, settings_from_config
 
-    cfg = load_config(None, ["data.t_end=25", "filter.n_particles=4", "filter.prune=true", "filter.prior_cov=carry"])
+    cfg = load_config(None, ["data.t_end=25", "filter.n_particles=4", "filter.prior_cov=carry"])
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
     n = log.segments.time.shape[0]
@@ -276,11 +276,12 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     assert "cond[" in jaxpr and jaxpr.count("while[") == 3  # one branch each for 2, 4 and 8 rows
 
 
-@pytest.mark.parametrize("buckets", [(), (2,)])
-def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets):
+@pytest.mark.parametrize("buckets, management", [((), "off"), ((2,), "off"), ((), "on"), ((), "use_tentative")])
+def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets, management):
     """Two detections of one unmapped landmark in one scan: the first creates it at the sampled
     pose (eq. 16), the second matches that provisional landmark and updates it (EKF) at the same
-    pose, and the weight gains p0 for the first and the second's likelihood. Reference: the
+    pose, and the weight gains p0 for the first and the second's likelihood (with landmark
+    management, the second weighs as new, p0, unless tentative landmarks are used). Reference: the
     tested closed forms ``init_landmark`` and ``ekf_update_loglik`` called directly; with and
     without the proposal's row buckets (the scan's 3 rows: a bucket of 4 of k_max = 6)."""
     import dataclasses
@@ -290,7 +291,8 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets)
     from nanoslam_jax.filter._state import LandmarkMap
     from nanoslam_jax.filter._step import particle_update
 
-    cfg = load_config(None, ["filter.capacity=16", "filter.window=8"])
+    sets = {"off": ["map.manage=false"], "on": [], "use_tentative": ["map.use_tentative=true"]}[management]
+    cfg = load_config(None, ["filter.capacity=16", "filter.window=8"] + sets)
     static, params = settings_from_config(cfg, 6)
     static = dataclasses.replace(static, row_buckets=tuple(b + 2 for b in buckets))
     z1 = jnp.array([12.0, 0.3])
@@ -311,8 +313,19 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets)
     np.testing.assert_allclose(lm.cov[0], S, rtol=1e-10)
     np.testing.assert_allclose(lm.mean[1], m3, rtol=1e-12)
     np.testing.assert_allclose(lm.cov[1], S3, rtol=1e-10)
-    np.testing.assert_allclose(out.dlogw, 2 * params.log_p0 + llp, rtol=1e-12)
+    expect = 3 * params.log_p0 if management == "on" else 2 * params.log_p0 + llp
+    np.testing.assert_allclose(out.dlogw, expect, rtol=1e-12)
     assert int(out.n_new) == 2 and int(out.n_associated) == 1
+    # Management: both start tentative; the first has a second hit (log-odds birth + one hit).
+    mp = cfg.map
+    hit = math.log(mp.p_detect / mp.p_false)
+    birth = math.log(mp.birth_probability / (1 - mp.birth_probability))
+    if management == "off":
+        np.testing.assert_array_equal(lm.confirmed[:2], [True, True])
+    else:
+        np.testing.assert_allclose(lm.log_odds[:2], [birth + hit, birth], rtol=1e-12)
+        np.testing.assert_array_equal(lm.confirmed[:2], [False, False])  # 3 hits needed
+        np.testing.assert_array_equal(lm.born[:2], [0, 0])
 
 
 def test_particles_split_over_devices_give_the_same_run():

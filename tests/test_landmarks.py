@@ -310,7 +310,7 @@ def test_gather_over_a_prefix_holding_every_landmark_equals_the_whole_map(n_acti
     """Searching only the first ``slots`` slots changes nothing when no active landmark lies beyond
     them (unused window slots still point at ``capacity``, so write-backs drop them)."""
     lm = full_map(CAP, seed=n_active)
-    lm = lm._replace(active=jnp.arange(CAP) < n_active)  # a prefix map, as without pruning
+    lm = lm._replace(active=jnp.arange(CAP) < n_active)  # a prefix map, as without landmark management
     assert int(slots_in_use(lm)) == n_active  # one past the highest active slot
     pos, radius = jnp.asarray([5.0, -3.0]), jnp.asarray(55.0)
     whole = gather(lm, pos, W, radius)
@@ -329,7 +329,7 @@ def test_slots_in_use_is_one_past_the_highest_active_slot_of_any_particle():
     active = np.zeros((3, CAP), bool)
     assert int(slots_in_use(LandmarkMap.empty(CAP)._replace(active=jnp.asarray(active)))) == 0
     active[0, [0, 2]] = True
-    active[2, 6] = True  # a gap below it (a pruned landmark): still counted up to slot 6
+    active[2, 6] = True  # a gap below it (a removed landmark): still counted up to slot 6
     lm = jax.vmap(lambda _: LandmarkMap.empty(CAP))(jnp.arange(3))._replace(active=jnp.asarray(active))
     assert int(slots_in_use(lm)) == 7
 
@@ -352,14 +352,16 @@ def test_window_overflow_counts_only_near_landmarks():
 
 def new_landmarks(means, is_new, covs=None):
     covs = np.broadcast_to(np.eye(2), (len(means), 2, 2)) if covs is None else covs
-    return LandmarkMap(mean=jnp.asarray(means, float), cov=jnp.asarray(covs, float), active=jnp.asarray(is_new),
-                       hits=jnp.asarray(is_new, jnp.int32), misses=jnp.zeros(len(means), jnp.int32))
+    return LandmarkMap.empty(len(means))._replace(
+        mean=jnp.asarray(means, float), cov=jnp.asarray(covs, float), active=jnp.asarray(is_new),
+        hits=jnp.asarray(is_new, jnp.int32), confirmed=jnp.asarray(is_new), log_odds=jnp.full(len(means), 2.5),
+        diam=jnp.full(len(means), 0.3), diam_var=jnp.full(len(means), 0.01))
 
 
 @pytest.mark.parametrize("contiguous", [False, True])
 def test_updates_and_new_landmarks_to_free_slots(contiguous):
     lm = full_map(5, seed=1)
-    if contiguous:  # without pruning the active slots are a prefix and no landmark has misses
+    if contiguous:  # without landmark management the active slots are a prefix and no landmark has misses
         lm = lm._replace(active=jnp.asarray(np.arange(CAP) < 5), misses=jnp.zeros(CAP, jnp.int32))
     local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, jnp.asarray(1000.0))
     # Update the first window slot's landmark (an active one; the other two rows change nothing)
@@ -396,7 +398,7 @@ def test_updates_and_new_landmarks_to_free_slots(contiguous):
 def test_scatter_window_writes_every_field_back():
     lm = full_map(7, seed=4)
     local, idx, _ = gather(lm, jnp.asarray([0.0, 0.0]), W, jnp.asarray(1000.0))
-    # What pruning does to a window: scores change and a landmark is removed.
+    # What landmark management does to a window: scores change and a landmark is removed.
     j = int(np.flatnonzero(np.asarray(local.active))[1])
     local = local._replace(misses=local.misses + 1, active=local.active.at[j].set(False))
     back = scatter(lm, local, idx)
@@ -428,10 +430,10 @@ def test_scatter_overflow_is_counted(n_active, n_new, expect_overflow):
 
 @pytest.mark.parametrize("n_active,n_new", [(0, 2), (4, 3), (CAP - 2, 3), (CAP, 1)])
 def test_contiguous_placement_equals_free_slot_search_on_prefix_maps(n_active, n_new):
-    """Without pruning the active slots are a prefix: placing new landmarks after them must give
+    """Without landmark management the active slots are a prefix: placing new landmarks after them must give
     exactly what the general free-slot search gives (including the overflow count)."""
     lm = full_map(CAP, seed=3)
-    # Without pruning the active slots are a prefix and no landmark ever has misses.
+    # Without landmark management the active slots are a prefix and no landmark ever has misses.
     lm = lm._replace(active=jnp.asarray(np.arange(CAP) < n_active), misses=jnp.zeros(CAP, jnp.int32))
     is_new = jnp.asarray(np.arange(K) < n_new)
     new = new_landmarks([[50.0, 1.0], [51.0, 2.0], [52.0, 3.0]], is_new)

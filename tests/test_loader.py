@@ -97,6 +97,7 @@ def test_tiny_log_with_comments_and_truth(tmp_path):
         inputs_dat="# time speed steering\n\n" + INPUTS + "\n",
         truth_poses_dat="1.0 0 0 0.1\n1.05 0.1 0.0 0.2  # trailing comment\n",
         truth_landmarks_dat="3 4\n5 6\n7 8\n",
+        truth_diameters_dat="0.2\n0.3\n0.4\n",
     )
     log = load_victoria_park(directory)
     assert np.array_equal(log.dr, [[1.0, 0.5, -0.01], [1.025, 0.6, 0.0], [1.05, 0.7, 0.02]])
@@ -105,6 +106,7 @@ def test_tiny_log_with_comments_and_truth(tmp_path):
     assert np.array_equal(log.gps, [[0.9, 1.0, 2.0], [1.1, 1.5, 2.5]])
     assert np.array_equal(log.truth_poses, [[1.0, 0, 0, 0.1], [1.05, 0.1, 0.0, 0.2]])
     assert log.truth_landmarks.shape == (3, 2)
+    assert np.array_equal(log.truth_diameters, [0.2, 0.3, 0.4])
     assert log.source == str(directory)
 
 

@@ -268,12 +268,14 @@ def test_write_and_load_round_trip(tmp_path):
     loader = pytest.importorskip("nanoslam_jax.data._loader")
     sim = sim_cfg(duration=30.0)
     raw = simulate_to_dir(tmp_path / "sim", sim)
-    for name in ("inputs.dat", "measurements.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat"):
+    for name in ("inputs.dat", "measurements.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat",
+                 "truth_diameters.dat"):
         assert (tmp_path / "sim" / name).is_file(), name
     # the file convention: bearing + pi/2
     meas = np.loadtxt(tmp_path / "sim" / "measurements.dat")
     np.testing.assert_allclose(meas[:, 2], raw.detections[:, 2] + np.pi / 2, atol=1e-8)
     back = loader.load_victoria_park(tmp_path / "sim")
-    for name in ("dr", "detections", "gps", "truth_poses", "truth_landmarks"):
+    for name in ("dr", "detections", "gps", "truth_poses", "truth_landmarks", "truth_diameters"):
         np.testing.assert_allclose(getattr(back, name), getattr(raw, name), atol=1e-8, err_msg=name)
+    assert back.truth_diameters.shape == (sim.n_trees,)
     np.testing.assert_array_equal(back.scan_times.shape, raw.scan_times.shape)

@@ -43,6 +43,9 @@ BASE = {
     "sim": {"duration": 20},
     "noise": {"sigma_v": 0.3, "sigma_alpha_deg": 1.5, "sigma_r": 0.5, "sigma_beta_deg": 2.0},
     "filter": {"method": "fastslam1", "n_particles": 4, "capacity": 96, "window": 24},
+    # Every detection beyond the new-landmark threshold a permanent landmark, so that the failing
+    # configuration below overflows the capacity for certain.
+    "map": {"manage": False},
 }
 GRID = {"filter.gate": [4.0, 5.991], "filter.new_landmark": [13.816, 20.0]}
 #: 4 grid configurations + 2 random ones, 2 seeds: 12 runs in 3 batches of 4.
@@ -283,7 +286,7 @@ def test_vmapped_runs_equal_the_same_runs_alone(main_sweep):
         np.testing.assert_allclose(host.best_pose[i], np.asarray(alone.outputs.best_pose), rtol=0, atol=1e-12)
         np.testing.assert_allclose(host.mean_pose[i], np.asarray(alone.outputs.mean_pose), rtol=0, atol=1e-12)
         assert int(host.resample_count[i]) == int(alone.state.resample_count)
-        assert int(host.n_landmarks[i]) == int(alone.state.particles.landmarks.active[int(alone.state.best)].sum())
+        np.testing.assert_array_equal(host.map_active[i], alone.state.particles.landmarks.active[int(alone.state.best)])
         np.testing.assert_array_equal(mapped.best_pose[i], np.asarray(alone.outputs.best_pose))
         np.testing.assert_array_equal(mapped.mean_pose[i], np.asarray(alone.outputs.mean_pose))
         np.testing.assert_array_equal(mapped.ess[i], np.asarray(alone.outputs.ess))
@@ -373,8 +376,8 @@ def test_a_non_finite_estimate_fails_the_run():
     pose[0, :, 0] = np.linspace(0, 5, n)
     pose[0, 4:, 1] = np.nan
     z = np.zeros((1, n))
-    out = BatchOutput(pose, pose, z + 4, z, z + 1, z, z, z, z.astype(bool), np.array([3]), np.array([0]),
-                      np.array([1]), np.zeros((1, 8, 2)), np.zeros((1, 8), bool))
+    out = BatchOutput(pose, pose, z + 4, z, z + 1, z, z, z, z.astype(bool), np.array([0]),
+                      np.array([1]), np.zeros((1, 8, 2)), np.zeros((1, 8), bool), np.zeros((1, 8), bool))
     t = np.arange(n) * 0.5
     gps = np.c_[t, np.linspace(0, 5, n), np.zeros(n)]
     from nanoslam_jax.data import Segments
@@ -382,7 +385,7 @@ def test_a_non_finite_estimate_fails_the_run():
     seg = Segments(t, np.zeros((n, 1)), np.zeros((n, 1, 2)), np.zeros((n, 1), bool), np.zeros((n, 2, 2)),
                    np.zeros((n, 2), bool), np.zeros((n, 2)))
     log = _runner.LogData(seg, gps, "slam", None, "test")
-    task = BatchTask("g0", Static(), 0, None, np.array([0]), 1, ((0.0, 8.0),), True, ("c0-s0",))
+    task = BatchTask("g0", Static(), 0, None, np.array([0]), 1, ((0.0, 8.0, 1.0),), True, ("c0-s0",))
     r = _score(0, out, log, task)
     assert r["status"] == "failed" and r["reason"] == "non-finite estimate from segment 4 (t = 2.00 s)"
     pose[0, 4:, 1] = 0.0

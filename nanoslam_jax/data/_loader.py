@@ -4,7 +4,7 @@ A log directory holds the ASCII files ``inputs.dat`` (``time speed steering``),
 ``measurements.dat`` (``time range bearing diameter``, bearing in ``[0, pi]`` with ``pi/2``
 straight ahead) and ``gps.dat`` (``time x y``), or, for dead reckoning and GPS, the original
 MATLAB files ``aa3_dr.mat`` and ``aa3_gpsx.mat``. Simulated logs may add ``truth_poses.dat``
-(``time x y phi``) and ``truth_landmarks.dat`` (``x y``).
+(``time x y phi``), ``truth_landmarks.dat`` (``x y``) and ``truth_diameters.dat`` (``diameter``).
 
 Every format problem raises :class:`LogFormatError` naming the file, the 1-based line (or row of
 a MATLAB variable) and what was expected.
@@ -62,6 +62,7 @@ _MEASUREMENTS = _Table("measurements.dat", ("time", "range", "bearing", "diamete
 _GPS = _Table("gps.dat", ("time", "x", "y"), "increasing", "GPS")
 _TRUTH_POSES = _Table("truth_poses.dat", ("time", "x", "y", "phi"), "increasing", "true pose")
 _TRUTH_LANDMARKS = _Table("truth_landmarks.dat", ("x", "y"), None, "true landmark")
+_TRUTH_DIAMETERS = _Table("truth_diameters.dat", ("diameter",), None, "true diameter")
 
 # The original MATLAB files (times in ms); columns are variable names.
 _DR_MAT = _Table("aa3_dr.mat", ("time", "speed", "steering"), "increasing", "dead-reckoning")
@@ -267,8 +268,8 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
             ASCII); ``"auto"``: per stream, the ASCII file when present, else the MATLAB one.
 
     Returns:
-        The log; ``truth_poses`` / ``truth_landmarks`` are set when ``truth_poses.dat`` /
-        ``truth_landmarks.dat`` exist.
+        The log; ``truth_poses`` / ``truth_landmarks`` / ``truth_diameters`` are set when
+        ``truth_poses.dat`` / ``truth_landmarks.dat`` / ``truth_diameters.dat`` exist.
 
     Raises:
         FileNotFoundError: the directory or a needed file is missing (the message names it and
@@ -294,9 +295,12 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
     detections[:, 2] = _wrap(detections[:, 2] - np.pi / 2)
 
     truth = {}
-    for key, table in (("truth_poses", _TRUTH_POSES), ("truth_landmarks", _TRUTH_LANDMARKS)):
+    for key, table in (("truth_poses", _TRUTH_POSES), ("truth_landmarks", _TRUTH_LANDMARKS),
+                       ("truth_diameters", _TRUTH_DIAMETERS)):
         if (directory / table.name).is_file():
             truth[key] = _read_ascii(directory / table.name, table)
+    if "truth_diameters" in truth:
+        truth["truth_diameters"] = truth["truth_diameters"][:, 0]
     return RawLog(dr=dr, detections=detections, gps=gps, source=str(directory), **truth)
 
 
@@ -318,7 +322,8 @@ def write_victoria_park(directory: str | os.PathLike, raw: RawLog) -> None:
     """Write a log in the ASCII format that :func:`load_victoria_park` reads back.
 
     Writes ``inputs.dat``, ``measurements.dat`` (bearing + pi/2, the file convention) and
-    ``gps.dat``, plus ``truth_poses.dat`` / ``truth_landmarks.dat`` when ``raw`` has them;
+    ``gps.dat``, plus ``truth_poses.dat`` / ``truth_landmarks.dat`` / ``truth_diameters.dat`` when
+    ``raw`` has them;
     values carry 9 decimals so a round trip is exact to 1e-9. Existing files of those names are
     overwritten; other files in the directory are left alone.
 
@@ -333,7 +338,8 @@ def write_victoria_park(directory: str | os.PathLike, raw: RawLog) -> None:
     detections = _as_table(raw.detections, _MEASUREMENTS)
     detections[:, 2] += np.pi / 2
     tables = [(_INPUTS, raw.dr), (_MEASUREMENTS, detections), (_GPS, raw.gps),
-              (_TRUTH_POSES, raw.truth_poses), (_TRUTH_LANDMARKS, raw.truth_landmarks)]
+              (_TRUTH_POSES, raw.truth_poses), (_TRUTH_LANDMARKS, raw.truth_landmarks),
+              (_TRUTH_DIAMETERS, None if raw.truth_diameters is None else np.reshape(raw.truth_diameters, (-1, 1)))]
     arrays = [(table, _as_table(data, table)) for table, data in tables if data is not None]
     directory.mkdir(parents=True, exist_ok=True)
     for table, data in arrays:

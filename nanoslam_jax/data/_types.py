@@ -21,6 +21,7 @@ class RawLog:
         gps: ``(G, 3)`` GPS fixes ``time_s, x_m, y_m`` in the frame of ``gps.dat``.
         truth_poses: ``(T, 4)`` true laser poses ``time_s, x, y, phi`` (simulated logs only).
         truth_landmarks: ``(L, 2)`` true landmark positions (simulated logs only).
+        truth_diameters: ``(L,)`` true tree diameters (simulated logs only).
         source: where the log came from (directory or "simulated").
     """
 
@@ -29,6 +30,7 @@ class RawLog:
     gps: np.ndarray
     truth_poses: Optional[np.ndarray] = None
     truth_landmarks: Optional[np.ndarray] = None
+    truth_diameters: Optional[np.ndarray] = None
     source: str = ""
 
     @property

@@ -10,7 +10,14 @@ from ._landmarks import (
     scatter_window as scatter_window,
     update_slots as update_slots,
 )
+from ._management import (
+    diameter_update as diameter_update,
+    in_view as in_view,
+    manage_window as manage_window,
+    occluded as occluded,
+)
 from ._params import (
+    MapParams as MapParams,
     Params as Params,
     Static as Static,
     particle_devices as particle_devices,
@@ -42,6 +49,12 @@ from ._scan import (
     stack_params as stack_params,
     text_progress as text_progress,
 )
-from ._state import FilterState as FilterState, LandmarkMap as LandmarkMap, Particles as Particles, init_state as init_state
+from ._state import (
+    FilterState as FilterState,
+    LandmarkMap as LandmarkMap,
+    Particles as Particles,
+    count_confirmed as count_confirmed,
+    init_state as init_state,
+)
 from ._step import StepOutput as StepOutput, filter_step as filter_step
 from ._ekf_slam import EkfSlamState as EkfSlamState, init_ekf_state as init_ekf_state, ekf_slam_step as ekf_slam_step

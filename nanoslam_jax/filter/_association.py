@@ -71,6 +71,9 @@ def associate(
     gate: Float[Array, ""],
     new_landmark: Float[Array, ""],
     sequential: bool = True,
+    diam: Float[Array, "k_max"] | None = None,
+    use_diameter: Bool[Array, ""] | bool = False,
+    sigma_diameter: Float[Array, ""] | float = 1.0,
 ) -> Association:
     """Nearest-neighbour association with a chi-square gate and a new-landmark threshold.
 
@@ -87,6 +90,12 @@ def associate(
             landmark created by detection k can be matched by a later one. If False, detections
             are associated independently with existing landmarks and, when two pick the same
             landmark, only the closer keeps it.
+        diam: the diameter reported with each detection (None: no diameter term).
+        use_diameter: add ``(d_k - d_j)^2 / (var_j + sigma_diameter^2)`` to the distance of
+            detection ``k`` to landmark ``j`` (its diameter estimate ``d_j``, variance ``var_j``;
+            a provisional landmark has the diameter of the detection that created it and variance
+            ``sigma_diameter^2``). The distance is then a 3-dof chi-square; the gates apply to it.
+        sigma_diameter: diameter measurement noise (m).
     """
     k_max = z.shape[0]
     window = local.active.shape[0]
@@ -97,13 +106,19 @@ def associate(
     mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
     (zr, zb), (a00, a01, a11) = innovation_information(x, P, mean, cov, R)
     active = jnp.concatenate([local.active, jnp.zeros(k_max, bool)])
+    if diam is None:
+        diam, use_diameter = jnp.zeros(k_max, z.dtype), False
+    var_d = jnp.square(sigma_diameter)
+    slot_diam = jnp.concatenate([local.diam, diam])
+    slot_info = 1.0 / (jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, (k_max,))]) + var_d)
 
-    def distances(zk):
+    def distances(zk, dk):
         nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)
-        return nr * (a00 * nr + a01 * nb) + nb * (a01 * nr + a11 * nb)
+        d2 = nr * (a00 * nr + a01 * nb) + nb * (a01 * nr + a11 * nb)
+        return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
 
     if not sequential:
-        d2 = jax.vmap(distances)(z)
+        d2 = jax.vmap(distances)(z, diam)
         d2 = jnp.where(active[None, :], d2, jnp.inf)
         j = jnp.argmin(d2, axis=1)
         best = jnp.take_along_axis(d2, j[:, None], 1)[:, 0]
@@ -120,7 +135,7 @@ def associate(
     def body(k, carry):
         avail, slot, is_new, d2_best = carry
         zk, mk = z[k], z_mask[k]
-        d2 = jnp.where(avail, distances(zk), jnp.inf)
+        d2 = jnp.where(avail, distances(zk, diam[k]), jnp.inf)
         best = jnp.min(d2)
         # The first slot attaining the minimum, by two min-reductions (cheaper than argmin on CPU).
         j = jnp.min(jnp.where(d2 == best, slots, slots.shape[0] - 1))

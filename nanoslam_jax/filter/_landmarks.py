@@ -6,7 +6,8 @@ A scan touches only landmarks near the particle. :func:`gather_window` copies th
 all per-detection work is over ``window`` slots (and one provisional landmark per detection)
 instead of the full capacity. :func:`update_slots` writes back only the landmarks the scan's
 detections updated, :func:`add_landmarks` places the new ones in free slots, and
-:func:`scatter_window` writes a whole local map back (when pruning changes every slot's score).
+:func:`scatter_window` writes a whole local map back (when landmark management changes every
+local landmark's existence).
 """
 
 from __future__ import annotations
@@ -89,19 +90,29 @@ def scatter_window(lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"
 
 
 def update_slots(
-    lm: LandmarkMap, slots: Int[Array, "k"], mean: Float[Array, "k 2"], cov: Float[Array, "k 2 2"]
+    lm: LandmarkMap,
+    slots: Int[Array, "k"],
+    mean: Float[Array, "k 2"],
+    cov: Float[Array, "k 2 2"],
+    diam: Float[Array, "k"] | None = None,
+    diam_var: Float[Array, "k"] | None = None,
 ) -> LandmarkMap:
-    """Set the mean and covariance of the landmarks in ``slots`` and count a hit for each.
+    """Set the mean and covariance (and the diameter estimate) of the landmarks in ``slots`` and
+    count a hit for each.
 
     ``slots`` are distinct, or ``capacity`` (or beyond) for rows that change nothing: a scan
     changes only the landmarks its detections matched, so this writes ``k`` rows rather than
     the whole window.
     """
-    return lm._replace(
+    lm = lm._replace(
         mean=lm.mean.at[slots].set(mean, mode="drop"),
         cov=lm.cov.at[slots].set(cov, mode="drop"),
         hits=lm.hits.at[slots].add(1, mode="drop"),
     )
+    if diam is not None:
+        lm = lm._replace(diam=lm.diam.at[slots].set(diam, mode="drop"),
+                         diam_var=lm.diam_var.at[slots].set(diam_var, mode="drop"))
+    return lm
 
 
 def add_landmarks(
@@ -115,9 +126,10 @@ def add_landmarks(
         lm: the particle's map.
         new: candidate landmarks (``k`` slots), of which those with ``is_new`` are placed.
         is_new: which candidates are placed.
-        contiguous: the active slots are a prefix of the map (always so without pruning, since
-            landmarks are only added): the free slots then start at the active count, which
-            avoids a search over the whole capacity; a free slot then already holds zero misses.
+        contiguous: the active slots are a prefix of the map (always so without landmark
+            management, since landmarks are only added): the free slots then start at the active
+            count, which avoids a search over the whole capacity; a free slot then already holds
+            zero misses.
 
     Returns:
         The updated map and the number of landmarks dropped for lack of capacity.
@@ -131,7 +143,7 @@ def add_landmarks(
     else:
         free, _ = first_true(~lm.active, k_max)
     target = jnp.where(is_new, free[order], capacity)
-    fields = ("mean", "cov", "active", "hits") if contiguous else LandmarkMap._fields
+    fields = [f for f in LandmarkMap._fields if not (contiguous and f == "misses")]
     lm = lm._replace(**{f: getattr(lm, f).at[target].set(getattr(new, f), mode="drop") for f in fields})
     return lm, jnp.sum(is_new & (target == capacity))
 

@@ -12,7 +12,7 @@ import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
 from ..models import VehicleParams
@@ -35,7 +35,8 @@ class Static:
     weight: str = "product"
     resampler: str = "systematic"
     estimate: str = "best"
-    prune: bool = False
+    manage: bool = True
+    occlusion: bool = True
     quadrature: str = "cubature"
     gh_order: int = 3
     hessian: str = "gauss_newton"
@@ -65,6 +66,58 @@ class Static:
         return (*sizes, self.capacity)
 
 
+class MapParams(NamedTuple):
+    """Traced landmark-management hyperparameters (``map`` config section), in the form the filter
+    uses them: existence as log-odds, angles in radians.
+
+    Attributes:
+        log_odds_hit: added to a landmark's existence log-odds by a detection associated with it,
+            ``log(p_detect / p_false)``.
+        log_odds_miss: added in a scan where it was in view, not hidden and not detected,
+            ``log((1 - p_detect) / (1 - p_false))``.
+        log_odds_birth: log-odds of a landmark right after the detection that starts it.
+        log_odds_confirm: a tentative landmark is confirmed at or above this ...
+        confirm_hits: ... with at least this many detections.
+        tentative_scans: a tentative landmark older than this (scans) is dropped.
+        log_odds_remove: a landmark below this is removed.
+        log_odds_max: the log-odds are clamped at this.
+        min_range: the sensor's minimum range (m).
+        half_fov: half the field of view (rad).
+        view_margin: range margin (m) of the miss rule.
+        view_margin_angle: bearing margin (rad) of the miss rule.
+        occlusion_width: half-width (m) added to an occluder's radius.
+        use_tentative: tentative landmarks shape the proposal and weight (a traced boolean).
+        use_diameter: the diameter term enters the association distance (a traced boolean).
+        sigma_diameter: diameter measurement noise (m).
+    """
+
+    log_odds_hit: Float[ArrayLike, ""]
+    log_odds_miss: Float[ArrayLike, ""]
+    log_odds_birth: Float[ArrayLike, ""]
+    log_odds_confirm: Float[ArrayLike, ""]
+    confirm_hits: Float[ArrayLike, ""]
+    tentative_scans: Float[ArrayLike, ""]
+    log_odds_remove: Float[ArrayLike, ""]
+    log_odds_max: Float[ArrayLike, ""]
+    min_range: Float[ArrayLike, ""]
+    half_fov: Float[ArrayLike, ""]
+    view_margin: Float[ArrayLike, ""]
+    view_margin_angle: Float[ArrayLike, ""]
+    occlusion_width: Float[ArrayLike, ""]
+    use_tentative: Bool[ArrayLike, ""]
+    use_diameter: Bool[ArrayLike, ""]
+    sigma_diameter: Float[ArrayLike, ""]
+
+
+def _logit(p: float) -> float:
+    """``log(p / (1 - p))`` with the limits 0 -> -inf and 1 -> inf."""
+    if p <= 0.0:
+        return -math.inf
+    if p >= 1.0:
+        return math.inf
+    return math.log(p / (1.0 - p))
+
+
 class Params(NamedTuple):
     """Traced hyperparameters (all scalars; angles in radians).
 
@@ -81,11 +134,10 @@ class Params(NamedTuple):
         gamma: NANO KL stopping threshold.
         step: NANO natural-gradient step (1 = undamped).
         nano_alpha, nano_beta, nano_kappa: unscented parameters of the NANO quadrature.
-        prune_threshold: existence score (hits - misses) below which a landmark is removed.
-        max_range: sensor range (m), used by the local window and pruning.
+        max_range: sensor range (m), used by the local window and the miss rule.
         window_margin: landmarks within ``max_range + window_margin`` of a particle's prior
             position enter its local window (m).
-        half_fov: half the field of view (rad), used by pruning.
+        map: landmark-management hyperparameters (see :class:`MapParams`).
     """
 
     vehicle: VehicleParams
@@ -106,10 +158,9 @@ class Params(NamedTuple):
     nano_alpha: Float[ArrayLike, ""]
     nano_beta: Float[ArrayLike, ""]
     nano_kappa: Float[ArrayLike, ""]
-    prune_threshold: Float[ArrayLike, ""]
     max_range: Float[ArrayLike, ""]
     window_margin: Float[ArrayLike, ""]
-    half_fov: Float[ArrayLike, ""]
+    map: "MapParams"
 
     @property
     def R(self) -> Float[Array, "2 2"]:
@@ -158,7 +209,8 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
     static = Static(
         method=f.method, n_particles=f.n_particles, capacity=f.capacity, window=f.window, k_max=k_max,
         prior=f.prior, prior_cov=f.prior_cov, sequential=f.sequential, weight=f.weight,
-        resampler=f.resampler, estimate=f.estimate, prune=f.prune, quadrature=n.quadrature,
+        resampler=f.resampler, estimate=f.estimate, manage=cfg.map.manage, occlusion=cfg.map.occlusion,
+        quadrature=n.quadrature,
         gh_order=n.gh_order, hessian=n.hessian, max_iter=n.max_iter, landmark_noise=n.landmark_noise,
         nano_init=n.init, nano_solver=n.solver,
         landmark_update="unscented" if f.method == "ufastslam" else "ekf",
@@ -167,6 +219,18 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         devices=particle_devices(f.split_devices, f.n_particles),
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
+    mp = cfg.map
+    map_params = MapParams(
+        log_odds_hit=a(math.log(mp.p_detect / mp.p_false)),
+        log_odds_miss=a(math.log1p(-mp.p_detect) - math.log1p(-mp.p_false) if mp.p_detect < 1.0 else -math.inf),
+        log_odds_birth=a(_logit(mp.birth_probability)), log_odds_confirm=a(_logit(mp.confirm_probability)),
+        confirm_hits=a(mp.confirm_hits), tentative_scans=a(mp.tentative_scans),
+        log_odds_remove=a(_logit(mp.remove_probability)), log_odds_max=a(_logit(mp.max_probability)),
+        min_range=a(cfg.data.min_range), half_fov=a(math.radians(mp.fov_deg) / 2), view_margin=a(mp.view_margin),
+        view_margin_angle=a(math.radians(mp.view_margin_deg)), occlusion_width=a(mp.occlusion_width),
+        use_tentative=jnp.asarray(mp.use_tentative), use_diameter=jnp.asarray(mp.use_diameter),
+        sigma_diameter=a(mp.sigma_diameter),
+    )
     params = Params(
         vehicle=VehicleParams(a(v.wheelbase), a(v.encoder_offset), a(v.laser_a), a(v.laser_b)),
         sigma_v=a(nz.sigma_v), sigma_alpha=a(math.radians(nz.sigma_alpha_deg)),
@@ -175,7 +239,6 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         gate=a(f.gate), new_landmark=a(f.new_landmark), log_p0=a(math.log(f.p0)),
         resample_threshold=a(f.resample_threshold), gamma=a(n.gamma), step=a(n.step),
         nano_alpha=a(n.ut_alpha), nano_beta=a(n.ut_beta), nano_kappa=a(n.ut_kappa),
-        prune_threshold=a(f.prune_threshold), max_range=a(cfg.data.max_range), window_margin=a(f.window_margin),
-        half_fov=a(math.radians(f.fov_deg) / 2),
+        max_range=a(cfg.data.max_range), window_margin=a(f.window_margin), map=map_params,
     )
     return static, params

@@ -16,9 +16,14 @@ class LandmarkMap(NamedTuple):
     Attributes:
         mean: landmark positions.
         cov: landmark covariances.
-        active: which slots hold a landmark.
-        hits: detections associated with each landmark.
-        misses: scans in which the landmark was in view but not detected.
+        active: which slots hold a landmark (tentative or confirmed).
+        hits: detections associated with each landmark (the one that started it included).
+        misses: scans in which the landmark was in view, not hidden and not detected.
+        log_odds: existence log-odds (landmark management; see ``map`` in the config).
+        confirmed: the landmark has been confirmed (else it is tentative).
+        born: the scan (count of real segments before it) in which the landmark was started.
+        diam: estimated tree diameter (m).
+        diam_var: variance of the diameter estimate (m^2).
     """
 
     mean: Float[Array, "*particles slots 2"]
@@ -26,16 +31,27 @@ class LandmarkMap(NamedTuple):
     active: Bool[Array, "*particles slots"]
     hits: Int[Array, "*particles slots"]
     misses: Int[Array, "*particles slots"]
+    log_odds: Float[Array, "*particles slots"]
+    confirmed: Bool[Array, "*particles slots"]
+    born: Int[Array, "*particles slots"]
+    diam: Float[Array, "*particles slots"]
+    diam_var: Float[Array, "*particles slots"]
 
     @staticmethod
     def empty(slots: int, batch: tuple[int, ...] = ()) -> "LandmarkMap":
         """An empty map with ``slots`` slots (and optional leading batch axes)."""
+        shape = batch + (slots,)
         return LandmarkMap(
-            mean=jnp.zeros(batch + (slots, 2)),
-            cov=jnp.broadcast_to(jnp.eye(2), batch + (slots, 2, 2)),
-            active=jnp.zeros(batch + (slots,), bool),
-            hits=jnp.zeros(batch + (slots,), jnp.int32),
-            misses=jnp.zeros(batch + (slots,), jnp.int32),
+            mean=jnp.zeros(shape + (2,)),
+            cov=jnp.broadcast_to(jnp.eye(2), shape + (2, 2)),
+            active=jnp.zeros(shape, bool),
+            hits=jnp.zeros(shape, jnp.int32),
+            misses=jnp.zeros(shape, jnp.int32),
+            log_odds=jnp.zeros(shape),
+            confirmed=jnp.zeros(shape, bool),
+            born=jnp.zeros(shape, jnp.int32),
+            diam=jnp.zeros(shape),
+            diam_var=jnp.ones(shape),
         )
 
 
@@ -64,6 +80,7 @@ class FilterState(NamedTuple):
         best: index of the highest-weight particle (tracked through resampling).
         resample_count: resampling steps so far.
         overflow: new landmarks dropped so far because a particle's map was full (all particles).
+        scan: real segments processed so far (the clock of the landmarks' ``born``).
     """
 
     particles: Particles
@@ -71,6 +88,7 @@ class FilterState(NamedTuple):
     best: Int[Array, ""]
     resample_count: Int[Array, ""]
     overflow: Int[Array, ""]
+    scan: Int[Array, ""]
 
 
 def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterState:
@@ -83,12 +101,17 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         landmarks=LandmarkMap.empty(static.capacity, (n,)),
     )
     zero = jnp.zeros((), jnp.int32)
-    return FilterState(particles, key, zero, zero, zero)
+    return FilterState(particles, key, zero, zero, zero, zero)
 
 
 def count_landmarks(landmarks: LandmarkMap) -> Int[Array, "*particles"]:
-    """Active landmarks per particle."""
+    """Active landmarks (tentative and confirmed) per particle."""
     return jnp.sum(landmarks.active, axis=-1)
+
+
+def count_confirmed(landmarks: LandmarkMap) -> Int[Array, "*particles"]:
+    """Confirmed landmarks per particle."""
+    return jnp.sum(landmarks.active & landmarks.confirmed, axis=-1)
 
 
 def slots_in_use(landmarks: LandmarkMap) -> Int[Array, ""]:

@@ -32,7 +32,8 @@ from ._landmarks import (
 from ._params import Params, Static
 from ._prior import compose_prior, predict, relative_prior
 from ._resampling import effective_sample_size, normalise, resample
-from ._state import FilterState, LandmarkMap, Particles, count_landmarks, slots_in_use
+from ._management import diameter_update, drop_stale, manage_window, new_landmarks
+from ._state import FilterState, LandmarkMap, Particles, count_confirmed, count_landmarks, slots_in_use
 
 
 class StepOutput(NamedTuple):
@@ -43,7 +44,8 @@ class StepOutput(NamedTuple):
         mean_pose: weighted mean pose (circular mean heading).
         ess: effective sample size after weighting.
         resampled: whether the particles were resampled.
-        n_landmarks: landmarks in the best particle's map.
+        n_landmarks: landmarks (tentative and confirmed) in the best particle's map.
+        n_confirmed: confirmed landmarks in the best particle's map.
         iterations: mean proposal iterations over particles that had associations.
         n_capped: particles whose iterative proposal hit the iteration cap.
         n_nonfinite: particles whose proposal failed (fell back to the prior).
@@ -59,6 +61,7 @@ class StepOutput(NamedTuple):
     ess: Float[Array, ""]
     resampled: Bool[Array, ""]
     n_landmarks: Int[Array, ""]
+    n_confirmed: Int[Array, ""]
     iterations: Float[Array, ""]
     n_capped: Int[Array, ""]
     n_nonfinite: Int[Array, ""]
@@ -82,6 +85,7 @@ class _ParticleOut(NamedTuple):
     window_overflow: Int[Array, ""]
     overflow: Int[Array, ""]
     n_landmarks: Int[Array, ""]
+    n_confirmed: Int[Array, ""]
 
 
 def _proposal_over_rows(
@@ -123,13 +127,15 @@ def particle_update(
     valid: Bool[Array, ""] = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
     slot_bucket: Int[Array, ""] | None = None,
+    diam: Float[Array, "k"] | None = None,
+    scan: Int[Array, ""] | int = 0,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
     ``eps`` is the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
 
-    ``valid`` False marks a padding segment: pruning then counts no misses (the caller masks the
-    pose and weight; with no detections the map is unchanged).
+    ``valid`` False marks a padding segment: landmark management then counts no misses (the
+    caller masks the pose and weight; with no detections the map is unchanged).
 
     ``rel_prior``: the segment's :func:`relative_prior`, shared by all particles, with
     ``static.prior_cov == 'reset'``; the prior is then placed at ``pose`` instead of propagated
@@ -138,9 +144,18 @@ def particle_update(
     ``slot_bucket``: index into ``static.slot_buckets`` of a map prefix that holds every active
     landmark (the local window is searched there; ``None``: the whole map). The same for all
     particles, so under ``vmap`` it stays a branch.
+
+    ``diam``: the diameter reported with each detection (``None``: zeros); ``scan``: the count of
+    real segments before this one (the clock of the landmarks' ``born``).
+
+    With ``static.manage`` (landmark management, :mod:`._management`) only the rows matched to
+    confirmed landmarks (all matched rows with ``map.use_tentative``) shape the proposal and the
+    weight; a row that matched a tentative landmark then weighs as a new landmark does (``p0``).
     """
     R = params.R
+    mp = params.map
     W, K = static.window_size - static.k_max, static.k_max
+    diam = jnp.zeros(K, z.dtype) if diam is None else diam
     if rel_prior is not None:
         x0, P0 = compose_prior(pose, *rel_prior)
     else:
@@ -154,14 +169,18 @@ def particle_update(
     else:
         branches = [lambda lm, x, b=b: gather_window(lm, x, W, radius, b) for b in static.slot_buckets]
         local, idx, window_overflow = jax.lax.switch(slot_bucket, branches, lm, x0[:2])
-    assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential)
+    assoc = associate(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential,
+                      diam=diam, use_diameter=mp.use_diameter, sigma_diameter=mp.sigma_diameter)
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
     provisional = matched & ~existing  # matched the landmark an earlier detection of this scan created
     ws = jnp.clip(assoc.slot, 0, W - 1)  # local slot of a row that matched an existing landmark
     ps = jnp.clip(assoc.slot - W, 0, K - 1)  # detection that created the landmark a row matched
-    # Rows that match no existing landmark are masked out everywhere they are used.
-    det = Detections(z, local.mean[ws], local.cov[ws], existing)
+    # Rows that shape the proposal and the weight: with management, those of confirmed landmarks.
+    trusted = (local.confirmed[ws] | mp.use_tentative) if static.manage else jnp.ones(K, bool)
+    used = existing & trusted
+    # Rows that match no used landmark are masked out everywhere they are used.
+    det = Detections(z, local.mean[ws], local.cov[ws], used)
 
     prop = _proposal_over_rows(proposal, x0, P0, det, R, z_mask, static.row_buckets)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
@@ -191,42 +210,48 @@ def particle_update(
         upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None))(x_s, z, cur_mean, cur_cov, R)
     # Both computed before the masked sums (a reduction fusion does not vectorise its operand).
     ll, llp = computed_once((ll, llp))
-    dlogw = (jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
-             + jnp.sum(jnp.where(provisional, llp, 0.0)))
+    if static.manage:
+        # A provisional landmark is tentative: its row weighs with its likelihood only with
+        # use_tentative; unused rows that start or match a tentative landmark weigh as new (p0).
+        as_new = assoc.is_new | (existing & ~trusted) | (provisional & ~mp.use_tentative)
+        dlogw = (jnp.sum(jnp.where(used, ll, 0.0)) + jnp.sum(as_new) * params.log_p0
+                 + jnp.sum(jnp.where(provisional & mp.use_tentative, llp, 0.0)))
+    else:
+        dlogw = (jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
+                 + jnp.sum(jnp.where(provisional, llp, 0.0)))
+
+    # Diameters: each matched row updates its landmark's estimate (scalar Kalman filter).
+    var_d = jnp.square(mp.sigma_diameter)
+    cur_d = jnp.where(existing, local.diam[ws], diam[ps])
+    cur_dv = jnp.where(existing, local.diam_var[ws], var_d)
+    upd_d, upd_dv = diameter_update(cur_d, cur_dv, diam, mp.sigma_diameter)
 
     # The new landmarks as they leave the scan (a later detection of the scan may have updated one).
     isn = assoc.is_new
     pt = jnp.where(provisional, ps, K)
-    new = LandmarkMap(
-        mean=new_mean.at[pt].set(upd_mean, mode="drop"),
-        cov=new_cov.at[pt].set(upd_cov, mode="drop"),
-        active=isn,
-        hits=isn.astype(jnp.int32).at[pt].add(1, mode="drop"),
-        misses=jnp.zeros(K, jnp.int32),
-    )
+    new = new_landmarks(
+        mean=new_mean.at[pt].set(upd_mean, mode="drop"), cov=new_cov.at[pt].set(upd_cov, mode="drop"),
+        is_new=isn, extra_hits=jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop"),
+        diam=diam.at[pt].set(upd_d, mode="drop"), diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
+        scan=scan, mp=mp, manage=static.manage)
 
-    if static.prune:
+    if static.manage:
         wt = jnp.where(existing, ws, W)
-        local = update_slots(local, wt, upd_mean, upd_cov)
+        local = update_slots(local, wt, upd_mean, upd_cov, upd_d, upd_dv)
         seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
-        zl = jax.vmap(range_bearing, (None, 0))(x_s, local.mean)
-        in_view = (zl[:, 0] < params.max_range) & (jnp.abs(zl[:, 1]) < params.half_fov)
-        missed = valid & local.active & in_view & ~seen
-        misses = local.misses + missed.astype(jnp.int32)
-        keep = (local.hits - misses) >= params.prune_threshold
-        local = local._replace(misses=misses, active=local.active & keep)
-        new = new._replace(active=new.active & (new.hits >= params.prune_threshold))
-        lm = scatter_window(lm, local, idx)
+        local = manage_window(local, x_s, seen, z, z_mask, diam, valid, scan, params.max_range, mp, static.occlusion)
+        lm = drop_stale(scatter_window(lm, local, idx), scan, mp)
     else:
         # Only the landmarks the scan's detections matched change: write those rows back.
-        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov)
-    lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.prune)
-    has_assoc = jnp.any(existing)
+        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
+    lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage)
+    has_assoc = jnp.any(used)
     return _ParticleOut(
         pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
         result=jnp.where(has_assoc, prop.result, 0), has_assoc=has_assoc,
         n_associated=jnp.sum(matched), n_new=jnp.sum(assoc.is_new),
         window_overflow=window_overflow, overflow=overflow, n_landmarks=count_landmarks(lm).astype(jnp.int32),
+        n_confirmed=count_confirmed(lm).astype(jnp.int32),
     )
 
 
@@ -309,9 +334,9 @@ def _step(
     # sweep's vmap: of the batch), where the local windows are searched.
     in_use = slots_in_use(p.landmarks)
     slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None, None, None))(
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5)(
         static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
-        seg.z_mask, mine(eps), valid, rel_prior, slot_bucket)
+        seg.z_mask, mine(eps), valid, rel_prior, slot_bucket, seg.diam, state.scan)
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
@@ -336,6 +361,7 @@ def _step(
         # Counted per particle where the maps are (indexing the best particle's map instead would
         # move every map between the devices at every step when the particles are split).
         n_landmarks=out.n_landmarks[best],
+        n_confirmed=out.n_confirmed[best],
         iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
         n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
         n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),
@@ -376,5 +402,6 @@ def _step(
         particles=particles, key=key, best=best,
         resample_count=state.resample_count + record.resampled.astype(jnp.int32),
         overflow=state.overflow + record.overflow,
+        scan=state.scan + valid.astype(jnp.int32),
     )
     return new_state, record

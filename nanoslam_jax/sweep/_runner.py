@@ -34,7 +34,7 @@ from ..config import Config, ConfigError
 from ..data import Segments
 from .._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
 from ..filter import AVAILABLE_METHODS, Params, Static, filter_scan, reported_map, row_buckets, settings_from_config
-from ..metrics import evaluate, landmark_errors
+from ..metrics import evaluate, map_summary
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
 from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, Run, SweepSpec, expand, spec_identity, spec_to_dict
 
@@ -83,14 +83,15 @@ class LogData:
         segments: the (possibly truncated) segments, numpy arrays.
         gps: ``(G, 3)`` GPS fixes (or the truth of a simulated log).
         frame: metrics frame (``'relative'`` or ``'slam'``).
-        truth_landmarks: true trees of a simulated log (or ``None``).
+        map_truth: the true trees a map is judged against (the observable ones of a simulated log;
+            ``None`` without ground truth).
         source: where the log came from.
     """
 
     segments: Segments
     gps: np.ndarray
     frame: str
-    truth_landmarks: Optional[np.ndarray]
+    map_truth: Optional[np.ndarray]
     source: str
 
     @property
@@ -119,8 +120,7 @@ def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optiona
     seg = log.segments
     n = seg.time.shape[0] if segments is None else min(segments, seg.time.shape[0])
     seg = type(seg)(*(np.asarray(a)[:n] for a in seg))
-    return LogData(seg, np.asarray(log.raw.gps), log.frame,
-                   None if log.raw.truth_landmarks is None else np.asarray(log.raw.truth_landmarks), log.source)
+    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source)
 
 
 # --------------------------------------------------------------------------- the compiled program
@@ -134,10 +134,9 @@ class BatchOutput(NamedTuple):
         ess, iterations, n_associated: ``(segments,)`` per-segment records.
         n_capped, n_nonfinite, window_overflow: ``(segments,)`` counts.
         weight_reset: ``(segments,)`` all weights were reset.
-        n_landmarks: landmarks in the reported map.
         overflow: new landmarks dropped for lack of capacity.
         resample_count: resampling steps.
-        map_mean, map_active: the reported map (for the map metrics of simulated logs).
+        map_mean, map_active, map_confirmed: the reported map (for the map metrics).
     """
 
     best_pose: Any
@@ -149,11 +148,11 @@ class BatchOutput(NamedTuple):
     n_nonfinite: Any
     window_overflow: Any
     weight_reset: Any
-    n_landmarks: Any
     overflow: Any
     resample_count: Any
     map_mean: Any
     map_active: Any
+    map_confirmed: Any
 
 
 def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
@@ -171,9 +170,9 @@ def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOu
         best_pose=out.best_pose, mean_pose=out.mean_pose, ess=rec("ess", float), iterations=rec("iterations", float),
         n_associated=rec("n_associated", float), n_capped=rec("n_capped", jnp.int32),
         n_nonfinite=rec("n_nonfinite", jnp.int32), window_overflow=rec("window_overflow", jnp.int32),
-        weight_reset=rec("weight_reset", bool), n_landmarks=jnp.sum(lm.active).astype(jnp.int32),
+        weight_reset=rec("weight_reset", bool),
         overflow=getattr(state, "overflow", zero), resample_count=getattr(state, "resample_count", zero),
-        map_mean=lm.mean, map_active=lm.active,
+        map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
     )
 
 
@@ -253,7 +252,7 @@ class BatchTask:
         params: stacked hyperparameters (numpy), ``batch`` long (padding repeats the first run).
         seeds: ``(batch,)`` seeds (padded likewise).
         n_real: how many leading members are real runs.
-        metrics_opts: ``(gps_rotation_deg, jump_speed)`` of each real run.
+        metrics_opts: ``(gps_rotation_deg, jump_speed, map_radius)`` of each real run.
         fail_on_overflow: a landmark capacity overflow fails the run.
         run_ids: ids of the real runs.
         devices: split the batch over this many JAX devices (1: no split).
@@ -363,7 +362,7 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     reasons = []
     finite = np.isfinite(est).all(axis=1)
     if finite.all():
-        rot, jump = task.metrics_opts[i]
+        rot, jump, radius = task.metrics_opts[i]
         m.update({k: v for k, v in evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump,
                                              frame=log.frame).items() if k in METRIC_KEYS})
     else:
@@ -371,18 +370,17 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
         reasons.append(f"non-finite estimate from segment {j} (t = {t[j]:.2f} s)")
     has = out.n_associated[i] > 0
     overflow = int(out.overflow[i])
+    act = np.asarray(out.map_active[i])
+    m.update(map_summary(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act], log.map_truth,
+                         task.metrics_opts[i][2]))
     m.update(
-        n_landmarks=int(out.n_landmarks[i]), landmark_overflow=overflow,
+        landmark_overflow=overflow,
         window_overflow_max=int(np.max(out.window_overflow[i], initial=0)), resample_count=int(out.resample_count[i]),
         ess_mean=float(np.mean(out.ess[i])), ess_min=float(np.min(out.ess[i])),
         nano_iterations_mean=float(np.mean(out.iterations[i][has])) if has.any() else 0.0,
         proposal_capped=int(np.sum(out.n_capped[i])), proposal_nonfinite=int(np.sum(out.n_nonfinite[i])),
         weight_resets=int(np.sum(out.weight_reset[i])), associations_per_scan=float(np.mean(out.n_associated[i])),
     )
-    if log.truth_landmarks is not None:
-        act = out.map_active[i]
-        le = landmark_errors(out.map_mean[i][act], log.truth_landmarks)
-        m.update({f"map_{k}": le[k] for k in ("n_matched", "n_spurious", "n_found", "rmse_matched", "median_est_to_true")})
     if overflow > 0 and task.fail_on_overflow:
         reasons.append(f"landmark capacity overflow: {overflow} new landmarks dropped (filter.capacity = {static.capacity})")
     m["status"] = "failed" if reasons else "ok"
@@ -503,7 +501,8 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
             tasks.append(BatchTask(
                 group=g.label, static=static, log_id=g.log_id, params=params,
                 seeds=np.array([r.seed for r in members], dtype=np.int64), n_real=len(chunk),
-                metrics_opts=tuple((r.point.config.metrics.gps_rotation_deg, r.point.config.metrics.jump_speed)
+                metrics_opts=tuple((r.point.config.metrics.gps_rotation_deg, r.point.config.metrics.jump_speed,
+                                    r.point.config.metrics.map_radius)
                                    for r in chunk),
                 fail_on_overflow=spec.run.fail_on_overflow, run_ids=tuple(r.run_id for r in chunk), devices=devices,
                 vectorize=vectorize,
@@ -807,7 +806,7 @@ def run_sweep(
             logs[k] = (len(logs), load_log_data(p.config, data_dir, spec.segments))
     split = n_workers if mode == "processes" else (spec.ray_num_cpus or 2) if mode == "ray" else 1
     groups = plan_groups(spec, runs, logs, batch=batch, split=split, devices=devices)
-    metric_keys = list(METRIC_KEYS) + (list(MAP_METRIC_KEYS) if any(l.truth_landmarks is not None
+    metric_keys = list(METRIC_KEYS) + (list(MAP_METRIC_KEYS) if any(l.map_truth is not None
                                                                        for _, l in logs.values()) else [])
     rf = ResultsFile(results_path, _columns(spec, metric_keys))
 

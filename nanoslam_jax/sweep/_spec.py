@@ -52,12 +52,13 @@ __all__ = [
 #: Metrics every run records (lower is better for the errors; see :func:`nanoslam_jax.metrics.evaluate`).
 METRIC_KEYS = (
     "rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "mean_error", "max_error",
-    "final_error", "n_landmarks", "landmark_overflow", "window_overflow_max", "resample_count", "ess_mean",
+    "final_error", "n_landmarks", "n_confirmed", "landmark_overflow", "window_overflow_max", "resample_count", "ess_mean",
     "ess_min", "nano_iterations_mean", "proposal_capped", "proposal_nonfinite", "weight_resets",
     "associations_per_scan",
 )
 #: Extra metrics of simulated logs (map against the true trees).
-MAP_METRIC_KEYS = ("map_n_matched", "map_n_spurious", "map_n_found", "map_rmse_matched", "map_median_est_to_true")
+MAP_METRIC_KEYS = ("map_n_true", "map_n_found", "map_found_fraction", "map_n_spurious", "map_spurious_fraction",
+                   "map_rmse_matched", "map_median_est_to_true")
 
 _TOP_KEYS = ("name", "base", "set", "segments", "seeds", "grid", "random", "shapes", "metric", "goal", "run", "ray",
              "plots")

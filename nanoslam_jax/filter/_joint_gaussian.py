@@ -1,0 +1,278 @@
+"""Operations on EKF-SLAM's joint Gaussian over the pose and a fixed-capacity landmark vector.
+
+The state is ``N(mean, cov)`` over ``(px, py, phi, m_0x, m_0y, ..., m_{C-1}x, m_{C-1}y)``,
+``n = 3 + 2 C``. An inactive slot has mean 0, an identity 2x2 diagonal block and zero
+cross-covariance with everything: it enters no innovation covariance and no gain, so it affects
+nothing. Prediction (:func:`ekf_slam_predict`), innovations against every slot
+(:func:`slot_innovations`), the joint update (:func:`ekf_slam_update`, a rank-2 downdate over the
+leading part of the matrix that can hold landmarks, :func:`rank2_downdate`), augmentation with a
+new landmark (:func:`ekf_slam_augment`) and removal of one (:func:`ekf_slam_marginalise`); see
+:mod:`._ekf_slam` for how the step uses them. Jacobians come from autodiff of the models.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from .._linalg import chol2, inv2, mm, mmt, mt, quad_form, sandwich, sym
+from ..models import (
+    innovation,
+    inverse_range_bearing,
+    inverse_range_bearing_jacobians,
+    range_bearing,
+    range_bearing_jacobians,
+    vehicle_jacobians,
+    vehicle_step,
+    wrap_angle,
+)
+from ._params import Params
+
+
+def landmark_means(mean: Float[Array, "n"]) -> Float[Array, "capacity 2"]:
+    """The landmark part of the joint mean as ``(capacity, 2)`` positions."""
+    return mean[3:].reshape(-1, 2)
+
+
+def landmark_blocks(cov: Float[Array, "n n"], capacity: int) -> Float[Array, "capacity 2 2"]:
+    """The 2x2 diagonal blocks (landmark marginal covariances) of the joint covariance.
+
+    Args:
+        cov: joint covariance.
+        capacity: number of landmark slots.
+    """
+    i = 3 + 2 * jnp.arange(capacity)
+    a, b, c = cov[i, i], cov[i, i + 1], cov[i + 1, i + 1]
+    return jnp.stack([jnp.stack([a, b], -1), jnp.stack([b, c], -1)], -2)
+
+
+def ekf_slam_predict(
+    mean: Float[Array, "n"],
+    cov: Float[Array, "n n"],
+    dt: Float[Array, "dr"],
+    u: Float[Array, "dr 2"],
+    dr_mask: Bool[Array, "dr"],
+    params: Params,
+) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+    """Linearised joint prediction through a segment's DR pieces; only the pose rows change.
+
+    Args:
+        mean, cov: joint Gaussian at the start of the segment.
+        dt: piece durations (padding: 0).
+        u: piece controls ``(ve, alpha)``.
+        dr_mask: which pieces are real (masked pieces change nothing).
+        params: vehicle constants and control noise ``Q``.
+
+    Returns:
+        The joint mean and covariance at the scan time: pose mean ``f(x, u)``,
+        ``P_xx = F_i P_xx F_i' + G_i Q G_i'`` composed over the pieces, ``P_xm = F P_xm`` with
+        ``F`` the product of the pieces' pose Jacobians, ``P_mm`` unchanged.
+    """
+    Q = params.Q
+
+    def body(carry, inp):
+        x, Pxx, F = carry
+        dti, ui, mi = inp
+        Fi, Gi = vehicle_jacobians(x, ui, dti, params.vehicle)
+        xn = vehicle_step(x, ui, dti, params.vehicle)
+        Pn = sym(sandwich(Fi, Pxx) + sandwich(Gi, Q))
+        Fn = mm(Fi, F)
+        return (jnp.where(mi, xn, x), jnp.where(mi, Pn, Pxx), jnp.where(mi, Fn, F)), None
+
+    x0, Pxx0 = mean[:3], cov[:3, :3]
+    (x, Pxx, F), _ = jax.lax.scan(body, (x0, Pxx0, jnp.eye(3, dtype=mean.dtype)), (dt, u, dr_mask))
+    # Without a real piece F = I exactly, so the rows are rewritten with their own values (no
+    # masked select here: a select against the old rows would make XLA copy the matrix).
+    rows = jnp.concatenate([Pxx, F @ cov[:3, 3:]], axis=1)
+    cov = cov.at[:3, :].set(rows).at[:, :3].set(rows.T)
+    return mean.at[:3].set(x), cov
+
+
+def slot_innovations(
+    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
+    usable: Bool[Array, "capacity"],
+) -> tuple[Float[Array, "capacity 2"], Float[Array, "capacity 2 2"]]:
+    """Innovation and innovation covariance of detection ``z`` against every landmark slot.
+
+    ``S_j = H_j P H_j' + R`` with ``H_j = [Gx, 0.., Gm, 0..]`` (autodiff Jacobians at the
+    current mean), assembled from the pose block, the pose-landmark cross block and the
+    landmark block of slot ``j``: O(capacity). Slots not ``usable`` are evaluated at a dummy
+    landmark 1 m from the pose (finite values; the caller masks them).
+
+    Args:
+        mean, cov: joint Gaussian.
+        z: the detection ``(r, beta)``.
+        R: measurement noise covariance.
+        usable: slots to evaluate at their mean.
+    """
+    capacity = usable.shape[0]
+    x = mean[:3]
+    lm = jnp.where(usable[:, None], landmark_means(mean), x[:2] + jnp.array([1.0, 0.0]))
+    z_hat = jax.vmap(range_bearing, (None, 0))(x, lm)
+    Gx, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x, lm)
+    Pxx = cov[:3, :3]
+    Pxl = jnp.transpose(cov[:3, 3:].reshape(3, capacity, 2), (1, 0, 2))  # (C, 3, 2)
+    Pll = landmark_blocks(cov, capacity)
+    C = mmt(mm(Gx, Pxl), Gm)
+    S = sandwich(Gx, Pxx[None]) + C + mt(C) + sandwich(Gm, Pll) + R
+    nu = jax.vmap(innovation, (None, 0))(z, z_hat)
+    return nu, S
+
+
+def association_distances(
+    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
+    available: Bool[Array, "capacity"], diam_term: Float[Array, "capacity"] | float = 0.0,
+) -> Float[Array, "capacity"]:
+    """Squared Mahalanobis distance of ``z`` to every available landmark (inf elsewhere), plus
+    ``diam_term`` (the tree-diameter term of each slot, or 0)."""
+    nu, S = slot_innovations(mean, cov, z, R, available)
+    return jnp.where(available, quad_form(nu, inv2(S)) + diam_term, jnp.inf)
+
+
+#: Side of the square blocks in which the covariance update touches only the active part of P.
+BLOCK = 128
+
+
+def rank2_downdate(
+    cov: Float[Array, "n n"], v0: Float[Array, "n"], v1: Float[Array, "n"], size: Int[Array, ""] | int | None = None,
+    block: int = BLOCK,
+) -> Float[Array, "n n"]:
+    """``cov - (v0 v0' + v1 v1')`` on the leading ``size x size`` part of ``cov``.
+
+    The update is applied in ``block x block`` tiles by a loop over the tiles that meet the
+    leading part (cost O(size^2), not O(n^2)); each element is ``P_ab - (v0_a v0_b + v1_a v1_b)``,
+    so a symmetric ``cov`` stays exactly symmetric. Entries outside the leading part are left
+    as they are (the caller guarantees ``v0``, ``v1`` vanish there, so this is the full update).
+
+    Args:
+        cov: the matrix to update.
+        v0, v1: the two update vectors.
+        size: leading rows/columns to update (default: all); may be traced. 0 updates nothing.
+        block: tile side.
+    """
+    n = cov.shape[0]
+    B = min(block, n)
+    size = n if size is None else jnp.minimum(jnp.asarray(size, jnp.int32), n)
+    nb = (size + B - 1) // B
+    idx = jnp.arange(B, dtype=jnp.int32)
+
+    def body(t, P):
+        bi, bj = t // nb, t % nb
+        r_nom, c_nom = bi * B, bj * B
+        # The last tile is clamped inside the matrix; rows/columns of earlier tiles are masked.
+        r0, c0 = jnp.minimum(r_nom, n - B), jnp.minimum(c_nom, n - B)
+        a0, a1 = jax.lax.dynamic_slice(v0, (r0,), (B,)), jax.lax.dynamic_slice(v1, (r0,), (B,))
+        b0, b1 = jax.lax.dynamic_slice(v0, (c0,), (B,)), jax.lax.dynamic_slice(v1, (c0,), (B,))
+        keep = ((r0 + idx) >= r_nom)[:, None] & ((c0 + idx) >= c_nom)[None, :]
+        d = a0[:, None] * b0[None, :] + a1[:, None] * b1[None, :]
+        tile = jax.lax.dynamic_slice(P, (r0, c0), (B, B))
+        return jax.lax.dynamic_update_slice(P, tile - jnp.where(keep, d, 0.0), (r0, c0))
+
+    return jax.lax.fori_loop(0, nb * nb, body, cov)
+
+
+def ekf_slam_update(
+    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
+    R: Float[Array, "2 2"], size: Int[Array, ""] | int | None = None, apply: Bool[Array, ""] | bool = True,
+) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+    """EKF update of the joint state with detection ``z`` of landmark ``slot``.
+
+    ``W = H P`` (2 x n) is formed from the pose rows and the landmark's two rows of ``P``;
+    ``S = W H' + R = L L'``; ``V = L^-1 W``; then ``mean += V' L^-1 nu`` and ``P -= V'V``
+    (the symmetric rank-2 form of ``P - K S K'``, exactly symmetric, O(n^2); see
+    :func:`rank2_downdate`).
+
+    Args:
+        mean, cov: joint Gaussian.
+        z: the detection ``(r, beta)`` (bearing residual wrapped).
+        slot: the landmark slot it is associated with.
+        R: measurement noise covariance.
+        size: leading rows/columns of ``P`` that can be non-zero in ``W`` (``3 + 2 count``
+            with the active slots a prefix; default: all). Only that part of ``P`` is touched.
+        apply: when False the state is returned unchanged (no covariance work is done).
+
+    Returns:
+        The updated joint mean (heading wrapped) and covariance.
+    """
+    n = mean.shape[0]
+    apply = jnp.asarray(apply)
+    row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
+    z0 = jnp.zeros((), jnp.int32)
+    x = mean[:3]
+    m = jax.lax.dynamic_slice(mean, (row,), (2,))
+    Gx, Gm = range_bearing_jacobians(x, m)
+    nu = innovation(z, range_bearing(x, m))
+    W = Gx @ cov[:3, :] + Gm @ jax.lax.dynamic_slice(cov, (row, z0), (2, n))
+    S = sym(mmt(W[:, :3], Gx) + mmt(jax.lax.dynamic_slice(W, (z0, row), (2, 2)), Gm) + R)
+    L = chol2(S)
+    l11, l21, l22 = L[0, 0], L[1, 0], L[1, 1]
+    v0 = W[0] / l11
+    v1 = (W[1] - l21 * v0) / l22
+    w0 = nu[0] / l11
+    w1 = (nu[1] - l21 * w0) / l22
+    updated = mean + v0 * w0 + v1 * w1
+    mean = jnp.where(apply, updated.at[2].set(wrap_angle(updated[2])), mean)
+    size = n if size is None else size
+    cov = rank2_downdate(cov, v0, v1, jnp.where(apply, size, 0))
+    return mean, cov
+
+
+def ekf_slam_augment(
+    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
+    R: Float[Array, "2 2"], apply: Bool[Array, ""] | bool = True,
+) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+    """Add a landmark from detection ``z`` in (free) slot ``slot``, with full cross-covariances.
+
+    With ``m = h^-1(x, z)`` and its Jacobians ``Gx`` (pose) and ``Gz`` (detection) by autodiff:
+    ``P_mm = Gx P_xx Gx' + Gz R Gz'`` and ``P_m,rest = Gx P_x,rest`` (the slot's old values are
+    those of an inactive slot: zero cross-covariance, so ``P_m,rest`` is zero there too).
+    O(n): two rows, two columns and a 2x2 block are written.
+
+    Args:
+        mean, cov: joint Gaussian; ``slot`` must be inactive.
+        z: the detection ``(r, beta)``.
+        slot: the slot that receives the landmark (``< capacity``).
+        R: measurement noise covariance.
+        apply: when False nothing is written.
+    """
+    n = mean.shape[0]
+    apply = jnp.asarray(apply)
+    row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
+    x = mean[:3]
+    m = inverse_range_bearing(x, z)
+    Gx, Gz = inverse_range_bearing_jacobians(x, z)
+    cross = Gx @ cov[:3, :]  # (2, n)
+    Pmm = sym(mmt(cross[:, :3], Gx) + sandwich(Gz, R))
+    # Scatters with out-of-range indices when not applying: no write, and no read of the old
+    # values (reading them back into a masked write would make XLA copy the whole matrix).
+    idx = jnp.where(apply, row + jnp.arange(2, dtype=jnp.int32), n)
+    cov = cov.at[idx, :].set(cross, mode="drop")
+    cov = cov.at[:, idx].set(cross.T, mode="drop")
+    cov = cov.at[idx[:, None], idx[None, :]].set(Pmm, mode="drop")
+    mean = mean.at[idx].set(m, mode="drop")
+    return mean, cov
+
+
+
+
+def ekf_slam_marginalise(
+    mean: Float[Array, "n"], cov: Float[Array, "n n"], slot: Int[Array, ""] | int, apply: Bool[Array, ""] | bool = True,
+) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+    """Remove landmark ``slot`` from the joint Gaussian (marginalise it out) and free its slot.
+
+    The marginal of a Gaussian over the other variables is the same Gaussian with the landmark's
+    rows and columns deleted; here they are reset to those of an inactive slot (mean 0, identity
+    2x2 block, zero cross-covariance), which affects nothing. O(n): two rows, two columns.
+
+    Args:
+        mean, cov: joint Gaussian.
+        slot: the landmark slot to free.
+        apply: when False nothing is written.
+    """
+    n = mean.shape[0]
+    row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
+    idx = jnp.where(jnp.asarray(apply), row + jnp.arange(2, dtype=jnp.int32), n)
+    cov = cov.at[idx, :].set(0.0, mode="drop").at[:, idx].set(0.0, mode="drop")
+    cov = cov.at[idx[:, None], idx[None, :]].set(jnp.eye(2, dtype=cov.dtype), mode="drop")
+    return mean.at[idx].set(0.0, mode="drop"), cov

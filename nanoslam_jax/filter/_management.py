@@ -1,0 +1,196 @@
+"""Landmark management: tentative and confirmed landmarks, existence by negative evidence, tree
+diameters (the ``map`` config section; algorithms.md section 1, "Landmarks").
+
+Each landmark carries an existence log-odds ``l``. The sensor model is the binary one of
+occupancy mapping: a landmark inside the sensor's footprint is detected with probability
+``p_detect`` if it exists and "detected" (a clutter detection falls in its gate) with probability
+``p_false`` if it does not, so by Bayes' rule
+
+* an associated detection adds ``log(p_detect / p_false)`` (:attr:`MapParams.log_odds_hit`),
+* a scan in which the landmark lay inside the footprint, shrunk by the view margins, was not
+  hidden behind a nearer object and was not detected adds
+  ``log((1 - p_detect) / (1 - p_false))`` (:attr:`MapParams.log_odds_miss`),
+
+and ``l`` is clamped at ``log_odds_max`` so that a tree that has gone can be removed after a few
+misses. A landmark starts *tentative* at ``log_odds_birth``; it is *confirmed* once ``l`` reaches
+``log_odds_confirm`` with at least ``confirm_hits`` detections; a tentative landmark older than
+``tentative_scans`` scans is dropped, and any landmark whose ``l`` falls below ``log_odds_remove``
+is removed (its slot is reused by :func:`~nanoslam_jax.filter.add_landmarks`).
+
+Tree diameters: each landmark keeps a scalar Kalman filter of the diameter reported with its
+detections (a constant state observed with noise ``sigma_diameter``: its estimate is the running
+mean of the detections and its variance ``sigma_diameter^2 / n``), used optionally as a third
+term of the association distance (:func:`~nanoslam_jax.filter.associate`).
+
+All functions here are pure and per particle (vmapped by the caller); every value they use is a
+traced :class:`~nanoslam_jax.filter.MapParams` field, so one compilation serves a sweep.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ..models import range_bearing, wrap_angle
+from ._params import MapParams
+from ._state import LandmarkMap
+
+
+def diameter_update(
+    diam: Float[Array, "*n"], var: Float[Array, "*n"], measured: Float[Array, "*n"], sigma: Float[Array, ""]
+) -> tuple[Float[Array, "*n"], Float[Array, "*n"]]:
+    """Scalar Kalman update of a constant diameter with a measurement of noise ``sigma``.
+
+    Args:
+        diam, var: the estimate and its variance.
+        measured: the measured diameter.
+        sigma: measurement noise standard deviation.
+
+    Returns:
+        The updated estimate and variance: ``diam + K (measured - diam)``, ``(1 - K) var`` with
+        ``K = var / (var + sigma^2)``.
+    """
+    gain = var / (var + jnp.square(sigma))
+    return diam + gain * (measured - diam), (1.0 - gain) * var
+
+
+def in_view(
+    z_pred: Float[Array, "n 2"], max_range: Float[Array, ""], mp: MapParams
+) -> Bool[Array, "n"]:
+    """Which predicted detections ``(r, beta)`` lie inside the sensor footprint shrunk by the margins.
+
+    Args:
+        z_pred: predicted range and bearing of each landmark from the particle's pose.
+        max_range: the sensor's range (m).
+        mp: management hyperparameters (``min_range``, ``half_fov``, ``view_margin``,
+            ``view_margin_angle``).
+    """
+    r, b = z_pred[:, 0], z_pred[:, 1]
+    return ((r > mp.min_range + mp.view_margin) & (r < max_range - mp.view_margin)
+            & (jnp.abs(b) < mp.half_fov - mp.view_margin_angle))
+
+
+def occluded(
+    z_pred: Float[Array, "n 2"],
+    occluder_z: Float[Array, "o 2"],
+    occluder_radius: Float[Array, "o"],
+    occluder_mask: Bool[Array, "o"],
+    width: Float[Array, ""],
+) -> Bool[Array, "n"]:
+    """Which landmarks are hidden behind a nearer object at a similar bearing.
+
+    Landmark ``j`` (predicted at ``(r_j, beta_j)``) is hidden when some occluder ``i`` (at
+    ``(r_i, beta_i)``, radius ``rho_i``) is nearer, ``r_i < r_j``, and covers its bearing,
+    ``|beta_i - beta_j| < atan2(rho_i + width, r_i)`` (bearing difference wrapped).
+
+    Args:
+        z_pred: predicted ``(r, beta)`` of the landmarks tested.
+        occluder_z: ``(r, beta)`` of the possible occluders (the scan's detections, landmarks).
+        occluder_radius: their radii (half the diameter, m).
+        occluder_mask: which occluders are real.
+        width: half-width added to every occluder's radius (m).
+    """
+    r_o, b_o = occluder_z[:, 0], occluder_z[:, 1]
+    half = jnp.arctan2(occluder_radius + width, jnp.maximum(r_o, 1e-9))
+    nearer = r_o[None, :] < z_pred[:, 0:1]
+    covers = jnp.abs(wrap_angle(b_o[None, :] - z_pred[:, 1:2])) < half[None, :]
+    return jnp.any(occluder_mask[None, :] & nearer & covers, axis=1)
+
+
+def manage_window(
+    local: LandmarkMap,
+    pose: Float[Array, "3"],
+    seen: Bool[Array, "window"],
+    z: Float[Array, "k 2"],
+    z_mask: Bool[Array, "k"],
+    diam: Float[Array, "k"],
+    valid: Bool[Array, ""],
+    scan: Int[Array, ""],
+    max_range: Float[Array, ""],
+    mp: MapParams,
+    occlusion: bool,
+) -> LandmarkMap:
+    """Existence, confirmation and removal of a particle's local landmarks after a scan.
+
+    Args:
+        local: the local map after the scan's updates (``hits`` already counts this scan's
+            detections).
+        pose: the particle's (sampled) pose.
+        seen: which local landmarks a detection of this scan was associated with.
+        z, z_mask, diam: the scan's detections (occluders when ``occlusion``).
+        valid: False for a padding segment (no misses are counted).
+        scan: the current scan (the clock of ``born``).
+        max_range: the sensor's range (m).
+        mp: management hyperparameters.
+        occlusion: (static) landmarks hidden behind a nearer detection or confirmed landmark
+            count no miss.
+
+    Returns:
+        The local map with updated ``log_odds``, ``misses``, ``confirmed`` and ``active``.
+    """
+    z_pred = jax.vmap(range_bearing, (None, 0))(pose, local.mean)
+    missed = valid & local.active & ~seen & in_view(z_pred, max_range, mp)
+    if occlusion:
+        occ_z = jnp.concatenate([z, z_pred])
+        occ_radius = jnp.concatenate([0.5 * diam, 0.5 * local.diam])
+        occ_mask = jnp.concatenate([z_mask, local.active & local.confirmed])
+        missed = missed & ~occluded(z_pred, occ_z, occ_radius, occ_mask, mp.occlusion_width)
+    log_odds = local.log_odds + jnp.where(seen, mp.log_odds_hit, 0.0) + jnp.where(missed, mp.log_odds_miss, 0.0)
+    log_odds = jnp.minimum(log_odds, mp.log_odds_max)
+    confirmed = local.confirmed | confirm_rule(log_odds, local.hits, mp)
+    keep = (log_odds >= mp.log_odds_remove) & (confirmed | fresh(local.born, scan, mp))
+    return local._replace(log_odds=log_odds, misses=local.misses + missed.astype(jnp.int32), confirmed=confirmed,
+                          active=local.active & keep)
+
+
+def confirm_rule(log_odds: Float[Array, "*n"], hits: Int[Array, "*n"], mp: MapParams) -> Bool[Array, "*n"]:
+    """Whether landmarks qualify for confirmation: log-odds and detection count both high enough."""
+    return (log_odds >= mp.log_odds_confirm) & (hits >= mp.confirm_hits)
+
+
+def fresh(born: Int[Array, "*n"], scan: Int[Array, ""], mp: MapParams) -> Bool[Array, "*n"]:
+    """Whether landmarks started at scan ``born`` are still within their tentative period."""
+    return (scan - born) <= mp.tentative_scans
+
+
+def drop_stale(lm: LandmarkMap, scan: Int[Array, ""], mp: MapParams) -> LandmarkMap:
+    """Deactivate, over the whole map, the tentative landmarks past their tentative period
+    (including those out of the local window, which no scan tests)."""
+    return lm._replace(active=lm.active & (lm.confirmed | fresh(lm.born, scan, mp)))
+
+
+def new_landmarks(
+    mean: Float[Array, "k 2"],
+    cov: Float[Array, "k 2 2"],
+    is_new: Bool[Array, "k"],
+    extra_hits: Int[Array, "k"],
+    diam: Float[Array, "k"],
+    diam_var: Float[Array, "k"],
+    scan: Int[Array, ""],
+    mp: MapParams,
+    manage: bool,
+) -> LandmarkMap:
+    """The landmarks a scan starts, as they leave the scan.
+
+    Args:
+        mean, cov: each candidate's landmark (after any later detection of the same scan that
+            matched it).
+        is_new: which candidates are started.
+        extra_hits: further detections of the same scan that matched each started landmark.
+        diam, diam_var: each candidate's diameter estimate and variance.
+        scan: the current scan (``born``).
+        mp: management hyperparameters.
+        manage: (static) with management a landmark starts tentative at ``log_odds_birth`` (plus
+            a hit per further detection) and is confirmed if it already qualifies; without it,
+            every new landmark is confirmed.
+    """
+    k = is_new.shape[0]
+    hits = is_new.astype(jnp.int32) + extra_hits
+    log_odds = jnp.minimum(mp.log_odds_birth + extra_hits * mp.log_odds_hit, mp.log_odds_max)
+    confirmed = confirm_rule(log_odds, hits, mp) if manage else jnp.ones(k, bool)
+    return LandmarkMap(
+        mean=mean, cov=cov, active=is_new, hits=hits, misses=jnp.zeros(k, jnp.int32),
+        log_odds=jnp.broadcast_to(log_odds, (k,)).astype(mean.dtype), confirmed=confirmed & is_new,
+        born=jnp.full(k, scan, jnp.int32), diam=diam, diam_var=diam_var,
+    )
