@@ -21,9 +21,12 @@ over short stretches. :func:`estimate_gps_floor` measures, from the GPS and the 
 - **The fixed frame**: the rotation (and translation) that maps DR onto the clean fixes of the
   first T seconds, for several T. The fixed frame assumes the rotation ``rotation_deg``; the
   fitted rotation departs from it by ``delta``, so an exact path scores
-  ``RMS_i |R(delta)^-1 (g_i - t) - g_i|`` in the fixed frame (g_i the fixes in the fixed frame);
-  with the short-term error added in quadrature this is the floor of ``rmse_fixed``. Also
-  reported: what a frame error of 1 and 2 degrees alone costs at the track's distances.
+  ``RMS_i |R(delta) g_i - g_i|`` in the fixed frame (``g_i`` the fixes in the fixed frame, the first
+  at the origin). The fits disagree by degrees (DR drifts over the longer stretches), which is the
+  frame's uncertainty: the floor of ``rmse_fixed`` is the short-term error and this cost added in
+  quadrature, from the smallest to the largest ``delta`` fitted. (The fitted translations are
+  reported but not used: over tens of seconds they hold DR drift.) Also reported: what a frame
+  error of 1 and 2 degrees alone costs at the track's distances.
 
 Run on the real log by ``python experiments/gps_floor.py`` (and by every study on the real log).
 """
@@ -58,12 +61,12 @@ class GpsFloor:
         offset_fit_rms: RMS residual of that fit; ``offset_fit_rms_without`` the same fit with no
             offset and no shift.
         r_rms: RMS distance of the fixes from the first fix (the frame's lever).
-        frame: ``(T, delta_deg, tx, ty, fixed-frame RMS of an exact path)`` per initial window T (s).
+        frame: ``(T, delta_deg, tx, ty, fixed-frame RMS of an exact path by delta)`` per initial window T (s).
         frame_rmse_1deg, frame_rmse_2deg: RMS displacement of the fixes by a frame rotation of 1
             and 2 degrees about the first fix.
         aligned_floor: floor of ``rmse_aligned``: ``local_rms`` (all fixes) at ``reference_window``.
-        fixed_floor_low, fixed_floor_high: floor of ``rmse_fixed``: the frame's RMS over the
-            initial windows (smallest, largest) with ``aligned_floor`` added in quadrature.
+        fixed_floor_low, fixed_floor_high: floor of ``rmse_fixed``: the frame's cost at the
+            smallest and largest ``delta`` fitted, with ``aligned_floor`` added in quadrature.
         reference_window: the W (s) of ``aligned_floor`` and of the jump offsets.
     """
 
@@ -221,16 +224,16 @@ def estimate_gps_floor(
 
     aligned = next(r for w, r, _, _ in local if w == reference_window)
     g = ref[inside]
+    # What a frame rotated by `deg` about the first fix costs an exact path, RMS over the fixes.
+    shift = lambda deg: float(np.sqrt(np.mean(np.sum((g @ rotation_matrix(deg).T - g) ** 2, axis=1))))  # noqa: E731
     frame = []
     for T in frame_windows:
         m = inside & keep & (gt <= t[0] + T)
         if m.sum() < 5:
             continue
         R, tr, _ = rigid_align(P[m], ref[m])
-        exact = (g - tr) @ R  # R^-1 (g - t) for each fix: an exact path, seen in the fixed frame
-        frame.append((float(T), math.degrees(math.atan2(R[1, 0], R[0, 0])), float(tr[0]), float(tr[1]),
-                      float(np.sqrt(np.mean(np.sum((exact - g) ** 2, axis=1))))))
-    shift = lambda deg: float(np.sqrt(np.mean(np.sum((g @ rotation_matrix(deg).T - g) ** 2, axis=1))))  # noqa: E731
+        delta = math.degrees(math.atan2(R[1, 0], R[0, 0]))
+        frame.append((float(T), delta, float(tr[0]), float(tr[1]), shift(delta)))
     fr = [f[4] for f in frame] or [math.nan]
     gaps = np.diff(gt[inside])
     return GpsFloor(
@@ -285,11 +288,12 @@ def floor_markdown(f: GpsFloor) -> str:
         f"{f.offset_fit_rms_without:.3f} m without them.", "",
         f"The fixed frame: RMS distance of the fixes from the first fix {f.r_rms:.1f} m; a frame rotated by 1 deg "
         f"moves them by {f.frame_rmse_1deg:.2f} m RMS, by 2 deg {f.frame_rmse_2deg:.2f} m.", "",
-        "| DR fitted over the first T [s] | rotation off the fixed frame [deg] | translation [m] | RMS of an exact path in the fixed frame [m] |",
+        "| DR fitted over the first T [s] | rotation off the fixed frame [deg] | translation [m] | its cost to an exact path in the fixed frame, RMS [m] |",
         "|---|---|---|---|",
         *[f"| {T:g} | {d:+.2f} | ({tx:.2f}, {ty:.2f}) | {r:.2f} |" for T, d, tx, ty, r in f.frame], "",
         f"**Floor of rmse_aligned** (short-term error, W = {f.reference_window:g} s, all fixes): {f.aligned_floor:.2f} m. "
-        f"**Floor of rmse_fixed** (the frame's RMS over those windows with it): {f.fixed_floor_low:.2f}-{f.fixed_floor_high:.2f} m.",
+        f"**Floor of rmse_fixed** (with the cost of the smallest and the largest rotation fitted): "
+        f"{f.fixed_floor_low:.2f}-{f.fixed_floor_high:.2f} m.",
         "",
     ]
     return "\n".join(lines)

@@ -147,7 +147,8 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
     Raises:
         ConfigError: ``out_dir`` holds a study already (without ``resume``), or none (with it).
     """
-    from ..sweep import ResultsFile, enable_compile_cache, read_results, run_sweep, sweep_from_dict
+    from .._devices import SWEEP_DEVICES_PER_CORE, setup_devices
+    from ..sweep import ResultsFile, enable_compile_cache, read_results, resolve_parallel, run_sweep, sweep_from_dict
 
     out = Path(out_dir)
     if resume and not (out / "study.yaml").is_file():
@@ -171,6 +172,12 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
         timing_file.create()
     say = (lambda text: _say(stream, text)) if progress else (lambda text: None)  # noqa: E731
 
+    if points:  # the sweep runner's JAX devices, set up before any point (some run as one process)
+        opts = sweep_from_dict(point_sweep_dict(spec, points[0]), source=spec.source).run
+        mode, workers = resolve_parallel(parallel or opts.parallel, opts.workers)
+        if mode == "devices" and opts.backend == "local":
+            setup_devices(workers * SWEEP_DEVICES_PER_CORE)
+
     t_start = time.perf_counter()
     for k, pt in enumerate(points):
         what = f"{pt.label}, " + (f"{pt.particles} particles, {len(pt.seeds)} seeds" if pt.particles else "deterministic")
@@ -180,8 +187,10 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
             say(f"[{k + 1}/{len(points)}] {what}: runs finished before")
         else:
             say(f"[{k + 1}/{len(points)}] {what}: accuracy runs")
+            # One run (a deterministic method) in one process: a batch split over the devices
+            # would be padded with copies of it.
             run_sweep(sweep, sweep_dir, resume=(sweep_dir / "sweep.yaml").is_file(), data_dir=data_dir,
-                      progress=progress, stream=stream, parallel=parallel)
+                      progress=progress, stream=stream, parallel=parallel or ("single" if len(pt.seeds) == 1 else None))
         timed = {r["point_id"]: r for r in read_results(out / "timing.csv", key="point_id")}
         if timed.get(pt.point_id, {}).get("status") == "ok":
             say(f"    seconds per log measured before: {number(timed[pt.point_id]['seconds_per_log']):.3f}")

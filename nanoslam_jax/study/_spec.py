@@ -38,7 +38,7 @@ import re
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from ..compare import DETERMINISTIC, _int, _str_list
+from ..compare import DETERMINISTIC, _int, _str_list, method_rows, read_comparison, resolve_base
 from ..config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
 
 __all__ = ["StudyMethod", "StudyTiming", "PairedSpec", "StudySpec", "StudyPoint", "load_study", "is_study_file",
@@ -240,10 +240,7 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
     """
     p = Path(path)
     where = str(p)
-    raw = read_yaml_mapping(p, "comparison")
-    unknown = set(raw) - _TOP
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; expected some of {sorted(_TOP)}")
+    raw = read_comparison(p, _TOP)
     if quick:
         q = raw.get("quick")
         if not isinstance(q, dict):
@@ -251,34 +248,11 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         bad = set(q) - _QUICK
         if bad:
             raise ConfigError(f"{where}: key 'quick': unknown key(s) {sorted(bad)}; expected some of {sorted(_QUICK)}")
-    base = raw.get("base")
-    if base is not None:
-        if not isinstance(base, str):
-            raise ConfigError(f"{where}: key 'base': expected a config path or null, got {base!r}")
-        base_path = Path(base) if Path(base).is_absolute() else p.parent / base
-        if not base_path.is_file():
-            raise ConfigError(f"{where}: key 'base': config file {base_path} not found")
-        base = str(base_path)
-    rows = raw.get("methods")
-    if not isinstance(rows, list) or not rows:
-        raise ConfigError(f"{where}: key 'methods': expected a non-empty list of {{label, set[, particles]}}")
-    methods = []
-    for i, row in enumerate(rows):
-        key = f"methods[{i}]"
-        if not isinstance(row, dict):
-            raise ConfigError(f"{where}: key '{key}': expected a mapping, got {row!r}")
-        bad = set(row) - _METHOD
-        if bad:
-            raise ConfigError(f"{where}: key '{key}': unknown key(s) {sorted(bad)}; expected some of {sorted(_METHOD)}")
-        label = row.get("label")
-        if not isinstance(label, str) or not label:
-            raise ConfigError(f"{where}: key '{key}.label': expected a non-empty string, got {label!r}")
-        own = row.get("particles")
-        methods.append(StudyMethod(label, _str_list(row.get("set"), f"{key}.set", where),
-                                   None if own is None else _particle_map(own, f"{key}.particles", where)))
+    base = resolve_base(raw.get("base"), p)
+    methods = [StudyMethod(label, sets, None if row.get("particles") is None
+                           else _particle_map(row["particles"], f"{key}.particles", where))
+               for key, row, label, sets in method_rows(raw.get("methods"), where, _METHOD)]
     labels = [m.label for m in methods]
-    if len(set(labels)) != len(labels):
-        raise ConfigError(f"{where}: key 'methods': labels must be unique, got {labels}")
 
     particles = _particle_map(raw.get("particles"), "particles", where)
     first_seed = _int(raw.get("first_seed", 0), "first_seed", where, 0)
