@@ -115,6 +115,21 @@ def test_invalid_study_files_name_the_file_and_key(tmp_path, change, fragment):
     assert str(path) in str(e.value) and fragment in str(e.value)
 
 
+def test_a_method_not_available_yet_is_named(tmp_path):
+    import typing
+
+    from nanoslam_jax.config import FilterConfig
+    from nanoslam_jax.filter import AVAILABLE_METHODS
+
+    missing = sorted(set(typing.get_args(typing.get_type_hints(FilterConfig)["method"])) - set(AVAILABLE_METHODS))
+    if not missing:
+        pytest.skip("every configurable method is available")
+    raw = {"base": str(ROOT / "configs" / "victoria_park_nano.yaml"), "particles": {10: 2},
+           "methods": [{"label": "New", "set": [f"filter.method={missing[0]}"]}]}
+    with pytest.raises(ConfigError, match=f"'New'.*{missing[0]}.*not available yet"):
+        load_study(_write(tmp_path / "new.yaml", raw))
+
+
 def test_quick_and_methods_errors(tmp_path, capsys):
     with pytest.raises(ConfigError, match="--methods"):
         load_study(STUDY, only=["NANO"])

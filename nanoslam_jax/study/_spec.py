@@ -297,7 +297,13 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         first_seed=first_seed, segments=segments, timing=timing, run=tuple(run.items()), paired=paired, quick=quick,
     )
     points = expand_study(spec)  # every method's config is validated here, before anything runs
+    from ..filter import AVAILABLE_METHODS
     from ..sweep import sweep_from_dict
+
+    for pt in points:
+        if pt.method not in AVAILABLE_METHODS:
+            raise ConfigError(f"{where}: method {pt.label!r}: filter.method {pt.method!r} is not available yet; "
+                              f"available: {', '.join(AVAILABLE_METHODS)}")
 
     sweep_from_dict(point_sweep_dict(spec, points[0]), source=where)  # the 'run' options, named by this file
     if len({pt.point_id for pt in points}) != len(points):
