@@ -207,8 +207,11 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
     if plots:
         from ._plots import plot_accuracy_vs_compute
 
-        plot_accuracy_vs_compute(out / "accuracy_vs_compute.png", summary, floor=floor,
-                                 title=f"{spec.name}: {Path(spec.source).name}")
+        try:
+            plot_accuracy_vs_compute(out / "accuracy_vs_compute.png", summary, floor=floor,
+                                     title=f"{spec.name}: {Path(spec.source).name}")
+        except Exception as e:  # the figure must never lose a study
+            say(f"figure failed: {type(e).__name__}: {e}")
     runs = _collect_runs(out, held)
     timing_rows = read_results(out / "timing.csv", key="point_id")
     n_failed = sum(r["status"] != "ok" for r in runs) + sum(r["status"] != "ok" for r in timing_rows)
