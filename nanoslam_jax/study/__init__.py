@@ -1,7 +1,7 @@
 """Accuracy against compute: every method over particle counts and seeds, on one log.
 
     nanoslam compare configs/accuracy_vs_compute.yaml --out results/study         # the study
-    nanoslam compare configs/accuracy_vs_compute.yaml --quick --out results/quick # a few minutes
+    nanoslam compare configs/accuracy_vs_compute.yaml --quick --out results/quick # minutes
     nanoslam compare configs/accuracy_vs_compute.yaml --out results/study --resume
 
     from nanoslam_jax.study import load_study, run_study
