@@ -3,6 +3,7 @@
     nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--set sim.key=value ...]
     nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
+                     [--quick] [--resume] [--methods LABEL ...] [--parallel MODE]   (study files)
     nanoslam sweep SWEEP [--out DIR] [--resume] [--data DIR] [--set key=value ...] [--backend local|ray]
 """
 
@@ -36,14 +37,21 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config key, e.g. --set sim.n_trees=200 (repeatable)")
 
-    c = sub.add_parser("compare", help="run several methods over seeds: Table I (Markdown, CSV) and Figures 3-5")
-    c.add_argument("comparison", help="comparison YAML, e.g. configs/table1.yaml")
+    c = sub.add_parser("compare", help="run several methods over seeds: Table I (Markdown, CSV) and Figures 3-5; "
+                                       "or, for a study file, over particle counts: accuracy against compute")
+    c.add_argument("comparison", help="comparison YAML, e.g. configs/table1.yaml, or a study file (one with a "
+                                      "'particles' section), e.g. configs/accuracy_vs_compute.yaml")
     c.add_argument("--out", help="result directory (default: results/<name>-<timestamp>)")
     c.add_argument("--data", help="log directory (overrides data.path and $NANOSLAM_DATA)")
     c.add_argument("--seeds", type=int, help="seeds per method (overrides the file's seeds)")
     c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config key for every method (repeatable)")
-    c.add_argument("--no-plots", action="store_true", help="skip Figures 3-5")
+    c.add_argument("--no-plots", action="store_true", help="skip Figures 3-5 (a study: its figure)")
+    c.add_argument("--quick", action="store_true", help="study files: run the file's 'quick' variant")
+    c.add_argument("--resume", action="store_true", help="study files: continue the study in --out")
+    c.add_argument("--methods", nargs="+", metavar="LABEL", help="study files: run only these methods (labels)")
+    c.add_argument("--parallel", choices=["auto", "single", "devices", "processes"],
+                   help="study files: how the sweep runner uses several cores (default: the file's run.parallel)")
     from .sweep._cli import add_sweep_parser
 
     add_sweep_parser(sub)
@@ -54,13 +62,44 @@ def _compare(args) -> int:
     import datetime as _dt
 
     from .compare import load_compare_spec, run_compare
+    from .study import is_study_file
 
+    if is_study_file(args.comparison):
+        return _study(args)
+    for flag in ("quick", "resume", "parallel", "methods"):
+        if getattr(args, flag):
+            raise ConfigError(f"{args.comparison}: --{flag} applies to study files (with a 'particles' section) only")
     spec = load_compare_spec(args.comparison, tuple(args.overrides), seeds=args.seeds)
     out = Path(args.out) if args.out else Path("results") / f"{spec.name}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
     rows = run_compare(spec, out, data_dir=args.data, plots=not args.no_plots)
     print((out / "table1.md").read_text())
     print(out)
     return 0 if all(r["status"] == "ok" for r in rows) else 1
+
+
+def _study(args) -> int:
+    import datetime as _dt
+
+    from .study import load_study, run_study
+
+    spec = load_study(args.comparison, tuple(args.overrides), quick=args.quick, seeds=args.seeds, only=args.methods)
+    if args.resume and not args.out:
+        raise ConfigError("--resume needs --out DIR (the study directory to continue)")
+    out = Path(args.out) if args.out else Path("results") / f"{spec.name}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
+    try:
+        res = run_study(spec, out, resume=args.resume, data_dir=args.data, plots=not args.no_plots,
+                        parallel=args.parallel)
+    except KeyboardInterrupt:
+        print(f"\nnanoslam: study interrupted; finished batches are saved in {out}; continue with:\n"
+              f"  nanoslam compare {args.comparison}{' --quick' if args.quick else ''} --out {out} --resume",
+              file=sys.stderr)
+        return 130
+    print((out / "summary.md").read_text())
+    print((out / "paired.md").read_text())
+    if (out / "gps_floor.md").is_file():
+        print((out / "gps_floor.md").read_text())
+    print(out)
+    return 0 if res.n_failed == 0 else 1
 
 
 def _sweep(args) -> int:

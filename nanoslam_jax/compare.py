@@ -123,6 +123,63 @@ def _number(value: Any, key: str, where: str) -> Optional[float]:
     return float(value)
 
 
+def read_comparison(path: Path, allowed: set) -> dict:
+    """A comparison (or study) file's top-level mapping, its keys checked against ``allowed``."""
+    raw = read_yaml_mapping(path, "comparison")
+    unknown = set(raw) - allowed
+    if unknown:
+        raise ConfigError(f"{path}: unknown key(s) {sorted(unknown)}; expected some of {sorted(allowed)}")
+    return raw
+
+
+def resolve_base(base: Any, path: Path) -> Optional[str]:
+    """A comparison file's ``base``: a config path relative to the file (or absolute), or None.
+
+    Raises:
+        ConfigError: naming the file, when it is not a string or the config does not exist.
+    """
+    if base is None:
+        return None
+    if not isinstance(base, str):
+        raise ConfigError(f"{path}: key 'base': expected a config path or null, got {base!r}")
+    base_path = Path(base) if Path(base).is_absolute() else path.parent / base
+    if not base_path.is_file():
+        raise ConfigError(f"{path}: key 'base': config file {base_path} not found")
+    return str(base_path)
+
+
+def method_rows(rows: Any, where: str, allowed: set) -> list[tuple[str, dict, str, tuple[str, ...]]]:
+    """A comparison file's ``methods``: ``(key, row, label, set)`` per row, checked.
+
+    Args:
+        rows: the ``methods`` value.
+        where: the file, for messages.
+        allowed: the keys a row may have (at least ``label`` and ``set``).
+
+    Raises:
+        ConfigError: naming the file and the row's key, for a missing or repeated label, an
+            unknown key or a ``set`` that is not a list of ``key=value`` strings.
+    """
+    if not isinstance(rows, list) or not rows:
+        raise ConfigError(f"{where}: key 'methods': expected a non-empty list of {{{', '.join(sorted(allowed))}}}")
+    out = []
+    for i, row in enumerate(rows):
+        key = f"methods[{i}]"
+        if not isinstance(row, dict):
+            raise ConfigError(f"{where}: key '{key}': expected a mapping, got {row!r}")
+        unknown = set(row) - allowed
+        if unknown:
+            raise ConfigError(f"{where}: key '{key}': unknown key(s) {sorted(unknown)}; expected some of {sorted(allowed)}")
+        label = row.get("label")
+        if not isinstance(label, str) or not label:
+            raise ConfigError(f"{where}: key '{key}.label': expected a non-empty string, got {label!r}")
+        out.append((key, row, label, _str_list(row.get("set"), f"{key}.set", where)))
+    labels = [r[2] for r in out]
+    if len(set(labels)) != len(labels):
+        raise ConfigError(f"{where}: key 'methods': labels must be unique, got {labels}")
+    return out
+
+
 def load_compare_spec(path: str | Path, overrides: tuple[str, ...] = (), seeds: Optional[int] = None) -> CompareSpec:
     """Read and validate a comparison file.
 
@@ -137,38 +194,11 @@ def load_compare_spec(path: str | Path, overrides: tuple[str, ...] = (), seeds: 
     """
     p = Path(path)
     where = str(p)
-    raw = read_yaml_mapping(p, "comparison")
-    unknown = set(raw) - _TOP
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; expected some of {sorted(_TOP)}")
-    base = raw.get("base")
-    if base is not None:
-        if not isinstance(base, str):
-            raise ConfigError(f"{where}: key 'base': expected a config path or null, got {base!r}")
-        base_path = Path(base) if Path(base).is_absolute() else p.parent / base
-        if not base_path.is_file():
-            raise ConfigError(f"{where}: key 'base': config file {base_path} not found")
-        base = str(base_path)
-    rows = raw.get("methods")
-    if not isinstance(rows, list) or not rows:
-        raise ConfigError(f"{where}: key 'methods': expected a non-empty list of {{label, set, paper_rmse, paper_ms}}")
-    methods = []
-    for i, row in enumerate(rows):
-        key = f"methods[{i}]"
-        if not isinstance(row, dict):
-            raise ConfigError(f"{where}: key '{key}': expected a mapping, got {row!r}")
-        unknown = set(row) - _ROW
-        if unknown:
-            raise ConfigError(f"{where}: key '{key}': unknown key(s) {sorted(unknown)}; expected some of {sorted(_ROW)}")
-        label = row.get("label")
-        if not isinstance(label, str) or not label:
-            raise ConfigError(f"{where}: key '{key}.label': expected a non-empty string, got {label!r}")
-        methods.append(MethodSpec(label, _str_list(row.get("set"), f"{key}.set", where),
-                                  _number(row.get("paper_rmse"), f"{key}.paper_rmse", where),
-                                  _number(row.get("paper_ms"), f"{key}.paper_ms", where)))
-    labels = [m.label for m in methods]
-    if len(set(labels)) != len(labels):
-        raise ConfigError(f"{where}: key 'methods': labels must be unique, got {labels}")
+    raw = read_comparison(p, _TOP)
+    base = resolve_base(raw.get("base"), p)
+    methods = [MethodSpec(label, sets, _number(row.get("paper_rmse"), f"{key}.paper_rmse", where),
+                          _number(row.get("paper_ms"), f"{key}.paper_ms", where))
+               for key, row, label, sets in method_rows(raw.get("methods"), where, _ROW)]
     spec = CompareSpec(
         name=str(raw.get("name", p.stem)), base=base, methods=tuple(methods),
         seeds=_int(seeds if seeds is not None else raw.get("seeds", 8), "seeds", where, 1),

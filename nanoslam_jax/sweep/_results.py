@@ -151,10 +151,10 @@ class ResultsFile:
                 os.close(fd)
 
 
-def read_results(path: str | os.PathLike) -> list[dict]:
+def read_results(path: str | os.PathLike, key: str = "run_id") -> list[dict]:
     """The complete rows of a ``results.csv`` (strings, as written); a cut-off last record is ignored.
 
-    When a run id appears more than once, the last row wins.
+    When a ``key`` (the run id) appears more than once, the last row wins.
     """
     p = Path(path)
     if not p.is_file():
@@ -166,7 +166,7 @@ def read_results(path: str | os.PathLike) -> list[dict]:
     rows = list(csv.DictReader(io.StringIO(data[:keep].decode("utf-8"), newline="")))
     by_id = {}
     for r in rows:
-        by_id[r["run_id"]] = r
+        by_id[r[key]] = r
     return list(by_id.values())
 
 
