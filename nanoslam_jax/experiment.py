@@ -184,8 +184,6 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
         ess = np.asarray(o.ess) if cfg.filter.method != "ekf_slam" else None
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
-        metrics.update(map_summary(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, log.map_truth,
-                                   cfg.metrics.map_radius))
         metrics.update(
             landmark_overflow=int(run.state.overflow),
             window_overflow_max=int(np.max(o.window_overflow)), resample_count=int(run.state.resample_count),
@@ -207,6 +205,9 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
             metrics.update({f"rmse_fixed_{tag}": other["rmse_fixed"], f"rmse_aligned_{tag}": other["rmse_aligned"]})
         if "dr_rmse_fixed" in metrics:
             metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
+    if landmarks is not None:
+        metrics.update(map_summary(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, log.map_truth,
+                                   cfg.metrics.map_radius, alignment=metrics if finite else None))
 
     _write_csv(out / "trajectory.csv", ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, mean])
     if landmarks is not None:

@@ -268,8 +268,8 @@ def evaluate(
     Returns:
         A dict of Python numbers: ``rmse_fixed``, ``rmse_aligned``, ``rmse_fixed_clean``,
         ``rmse_aligned_clean``, ``mean_error``, ``max_error``, ``final_error`` (fixed frame,
-        last fix in the span), ``align_rotation_deg`` (rotation of the best-fit alignment),
-        ``align_rotation_clean_deg``, and the counts ``n_fixes`` (fixes used), ``n_fixes_clean``,
+        last fix in the span), ``align_rotation_deg``, ``align_x``, ``align_y`` (the best-fit
+        alignment ``p -> R(align_rotation_deg) p + (align_x, align_y)``), ``align_rotation_clean_deg``, and the counts ``n_fixes`` (fixes used), ``n_fixes_clean``,
         ``n_fixes_outside`` (fixes outside the estimate's span, excluded), ``n_gps`` (all fixes).
         A ``*_clean`` value is NaN when no clean fix is in the span.
 
@@ -280,7 +280,7 @@ def evaluate(
     err = np.hypot(*(xy[inside] - ref[inside]).T)
     clean = jump_mask(gps[:, 0], gps[:, 1:3], jump_speed) & inside
 
-    R, _, aligned = rigid_align(xy[inside], ref[inside])
+    R, shift, aligned = rigid_align(xy[inside], ref[inside])
     out = {
         "rmse_fixed": _rmse(err),
         "rmse_aligned": _rmse(np.hypot(*(aligned - ref[inside]).T)),
@@ -288,6 +288,8 @@ def evaluate(
         "max_error": float(np.max(err)),
         "final_error": float(err[-1]),
         "align_rotation_deg": float(np.degrees(np.arctan2(R[1, 0], R[0, 0]))),
+        "align_x": float(shift[0]),
+        "align_y": float(shift[1]),
         "n_fixes": int(inside.sum()),
         "n_fixes_clean": int(clean.sum()),
         "n_fixes_outside": int((~inside).sum()),
@@ -399,7 +401,10 @@ def map_quality(est_landmarks: np.ndarray, true_landmarks: np.ndarray, radius: f
     return out
 
 
-def map_summary(xy: np.ndarray, confirmed: np.ndarray, map_truth: np.ndarray | None, radius: float) -> dict:
+def map_summary(
+    xy: np.ndarray, confirmed: np.ndarray, map_truth: np.ndarray | None, radius: float,
+    alignment: dict | None = None,
+) -> dict:
     """What ``metrics.json`` (and a sweep's results) report of a map.
 
     Args:
@@ -408,13 +413,25 @@ def map_summary(xy: np.ndarray, confirmed: np.ndarray, map_truth: np.ndarray | N
         map_truth: the true landmarks the map is judged against (the observable ones of a simulated
             log), or None without ground truth.
         radius: matching radius (m) of :func:`map_quality`.
+        alignment: the trajectory's best-fit rigid alignment (:func:`evaluate`'s
+            ``align_rotation_deg``, ``align_x``, ``align_y``), or None.
 
     Returns:
         ``n_landmarks`` and ``n_confirmed``, and with ``map_truth`` the ``map_*`` figures of
-        :func:`map_quality` over the confirmed landmarks.
+        :func:`map_quality` over the confirmed landmarks in the SLAM frame, and with ``alignment``
+        too the same figures ``map_*_aligned`` after moving the map by the trajectory's
+        alignment (a map is judged free of the global rotation and shift that ``rmse_aligned``
+        removes from the trajectory).
     """
     confirmed = np.asarray(confirmed, bool)
     out: dict = {"n_landmarks": int(confirmed.shape[0]), "n_confirmed": int(confirmed.sum())}
     if map_truth is not None:
-        out.update({f"map_{k}": v for k, v in map_quality(np.asarray(xy)[confirmed], map_truth, radius).items()})
+        est = np.asarray(xy, dtype=float).reshape(-1, 2)[confirmed]
+        out.update({f"map_{k}": v for k, v in map_quality(est, map_truth, radius).items()})
+        if alignment is not None:
+            R = rotation_matrix(alignment["align_rotation_deg"])
+            moved = est @ R.T + np.array([alignment["align_x"], alignment["align_y"]])
+            quality = map_quality(moved, map_truth, radius)
+            out.update({f"map_{k}_aligned": quality[k] for k in
+                        ("n_found", "found_fraction", "n_spurious", "spurious_fraction", "rmse_matched")})
     return out

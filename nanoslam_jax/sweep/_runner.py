@@ -361,10 +361,11 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     m: dict = {}
     reasons = []
     finite = np.isfinite(est).all(axis=1)
+    rot, jump, radius = task.metrics_opts[i]
+    alignment = None
     if finite.all():
-        rot, jump, radius = task.metrics_opts[i]
-        m.update({k: v for k, v in evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump,
-                                             frame=log.frame).items() if k in METRIC_KEYS})
+        alignment = evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump, frame=log.frame)
+        m.update({k: v for k, v in alignment.items() if k in METRIC_KEYS})
     else:
         j = int(np.argmin(finite))
         reasons.append(f"non-finite estimate from segment {j} (t = {t[j]:.2f} s)")
@@ -372,7 +373,7 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     overflow = int(out.overflow[i])
     act = np.asarray(out.map_active[i])
     m.update(map_summary(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act], log.map_truth,
-                         task.metrics_opts[i][2]))
+                         radius, alignment))
     m.update(
         landmark_overflow=overflow,
         window_overflow_max=int(np.max(out.window_overflow[i], initial=0)), resample_count=int(out.resample_count[i]),

@@ -58,7 +58,8 @@ METRIC_KEYS = (
 )
 #: Extra metrics of simulated logs (map against the true trees).
 MAP_METRIC_KEYS = ("map_n_true", "map_n_found", "map_found_fraction", "map_n_spurious", "map_spurious_fraction",
-                   "map_rmse_matched", "map_median_est_to_true")
+                   "map_rmse_matched", "map_median_est_to_true", "map_found_fraction_aligned",
+                   "map_spurious_fraction_aligned", "map_rmse_matched_aligned")
 
 _TOP_KEYS = ("name", "base", "set", "segments", "seeds", "grid", "random", "shapes", "metric", "goal", "run", "ray",
              "plots")
