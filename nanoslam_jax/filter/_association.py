@@ -88,15 +88,41 @@ def associate(
             are associated independently with existing landmarks and, when two pick the same
             landmark, only the closer keeps it.
     """
-    k_max = z.shape[0]
     window = local.active.shape[0]
     # Provisional landmarks, one per detection, initialised at the prior mean.
     prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None))(x, z, R)
+    mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
+    z_hat, s_inv = innovation_information(x, P, mean, cov, R)
+    return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential)
+
+
+def nearest_neighbours(
+    z_hat: tuple[Float[Array, "slots"], Float[Array, "slots"]],
+    s_inv: tuple[Float[Array, "slots"], Float[Array, "slots"], Float[Array, "slots"]],
+    active: Bool[Array, "window"],
+    z: Float[Array, "k_max 2"],
+    z_mask: Bool[Array, "k_max"],
+    gate: Float[Array, ""],
+    new_landmark: Float[Array, ""],
+    sequential: bool = True,
+) -> Association:
+    """The association rule of :func:`associate`, given every slot's predicted detection and
+    innovation information (for filters whose innovation covariances are their own, e.g. NASRUKF's
+    joint pose-feature states).
+
+    Args:
+        z_hat: predicted range and bearing of each slot: the ``window`` slots of the local map,
+            then one provisional landmark per detection (``slots = window + k_max``).
+        s_inv: the entries ``(a00, a01, a11)`` of each slot's inverse innovation covariance.
+        active: which of the ``window`` local slots hold a landmark.
+        z, z_mask, gate, new_landmark, sequential: as for :func:`associate`.
+    """
+    k_max = z.shape[0]
+    window = active.shape[0]
     # Components kept apart: stacking each detection's innovations (range, bearing) into one array
     # per loop step cost ~12 % of the association on CPU.
-    mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
-    (zr, zb), (a00, a01, a11) = innovation_information(x, P, mean, cov, R)
-    active = jnp.concatenate([local.active, jnp.zeros(k_max, bool)])
+    (zr, zb), (a00, a01, a11) = z_hat, s_inv
+    active = jnp.concatenate([active, jnp.zeros(k_max, bool)])
 
     def distances(zk):
         nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)
