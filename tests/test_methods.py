@@ -243,5 +243,5 @@ def test_compare_cli_bad_spec_exits_cleanly(tmp_path, capsys):
 def test_table1_config_is_valid():
     spec = load_compare_spec(Path(__file__).resolve().parent.parent / "configs" / "table1.yaml")
     methods = [load_config(spec.base, list(spec.set) + list(m.set)).filter.method for m in spec.methods]
-    assert methods == ["ekf_slam", "fastslam1", "fastslam2", "ufastslam", "iterated", "nano"]
+    assert methods == ["ekf_slam", "fastslam1", "fastslam2", "ufastslam", "iterated", "nano", "nasrukf"]
     assert spec.seeds == 8
