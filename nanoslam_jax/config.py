@@ -217,11 +217,6 @@ class NasrukfConfig:
         doc="the paper's 'enough new feature data' count N_new: a feature's detections update the pose "
             "only once it has been detected this many times (1: from its second detection on, as the "
             "other methods' landmarks); until then they refine the feature only")
-    fusion: Literal["increments", "paper"] = _f("increments", static=True,
-        doc="global pose from the per-feature pose estimates (eq. 4-5): 'increments': information-weighted "
-            "fusion of the features updated in the scan, each one's information gain over the shared prior "
-            "counted once; 'paper': eq. 5 as printed, the information-weighted average over every created "
-            "feature (the shared prior counted once per feature)")
 
 
 @dataclass(frozen=True)

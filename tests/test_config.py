@@ -284,7 +284,6 @@ def test_new_landmark_threshold_must_not_be_below_the_gate():
     (["noise.adaptive=true", "filter.method=ekf_slam"], ["noise.adaptive", "ekf_slam", "nasrukf"]),
     (["nasrukf.feature=line"], ["nasrukf.feature", "'point'", "'arc'"]),
     (["nasrukf.new_feature_hits=0"], ["nasrukf.new_feature_hits", ">= 1"]),
-    (["nasrukf.fusion=mean"], ["nasrukf.fusion", "'increments'"]),
 ])
 def test_adaptive_noise_and_nasrukf_keys_are_validated(items, fragments):
     msg = _error(items)

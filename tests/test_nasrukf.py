@@ -40,9 +40,9 @@ def params_for(*extra):
 
 
 def test_fusion_of_two_estimates_is_the_information_weighted_average():
-    """Eq. 4-5 for two Gaussian estimates (``paper``, no estimate left at the prior): mean
+    """Eq. 4-5 for two independent Gaussian estimates (``shared_prior=False``): mean
     (P1^-1 + P2^-1)^-1 (P1^-1 x1 + P2^-1 x2), covariance (P1^-1 + P2^-1)^-1; headings on either
-    side of the +-pi cut are averaged across it."""
+    side of the +-pi cut are averaged across it; no estimate used: the prior."""
     rng = np.random.default_rng(0)
     x1, x2 = np.array([1.0, 2.0, 3.1]), np.array([1.3, 1.8, -3.12])
     P1, P2 = random_spd(rng, 3, 0.3), random_spd(rng, 3, 0.5)
@@ -51,20 +51,14 @@ def test_fusion_of_two_estimates_is_the_information_weighted_average():
     P = np.linalg.inv(I1 + I2)
     ref = P @ (I1 @ x1 + I2 @ x2u)
     x0, S0 = jnp.array([0.5, 0.5, 3.0]), jnp.asarray(chol(random_spd(rng, 3)))
-    x, S = fuse_poses(x0, S0, jnp.asarray(np.stack([x1, x2])), jnp.asarray(np.stack([chol(P1), chol(P2)])),
-                      jnp.array([True, True]), mode="paper", n_prior=0)
+    xs, Ls = jnp.asarray(np.stack([x1, x2])), jnp.asarray(np.stack([chol(P1), chol(P2)]))
+    x, S = fuse_poses(x0, S0, xs, Ls, jnp.array([True, True]), shared_prior=False)
     np.testing.assert_allclose(np.asarray(x)[:2], ref[:2], atol=1e-12)
     assert abs(wrap(float(x[2]) - ref[2])) < 1e-12
     np.testing.assert_allclose(np.asarray(S @ S.T), P, atol=1e-12)
-    # 'paper' with estimates left at the prior counts the prior once for each of them.
-    I0 = np.linalg.inv(np.asarray(S0 @ S0.T))
-    x, S = fuse_poses(x0, S0, jnp.asarray(np.stack([x1, x2])), jnp.asarray(np.stack([chol(P1), chol(P2)])),
-                      jnp.array([True, False]), mode="paper", n_prior=3)
-    Pp = np.linalg.inv(3 * I0 + I1)
-    ref = np.asarray(x0) + Pp @ I1 @ (x1 - np.asarray(x0))
-    ref[2] = wrap(ref[2])
-    np.testing.assert_allclose(np.asarray(x), ref, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(S @ S.T), Pp, atol=1e-12)
+    x, S = fuse_poses(x0, S0, xs, Ls, jnp.array([False, False]), shared_prior=False)
+    np.testing.assert_allclose(np.asarray(x), np.asarray(x0), atol=1e-15)
+    np.testing.assert_allclose(np.asarray(S), np.asarray(S0), atol=1e-12)
 
 
 def test_fusion_of_increments_is_the_kalman_posterior_of_independent_measurements():

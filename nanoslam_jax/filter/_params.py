@@ -50,7 +50,6 @@ class Static:
     iterated_landmark_noise: bool = True
     adaptive_noise: bool = False
     nasrukf_feature: str = "point"
-    nasrukf_fusion: str = "increments"
 
     @property
     def window_size(self) -> int:
@@ -177,7 +176,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
         devices=particle_devices(f.split_devices, f.n_particles),
         adaptive_noise=nz.adaptive,
-        nasrukf_feature=cfg.nasrukf.feature, nasrukf_fusion=cfg.nasrukf.fusion,
+        nasrukf_feature=cfg.nasrukf.feature,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     params = Params(
