@@ -51,7 +51,7 @@ SPLIT_DEVICES_FROM = 64
 
 
 #: Methods with an adaptive measurement-noise estimate (``noise.adaptive: true`` is rejected for the others).
-ADAPTIVE_NOISE_METHODS = ("nasrukf",)
+ADAPTIVE_NOISE_METHODS = ("nasrukf", "nano", "fastslam2", "ufastslam")
 
 
 class _Loader(yaml.SafeLoader):

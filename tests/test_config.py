@@ -281,7 +281,8 @@ def test_new_landmark_threshold_must_not_be_below_the_gate():
     (["noise.forgetting=1.0"], ["noise.forgetting", "< 1"]),
     (["noise.forgetting=0"], ["noise.forgetting", "> 0"]),
     (["noise.adaptive_floor=1.5"], ["noise.adaptive_floor", "<= 1"]),
-    (["noise.adaptive=true", "filter.method=ekf_slam"], ["noise.adaptive", "ekf_slam", "nasrukf"]),
+    (["noise.adaptive=true", "filter.method=ekf_slam"], ["noise.adaptive", "ekf_slam", "nasrukf", "nano", "ufastslam"]),
+    (["noise.adaptive=true", "filter.method=fastslam1"], ["noise.adaptive", "fastslam1"]),
     (["nasrukf.feature=line"], ["nasrukf.feature", "'point'", "'arc'"]),
     (["nasrukf.new_feature_hits=0"], ["nasrukf.new_feature_hits", ">= 1"]),
 ])

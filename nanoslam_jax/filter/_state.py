@@ -47,12 +47,17 @@ class Particles(NamedTuple):
         pose_cov: each particle's last proposal covariance (used when ``prior_cov='carry'``).
         log_w: normalised log-weights (logsumexp = 0).
         landmarks: per-particle maps.
+        noise: each particle's measurement-noise variances (range, bearing): the configured ones, or
+            its adaptive estimate (``noise.adaptive``).
+        noise_count: residuals each particle's adaptive estimate has seen.
     """
 
     pose: Float[Array, "particles 3"]
     pose_cov: Float[Array, "particles 3 3"]
     log_w: Float[Array, "particles"]
     landmarks: LandmarkMap
+    noise: Float[Array, "particles 2"]
+    noise_count: Int[Array, "particles"]
 
 
 class FilterState(NamedTuple):
@@ -81,6 +86,8 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
         log_w=jnp.full((n,), -jnp.log(n)),
         landmarks=LandmarkMap.empty(static.capacity, (n,)),
+        noise=jnp.broadcast_to(jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)]), (n, 2)),
+        noise_count=jnp.zeros(n, jnp.int32),
     )
     zero = jnp.zeros((), jnp.int32)
     return FilterState(particles, key, zero, zero, zero)

@@ -32,6 +32,7 @@ from ._landmarks import (
 from ._params import Params, Static
 from ._prior import compose_prior, predict, relative_prior
 from ._resampling import effective_sample_size, normalise, resample
+from ._srukf import adaptive_noise_rows
 from ._state import FilterState, LandmarkMap, Particles, count_landmarks, slots_in_use
 
 
@@ -82,6 +83,8 @@ class _ParticleOut(NamedTuple):
     window_overflow: Int[Array, ""]
     overflow: Int[Array, ""]
     n_landmarks: Int[Array, ""]
+    noise: Float[Array, "2"]
+    noise_count: Int[Array, ""]
 
 
 def _proposal_over_rows(
@@ -123,6 +126,8 @@ def particle_update(
     valid: Bool[Array, ""] = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
     slot_bucket: Int[Array, ""] | None = None,
+    noise: Float[Array, "2"] | None = None,
+    noise_count: Int[Array, ""] | None = None,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
@@ -138,8 +143,18 @@ def particle_update(
     ``slot_bucket``: index into ``static.slot_buckets`` of a map prefix that holds every active
     landmark (the local window is searched there; ``None``: the whole map). The same for all
     particles, so under ``vmap`` it stays a branch.
+
+    ``noise``, ``noise_count``: the particle's adaptive measurement-noise variances and how many
+    residuals they have seen (``static.adaptive_noise``; default: the configured noise). The scan
+    is associated with them; then each associated detection's residual at the prior updates them
+    in order (eq. 11 of the NASRUKF paper with ``Gx P Gx' + Gm Sigma Gm'`` as the predicted
+    covariance, :func:`~._srukf.adaptive_noise_rows`) and the proposal, landmark updates and weight
+    use the result.
     """
-    R = params.R
+    configured = jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)])
+    noise = configured if noise is None else noise
+    noise_count = jnp.zeros((), jnp.int32) if noise_count is None else noise_count
+    R = jnp.diag(noise) if static.adaptive_noise else params.R
     W, K = static.window_size - static.k_max, static.k_max
     if rel_prior is not None:
         x0, P0 = compose_prior(pose, *rel_prior)
@@ -162,6 +177,12 @@ def particle_update(
     ps = jnp.clip(assoc.slot - W, 0, K - 1)  # detection that created the landmark a row matched
     # Rows that match no existing landmark are masked out everywhere they are used.
     det = Detections(z, local.mean[ws], local.cov[ws], existing)
+    if static.adaptive_noise:
+        z_prior, S_prior = predicted_measurements(x0, P0, det.mean, det.cov, R)
+        _, noise, noise_count = adaptive_noise_rows(
+            noise, noise_count, jax.vmap(innovation)(z, z_prior), jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
+            existing, params.forgetting, params.noise_floor * configured)
+        R = jnp.diag(noise)
 
     prop = _proposal_over_rows(proposal, x0, P0, det, R, z_mask, static.row_buckets)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
@@ -227,6 +248,7 @@ def particle_update(
         result=jnp.where(has_assoc, prop.result, 0), has_assoc=has_assoc,
         n_associated=jnp.sum(matched), n_new=jnp.sum(assoc.is_new),
         window_overflow=window_overflow, overflow=overflow, n_landmarks=count_landmarks(lm).astype(jnp.int32),
+        noise=noise, noise_count=noise_count,
     )
 
 
@@ -309,15 +331,17 @@ def _step(
     # sweep's vmap: of the batch), where the local windows are searched.
     in_use = slots_in_use(p.landmarks)
     slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None, None, None))(
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0, None, None, None, None, None, 0, None, None, None, 0, 0))(
         static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
-        seg.z_mask, mine(eps), valid, rel_prior, slot_bucket)
+        seg.z_mask, mine(eps), valid, rel_prior, slot_bucket, mine(p.noise), mine(p.noise_count))
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
         pose=jnp.where(valid, out.pose, p.pose),
         pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),
         dlogw=jnp.where(valid, out.dlogw, 0.0),
+        noise=jnp.where(valid, out.noise, p.noise),
+        noise_count=jnp.where(valid, out.noise_count, p.noise_count),
     )
     log_w = p.log_w + out.dlogw
     finite = jnp.any(jnp.isfinite(log_w))
@@ -326,7 +350,7 @@ def _step(
     log_w = jnp.where(valid, log_w, p.log_w)
     ess = effective_sample_size(log_w)
     best = jnp.argmax(log_w).astype(jnp.int32)
-    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks)
+    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count)
 
     record = StepOutput(
         best_pose=out.pose[best],
