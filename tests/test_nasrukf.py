@@ -18,9 +18,10 @@ import pytest
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import NasrukfState, _nasrukf, _scan, fuse_poses, reported_map, run_filter, settings_from_config
-from nanoslam_jax.metrics import evaluate, landmark_errors
+from nanoslam_jax.filter import NasrukfState, _nasrukf, fuse_poses, run_filter, settings_from_config
+from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step
+from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, true_positions
 from ukf_reference import dense_transform, random_spd, wrap
 
 SIM = ["sim.duration=60", "filter.method=nasrukf", "filter.capacity=256", "data.k_max=12", "output.progress=false"]
@@ -190,17 +191,6 @@ def test_new_feature_is_the_dense_unscented_transform_of_pose_and_detection(arc)
 # --------------------------------------------------------------------------- whole filter
 
 
-def float_leaves(tree):
-    return [np.asarray(a) for a in jax.tree.leaves(tree)
-            if not jnp.issubdtype(jnp.asarray(a).dtype, jax.dtypes.prng_key) and np.issubdtype(np.asarray(a).dtype, np.floating)]
-
-
-def truth_at(log):
-    t = np.asarray(log.segments.time)
-    tp = log.raw.truth_poses
-    return np.stack([np.interp(t, tp[:, 0], tp[:, 1]), np.interp(t, tp[:, 0], tp[:, 2])], axis=1)
-
-
 @pytest.fixture(scope="module")
 def sim():
     cfg = load_config(None, SIM)
@@ -225,19 +215,8 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
     log, static, params = sim
     run = sim_run
     assert isinstance(run.state, NasrukfState)
-    for a in float_leaves(run.outputs) + float_leaves(run.state):
-        assert np.all(np.isfinite(a))
     o = run.outputs
-    assert int(np.sum(o.n_nonfinite)) == 0 and int(run.state.overflow) == 0
-    err = np.hypot(*(np.asarray(o.best_pose)[:, :2] - truth_at(log)).T)
-    assert np.sqrt(np.mean(err**2)) < 0.2 and err.max() < 0.5, (np.sqrt(np.mean(err**2)), err.max())
-    np.testing.assert_array_equal(np.asarray(o.best_pose), np.asarray(o.mean_pose))
-    assert np.mean(o.n_associated) > 2.0  # the filter really associates
-    lm = reported_map(run.state)
-    sel = np.asarray(lm.active) & (np.asarray(lm.hits) >= 3)
-    assert sel.sum() >= 15
-    e2t = landmark_errors(np.asarray(lm.mean)[sel], log.raw.truth_landmarks)["est_to_true"]
-    assert np.mean(e2t < 1.0) >= 0.9 and np.median(e2t) < 0.3, e2t
+    lm = assert_tracks_truth_and_maps_trees(log, run, rmse=0.2, max_error=0.5, associations=2.0, median=0.3)
     # The state is consistent: active features a prefix, count = features, square roots lower
     # triangular with a positive diagonal, marginal covariances positive definite.
     st = run.state
@@ -256,17 +235,7 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
 def test_padding_segments_are_noops(sim, sim_run):
     """Padding (valid False), whether zero segments or real ones, leaves the state bit for bit."""
     log, static, params = sim
-    state = sim_run.state
-    seg = jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[:CHUNK]), log.segments)
-    invalid = jnp.zeros(CHUNK, bool)
-    for s in (seg, jax.tree.map(jnp.zeros_like, seg)):
-        new, out = _scan._chunk(static, params, state, s, invalid)
-        for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(new)):
-            if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
-                a, b = jax.random.key_data(a), jax.random.key_data(b)
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-        assert np.all(np.asarray(out.n_associated) == 0) and np.all(np.asarray(out.n_new) == 0)
-        np.testing.assert_array_equal(np.asarray(out.best_pose), np.broadcast_to(np.asarray(state.pose), (CHUNK, 3)))
+    assert_padding_is_noop(static, params, sim_run.state, log.segments, CHUNK, sim_run.state.pose)
 
 
 def test_deterministic_and_seed_free(sim, sim_run):
@@ -291,7 +260,7 @@ def test_adaptive_noise_estimate_converges_to_the_true_noise():
     sd = np.sqrt(np.asarray(run.state.noise))
     assert int(run.state.noise_count) > 500
     np.testing.assert_allclose(sd, [cfg.sim.sigma_r, math.radians(cfg.sim.sigma_beta_deg)], rtol=0.1)
-    err = np.hypot(*(np.asarray(run.outputs.best_pose)[:, :2] - truth_at(log)).T)
+    err = np.hypot(*(np.asarray(run.outputs.best_pose)[:, :2] - true_positions(log)).T)
     assert np.sqrt(np.mean(err**2)) < 0.3
 
 

@@ -161,7 +161,7 @@ def srukf_transform(
     Returns:
         The mean and lower square root of ``y``.
     """
-    n, q = x.shape[0], noise_sqrt.shape[0]
+    n = x.shape[0]
     offsets, wm, wc = sigma_offsets(block_diag(L, noise_sqrt), rule)
     Y = jax.vmap(f)(x + offsets[:, :n], offsets[:, n:])
     mean, D = _stats(Y, wm, angles)
