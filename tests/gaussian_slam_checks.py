@@ -5,8 +5,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nanoslam_jax.filter import _scan, reported_map
+from nanoslam_jax.config import load_config
+from nanoslam_jax.experiment import load_log
+from nanoslam_jax.filter import _scan, reported_map, settings_from_config
 from nanoslam_jax.metrics import landmark_errors
+
+
+def simulated(overrides):
+    """The log of the embedded default config with ``overrides`` and the filter settings for it."""
+    cfg = load_config(None, overrides)
+    log = load_log(cfg)
+    return (log, *settings_from_config(cfg, log.segments.k_max))
 
 
 def float_leaves(tree):

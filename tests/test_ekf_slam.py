@@ -22,7 +22,7 @@ from nanoslam_jax.filter import EkfSlamState, _scan, reported_map, run_filter, s
 from nanoslam_jax.filter import _ekf_slam
 from nanoslam_jax.filter._ekf_slam import landmark_blocks
 from nanoslam_jax.models import vehicle_step
-from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, float_leaves
+from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, float_leaves, simulated
 
 SIM = ["sim.duration=60", "filter.method=ekf_slam"]
 CHUNK = 100
@@ -203,10 +203,7 @@ def test_prediction_equals_dense_joint_linearisation():
 
 @pytest.fixture(scope="module")
 def sim():
-    cfg = load_config(None, SIM + ["filter.capacity=256"])
-    log = load_log(cfg)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    return log, static, params
+    return simulated(SIM + ["filter.capacity=256"])
 
 
 @pytest.fixture(scope="module")

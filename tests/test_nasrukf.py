@@ -21,7 +21,7 @@ from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import NasrukfState, _nasrukf, fuse_poses, run_filter, settings_from_config
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step
-from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, true_positions
+from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, simulated, true_positions
 from ukf_reference import dense_transform, random_spd, wrap
 
 SIM = ["sim.duration=60", "filter.method=nasrukf", "filter.capacity=256", "data.k_max=12", "output.progress=false"]
@@ -193,10 +193,7 @@ def test_new_feature_is_the_dense_unscented_transform_of_pose_and_detection(arc)
 
 @pytest.fixture(scope="module")
 def sim():
-    cfg = load_config(None, SIM)
-    log = load_log(cfg)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    return log, static, params
+    return simulated(SIM)
 
 
 @pytest.fixture(scope="module")
