@@ -23,9 +23,11 @@ Per segment (:func:`nasrukf_step`):
    DR pieces with the control noise augmented (:func:`pose_time_update`: QR and ``cholupdate`` per
    piece, eq. 8-9), giving ``T = Cov(x_start, x) Cov(x)^-1`` and the square root ``D`` of
    ``Cov(x_start | x)``; every feature then gets ``gain <- gain T`` and ``sqrt <- cholupdate(sqrt,
-   gain D)`` (three rank-one updates of its 2x2 factor; :func:`propagate_features`). This is the
-   joint time update's exact counterpart (the same unscented statistics of the pose; cross
-   covariances of a static feature follow linearly) at O(1) per feature instead of a QR each.
+   gain D)`` (three rank-one updates of its 2x2 factor; :func:`propagate_features`). A static
+   feature's cross-covariance with the moved pose is then ``gain Cov(x_start, x)`` and its marginal
+   is unchanged, as in a joint unscented time update of (pose, feature); only the sigma-point
+   spread differs (one transform of dimension 3 + 3 + 2 per scan instead of one of 3 + 2 + 2 per
+   feature, each a QR), and the cost is O(1) per feature.
    **Features out of view** are propagated in the same way every scan (the cost is a few
    element-wise operations per slot): their correlation with the pose decays by ``T`` as the
    vehicle moves on while their marginal stays as it was, so a feature that is seen again later
@@ -38,9 +40,11 @@ Per segment (:func:`nasrukf_step`):
 3. **Measurement updates** (eq. 10-12), one per associated detection, all in parallel (a feature is
    claimed once per scan): sigma points of the joint state, ``Sz`` by QR and ``cholupdate``, the
    state's square root downdated by ``U = K Sz``. With ``noise.adaptive`` the measurement noise is
-   first re-estimated from each residual in detection order (eq. 11, one estimate for the sensor,
-   see :func:`~._srukf.adaptive_noise_rows`), and each update uses the estimate that includes its
-   own residual, as in the paper.
+   first re-estimated from each residual in detection order (eq. 11,
+   :func:`~._srukf.adaptive_noise_rows`), and each update uses the estimate that includes its own
+   residual, as in the paper. There is one estimate for the sensor, fed by every feature's
+   residuals: a tree is detected a few dozen times at most, and eq. 11's first weight ``d_0 = 1``
+   would make each feature's own estimate start from a single residual.
 4. **Fusion** (eq. 4-5, :func:`fuse_poses`) of the updated joint states' pose marginals
    ``N(x_i, P_i)``. Eq. 4 assumes independent estimates (``P_ij = 0``); these all continue from the
    scan's common prior, so it is applied to each one's information gain over that prior:
