@@ -88,7 +88,6 @@ def associate(
             are associated independently with existing landmarks and, when two pick the same
             landmark, only the closer keeps it.
     """
-    window = local.active.shape[0]
     # Provisional landmarks, one per detection, initialised at the prior mean.
     prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None))(x, z, R)
     mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
