@@ -269,7 +269,7 @@ def test_table1_config_is_valid():
 
 
 def test_nasrukf_ablation_config_is_valid():
-    spec = load_compare_spec(Path(__file__).resolve().parent.parent / "configs" / "nasrukf_ablation.yaml")
+    spec = load_compare_spec(Path(__file__).resolve().parent.parent / "configs" / "table_nasrukf_ablation.yaml")
     cfgs = [load_config(spec.base, list(spec.set) + list(m.set)) for m in spec.methods]
     assert {c.filter.method for c in cfgs} == {"nasrukf"} and spec.seeds == 1
     assert [c.noise.adaptive for c in cfgs] == [False, False, True, True, False]
