@@ -11,8 +11,9 @@ Rows: NANO with 10, 100 and 1000 particles (capacity 512), NANO at 10 particles 
 256, 512 and 1024 (cost per scan should grow only by the capacity's linear term), NANO at 10
 particles in one compiled call (no chunks: the cost of the progress reporting), with the
 optimistix fixed-point solver instead of the while_loop, the other particle methods at 10
-particles (targets: at most 2x NANO's run time) and EKF-SLAM with 512 landmark slots (target:
-at most 60 s for the whole log).
+particles (targets: at most 2x NANO's run time), EKF-SLAM with 512 landmark slots (target:
+at most 60 s for the whole log) and NASRUKF with 512 feature slots (target: at most 2x NANO's
+10-particle run time).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ ROWS: dict[str, list[str]] = {
     "iterated-gn-N10": ["filter.method=iterated", "iterated.solver=gauss_newton"],
     "iterated-lm-N10": ["filter.method=iterated", "iterated.solver=levenberg_marquardt"],
     "ekf_slam-cap512": ["filter.method=ekf_slam"],
+    "nasrukf": ["filter.method=nasrukf"],
 }
 
 

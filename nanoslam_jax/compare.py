@@ -18,8 +18,8 @@ figures to print beside ours::
 
 For each method the seeds run vmapped in one compiled program (:func:`filter.run_batch`); a
 separate single run of the first seed, timed chunk by chunk, gives the computation time per
-scan (the table's ms per scan and Fig. 5). EKF-SLAM and dead reckoning are deterministic and run
-once. A method that fails (bad config, non-finite estimate, exception) is recorded with its
+scan (the table's ms per scan and Fig. 5). EKF-SLAM, NASRUKF and dead reckoning are deterministic
+and run once. A method that fails (bad config, non-finite estimate, exception) is recorded with its
 reason; the others still run.
 
 Writes ``table1.md``, ``table1.csv`` (one row per method), ``runs.csv`` (one row per method and
@@ -47,9 +47,9 @@ import yaml
 
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
-from .filter import dead_reckoning, reported_map, run_batch, run_filter, settings_from_config, stack_params
+from .filter import GAUSSIAN_METHODS, dead_reckoning, reported_map, run_batch, run_filter, settings_from_config, stack_params
 
-DETERMINISTIC = ("ekf_slam", "dead_reckoning")
+DETERMINISTIC = GAUSSIAN_METHODS + ("dead_reckoning",)
 RMSE_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
 
 
@@ -430,7 +430,7 @@ def _write_outputs(out: Path, spec: CompareSpec, results: list[MethodResult]) ->
     if runs:
         _write_csv(out / "runs.csv", runs)
     header = (f"# {spec.name}: {len(spec.methods)} methods, {spec.seeds} seeds "
-              f"({spec.first_seed}..{spec.first_seed + spec.seeds - 1}; EKF-SLAM and dead reckoning are deterministic: one run)\n\n")
+              f"({spec.first_seed}..{spec.first_seed + spec.seeds - 1}; EKF-SLAM, NASRUKF and dead reckoning are deterministic: one run)\n\n")
     (out / "table1.md").write_text(header + markdown_table(table))
     safe = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
     (out / "summary.json").write_text(json.dumps([{k: safe(v) for k, v in row.items()} for row in table], indent=2) + "\n")

@@ -31,6 +31,7 @@ __all__ = [
     "MapConfig",
     "NanoConfig",
     "IteratedConfig",
+    "NasrukfConfig",
     "MetricsConfig",
     "SimConfig",
     "OutputConfig",
@@ -48,6 +49,10 @@ __all__ = [
 ROW_BUCKETS_FROM = 64
 #: ``filter.split_devices: auto`` splits a run's particles over the CPU devices from this many up.
 SPLIT_DEVICES_FROM = 64
+
+
+#: Methods with an adaptive measurement-noise estimate (``noise.adaptive: true`` is rejected for the others).
+ADAPTIVE_NOISE_METHODS = ("nasrukf", "nano", "fastslam2", "ufastslam")
 
 
 class _Loader(yaml.SafeLoader):
@@ -111,6 +116,15 @@ class NoiseConfig:
     sigma_alpha_deg: float = _f(6.0, lo=0.0, lo_open=True, doc="steering noise (deg) per DR sample")
     sigma_r: float = _f(1.0, lo=0.0, lo_open=True, doc="range noise (m)")
     sigma_beta_deg: float = _f(3.0, lo=0.0, lo_open=True, doc="bearing noise (deg)")
+    adaptive: bool = _f(False, static=True,
+        doc="re-estimate the measurement noise online from the residuals of the associated detections (the "
+            "NASRUKF paper's eq. 11: R_k = (1 - d_k) R_k-1 + d_k diag(nu nu' - predicted covariance), "
+            "d_k = (1 - b) / (1 - b^(k+1))), starting from sigma_r, sigma_beta (and nasrukf.sigma_diameter); "
+            "for nasrukf, nano, fastslam2, ufastslam")
+    forgetting: float = _f(0.99, lo=0.0, lo_open=True,
+        doc="forgetting factor b of the adaptive estimate, 0 < b < 1 (its memory is about 1 / (1 - b) detections)")
+    adaptive_floor: float = _f(0.01, lo=0.0, lo_open=True, hi=1.0,
+        doc="smallest variance the adaptive estimate may reach, as a fraction of the configured one")
 
 
 @dataclass(frozen=True)
@@ -241,6 +255,24 @@ class IteratedConfig:
 
 
 @dataclass(frozen=True)
+class NasrukfConfig:
+    """NASRUKF FastSLAM (the second paper), method ``nasrukf``: per-feature joint states (pose and
+    one tree), each a square-root unscented Kalman filter, with an information-weighted global pose.
+
+    Its unscented transforms use ``filter.ut_alpha``, ``ut_beta``, ``ut_kappa``; association uses
+    ``filter.gate``, ``filter.new_landmark``, ``filter.window``; ``filter.capacity`` feature slots."""
+
+    feature: Literal["point", "arc"] = _f("point", static=True,
+        doc="'point': a tree is its centre, a 5-D joint state (pose + centre); 'arc': the paper's arc "
+            "feature, a 6-D joint state (pose + centre + radius) with the detection's diameter as a third "
+            "measurement (diameter = 2 radius, noise map.sigma_diameter)")
+    new_feature_hits: int = _f(1, lo=1,
+        doc="the paper's 'enough new feature data' count N_new: a feature's detections update the pose "
+            "only once it has been detected this many times (1: from its second detection on, as the "
+            "other methods' landmarks); until then they refine the feature only")
+
+
+@dataclass(frozen=True)
 class MetricsConfig:
     """Evaluation protocol settings (victoria_park.md section 5)."""
 
@@ -298,6 +330,7 @@ class Config:
     map: MapConfig = field(default_factory=MapConfig)
     nano: NanoConfig = field(default_factory=NanoConfig)
     iterated: IteratedConfig = field(default_factory=IteratedConfig)
+    nasrukf: NasrukfConfig = field(default_factory=NasrukfConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
@@ -401,6 +434,12 @@ def _check_consistency(cfg: Config, where: str) -> None:
     if mp.manage and not mp.confirm_probability <= mp.max_probability:
         raise ConfigError(f"{where}key 'map.confirm_probability': expected a value <= map.max_probability "
                           f"({mp.max_probability}), got {mp.confirm_probability}")
+    if cfg.noise.forgetting >= 1.0:
+        raise ConfigError(f"{where}key 'noise.forgetting': expected a value < 1, got {cfg.noise.forgetting}")
+    if cfg.noise.adaptive and cfg.filter.method not in ADAPTIVE_NOISE_METHODS:
+        raise ConfigError(f"{where}key 'noise.adaptive': the adaptive noise estimate is available for "
+                          f"filter.method {', '.join(ADAPTIVE_NOISE_METHODS)}, not {cfg.filter.method!r}; "
+                          "set noise.adaptive to false")
     if cfg.filter.new_landmark < cfg.filter.gate:
         raise ConfigError(f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
                           f"got {cfg.filter.new_landmark}")

@@ -24,7 +24,7 @@ import yaml
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
-from .filter import AVAILABLE_METHODS, dead_reckoning, reported_map, run_filter, settings_from_config, text_progress
+from .filter import AVAILABLE_METHODS, GAUSSIAN_METHODS, dead_reckoning, reported_map, run_filter, settings_from_config, text_progress
 from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
 
 
@@ -181,7 +181,7 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
         est = best_pose if static.estimate == "best" else mean
-        ess = np.asarray(o.ess) if cfg.filter.method != "ekf_slam" else None
+        ess = np.asarray(o.ess) if cfg.filter.method not in GAUSSIAN_METHODS else None
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
         metrics.update(

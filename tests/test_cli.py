@@ -360,11 +360,15 @@ def test_dead_reckoning_drifts_to_order_150_m_over_the_run(dr_real):
     assert m["max_error"] > m["rmse_fixed"]
 
 
-def test_method_not_available_yet_is_a_clear_error(tmp_path, capsys):
-    out = tmp_path / "never"
-    code = main(["run", "--out", str(out), "--set", "filter.method=nasrukf"])
-    err = capsys.readouterr().err
-    assert code == 2
-    assert "filter.method" in err and "nasrukf" in err and "available" in err
-    assert "Traceback" not in err
-    assert not out.exists()
+def test_nasrukf_run_writes_the_result_directory(tmp_path, capsys):
+    """``nanoslam run --set filter.method=nasrukf`` on a simulated log: the same result directory,
+    metrics and figures as the particle methods, without the ESS figure (no particles)."""
+    out = tmp_path / "nasrukf"
+    overrides = ["filter.method=nasrukf", "data.t_end=20", "filter.capacity=128"]
+    rc, _, err = _call(capsys, ["run", "--out", str(out), "--quiet"] + [a for o in overrides for a in ("--set", o)])
+    assert rc == 0, err
+    m = _check_result_dir(out, load_config(None, overrides), filter_run=False)
+    assert m["method"] == "nasrukf" and m["capacity"] == 128
+    assert m["rmse_fixed"] < 0.5 and m["n_landmarks"] > 10 and m["resample_count"] == 0
+    assert (out / "map.csv").read_text().splitlines()[0] == "x,y,cov_xx,cov_xy,cov_yy,hits"
+    assert not (out / "ess.png").exists()

@@ -294,6 +294,21 @@ def test_inconsistent_management_keys_are_accepted_with_management_off():
     assert cfg.map.p_false == 0.9
 
 
+@pytest.mark.parametrize("items, fragments", [
+    (["noise.forgetting=1.0"], ["noise.forgetting", "< 1"]),
+    (["noise.forgetting=0"], ["noise.forgetting", "> 0"]),
+    (["noise.adaptive_floor=1.5"], ["noise.adaptive_floor", "<= 1"]),
+    (["noise.adaptive=true", "filter.method=ekf_slam"], ["noise.adaptive", "ekf_slam", "nasrukf", "nano", "ufastslam"]),
+    (["noise.adaptive=true", "filter.method=fastslam1"], ["noise.adaptive", "fastslam1"]),
+    (["nasrukf.feature=line"], ["nasrukf.feature", "'point'", "'arc'"]),
+    (["nasrukf.new_feature_hits=0"], ["nasrukf.new_feature_hits", ">= 1"]),
+])
+def test_adaptive_noise_and_nasrukf_keys_are_validated(items, fragments):
+    msg = _error(items)
+    for f in fragments:
+        assert f in msg, (f, msg)
+
+
 def test_config_error_is_a_value_error():
     assert issubclass(ConfigError, ValueError)
 
@@ -466,7 +481,7 @@ def test_base_config_errors_name_the_file(tmp_path):
         load_config(tmp_path / "e.yaml")
 
 
-@pytest.mark.parametrize("method", ["fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam"])
+@pytest.mark.parametrize("method", ["fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam", "nasrukf"])
 def test_method_configs_differ_from_nano_only_in_method(method):
     root = Path(__file__).resolve().parent.parent / "configs"
     nano = config_to_dict(load_config(root / "victoria_park_nano.yaml"))

@@ -23,6 +23,7 @@ from nanoslam_jax.filter import _ekf_slam, _joint_gaussian
 from nanoslam_jax.filter._joint_gaussian import landmark_blocks
 from nanoslam_jax.metrics import landmark_errors
 from nanoslam_jax.models import vehicle_step
+from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, float_leaves, simulated
 
 SIM = ["sim.duration=60", "filter.method=ekf_slam"]
 CHUNK = 100
@@ -203,21 +204,13 @@ def test_prediction_equals_dense_joint_linearisation():
 
 @pytest.fixture(scope="module")
 def sim():
-    cfg = load_config(None, SIM + ["filter.capacity=256"])
-    log = load_log(cfg)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    return log, static, params
+    return simulated(SIM + ["filter.capacity=256"])
 
 
 @pytest.fixture(scope="module")
 def sim_run(sim):
     log, static, params = sim
     return run_filter(static, params, log.segments, 0, chunk=CHUNK)
-
-
-def float_leaves(tree):
-    return [np.asarray(a) for a in jax.tree.leaves(tree)
-            if not jnp.issubdtype(jnp.asarray(a).dtype, jax.dtypes.prng_key) and np.issubdtype(np.asarray(a).dtype, np.floating)]
 
 
 def test_tracks_truth_and_maps_trees(sim, sim_run):
@@ -230,22 +223,8 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
     1.0 m of a true tree, their median error < 0.5 m."""
     log, static, params = sim
     run = sim_run
-    for a in float_leaves(run.outputs) + float_leaves(run.state):
-        assert np.all(np.isfinite(a))
     o = run.outputs
-    assert int(np.sum(o.n_nonfinite)) == 0 and int(run.state.overflow) == 0
-    t = np.asarray(log.segments.time)
-    tp = log.raw.truth_poses
-    truth = np.stack([np.interp(t, tp[:, 0], tp[:, 1]), np.interp(t, tp[:, 0], tp[:, 2])], axis=1)
-    err = np.hypot(*(np.asarray(o.best_pose)[:, :2] - truth).T)
-    assert np.sqrt(np.mean(err**2)) < 0.5 and err.max() < 1.0, (np.sqrt(np.mean(err**2)), err.max())
-    np.testing.assert_array_equal(np.asarray(o.best_pose), np.asarray(o.mean_pose))
-    assert np.mean(o.n_associated) > 1.0  # the filter really associates
-    lm = reported_map(run.state)
-    sel = np.asarray(lm.active) & (np.asarray(lm.hits) >= 3)
-    assert sel.sum() >= 15
-    e2t = landmark_errors(np.asarray(lm.mean)[sel], log.raw.truth_landmarks)["est_to_true"]
-    assert np.mean(e2t < 1.0) >= 0.9 and np.median(e2t) < 0.5, e2t
+    lm = assert_tracks_truth_and_maps_trees(log, run, rmse=0.5, max_error=1.0, associations=1.0, median=0.5)
     # The state is consistent: active slots a prefix, count = landmarks, P exactly symmetric
     # and positive definite on the active part, inactive slots untouched.
     st = run.state
@@ -290,18 +269,8 @@ def test_capacity_does_not_change_results(sim, sim_run):
 def test_padding_segments_are_noops(sim, sim_run):
     """Padding (valid False), whether zero segments or real ones, leaves the state bit for bit."""
     log, static, params = sim
-    state = sim_run.state
-    seg = jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[:CHUNK]), log.segments)
-    invalid = jnp.zeros(CHUNK, bool)
-    for s in (seg, jax.tree.map(jnp.zeros_like, seg)):
-        new, out = _scan._chunk(static, params, state, s, invalid)
-        assert isinstance(new, EkfSlamState)
-        for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(new)):
-            if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
-                a, b = jax.random.key_data(a), jax.random.key_data(b)
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-        assert np.all(np.asarray(out.n_associated) == 0) and np.all(np.asarray(out.n_new) == 0)
-        np.testing.assert_array_equal(np.asarray(out.best_pose), np.broadcast_to(np.asarray(state.mean[:3]), (CHUNK, 3)))
+    assert isinstance(sim_run.state, EkfSlamState)
+    assert_padding_is_noop(static, params, sim_run.state, log.segments, CHUNK, sim_run.state.mean[:3])
 
 
 def test_step_output_matches_particle_filter_dtypes(sim, sim_run):

@@ -192,6 +192,27 @@ def test_method_tracks_simulated_truth(sim_log, method, extra, bound):
     assert int(np.sum(run.state.overflow)) == 0
 
 
+def test_adaptive_noise_estimate_of_the_particles_converges_to_the_true_noise():
+    """``noise.adaptive`` in the particle filter (FastSLAM 2.0, 4 particles): each particle
+    re-estimates R from its residuals at the prior. The simulator's detections carry sigma_r 0.3 m,
+    sigma_beta 1 deg; the filter starts from 1.0 m and 3 deg (control noise at its true value, no
+    clutter, wide gates so the gate does not truncate the residuals). Measured after 60 s (913
+    residuals per particle, b = 0.99): 0.302-0.303 m, 1.030-1.062 deg. Bounds: within 10 %."""
+    overrides = SIM + ["filter.method=fastslam2", "filter.n_particles=4", "noise.adaptive=true", "noise.sigma_r=1.0",
+                       "noise.sigma_beta_deg=3.0", "noise.sigma_v=0.1", "noise.sigma_alpha_deg=0.5", "filter.gate=20",
+                       "filter.new_landmark=40", "sim.clutter_rate=0"]
+    cfg = load_config(None, overrides)
+    log = load_log(cfg)
+    static, params = settings_from_config(cfg, log.segments.k_max)
+    run = run_filter(static, params, log.segments, 0, chunk=1000)
+    p = run.state.particles
+    assert np.all(np.asarray(p.noise_count) > 500)
+    np.testing.assert_allclose(np.sqrt(np.asarray(p.noise)), np.broadcast_to([cfg.sim.sigma_r, np.radians(cfg.sim.sigma_beta_deg)], (4, 2)),
+                               rtol=0.1)
+    m = evaluate(np.asarray(log.segments.time), np.asarray(run.outputs.best_pose)[:, :2], log.raw.gps, frame="slam")
+    assert m["rmse_fixed"] < 0.5
+
+
 # ----------------------------------------------------------------------------- nanoslam compare
 
 
@@ -261,5 +282,12 @@ def test_compare_cli_bad_spec_exits_cleanly(tmp_path, capsys):
 def test_table1_config_is_valid():
     spec = load_compare_spec(Path(__file__).resolve().parent.parent / "configs" / "table1.yaml")
     methods = [load_config(spec.base, list(spec.set) + list(m.set)).filter.method for m in spec.methods]
-    assert methods == ["ekf_slam", "fastslam1", "fastslam2", "ufastslam", "iterated", "nano"]
+    assert methods == ["ekf_slam", "fastslam1", "fastslam2", "ufastslam", "iterated", "nano", "nasrukf"]
     assert spec.seeds == 8
+
+
+def test_nasrukf_ablation_config_is_valid():
+    spec = load_compare_spec(Path(__file__).resolve().parent.parent / "configs" / "table_nasrukf_ablation.yaml")
+    cfgs = [load_config(spec.base, list(spec.set) + list(m.set)) for m in spec.methods]
+    assert {c.filter.method for c in cfgs} == {"nasrukf"} and spec.seeds == 1
+    assert [c.noise.adaptive for c in cfgs] == [False, False, True, True, False]

@@ -75,6 +75,8 @@ def test_tiny_log_split_into_extra_segments(tiny):
     diam = np.zeros((6, 2))
     diam[0, 0], diam[1, 0], diam[1, 1], diam[5, 0] = 0.3, 0.21, 0.23, 0.25
     assert np.allclose(seg.diam, diam, rtol=0, atol=1e-12)
+    # the extra segments splitting the 1.38 -> 2.3 gap are not scans
+    np.testing.assert_array_equal(seg.is_scan, [True, True, True, False, False, True])
 
 
 def test_tiny_log_without_split(tiny):

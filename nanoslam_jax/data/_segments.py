@@ -156,7 +156,7 @@ def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.
 
     Returns:
         :class:`Segments` of numpy arrays: ``time (S,)``, ``dt (S, D)``, ``u (S, D, 2)``,
-        ``dr_mask (S, D)``, ``z (S, K, 2)``, ``z_mask (S, K)``, ``diam (S, K)`` with ``D = max_dr_per_segment``
+        ``dr_mask (S, D)``, ``z (S, K, 2)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)`` with ``D = max_dr_per_segment``
         and ``K = k_max``; padding is zero with the mask False.
 
     Raises:
@@ -178,7 +178,8 @@ def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.
     keep = (det[:, 1] >= min_range) & (det[:, 1] < max_range)
     z, z_mask, diam = _detections(det[keep, 1:4], scan_of_det[keep], scan_times, np.flatnonzero(layout["is_scan"]),
                             layout["time"].size, k_max, f"{min_range} <= range < {max_range} m")
-    return Segments(time=layout["time"], dt=dt, u=u, dr_mask=dr_mask, z=z, z_mask=z_mask, diam=diam)
+    return Segments(time=layout["time"], dt=dt, u=u, dr_mask=dr_mask, z=z, z_mask=z_mask, diam=diam,
+                    is_scan=layout["is_scan"])
 
 
 def segment_summary(seg: Segments) -> dict[str, int]:

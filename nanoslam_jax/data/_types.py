@@ -55,6 +55,9 @@ class Segments(NamedTuple):
         z_mask: which detections are real.
         diam: the tree diameter reported with each detection (m; the 4th column of
             ``measurements.dat``; 0 for padding).
+        is_scan: the segment ends at a laser scan (False for the extra segments that split a long
+            gap between scans, and for padding): only a scan is evidence that a landmark in view
+            was not detected.
     """
 
     time: Float[Array, "segments"]
@@ -64,6 +67,7 @@ class Segments(NamedTuple):
     z: Float[Array, "segments k_max 2"]
     z_mask: Bool[Array, "segments k_max"]
     diam: Float[Array, "segments k_max"]
+    is_scan: Bool[Array, "segments"]
 
     @property
     def n_segments(self) -> int:

@@ -38,6 +38,7 @@ from ._resampling import (
 )
 from ._scan import (
     AVAILABLE_METHODS as AVAILABLE_METHODS,
+    GAUSSIAN_METHODS as GAUSSIAN_METHODS,
     FilterRun as FilterRun,
     dead_reckoning as dead_reckoning,
     filter_scan as filter_scan,
@@ -58,3 +59,22 @@ from ._state import (
 )
 from ._step import StepOutput as StepOutput, filter_step as filter_step
 from ._ekf_slam import EkfSlamState as EkfSlamState, init_ekf_state as init_ekf_state, ekf_slam_step as ekf_slam_step
+from ._nasrukf import (
+    NasrukfFeatures as NasrukfFeatures,
+    NasrukfState as NasrukfState,
+    fuse_poses as fuse_poses,
+    init_nasrukf_state as init_nasrukf_state,
+    nasrukf_step as nasrukf_step,
+)
+from ._srukf import (
+    SigmaMeasurement as SigmaMeasurement,
+    adaptive_noise_rows as adaptive_noise_rows,
+    adaptive_noise_update as adaptive_noise_update,
+    chol_rank_one as chol_rank_one,
+    chol_rank_update as chol_rank_update,
+    forgetting_weight as forgetting_weight,
+    measurement_update as measurement_update,
+    predict_measurement as predict_measurement,
+    qr_factor as qr_factor,
+    srukf_transform as srukf_transform,
+)

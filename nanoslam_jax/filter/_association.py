@@ -97,20 +97,55 @@ def associate(
             ``sigma_diameter^2``). The distance is then a 3-dof chi-square; the gates apply to it.
         sigma_diameter: diameter measurement noise (m).
     """
-    k_max = z.shape[0]
-    window = local.active.shape[0]
     # Provisional landmarks, one per detection, initialised at the prior mean.
     prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None))(x, z, R)
+    mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
+    z_hat, s_inv = innovation_information(x, P, mean, cov, R)
+    diam_term = None
+    if diam is not None:
+        var_d = jnp.square(sigma_diameter)
+        slot_diam = jnp.concatenate([local.diam, diam])
+        slot_var = jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, diam.shape)]) + var_d
+        diam_term = (diam, slot_diam, 1.0 / slot_var, use_diameter)
+    return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term)
+
+
+def nearest_neighbours(
+    z_hat: tuple[Float[Array, "slots"], Float[Array, "slots"]],
+    s_inv: tuple[Float[Array, "slots"], Float[Array, "slots"], Float[Array, "slots"]],
+    active: Bool[Array, "window"],
+    z: Float[Array, "k_max 2"],
+    z_mask: Bool[Array, "k_max"],
+    gate: Float[Array, ""],
+    new_landmark: Float[Array, ""],
+    sequential: bool = True,
+    diam_term: tuple | None = None,
+) -> Association:
+    """The association rule of :func:`associate`, given every slot's predicted detection and
+    innovation information (for filters whose innovation covariances are their own, e.g. NASRUKF's
+    joint pose-feature states).
+
+    Args:
+        z_hat: predicted range and bearing of each slot: the ``window`` slots of the local map,
+            then one provisional landmark per detection (``slots = window + k_max``).
+        s_inv: the entries ``(a00, a01, a11)`` of each slot's inverse innovation covariance.
+        active: which of the ``window`` local slots hold a landmark.
+        z, z_mask, gate, new_landmark, sequential: as for :func:`associate`.
+        diam_term: ``(diam, slot_diam, slot_info, use)``: each detection's diameter, each slot's
+            diameter estimate and ``1 / (var_j + sigma_diameter^2)``, and whether the term
+            ``(d_k - d_j)^2 slot_info_j`` is added to the distances (see :func:`associate`);
+            None: no diameter term.
+    """
+    k_max = z.shape[0]
+    window = active.shape[0]
     # Components kept apart: stacking each detection's innovations (range, bearing) into one array
     # per loop step cost ~12 % of the association on CPU.
-    mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
-    (zr, zb), (a00, a01, a11) = innovation_information(x, P, mean, cov, R)
-    active = jnp.concatenate([local.active, jnp.zeros(k_max, bool)])
-    if diam is None:
-        diam, use_diameter = jnp.zeros(k_max, z.dtype), False
-    var_d = jnp.square(sigma_diameter)
-    slot_diam = jnp.concatenate([local.diam, diam])
-    slot_info = 1.0 / (jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, (k_max,))]) + var_d)
+    (zr, zb), (a00, a01, a11) = z_hat, s_inv
+    active = jnp.concatenate([active, jnp.zeros(k_max, bool)])
+    if diam_term is None:
+        diam, slot_diam, slot_info, use_diameter = jnp.zeros(k_max, z.dtype), 0.0, 0.0, False
+    else:
+        diam, slot_diam, slot_info, use_diameter = diam_term
 
     def distances(zk, dk):
         nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)

@@ -80,7 +80,7 @@ class EkfSlamState(NamedTuple):
         key: PRNG key (unused by the filter; carried for the driver).
         resample_count: always 0 (no particles).
         overflow: new landmarks dropped so far because the state was full.
-        scan: real segments processed so far (the clock of ``born``).
+        scan: laser scans processed so far (the clock of ``born``).
     """
 
     mean: Float[Array, "n"]
@@ -263,7 +263,7 @@ def ekf_slam_step(
         radius = params.max_range + params.window_margin
         local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius)
         local = manage_window(local, mean[:3], c.seen.at[idx].get(mode="fill", fill_value=False), seg.z, z_mask,
-                              seg.diam, valid, state.scan, params.max_range, mp, static.occlusion)
+                              seg.diam, valid & seg.is_scan, state.scan, params.max_range, mp, static.occlusion)
         managed = drop_stale(scatter_window(full, local, idx), state.scan, mp)
         remove = old & ~managed.active
         created = book.active & ~old
@@ -276,7 +276,7 @@ def ekf_slam_step(
     new_state = EkfSlamState(
         mean=mean, cov=cov, landmarks=book, count=count, key=state.key,
         resample_count=state.resample_count, overflow=state.overflow + c.overflow,
-        scan=state.scan + valid.astype(jnp.int32),
+        scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
     )
     record = StepOutput(
         best_pose=x, mean_pose=x, ess=jnp.ones((), dtype=x.dtype), resampled=jnp.zeros((), bool),

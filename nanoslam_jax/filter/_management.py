@@ -105,7 +105,7 @@ def manage_window(
     z: Float[Array, "k 2"],
     z_mask: Bool[Array, "k"],
     diam: Float[Array, "k"],
-    valid: Bool[Array, ""],
+    observed: Bool[Array, ""],
     scan: Int[Array, ""],
     max_range: Float[Array, ""],
     mp: MapParams,
@@ -119,7 +119,8 @@ def manage_window(
         pose: the particle's (sampled) pose.
         seen: which local landmarks a detection of this scan was associated with.
         z, z_mask, diam: the scan's detections (occluders when ``occlusion``).
-        valid: False for a padding segment (no misses are counted).
+        observed: the segment is a laser scan (False for padding and for the segments that split
+            a long gap between scans: no misses are counted).
         scan: the current scan (the clock of ``born``).
         max_range: the sensor's range (m).
         mp: management hyperparameters.
@@ -130,7 +131,7 @@ def manage_window(
         The local map with updated ``log_odds``, ``misses``, ``confirmed`` and ``active``.
     """
     z_pred = jax.vmap(range_bearing, (None, 0))(pose, local.mean)
-    missed = valid & local.active & ~seen & in_view(z_pred, max_range, mp)
+    missed = observed & local.active & ~seen & in_view(z_pred, max_range, mp)
     if occlusion:
         occ_z = jnp.concatenate([z, z_pred])
         occ_radius = jnp.concatenate([0.5 * diam, 0.5 * local.diam])

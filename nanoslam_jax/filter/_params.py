@@ -49,6 +49,8 @@ class Static:
     iterated_max_iter: int = 10
     iterated_tol: float = 1e-8
     iterated_landmark_noise: bool = True
+    adaptive_noise: bool = False
+    nasrukf_feature: str = "point"
 
     @property
     def window_size(self) -> int:
@@ -138,6 +140,9 @@ class Params(NamedTuple):
         window_margin: landmarks within ``max_range + window_margin`` of a particle's prior
             position enter its local window (m).
         map: landmark-management hyperparameters (see :class:`MapParams`).
+        forgetting: forgetting factor ``b`` of the adaptive measurement-noise estimate.
+        noise_floor: smallest adaptive noise variance, as a fraction of the configured one.
+        new_feature_hits: NASRUKF's ``N_new``: detections a feature needs before it updates the pose.
     """
 
     vehicle: VehicleParams
@@ -161,6 +166,9 @@ class Params(NamedTuple):
     max_range: Float[ArrayLike, ""]
     window_margin: Float[ArrayLike, ""]
     map: "MapParams"
+    forgetting: Float[ArrayLike, ""]
+    noise_floor: Float[ArrayLike, ""]
+    new_feature_hits: Float[ArrayLike, ""]
 
     @property
     def R(self) -> Float[Array, "2 2"]:
@@ -217,6 +225,8 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
         iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
         devices=particle_devices(f.split_devices, f.n_particles),
+        adaptive_noise=nz.adaptive,
+        nasrukf_feature=cfg.nasrukf.feature,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     mp = cfg.map
@@ -240,5 +250,6 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         resample_threshold=a(f.resample_threshold), gamma=a(n.gamma), step=a(n.step),
         nano_alpha=a(n.ut_alpha), nano_beta=a(n.ut_beta), nano_kappa=a(n.ut_kappa),
         max_range=a(cfg.data.max_range), window_margin=a(f.window_margin), map=map_params,
+        forgetting=a(nz.forgetting), noise_floor=a(nz.adaptive_floor), new_feature_hits=a(cfg.nasrukf.new_feature_hits),
     )
     return static, params

@@ -27,8 +27,10 @@ from ._state import FilterState, LandmarkMap, init_state
 from ._step import StepOutput, filter_step
 
 
-#: Methods that run today (the config also names the comparison methods still to come).
-AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam")
+#: Methods that run today.
+AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam", "nasrukf")
+#: Methods without particles: their state is Gaussian and a run does not depend on the seed.
+GAUSSIAN_METHODS = ("ekf_slam", "nasrukf")
 
 
 def make_proposal(static: Static, params: Params) -> AbstractProposal:
@@ -60,6 +62,10 @@ def _masked_step(static: Static, params: Params, state, inp: tuple):
         from ._ekf_slam import ekf_slam_step
 
         return ekf_slam_step(static, params, state, seg, valid)
+    if static.method == "nasrukf":
+        from ._nasrukf import nasrukf_step
+
+        return nasrukf_step(static, params, state, seg, valid)
     return filter_step(static, params, make_proposal(static, params), state, seg, valid, rel_prior)
 
 
@@ -67,25 +73,31 @@ def segment_priors(
     static: Static, params: Params, segments: Segments
 ) -> Optional[tuple[Float[Array, "segments 3"], Float[Array, "segments 3 3"]]]:
     """Every segment's :func:`relative_prior` (the prior in the frame of the segment's start pose,
-    shared by all particles), or None where the particles' priors are their own (EKF-SLAM,
+    shared by all particles), or None where the particles' priors are their own (EKF-SLAM, NASRUKF,
     ``filter.prior_cov: carry``). It depends on the controls and the hyperparameters only, so
     :func:`filter_scan` computes it for all segments at once, before the scan."""
-    if static.method == "ekf_slam" or static.prior_cov != "reset":
+    if static.method in GAUSSIAN_METHODS or static.prior_cov != "reset":
         return None
     return jax.vmap(relative_prior, (0, 0, 0, None, None))(segments.dt, segments.u, segments.dr_mask, params, static.prior)
 
 
 def initial_state(static: Static, params: Params, key: Key[Array, ""]):
-    """The state a run starts from: a :class:`FilterState`, or an ``EkfSlamState`` for EKF-SLAM."""
+    """The state a run starts from: a :class:`FilterState`, an ``EkfSlamState`` for EKF-SLAM or a
+    ``NasrukfState`` for NASRUKF."""
     if static.method == "ekf_slam":
         from ._ekf_slam import init_ekf_state
 
         return init_ekf_state(static, params, key)
+    if static.method == "nasrukf":
+        from ._nasrukf import init_nasrukf_state
+
+        return init_nasrukf_state(static, params, key)
     return init_state(static, params, key)
 
 
 def reported_map(state) -> LandmarkMap:
-    """The map of the reported estimate: the best particle's, or EKF-SLAM's marginals.
+    """The map of the reported estimate: the best particle's, or the marginals of EKF-SLAM's or
+    NASRUKF's features.
 
     Works on a single state; ``jax.vmap`` it over a batched state.
     """

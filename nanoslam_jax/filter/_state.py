@@ -21,7 +21,7 @@ class LandmarkMap(NamedTuple):
         misses: scans in which the landmark was in view, not hidden and not detected.
         log_odds: existence log-odds (landmark management; see ``map`` in the config).
         confirmed: the landmark has been confirmed (else it is tentative).
-        born: the scan (count of real segments before it) in which the landmark was started.
+        born: the scan (count of laser scans before it) in which the landmark was started.
         diam: estimated tree diameter (m).
         diam_var: variance of the diameter estimate (m^2).
     """
@@ -63,12 +63,17 @@ class Particles(NamedTuple):
         pose_cov: each particle's last proposal covariance (used when ``prior_cov='carry'``).
         log_w: normalised log-weights (logsumexp = 0).
         landmarks: per-particle maps.
+        noise: each particle's measurement-noise variances (range, bearing): the configured ones, or
+            its adaptive estimate (``noise.adaptive``).
+        noise_count: residuals each particle's adaptive estimate has seen.
     """
 
     pose: Float[Array, "particles 3"]
     pose_cov: Float[Array, "particles 3 3"]
     log_w: Float[Array, "particles"]
     landmarks: LandmarkMap
+    noise: Float[Array, "particles 2"]
+    noise_count: Int[Array, "particles"]
 
 
 class FilterState(NamedTuple):
@@ -80,7 +85,7 @@ class FilterState(NamedTuple):
         best: index of the highest-weight particle (tracked through resampling).
         resample_count: resampling steps so far.
         overflow: new landmarks dropped so far because a particle's map was full (all particles).
-        scan: real segments processed so far (the clock of the landmarks' ``born``).
+        scan: laser scans processed so far (the clock of the landmarks' ``born``).
     """
 
     particles: Particles
@@ -99,6 +104,8 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
         log_w=jnp.full((n,), -jnp.log(n)),
         landmarks=LandmarkMap.empty(static.capacity, (n,)),
+        noise=jnp.broadcast_to(jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)]), (n, 2)),
+        noise_count=jnp.zeros(n, jnp.int32),
     )
     zero = jnp.zeros((), jnp.int32)
     return FilterState(particles, key, zero, zero, zero, zero)

@@ -33,6 +33,7 @@ from ._params import Params, Static
 from ._prior import compose_prior, predict, relative_prior
 from ._resampling import effective_sample_size, normalise, resample
 from ._management import diameter_update, drop_stale, manage_window, new_landmarks
+from ._srukf import adaptive_noise_rows
 from ._state import FilterState, LandmarkMap, Particles, count_confirmed, count_landmarks, slots_in_use
 
 
@@ -86,6 +87,8 @@ class _ParticleOut(NamedTuple):
     overflow: Int[Array, ""]
     n_landmarks: Int[Array, ""]
     n_confirmed: Int[Array, ""]
+    noise: Float[Array, "2"]
+    noise_count: Int[Array, ""]
 
 
 def _proposal_over_rows(
@@ -129,13 +132,16 @@ def particle_update(
     slot_bucket: Int[Array, ""] | None = None,
     diam: Float[Array, "k"] | None = None,
     scan: Int[Array, ""] | int = 0,
+    noise: Float[Array, "2"] | None = None,
+    noise_count: Int[Array, ""] | None = None,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
     ``eps`` is the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
 
-    ``valid`` False marks a padding segment: landmark management then counts no misses (the
-    caller masks the pose and weight; with no detections the map is unchanged).
+    ``valid`` False marks a segment that is not a laser scan (padding, or a segment splitting a
+    long gap between scans): landmark management then counts no misses (for padding the caller
+    masks the pose and weight; with no detections the map is unchanged).
 
     ``rel_prior``: the segment's :func:`relative_prior`, shared by all particles, with
     ``static.prior_cov == 'reset'``; the prior is then placed at ``pose`` instead of propagated
@@ -146,14 +152,24 @@ def particle_update(
     particles, so under ``vmap`` it stays a branch.
 
     ``diam``: the diameter reported with each detection (``None``: zeros); ``scan``: the count of
-    real segments before this one (the clock of the landmarks' ``born``).
+    laser scans before this one (the clock of the landmarks' ``born``).
 
     With ``static.manage`` (landmark management, :mod:`._management`) only the rows matched to
     confirmed landmarks (all matched rows with ``map.use_tentative``) shape the proposal and the
     weight; a row that matched a tentative landmark then weighs as a new landmark does (``p0``).
+
+    ``noise``, ``noise_count``: the particle's adaptive measurement-noise variances and how many
+    residuals they have seen (``static.adaptive_noise``; default: the configured noise). The scan
+    is associated with them; then each associated detection's residual at the prior updates them
+    in order (eq. 11 of the NASRUKF paper with ``Gx P Gx' + Gm Sigma Gm'`` as the predicted
+    covariance, :func:`~._srukf.adaptive_noise_rows`) and the proposal, landmark updates and weight
+    use the result.
     """
-    R = params.R
     mp = params.map
+    configured = jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)])
+    noise = configured if noise is None else noise
+    noise_count = jnp.zeros((), jnp.int32) if noise_count is None else noise_count
+    R = jnp.diag(noise) if static.adaptive_noise else params.R
     W, K = static.window_size - static.k_max, static.k_max
     diam = jnp.zeros(K, z.dtype) if diam is None else diam
     if rel_prior is not None:
@@ -181,6 +197,12 @@ def particle_update(
     used = existing & trusted
     # Rows that match no used landmark are masked out everywhere they are used.
     det = Detections(z, local.mean[ws], local.cov[ws], used)
+    if static.adaptive_noise:
+        z_prior, S_prior = predicted_measurements(x0, P0, local.mean[ws], local.cov[ws], R)
+        _, noise, noise_count = adaptive_noise_rows(
+            noise, noise_count, jax.vmap(innovation)(z, z_prior), jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
+            existing, params.forgetting, params.noise_floor * configured)
+        R = jnp.diag(noise)
 
     prop = _proposal_over_rows(proposal, x0, P0, det, R, z_mask, static.row_buckets)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
@@ -251,7 +273,7 @@ def particle_update(
         result=jnp.where(has_assoc, prop.result, 0), has_assoc=has_assoc,
         n_associated=jnp.sum(matched), n_new=jnp.sum(assoc.is_new),
         window_overflow=window_overflow, overflow=overflow, n_landmarks=count_landmarks(lm).astype(jnp.int32),
-        n_confirmed=count_confirmed(lm).astype(jnp.int32),
+        n_confirmed=count_confirmed(lm).astype(jnp.int32), noise=noise, noise_count=noise_count,
     )
 
 
@@ -334,15 +356,18 @@ def _step(
     # sweep's vmap: of the batch), where the local windows are searched.
     in_use = slots_in_use(p.landmarks)
     slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5)(
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0))(
         static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
-        seg.z_mask, mine(eps), valid, rel_prior, slot_bucket, seg.diam, state.scan)
+        seg.z_mask, mine(eps), valid & seg.is_scan, rel_prior, slot_bucket, seg.diam, state.scan, mine(p.noise),
+        mine(p.noise_count))
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
         pose=jnp.where(valid, out.pose, p.pose),
         pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),
         dlogw=jnp.where(valid, out.dlogw, 0.0),
+        noise=jnp.where(valid, out.noise, p.noise),
+        noise_count=jnp.where(valid, out.noise_count, p.noise_count),
     )
     log_w = p.log_w + out.dlogw
     finite = jnp.any(jnp.isfinite(log_w))
@@ -351,7 +376,7 @@ def _step(
     log_w = jnp.where(valid, log_w, p.log_w)
     ess = effective_sample_size(log_w)
     best = jnp.argmax(log_w).astype(jnp.int32)
-    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks)
+    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count)
 
     record = StepOutput(
         best_pose=out.pose[best],
@@ -402,6 +427,6 @@ def _step(
         particles=particles, key=key, best=best,
         resample_count=state.resample_count + record.resampled.astype(jnp.int32),
         overflow=state.overflow + record.overflow,
-        scan=state.scan + valid.astype(jnp.int32),
+        scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
     )
     return new_state, record

@@ -1,0 +1,66 @@
+"""Checks shared by the tests of the methods without particles (EKF-SLAM, NASRUKF): a run on a
+simulated log against its true path and trees, and padding segments that leave the state as it was."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nanoslam_jax.config import load_config
+from nanoslam_jax.experiment import load_log
+from nanoslam_jax.filter import _scan, reported_map, settings_from_config
+from nanoslam_jax.metrics import landmark_errors
+
+
+def simulated(overrides):
+    """The log of the embedded default config with ``overrides`` and the filter settings for it."""
+    cfg = load_config(None, overrides)
+    log = load_log(cfg)
+    return (log, *settings_from_config(cfg, log.segments.k_max))
+
+
+def float_leaves(tree):
+    return [np.asarray(a) for a in jax.tree.leaves(tree)
+            if not jnp.issubdtype(jnp.asarray(a).dtype, jax.dtypes.prng_key) and np.issubdtype(np.asarray(a).dtype, np.floating)]
+
+
+def true_positions(log):
+    """The simulated log's true laser positions at its segments' times."""
+    t = np.asarray(log.segments.time)
+    tp = log.raw.truth_poses
+    return np.stack([np.interp(t, tp[:, 0], tp[:, 1]), np.interp(t, tp[:, 0], tp[:, 2])], axis=1)
+
+
+def assert_tracks_truth_and_maps_trees(log, run, *, rmse: float, max_error: float, associations: float, median: float):
+    """Everything finite; position RMSE and largest error against the truth below the bounds; the
+    reported estimate is the mean; at least 15 landmarks with >= 3 hits, >= 90 % of them within
+    1 m of a true tree and their median error below ``median``. Returns the reported map."""
+    for a in float_leaves(run.outputs) + float_leaves(run.state):
+        assert np.all(np.isfinite(a))
+    o = run.outputs
+    assert int(np.sum(o.n_nonfinite)) == 0 and int(run.state.overflow) == 0
+    err = np.hypot(*(np.asarray(o.best_pose)[:, :2] - true_positions(log)).T)
+    assert np.sqrt(np.mean(err**2)) < rmse and err.max() < max_error, (np.sqrt(np.mean(err**2)), err.max())
+    np.testing.assert_array_equal(np.asarray(o.best_pose), np.asarray(o.mean_pose))
+    assert np.mean(o.n_associated) > associations  # the filter really associates
+    lm = reported_map(run.state)
+    sel = np.asarray(lm.active) & (np.asarray(lm.hits) >= 3)
+    assert sel.sum() >= 15
+    e2t = landmark_errors(np.asarray(lm.mean)[sel], log.raw.truth_landmarks)["est_to_true"]
+    assert np.mean(e2t < 1.0) >= 0.9 and np.median(e2t) < median, e2t
+    return lm
+
+
+def assert_padding_is_noop(static, params, state, segments, chunk: int, pose):
+    """Padding (valid False), whether zero segments or real ones, leaves ``state`` bit for bit and
+    reports ``pose`` with no associations."""
+    seg = jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[:chunk]), segments)
+    invalid = jnp.zeros(chunk, bool)
+    for s in (seg, jax.tree.map(jnp.zeros_like, seg)):
+        new, out = _scan._chunk(static, params, state, s, invalid)
+        assert type(new) is type(state)
+        for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(new)):
+            if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+                a, b = jax.random.key_data(a), jax.random.key_data(b)
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        assert np.all(np.asarray(out.n_associated) == 0) and np.all(np.asarray(out.n_new) == 0)
+        np.testing.assert_array_equal(np.asarray(out.best_pose), np.broadcast_to(np.asarray(pose), (chunk, 3)))
