@@ -3,6 +3,8 @@
 * ``<!-- nanoslam:config-reference -->`` becomes the config reference generated from the config
   dataclasses (:func:`nanoslam_jax.config_reference.reference_markdown`, the generator behind
   ``nanoslam config``).
+* The package's docstrings use Sphinx roles (``:func:`run_filter```), which Markdown renders as
+  text: ``on_page_content`` drops the role and keeps the code, shortened as ``~`` asks.
 * ``<!-- nanoslam:benchmark -->`` and ``<!-- nanoslam:second-run -->`` become the benchmark table
   and the second-run table of ``docs/data/benchmark.json``, written by
   ``python experiments/benchmark.py --json docs/data/benchmark.json`` and formatted by that
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,3 +41,15 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
         if marker in markdown:
             markdown = markdown.replace(marker, _benchmark_markdown(part))
     return markdown
+
+
+_ROLE = re.compile(r":(?:func|class|meth|mod|attr|data|obj|exc|const):<code>(~?)([^<]*)</code>")
+
+
+def _code(m: re.Match) -> str:
+    name = m.group(2).rsplit(".", 1)[-1] if m.group(1) else m.group(2)
+    return f"<code>{name}</code>"
+
+
+def on_page_content(html: str, page, config, files) -> str:
+    return _ROLE.sub(_code, html)

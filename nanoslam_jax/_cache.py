@@ -5,13 +5,25 @@ static settings and the log's segment shapes, so a second run loads it from disk
 :func:`enable_compile_cache` points JAX's persistent compilation cache at one directory:
 ``$NANOSLAM_CACHE_DIR`` when set, else ``$XDG_CACHE_HOME/nanoslam-jax/jax`` (``~/.cache/...``).
 
-Why the cache is safe across versions: JAX's cache key is a hash of the compiled module (every
-static shape, constant and branch, so every static config setting and the segment shapes), the
-compile options and XLA flags, the device kind and count, and the versions of jax, jaxlib and XLA.
-Any change of this project's code that changes the program changes the module, hence the key; a
-change that does not change the module gives the same executable. So the project's version is
-not added to the directory: it would add no safety and would only make every upgrade (and every
-editable install, whose version does not move with the commits) recompile from scratch.
+Two layers, both in that directory:
+
+* **XLA executables**, JAX's persistent compilation cache. Its key is a hash of the compiled
+  module (every static shape, constant and branch, so every static config setting and the
+  segment shapes), the compile options and XLA flags, the device kind and count, and the
+  versions of jax, jaxlib and XLA. Any change of this project's code that changes the program
+  changes the module, hence the key; a change that does not change the module gives the same
+  executable. The project's version is not added: it would add no safety and would only make
+  every upgrade (and every editable install, whose version does not move with the commits)
+  recompile from scratch.
+* **Traced programs** (``exported/``), for the filter's chunk program only
+  (:func:`compile_program`): JAX needs the traced and lowered module to compute the key above,
+  and tracing the filter step takes 2-4 s, most of what a second run would still spend. The
+  lowered program is kept with :mod:`jax.export` under a key of our own that covers everything
+  the trace reads: the source of every module of this package, the name and version of every
+  installed distribution (jax, jaxlib, equinox, optimistix, numpy, ...), JAX's configuration
+  (float64, device count, ...), the static settings, and the shapes, dtypes and placement of
+  the arguments. Any edit of the package, any upgrade and any other static setting therefore
+  traces afresh; the XLA layer then still loads the executable when the module is unchanged.
 
 :class:`CompileStats` counts, with JAX's monitoring events (not wall clock around our calls), the
 time spent tracing, lowering and compiling or loading programs and the persistent cache's hits
@@ -21,13 +33,19 @@ and misses, for ``metrics.json`` and the benchmark.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
+import importlib.metadata
 import os
+import pickle
+import tempfile
 from pathlib import Path
-from typing import Optional
+from typing import Any, Callable, Optional
 
 import jax
 
-__all__ = ["CACHE_ENV", "CompileStats", "compile_stats", "default_cache_dir", "enable_compile_cache"]
+__all__ = ["CACHE_ENV", "CompileStats", "compile_program", "compile_stats", "default_cache_dir",
+           "enable_compile_cache", "program_key"]
 
 #: Environment variable that moves the cache directory.
 CACHE_ENV = "NANOSLAM_CACHE_DIR"
@@ -145,3 +163,114 @@ def compile_stats() -> CompileStats:
         jax.monitoring.register_event_duration_secs_listener(_on_duration)
         jax.monitoring.register_event_listener(_on_event)
     return dataclasses.replace(_STATS)
+
+
+# --------------------------------------------------------------------------- traced programs
+
+#: Bumped when the layout of the ``exported/`` entries changes.
+_EXPORT_FORMAT = "nanoslam-export-1"
+
+
+@functools.lru_cache(maxsize=1)
+def _environment_digest() -> str:
+    """Hash of everything outside the arguments that a trace reads: this package's source files,
+    every installed distribution's name and version, and JAX's configuration (cache and logging
+    options aside)."""
+    h = hashlib.sha256(_EXPORT_FORMAT.encode())
+    package = Path(__file__).resolve().parent
+    for f in sorted(package.rglob("*.py")):
+        h.update(str(f.relative_to(package)).encode() + b"\0" + f.read_bytes() + b"\0")
+    dists = sorted({(d.metadata["Name"] or "", d.version) for d in importlib.metadata.distributions()})
+    h.update(repr(dists).encode())
+    return h.hexdigest()
+
+
+def program_key(fn: Callable, static: Any, args: tuple) -> str:
+    """The key of the traced program ``fn(static, *args)`` in the ``exported/`` cache.
+
+    Args:
+        fn: the jitted function (its module and name enter the key).
+        static: its static first argument (its ``repr`` enters the key: a frozen dataclass).
+        args: the traced arguments (their tree structure, shapes, dtypes and placement).
+    """
+    leaves, tree = jax.tree.flatten(args)
+    config = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
+    h = hashlib.sha256(_environment_digest().encode())
+    for part in (f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', repr(fn))}", repr(static), str(tree),
+                 repr(config), repr([(str(jax.typeof(x)), repr(getattr(x, "sharding", None))) for x in leaves]),
+                 repr(jax.devices())):
+        h.update(part.encode() + b"\0")
+    return h.hexdigest()[:40]
+
+
+def _exported_dir() -> Optional[Path]:
+    """Where traced programs are kept: ``exported/`` in the cache directory in use (None: no cache)."""
+    cache = jax.config.jax_compilation_cache_dir
+    return Path(cache) / "exported" if cache else None
+
+
+def _read_exported(path: Path):
+    try:
+        exported, out_tree = pickle.loads(path.read_bytes())
+        return jax.export.deserialize(exported), out_tree
+    except FileNotFoundError:
+        return None
+    except Exception:  # a damaged or foreign entry: trace afresh and overwrite it
+        return None
+
+
+def _write_exported(path: Path, exported, out_tree) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump((bytes(exported.serialize()), out_tree), f)
+        os.chmod(tmp, 0o644)  # as JAX's own entries: a shared cache directory stays readable
+        os.replace(tmp, path)  # atomic: concurrent runs never read half an entry
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
+    """``fn.lower(static, *args).compile()``, loading the traced program from the cache when it can.
+
+    Without a cache directory (:func:`enable_compile_cache` not called, or ``--no-cache``), or for
+    a program split over several devices (``static.devices > 1``), this is exactly
+    ``fn.lower(static, *args).compile()``. Otherwise the lowered program is exported
+    (:mod:`jax.export`) to ``exported/`` under :func:`program_key`, or read from there, and
+    compiled (the XLA layer of the cache then loads the executable). The result is the same
+    program: outputs are identical bit for bit (``tests/test_cache.py``).
+
+    Args:
+        fn: a ``jax.jit`` function whose first argument is static.
+        static: that static argument.
+        *args: example arguments (their shapes, dtypes and placement are those of every call).
+
+    Returns:
+        A callable taking ``*args`` and returning ``fn``'s output.
+    """
+    directory = _exported_dir()
+    if directory is None or getattr(static, "devices", 1) > 1:
+        return fn.lower(static, *args).compile()
+    leaves, in_tree = jax.tree.flatten(args)
+    path = directory / f"{program_key(fn, static, args)}.bin"
+    loaded = _read_exported(path)
+    if loaded is None:
+        box = {}
+
+        def flat(*flat_args):
+            out = fn(static, *jax.tree.unflatten(in_tree, flat_args))
+            out_leaves, box["tree"] = jax.tree.flatten(out)
+            return out_leaves
+
+        exported = jax.export.export(jax.jit(flat))(*leaves)
+        _write_exported(path, exported, box["tree"])
+        loaded = exported, box["tree"]
+    exported, out_tree = loaded
+    compiled = jax.jit(exported.call).lower(*leaves).compile()
+
+    def call(*call_args):
+        return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(call_args)))
+
+    return call

@@ -169,7 +169,7 @@ class NanoConfig:
     ut_beta: float = _f(2.0, lo=0.0, doc="unscented beta (nano.quadrature: unscented)")
     ut_kappa: float = _f(0.0, doc="unscented kappa (nano.quadrature: unscented)")
     hessian: Literal["gauss_newton", "exact"] = _f("gauss_newton", static=True,
-        doc="expected Hessian of the log-likelihood: Gauss-Newton (J' R^-1 J, positive definite) or exact (autodiff)")
+        doc="expected Hessian of the log-likelihood: Gauss-Newton (J' R^-1 J, positive semi-definite) or exact (autodiff)")
     gamma: float = _f(1e-4, lo=0.0, lo_open=True, doc="KL stopping threshold")
     max_iter: int = _f(10, lo=1, static=True, doc="iteration cap")
     step: float = _f(1.0, lo=0.0, lo_open=True, hi=1.0, doc="natural-gradient step beta (damping below 1)")
