@@ -74,6 +74,7 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
     if segments is not None:
         seg = type(seg)(*(a[:segments] for a in seg))
     static, params = settings_from_config(cfg, seg.k_max)
+    load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk)
     total = time.perf_counter() - t0
@@ -92,6 +93,9 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "landmarks": int(jax.numpy.sum(reported_map(run.state).active)),
         "backend": jax.default_backend(),
+        # The machine's 1-minute load average before and after the run: on a shared VM a load
+        # above its cores means the row was measured while other work competed for them.
+        "load": [round(load_before, 2), round(os.getloadavg()[0], 2)],
     }
 
 
@@ -105,6 +109,7 @@ def second_run(config: str, data: str | None) -> dict:
             cmd = [sys.executable, "-m", "nanoslam_jax.cli", "run", config, "--out", str(Path(tmp) / name), "--quiet"]
             if data:
                 cmd += ["--data", data]
+            load = os.getloadavg()[0]
             t0 = time.perf_counter()
             res = subprocess.run(cmd, capture_output=True, text=True, env=env)
             wall = time.perf_counter() - t0
@@ -112,7 +117,8 @@ def second_run(config: str, data: str | None) -> dict:
                 raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
             m = json.loads((Path(tmp) / name / "metrics.json").read_text())
             runs.append(dict(run=name, compile_s=m["compile_s"], run_s=m["run_s"], wall_s=wall,
-                             jax=m["compilation"], rmse_fixed=m["rmse_fixed"]))
+                             jax=m["compilation"], rmse_fixed=m["rmse_fixed"],
+                             load=[round(load, 2), round(os.getloadavg()[0], 2)]))
         identical = all((Path(tmp) / "first" / f).read_bytes() == (Path(tmp) / "second" / f).read_bytes()
                         for f in ("trajectory.csv", "map.csv"))
     return dict(config=config, runs=runs, identical=identical)
@@ -123,12 +129,13 @@ def markdown(result: dict) -> str:
     out = []
     if result.get("rows"):
         head = ("| row | method | particles | devices | capacity | scans | compile [s] | run [s] | ms/scan "
-                "| peak RSS [MB] | landmarks |")
+                "| peak RSS [MB] | landmarks | load before / after |")
         out += [head, "|" + "---|" * (head.count("|") - 1)]
         for r in result["rows"]:
+            load = " / ".join(f"{x:.1f}" for x in r.get("load", ()))
             out.append(f"| {r['name']} | {r['method']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
                        f"{r['scans']} | {r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
-                       f"{r['peak_rss_mb']:.0f} | {r['landmarks']} |")
+                       f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {load} |")
     sr = result.get("second_run")
     if sr:
         if out:
@@ -136,12 +143,13 @@ def markdown(result: dict) -> str:
         out += [f"`nanoslam run {sr['config']}` twice in fresh processes, empty cache before the first "
                 f"(outputs identical: {'yes' if sr['identical'] else '**no**'}):", "",
                 "| run | compile_s [s] | JAX: trace [s] | lower [s] | compile or load [s] | cache hits | cache misses "
-                "| run [s] | wall [s] |", "|---|---|---|---|---|---|---|---|---|"]
+                "| run [s] | wall [s] | load before / after |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in sr["runs"]:
             j = r["jax"]
+            load = " / ".join(f"{x:.1f}" for x in r.get("load", ()))
             out.append(f"| {r['run']} | {r['compile_s']:.2f} | {j['trace_s']:.2f} | {j['lower_s']:.2f} | "
                        f"{j['backend_s']:.2f} | {j['cache_hits']} | {j['cache_misses']} | {r['run_s']:.2f} | "
-                       f"{r['wall_s']:.1f} |")
+                       f"{r['wall_s']:.1f} | {load} |")
     return "\n".join(out)
 
 
