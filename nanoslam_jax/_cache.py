@@ -169,6 +169,8 @@ def compile_stats() -> CompileStats:
 
 #: Bumped when the layout of the ``exported/`` entries changes.
 _EXPORT_FORMAT = "nanoslam-export-1"
+#: Programs :func:`compile_program` compiled in this process, by entry path (the key).
+_COMPILED: dict[Path, Callable] = {}
 
 
 @functools.lru_cache(maxsize=1)
@@ -253,8 +255,11 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
     directory = _exported_dir()
     if directory is None or getattr(static, "devices", 1) > 1:
         return fn.lower(static, *args).compile()
+    key = program_key(fn, static, args)
+    path = directory / f"{key}.bin"
+    if path in _COMPILED:  # this process compiled it already (as jit's own in-memory caches would)
+        return _COMPILED[path]
     leaves, in_tree = jax.tree.flatten(args)
-    path = directory / f"{program_key(fn, static, args)}.bin"
     loaded = _read_exported(path)
     if loaded is None:
         box = {}
@@ -264,7 +269,16 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
             out_leaves, box["tree"] = jax.tree.flatten(out)
             return out_leaves
 
-        exported = jax.export.export(jax.jit(flat))(*leaves)
+        try:
+            # Custom calls (LAPACK kernels of lineax's QR, ...) are allowed although their ABI is not
+            # guaranteed across jaxlib versions: an entry is only ever read back by the very same
+            # versions (every installed distribution's version is in its key).
+            exported = jax.export.export(jax.jit(flat), disabled_checks=[
+                jax.export.DisabledSafetyCheck.custom_call("ALL")])(*leaves)
+        except Exception:  # a program jax.export cannot hold: compile it directly (executable layer only)
+            compiled_direct = fn.lower(static, *args).compile()
+            _COMPILED[path] = compiled_direct
+            return compiled_direct
         _write_exported(path, exported, box["tree"])
         loaded = exported, box["tree"]
     exported, out_tree = loaded
@@ -273,4 +287,5 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
     def call(*call_args):
         return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(call_args)))
 
+    _COMPILED[path] = call
     return call
