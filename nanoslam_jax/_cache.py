@@ -242,7 +242,9 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
     ``fn.lower(static, *args).compile()``. Otherwise the lowered program is exported
     (:mod:`jax.export`) to ``exported/`` under :func:`program_key`, or read from there, and
     compiled (the XLA layer of the cache then loads the executable). The result is the same
-    program: outputs are identical bit for bit (``tests/test_cache.py``).
+    program: outputs are identical bit for bit (``tests/test_cache.py``). The key covers the
+    package's files as they are on disk: a script that swaps code in at run time (as
+    ``experiments/micro/ab_step.py --a-rev`` does) must not enable the cache.
 
     Args:
         fn: a ``jax.jit`` function whose first argument is static.
