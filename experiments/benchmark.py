@@ -128,13 +128,15 @@ def markdown(result: dict) -> str:
     """The Markdown tables of a benchmark result (as written by ``--json``)."""
     out = []
     if result.get("rows"):
-        head = ("| row | method | particles | devices | capacity | scans | compile [s] | run [s] | ms/scan "
+        scans = sorted({r["scans"] for r in result["rows"]})
+        out += [f"Scans per run: {', '.join(map(str, scans))}.", ""]
+        head = ("| row | particles | devices | capacity | compile [s] | run [s] | ms/scan "
                 "| peak RSS [MB] | landmarks | load before / after |")
         out += [head, "|" + "---|" * (head.count("|") - 1)]
         for r in result["rows"]:
             load = " / ".join(f"{x:.1f}" for x in r.get("load", ()))
-            out.append(f"| {r['name']} | {r['method']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
-                       f"{r['scans']} | {r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
+            out.append(f"| {r['name']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
+                       f"{r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
                        f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {load} |")
     sr = result.get("second_run")
     if sr:
