@@ -175,9 +175,10 @@ _COMPILED: dict[Path, Callable] = {}
 
 @functools.lru_cache(maxsize=1)
 def _environment_digest() -> str:
-    """Hash of everything outside the arguments that a trace reads: this package's source files,
-    every installed distribution's name and version, and JAX's configuration (cache and logging
-    options aside)."""
+    """Hash of the code a trace runs: this package's source files and every installed
+    distribution's name and version (:func:`program_key` adds JAX's configuration, the static
+    settings and the arguments). A dependency installed in editable mode and edited in place keeps
+    its version, so it is not seen: clear the cache or pass ``--no-cache`` while editing one."""
     h = hashlib.sha256(_EXPORT_FORMAT.encode())
     package = Path(__file__).resolve().parent
     for f in sorted(package.rglob("*.py")):
