@@ -15,6 +15,7 @@ import json
 
 import numpy as np
 
+from nanoslam_jax import enable_compile_cache
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import run_batch, settings_from_config, stack_params, text_progress
@@ -31,7 +32,10 @@ def main() -> None:
     p.add_argument("--data")
     p.add_argument("--set", dest="overrides", action="append", default=[])
     p.add_argument("--json", help="write per-seed rows and the summary here")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     args = p.parse_args()
+    if not args.no_cache:
+        enable_compile_cache()  # as every nanoslam command: a repeated call loads the batch program
 
     cfg = load_config(args.config, args.overrides)
     log = load_log(cfg, args.data)

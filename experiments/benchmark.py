@@ -1,11 +1,22 @@
-"""Speed and memory benchmark: prints a Markdown table.
+"""Speed and memory benchmark: prints Markdown tables (and writes them as JSON with ``--json``).
 
 Each configuration runs in its own subprocess (so the peak resident memory is its own), on the
-full Victoria Park log unless ``--segments`` cuts it, float64, after compilation:
+full Victoria Park log unless ``--segments`` cuts it, float64, after compilation, without the
+persistent compilation cache (so ``compile [s]`` is a cold compilation):
 
-    python experiments/benchmark.py                      # the standard table
+    python experiments/benchmark.py                      # the standard table and the second run
     python experiments/benchmark.py --only nano-N10      # one row
+    python experiments/benchmark.py --only second-run    # the compilation cache alone
     python experiments/benchmark.py --segments 1000      # quick look on the first 1000 scans
+    python experiments/benchmark.py --json docs/data/benchmark.json   # the docs' performance table
+
+``second-run``: ``nanoslam run CONFIG`` twice, each in a fresh process, with an empty
+compilation cache (``NANOSLAM_CACHE_DIR`` in a temporary directory) before the first. It reports
+each run's ``compile_s`` (what ``run_filter`` times around ``.lower(...).compile()`` of the chunk
+program: tracing, lowering, and compiling or loading from the cache), JAX's own statistics of the
+whole run (trace, lower, backend compile-or-load time; cache hits and misses, from its monitoring
+events) and whether the two runs' ``trajectory.csv`` and ``map.csv`` are identical. Target: the
+second run spends at most 3 s compiling.
 
 Rows: NANO with 10, 100 and 1000 particles (capacity 512), NANO at 10 particles with capacities
 256, 512 and 1024 (cost per scan should grow only by the capacity's linear term), NANO at 10
@@ -19,12 +30,17 @@ at most 60 s for the whole log) and NASRUKF with 512 feature slots (target: at m
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import os
 import resource
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
+
+SECOND_RUN = "second-run"
 
 ROWS: dict[str, list[str]] = {
     "nano-N10": [],
@@ -60,6 +76,7 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
     if segments is not None:
         seg = type(seg)(*(a[:segments] for a in seg))
     static, params = settings_from_config(cfg, seg.k_max)
+    load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk)
     total = time.perf_counter() - t0
@@ -78,16 +95,81 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "landmarks": int(jax.numpy.sum(reported_map(run.state).active)),
         "backend": jax.default_backend(),
+        # The machine's 1-minute load average before and after the run: on a shared VM a load
+        # above its cores means the row was measured while other work competed for them.
+        "load": [round(load_before, 2), round(os.getloadavg()[0], 2)],
     }
+
+
+def second_run(config: str, data: str | None) -> dict:
+    """``nanoslam run CONFIG`` twice in fresh processes over an empty cache; see the module docstring."""
+    with tempfile.TemporaryDirectory(prefix="nanoslam-bench-") as tmp:
+        env = {**os.environ, "NANOSLAM_CACHE_DIR": str(Path(tmp) / "cache")}
+        env.pop("JAX_COMPILATION_CACHE_DIR", None)
+        runs = []
+        for name in ("first", "second"):
+            cmd = [sys.executable, "-m", "nanoslam_jax.cli", "run", config, "--out", str(Path(tmp) / name), "--quiet"]
+            if data:
+                cmd += ["--data", data]
+            load = os.getloadavg()[0]
+            t0 = time.perf_counter()
+            res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            wall = time.perf_counter() - t0
+            if res.returncode != 0:
+                raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
+            m = json.loads((Path(tmp) / name / "metrics.json").read_text())
+            runs.append(dict(run=name, compile_s=m["compile_s"], run_s=m["run_s"], wall_s=wall,
+                             jax=m["compilation"], rmse_fixed=m["rmse_fixed"],
+                             load=[round(load, 2), round(os.getloadavg()[0], 2)]))
+        identical = all((Path(tmp) / "first" / f).read_bytes() == (Path(tmp) / "second" / f).read_bytes()
+                        for f in ("trajectory.csv", "map.csv"))
+    return dict(config=config, runs=runs, identical=identical)
+
+
+def markdown(result: dict) -> str:
+    """The Markdown tables of a benchmark result (as written by ``--json``)."""
+    out = []
+    if result.get("rows"):
+        scans = sorted({r["scans"] for r in result["rows"]})
+        out += [f"Scans per run: {', '.join(map(str, scans))}.", ""]
+        head = ("| row | particles | devices | capacity | compile [s] | run [s] | ms/scan "
+                "| peak RSS [MB] | landmarks | load before / after |")
+        out += [head, "|" + "---|" * (head.count("|") - 1)]
+        for r in result["rows"]:
+            load = " / ".join(f"{x:.1f}" for x in r.get("load", ()))
+            out.append(f"| {r['name']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
+                       f"{r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
+                       f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {load} |")
+    sr = result.get("second_run")
+    if sr:
+        if out:
+            out.append("")
+        out += [f"`nanoslam run {sr['config']}` twice in fresh processes, empty cache before the first "
+                f"(outputs identical: {'yes' if sr['identical'] else '**no**'}):", "",
+                "| run | compile_s [s] | JAX: trace [s] | lower [s] | compile or load [s] | cache hits | cache misses "
+                "| run [s] | wall [s] | load before / after |", "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in sr["runs"]:
+            j = r["jax"]
+            load = " / ".join(f"{x:.1f}" for x in r.get("load", ()))
+            out.append(f"| {r['run']} | {r['compile_s']:.2f} | {j['trace_s']:.2f} | {j['lower_s']:.2f} | "
+                       f"{j['backend_s']:.2f} | {j['cache_hits']} | {j['cache_misses']} | {r['run_s']:.2f} | "
+                       f"{r['wall_s']:.1f} | {load} |")
+    return "\n".join(out)
+
+
+def _commit() -> str:
+    res = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parent)
+    return res.stdout.strip() or "unknown"
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--only", nargs="*", choices=list(ROWS), help="rows to run (default: all)")
+    p.add_argument("--only", nargs="*", choices=list(ROWS) + [SECOND_RUN], help="rows to run (default: all)")
     p.add_argument("--config", default="configs/victoria_park_nano.yaml")
-    p.add_argument("--segments", type=int, help="use only the first N segments")
+    p.add_argument("--segments", type=int, help="use only the first N segments (not for second-run)")
     p.add_argument("--data", help="log directory")
-    p.add_argument("--json", help="also write the rows as JSON here")
+    p.add_argument("--json", help="also write the tables as JSON here (the docs' performance page reads it)")
     p.add_argument("--single", help=argparse.SUPPRESS)
     args = p.parse_args()
 
@@ -95,30 +177,32 @@ def main() -> None:
         print(json.dumps(run_one(args.single, ROWS[args.single], args.config, args.segments, args.data)))
         return
 
+    wanted = args.only or list(ROWS) + [SECOND_RUN]
     rows = []
-    for name in args.only or list(ROWS):
+    for name in [n for n in wanted if n in ROWS]:
         cmd = [sys.executable, __file__, "--single", name, "--config", args.config]
         if args.segments:
             cmd += ["--segments", str(args.segments)]
         if args.data:
             cmd += ["--data", args.data]
-        res = subprocess.run(cmd, capture_output=True, text=True, env=os.environ.copy())
+        env = os.environ.copy()
+        env.pop("JAX_COMPILATION_CACHE_DIR", None)  # rows measure a cold compilation
+        res = subprocess.run(cmd, capture_output=True, text=True, env=env)
         if res.returncode != 0:
             print(f"{name}: failed\n{res.stderr[-2000:]}", file=sys.stderr)
             continue
         rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
         r = rows[-1]
         print(f"{name}: {r['run_s']:.2f} s run, {r['compile_s']:.1f} s compile", file=sys.stderr, flush=True)
-
-    head = "| row | method | particles | devices | capacity | scans | compile [s] | run [s] | ms/scan | peak RSS [MB] | landmarks |"
-    print(head)
-    print("|" + "---|" * (head.count("|") - 1))
-    for r in rows:
-        print(f"| {r['name']} | {r['method']} | {r['particles']} | {r['devices']} | {r['capacity']} | {r['scans']} | {r['compile_s']:.1f} | "
-              f"{r['run_s']:.2f} | {r['ms_per_scan']:.3f} | {r['peak_rss_mb']:.0f} | {r['landmarks']} |")
+    result = dict(commit=_commit(), date=datetime.datetime.now().isoformat(timespec="minutes"),
+                  cores=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+                  command=" ".join(["python", "experiments/benchmark.py", *sys.argv[1:]]), rows=rows)
+    if SECOND_RUN in wanted:
+        result["second_run"] = second_run(args.config, args.data)
+    print(markdown(result))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=2)
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -38,6 +38,8 @@ log, float64.
    printed ceiling is C times the ratio of the 10-particle runs' time to the cheapest time per
    10 particles.
 
+Every part compiles afresh (no persistent compilation cache), so the compile times are cold ones.
+
 The package's defaults (``run.parallel: auto`` = devices, ``run.vectorize: auto`` = vmap)
 are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PARALLEL`` and
 ``AUTO_VECTORIZE`` in ``nanoslam_jax/sweep/_runner.py``.

@@ -12,4 +12,5 @@ if _os.environ.get("NANOSLAM_X64", "1") != "0":
     _jax.config.update("jax_enable_x64", True)
 
 from ._version import __version__ as __version__  # noqa: E402
+from ._cache import enable_compile_cache as enable_compile_cache  # noqa: E402
 from .config import Config as Config, ConfigError as ConfigError, load_config as load_config  # noqa: E402

@@ -1,10 +1,17 @@
 """The ``nanoslam`` command line.
 
     nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
+    nanoslam config [CONFIG] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--set sim.key=value ...]
     nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
                      [--quick] [--resume] [--methods LABEL ...] [--parallel MODE]   (study files)
     nanoslam sweep SWEEP [--out DIR] [--resume] [--data DIR] [--set key=value ...] [--backend local|ray]
+    nanoslam --version
+
+Every command that computes keeps its compiled programs in the persistent compilation cache
+(:func:`nanoslam_jax.enable_compile_cache`: ``$NANOSLAM_CACHE_DIR``, else the user cache
+directory), so a second run of the same shapes loads them instead of compiling; ``--no-cache``
+turns it off for one command.
 """
 
 from __future__ import annotations
@@ -15,14 +22,26 @@ import sys
 from pathlib import Path
 from typing import Optional, Sequence
 
+from ._version import __version__
 from .config import ConfigError, load_config
+
+
+def _cache_flag() -> argparse.ArgumentParser:
+    """The ``--no-cache`` option every computing subcommand takes."""
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--no-cache", action="store_true",
+                   help="do not use the persistent compilation cache ($NANOSLAM_CACHE_DIR, else the user cache "
+                        "directory): compile every program afresh and keep nothing")
+    return p
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="nanoslam", description="Landmark SLAM with Rao-Blackwellised particle filters (JAX).")
+    p.add_argument("--version", action="version", version=f"nanoslam-jax {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
+    cache = _cache_flag()
 
-    r = sub.add_parser("run", help="run one method on a log and write a result directory")
+    r = sub.add_parser("run", parents=[cache], help="run one method on a log and write a result directory")
     r.add_argument("config", nargs="?", help="YAML config (default: NANO-SLAM on a simulated log)")
     r.add_argument("--out", help="result directory (default: results/<config-name>-<timestamp>)")
     r.add_argument("--data", help="log directory (overrides data.path and $NANOSLAM_DATA)")
@@ -30,15 +49,24 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a config key, e.g. --set filter.n_particles=20 (repeatable)")
     r.add_argument("--quiet", action="store_true", help="no progress indicator")
 
-    s = sub.add_parser("simulate", help="write a simulated Victoria Park-format log with ground truth")
+    g = sub.add_parser("config", help="print the resolved configuration with each key's meaning, type and range",
+                       description="Print the configuration a run would use (the file, its bases and the --set "
+                                   "overrides resolved) as YAML, each key preceded by its meaning, type, range, "
+                                   "whether it is static (recompiles) or traced (sweepable), and its default.")
+    g.add_argument("config", nargs="?", help="YAML config (default: the embedded default)")
+    g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config key, e.g. --set filter.n_particles=20 (repeatable)")
+
+    s = sub.add_parser("simulate", parents=[cache], help="write a simulated Victoria Park-format log with ground truth")
     s.add_argument("--out", required=True, help="directory to write inputs.dat, measurements.dat, gps.dat and truth files")
     s.add_argument("--seed", type=int, help="simulation seed (sim.seed)")
     s.add_argument("--config", help="YAML config whose sim and vehicle sections are used")
     s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config key, e.g. --set sim.n_trees=200 (repeatable)")
 
-    c = sub.add_parser("compare", help="run several methods over seeds: Table I (Markdown, CSV) and Figures 3-5; "
-                                       "or, for a study file, over particle counts: accuracy against compute")
+    c = sub.add_parser("compare", parents=[cache],
+                       help="run several methods over seeds: Table I (Markdown, CSV) and Figures 3-5; "
+                            "or, for a study file, over particle counts: accuracy against compute")
     c.add_argument("comparison", help="comparison YAML, e.g. configs/table1.yaml, or a study file (one with a "
                                       "'particles' section), e.g. configs/accuracy_vs_compute.yaml")
     c.add_argument("--out", help="result directory (default: results/<name>-<timestamp>)")
@@ -54,7 +82,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="study files: how the sweep runner uses several cores (default: the file's run.parallel)")
     from .sweep._cli import add_sweep_parser
 
-    add_sweep_parser(sub)
+    add_sweep_parser(sub, parents=[cache])
     return p
 
 
@@ -128,6 +156,19 @@ def _run(args) -> int:
     return 0
 
 
+def _config(args) -> int:
+    from .config_reference import annotated_yaml
+
+    cfg = load_config(args.config, args.overrides)
+    source = args.config or "the embedded default"
+    sets = "".join(f" --set {o}" for o in args.overrides)
+    header = (f"nanoslam-jax {__version__}: {source}{sets}, resolved.\n"
+              "Each key: its meaning, then [type; range; static (a shape or branch: recompiles) or traced\n"
+              "(a hyperparameter: one compiled program serves every value); default].")
+    print(annotated_yaml(cfg, header), end="")
+    return 0
+
+
 def _simulate(args) -> int:
     from .simulate import simulate_to_dir
 
@@ -146,7 +187,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     args = _parser().parse_args(argv)
     try:
-        return {"run": _run, "simulate": _simulate, "compare": _compare, "sweep": _sweep}[args.command](args)
+        if not getattr(args, "no_cache", True):
+            from ._cache import compile_stats, enable_compile_cache
+
+            compile_stats()  # count this command's compile time from the start
+            enable_compile_cache()
+        return {"run": _run, "config": _config, "simulate": _simulate, "compare": _compare,
+                "sweep": _sweep}[args.command](args)
     except (ConfigError, LogFormatError, FileNotFoundError, ValueError, FloatingPointError) as e:
         print(f"nanoslam: error: {e}", file=sys.stderr)
         return 2

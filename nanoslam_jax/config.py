@@ -42,6 +42,7 @@ __all__ = [
     "resolve_data_dir",
     "DEFAULT_DATA_DIR",
     "DATASET_HELP",
+    "type_name",
 ]
 
 
@@ -132,8 +133,11 @@ class FilterConfig:
     """The Rao-Blackwellised particle filter shared by all particle methods."""
 
     method: Literal["dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam",
-                    "iterated", "ekf_slam", "nasrukf"] = _f("nano", static=True)
-    n_particles: int = _f(10, lo=1, static=True)
+                    "iterated", "ekf_slam", "nasrukf"] = _f("nano", static=True,
+        doc="the method: a particle filter with the proposal of nano, fastslam1 (the prior), fastslam2 "
+            "(EKF-linearised), ufastslam (unscented) or iterated (Gauss-Newton MAP); ekf_slam (one joint "
+            "Gaussian); dead_reckoning (the vehicle model alone)")
+    n_particles: int = _f(10, lo=1, static=True, doc="particles")
     capacity: int = _f(512, lo=1, static=True, doc="landmark slots per particle")
     window: int = _f(64, lo=1, static=True,
         doc="landmarks per particle considered for association in a scan (local window)")
@@ -144,15 +148,16 @@ class FilterConfig:
         doc="'reset': start each segment from the sampled pose with init_cov; 'carry': from the last proposal covariance")
     init_cov: float = _f(1e-8, lo=0.0, lo_open=True, doc="near-zero pose variance at the start and after a reset")
     ut_alpha: float = _f(0.9, lo=0.0, lo_open=True, doc="unscented alpha of the prior (and of UFastSLAM)")
-    ut_beta: float = _f(2.0, lo=0.0)
-    ut_kappa: float = _f(0.0)
+    ut_beta: float = _f(2.0, lo=0.0, doc="unscented beta of the prior (and of UFastSLAM); 2 is optimal for Gaussians")
+    ut_kappa: float = _f(0.0, doc="unscented kappa of the prior (and of UFastSLAM)")
     gate: float = _f(5.991, lo=0.0, lo_open=True, doc="chi-square (2 dof) association gate on d2")
     new_landmark: float = _f(13.816, lo=0.0, lo_open=True, doc="a detection whose best d2 exceeds this starts a landmark")
     sequential: bool = _f(True, static=True, doc="associate detections one after another within a scan")
     weight: Literal["product", "marginal"] = _f("product", static=True,
         doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior")
     p0: float = _f(0.05, lo=0.0, lo_open=True, doc="likelihood factor of a new landmark")
-    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f("systematic", static=True)
+    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f("systematic", static=True,
+        doc="resampling scheme")
     resample_threshold: float = _f(0.5, lo=0.0, hi=1.0, doc="resample when ESS < threshold * N")
     estimate: Literal["best", "mean"] = _f("best", static=True, doc="reported estimate: highest weight or weighted mean")
     row_buckets: Literal["auto", "always", "never"] = _f("auto", static=True,
@@ -226,12 +231,14 @@ class MapConfig:
 class NanoConfig:
     """The NANO proposal (algorithms.md section 2)."""
 
-    quadrature: Literal["cubature", "unscented", "gauss_hermite"] = _f("cubature", static=True)
+    quadrature: Literal["cubature", "unscented", "gauss_hermite"] = _f("cubature", static=True,
+        doc="rule for the expectations over the proposal: cubature (6 points), unscented (7), gauss_hermite (gh_order^3)")
     gh_order: int = _f(3, lo=1, hi=10, static=True, doc="Gauss-Hermite order p (p^3 points)")
-    ut_alpha: float = _f(1.0, lo=0.0, lo_open=True)
-    ut_beta: float = _f(2.0, lo=0.0)
-    ut_kappa: float = _f(0.0)
-    hessian: Literal["gauss_newton", "exact"] = _f("gauss_newton", static=True)
+    ut_alpha: float = _f(1.0, lo=0.0, lo_open=True, doc="unscented alpha (nano.quadrature: unscented)")
+    ut_beta: float = _f(2.0, lo=0.0, doc="unscented beta (nano.quadrature: unscented)")
+    ut_kappa: float = _f(0.0, doc="unscented kappa (nano.quadrature: unscented)")
+    hessian: Literal["gauss_newton", "exact"] = _f("gauss_newton", static=True,
+        doc="expected Hessian of the log-likelihood: Gauss-Newton (J' R^-1 J, positive semi-definite) or exact (autodiff)")
     gamma: float = _f(1e-4, lo=0.0, lo_open=True, doc="KL stopping threshold")
     max_iter: int = _f(10, lo=1, static=True, doc="iteration cap")
     step: float = _f(1.0, lo=0.0, lo_open=True, hi=1.0, doc="natural-gradient step beta (damping below 1)")
@@ -287,17 +294,17 @@ class MetricsConfig:
 class SimConfig:
     """The Victoria Park-like simulator (data.kind = simulated)."""
 
-    seed: int = _f(0, lo=0, static=True)
+    seed: int = _f(0, lo=0, static=True, doc="seed of the simulated world and log")
     duration: float = _f(240.0, lo=0.0, lo_open=True, static=True, doc="seconds driven")
-    n_trees: int = _f(150, lo=1, static=True)
+    n_trees: int = _f(150, lo=1, static=True, doc="trees (landmarks) in the park")
     area: float = _f(200.0, lo=10.0, static=True, doc="side of the square park (m)")
     speed: float = _f(3.0, lo=0.0, lo_open=True, static=True, doc="mean encoder speed (m/s)")
     loops: float = _f(2.0, lo=0.0, static=True, doc="number of loops driven")
     dr_rate: float = _f(40.0, lo=1.0, static=True, doc="dead-reckoning rate (Hz)")
     scan_rate: float = _f(4.7, lo=0.1, static=True, doc="laser scan rate (Hz)")
-    max_range: float = _f(30.0, lo=1.0, static=True)
-    fov_deg: float = _f(180.0, lo=1.0, hi=360.0, static=True)
-    p_detect: float = _f(0.9, lo=0.0, hi=1.0, static=True)
+    max_range: float = _f(30.0, lo=1.0, static=True, doc="range of the simulated laser (m)")
+    fov_deg: float = _f(180.0, lo=1.0, hi=360.0, static=True, doc="field of view of the simulated laser (deg)")
+    p_detect: float = _f(0.9, lo=0.0, hi=1.0, static=True, doc="probability that a tree in view is detected")
     clutter_rate: float = _f(0.2, lo=0.0, static=True, doc="mean false detections per scan")
     sigma_r: float = _f(0.3, lo=0.0, static=True, doc="true range noise (m)")
     sigma_beta_deg: float = _f(1.0, lo=0.0, static=True, doc="true bearing noise (deg)")
@@ -312,7 +319,7 @@ class SimConfig:
 class OutputConfig:
     """What a run writes."""
 
-    plots: bool = _f(True, static=True)
+    plots: bool = _f(True, static=True, doc="write the figures (trajectory.png, error.png, ess.png)")
     progress: bool = _f(True, static=True, doc="show a progress indicator")
     chunk: int = _f(1000, lo=1, static=True, doc="segments per compiled chunk (progress granularity)")
 
@@ -321,8 +328,8 @@ class OutputConfig:
 class Config:
     """A whole run."""
 
-    name: str = _f("default", static=True)
-    seed: int = _f(0, lo=0, static=True)
+    name: str = _f("default", static=True, doc="names the result directory; a config file's name by default")
+    seed: int = _f(0, lo=0, static=True, doc="PRNG seed of the filter (sampling, resampling)")
     data: DataConfig = field(default_factory=DataConfig)
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
@@ -347,6 +354,11 @@ def _type_name(tp: Any) -> str:
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         return " or ".join(_type_name(a) for a in args) + " or null"
     return getattr(tp, "__name__", str(tp))
+
+
+def type_name(tp: Any) -> str:
+    """What values a config field of annotation ``tp`` takes, in the words error messages use."""
+    return _type_name(tp)
 
 
 def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:

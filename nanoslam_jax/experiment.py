@@ -21,6 +21,7 @@ import jax
 import numpy as np
 import yaml
 
+from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
@@ -149,6 +150,7 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     if cfg.filter.method not in AVAILABLE_METHODS:
         raise ConfigError(f"key 'filter.method': {cfg.filter.method!r} is not available yet; "
                           f"available: {', '.join(AVAILABLE_METHODS)}")
+    stats0 = compile_stats()
     log = load_log(cfg, data_dir)  # before creating anything: a bad log leaves no directory behind
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -195,6 +197,9 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
             n_particles=static.n_particles, capacity=static.capacity,
         )
 
+    # JAX's own count of this run's tracing, lowering and compiling (or loading from the cache).
+    metrics["compilation"] = {**compile_stats().since(stats0).as_dict(),
+                              "cache_dir": jax.config.jax_compilation_cache_dir or None}
     finite = bool(np.all(np.isfinite(est)))
     metrics["finite"] = finite
     if finite:

@@ -27,6 +27,7 @@ import pytest
 import yaml
 
 import nanoslam_jax  # noqa: F401  (float64)
+from nanoslam_jax import enable_compile_cache
 from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.filter import run_filter, settings_from_config
 from nanoslam_jax.sweep import _runner
@@ -89,7 +90,7 @@ def trace_counter(tmp_path_factory):
     mp.setattr(_runner, "filter_scan", counting)
     previous = jax.config.jax_compilation_cache_dir
     if not previous:
-        _runner.enable_compile_cache(tmp_path_factory.mktemp("jax_cache"))
+        enable_compile_cache(tmp_path_factory.mktemp("jax_cache"))
     yield counter
     mp.undo()
     if not previous:

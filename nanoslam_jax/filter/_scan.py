@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Key
 
+from .._cache import compile_program
 from ..data import Segments
 from ..proposals import AbstractProposal, LinearizedProposal, NanoProposal, PriorProposal
 from ..quadrature import make_rule
@@ -189,7 +190,7 @@ def _drive(chunk_fn, static: Static, params: Params, state: FilterState, segment
     piece = lambda c: (jax.tree.map(lambda a: jnp.asarray(a[c * chunk:(c + 1) * chunk]), padded),  # noqa: E731
                        jnp.asarray(valid[c * chunk:(c + 1) * chunk]))
     t0 = time.perf_counter()
-    compiled = chunk_fn.lower(static, params, state, *piece(0)).compile()
+    compiled = compile_program(chunk_fn, static, params, state, *piece(0))  # traced and compiled, or cached
     compile_s = time.perf_counter() - t0
     outs, chunk_s = [], []
     t1 = tc = time.perf_counter()

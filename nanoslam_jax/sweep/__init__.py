@@ -17,7 +17,7 @@ _EXPORTS = {
               "sweep_from_dict", "expand", "sample_random", "spec_identity", "METRIC_KEYS", "MAP_METRIC_KEYS"),
     "_runner": ("run_sweep", "SweepResult", "LogData", "BatchTask", "BatchOutput", "Group", "batch_program",
                 "single_program", "execute_batch", "batch_outputs", "load_log_data", "plan_groups", "make_tasks", "compile_events",
-                "resolve_parallel", "enable_compile_cache", "AUTO_PARALLEL"),
+                "resolve_parallel", "AUTO_PARALLEL"),
     "_results": ("ResultsFile", "read_results", "summarize", "select_best", "write_summary", "write_best_yaml",
                  "TIMING_COLUMNS"),
     "_plots": ("plot_sweep", "plot_metric_vs_param", "plot_heatmap"),
@@ -49,7 +49,7 @@ if TYPE_CHECKING:  # pragma: no cover
         TIMING_COLUMNS, ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary)
     from ._runner import (  # noqa: F401
         AUTO_PARALLEL, BatchOutput, BatchTask, Group, LogData, SweepResult, batch_program, compile_events,
-        batch_outputs, enable_compile_cache, execute_batch, load_log_data, make_tasks, plan_groups, resolve_parallel, run_sweep,
+        batch_outputs, execute_batch, load_log_data, make_tasks, plan_groups, resolve_parallel, run_sweep,
         single_program)
     from ._spec import (  # noqa: F401
         MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, expand,

@@ -15,10 +15,15 @@ from pathlib import Path
 __all__ = ["add_sweep_parser", "sweep_command"]
 
 
-def add_sweep_parser(sub) -> argparse.ArgumentParser:
-    """Register the ``sweep`` subcommand on an ``add_subparsers`` object."""
+def add_sweep_parser(sub, parents: tuple = ()) -> argparse.ArgumentParser:
+    """Register the ``sweep`` subcommand on an ``add_subparsers`` object.
+
+    Args:
+        sub: the ``add_subparsers`` object.
+        parents: parsers whose options ``sweep`` shares with the other subcommands.
+    """
     w = sub.add_parser(
-        "sweep", help="run a hyperparameter sweep: one compiled program per shape, vmapped over configs and seeds",
+        "sweep", parents=list(parents), help="run a hyperparameter sweep: one compiled program per shape, vmapped over configs and seeds",
         description="Run the configurations of a sweep file (grid and random samples of traced hyperparameters, "
                     "shape settings, seeds) in batches of one compiled program per shape. Results go to "
                     "DIR/results.csv as each batch finishes; an interrupted sweep continues with --resume.")
@@ -50,6 +55,8 @@ def sweep_command(args) -> int:
     from ._spec import expand, load_sweep
 
     spec = load_sweep(args.sweep, tuple(args.overrides))
+    if getattr(args, "no_cache", False):
+        spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, compile_cache=False))
     if args.ray_address:
         spec = dataclasses.replace(spec, ray_address=args.ray_address)
     for flag in ("workers", "batch"):

@@ -12,7 +12,8 @@ import math
 from typing import Iterator, Optional, Sequence
 
 from ..config import ConfigError
-from ._runner import BatchTask, LogData, _first_line, enable_compile_cache, execute_batch
+from .._cache import enable_compile_cache
+from ._runner import BatchTask, LogData, _first_line, execute_batch
 
 __all__ = ["ray_iter", "import_ray"]
 
@@ -34,7 +35,7 @@ def _remote_execute(task: BatchTask, log: LogData, cache_dir: Optional[str]) -> 
     if cache_dir:
         try:
             enable_compile_cache(cache_dir)
-        except OSError:  # the driver's directory is not visible on this node: just compile
+        except ValueError:  # the driver's directory is not visible on this node: just compile
             pass
     return execute_batch(task, log)
 

@@ -6,8 +6,9 @@ resumes; records failed runs; reports progress.
 The compiled program of a group depends only on ``(Static, vectorize, devices, batch size,
 segment shapes)``:
 a group's last batch is padded with copies of its first run so every batch reuses the program,
-and the programs are kept in :data:`_PROGRAMS` (and in JAX's persistent compilation cache in
-``OUT/jax_cache``, so a resumed sweep and worker processes load instead of compiling).
+and the programs are kept in :data:`_PROGRAMS` (and in the persistent compilation cache of
+:mod:`nanoslam_jax._cache`, so a resumed sweep, a second sweep of the same shapes and worker
+processes load instead of compiling).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
+from .._cache import enable_compile_cache
 from .._version import __version__
 from ..config import Config, ConfigError
 from ..data import Segments
@@ -54,7 +56,6 @@ __all__ = [
     "resolve_parallel",
     "resolve_vectorize",
     "compile_events",
-    "enable_compile_cache",
 ]
 
 #: Default cap of runs per compiled call (progress and resume granularity; memory permitting).
@@ -225,20 +226,6 @@ _COMPILE_EVENTS: list[dict] = []
 def compile_events() -> list[dict]:
     """The compilations this process made for sweeps (one per group shape, if all is well)."""
     return list(_COMPILE_EVENTS)
-
-
-def enable_compile_cache(path: str | os.PathLike) -> str:
-    """Use JAX's persistent compilation cache in ``path`` unless one is configured already.
-
-    Returns:
-        The cache directory in use.
-    """
-    current = jax.config.jax_compilation_cache_dir
-    if current:
-        return str(current)
-    Path(path).mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", str(path))
-    return str(path)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -823,7 +810,7 @@ def run_sweep(
     else:
         _write_metadata(out, spec, points, groups, logs, skipped, vectorize)
         rf.create()
-    cache_dir = enable_compile_cache(out / "jax_cache") if opts.compile_cache else None
+    cache_dir = enable_compile_cache() if opts.compile_cache else None
 
     tasks = make_tasks(spec, groups, logs, done, devices=devices, vectorize=vectorize)
     n_skipped = sum(1 for r in runs if r.run_id in done)

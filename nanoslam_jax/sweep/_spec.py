@@ -127,8 +127,10 @@ class RunOptions:
         fail_on_overflow: a run whose landmark capacity overflowed is recorded as failed.
         skip_invalid: drop configurations the config validation rejects (e.g. ``new_landmark``
             below ``gate`` in a grid) instead of stopping with an error.
-        compile_cache: keep compiled programs in ``OUT/jax_cache`` (JAX's persistent cache), so a
-            resumed sweep and worker processes do not compile again.
+        compile_cache: keep compiled programs in the persistent compilation cache every command
+            uses (``$NANOSLAM_CACHE_DIR``, else the user cache directory; see
+            :func:`nanoslam_jax.enable_compile_cache`), so a resumed or repeated sweep and worker
+            processes do not compile again; ``--no-cache`` turns it off.
     """
 
     batch: Optional[int] = None

@@ -5,10 +5,10 @@ than the change being measured. Here both programs are compiled in one process a
 alternately over the same mid-log stretch from the same filter state, so a slow period hits
 both; the table gives the minimum and the median of the repeats.
 
-    python experiments/ab_step.py --particles 1000 --b filter.row_buckets=always --a filter.row_buckets=never
-    python experiments/ab_step.py --particles 100 --b filter.split_devices=always --a filter.split_devices=never \
+    python experiments/micro/ab_step.py --particles 1000 --b filter.row_buckets=always --a filter.row_buckets=never
+    python experiments/micro/ab_step.py --particles 100 --b filter.split_devices=always --a filter.split_devices=never \
         --devices 2 --start 1000 --scans 300 --repeat 5
-    python experiments/ab_step.py --particles 1000 --a-rev HEAD~1 --start 1500 --scans 200 --repeat 6
+    python experiments/micro/ab_step.py --particles 1000 --a-rev HEAD~1 --start 1500 --scans 200 --repeat 6
 
 ``--a-rev REV`` compares code instead of settings: setting A runs the filter step of git revision
 REV (its ``filter/_step.py``, ``_prior.py``, ``_landmarks.py`` and ``_association.py``; the rest of

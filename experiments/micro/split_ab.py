@@ -4,7 +4,7 @@ Both programs are compiled first and then run alternately over the whole log (th
 drifts too much to compare separate processes); prints each run's time and the resample count
 (the same in both: the split computes the same run).
 
-    python experiments/split_ab.py --particles 100 --repeat 2
+    python experiments/micro/split_ab.py --particles 100 --repeat 2
 """
 
 from __future__ import annotations

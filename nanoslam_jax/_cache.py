@@ -1,0 +1,294 @@
+"""The persistent compilation cache every command uses, and JAX's own count of compile time.
+
+A run's filter program takes 12-15 s to compile on a 2-core CPU; the program depends only on the
+static settings and the log's segment shapes, so a second run loads it from disk instead.
+:func:`enable_compile_cache` points JAX's persistent compilation cache at one directory:
+``$NANOSLAM_CACHE_DIR`` when set, else ``$XDG_CACHE_HOME/nanoslam-jax/jax`` (``~/.cache/...``).
+
+Two layers, both in that directory:
+
+* **XLA executables**, JAX's persistent compilation cache. Its key is a hash of the compiled
+  module (every static shape, constant and branch, so every static config setting and the
+  segment shapes), the compile options and XLA flags, the device kind and count, and the
+  versions of jax, jaxlib and XLA. Any change of this project's code that changes the program
+  changes the module, hence the key; a change that does not change the module gives the same
+  executable. The project's version is not added: it would add no safety and would only make
+  every upgrade (and every editable install, whose version does not move with the commits)
+  recompile from scratch.
+* **Traced programs** (``exported/``), for the filter's chunk program only
+  (:func:`compile_program`): JAX needs the traced and lowered module to compute the key above,
+  and tracing the filter step takes 2-4 s, most of what a second run would still spend. The
+  lowered program is kept with :mod:`jax.export` under a key of our own that covers everything
+  the trace reads: the source of every module of this package, the name and version of every
+  installed distribution (jax, jaxlib, equinox, optimistix, numpy, ...), JAX's configuration
+  (float64, device count, ...), the static settings, and the shapes, dtypes and placement of
+  the arguments. Any edit of the package, any upgrade and any other static setting therefore
+  traces afresh; the XLA layer then still loads the executable when the module is unchanged.
+
+:class:`CompileStats` counts, with JAX's monitoring events (not wall clock around our calls), the
+time spent tracing, lowering and compiling or loading programs and the persistent cache's hits
+and misses, for ``metrics.json`` and the benchmark.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import importlib.metadata
+import os
+import pickle
+import tempfile
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import jax
+
+__all__ = ["CACHE_ENV", "CompileStats", "compile_program", "compile_stats", "default_cache_dir",
+           "enable_compile_cache", "program_key"]
+
+#: Environment variable that moves the cache directory.
+CACHE_ENV = "NANOSLAM_CACHE_DIR"
+
+#: Programs that compile faster than this are not written to the cache (JAX's default is 1 s). The
+#: filter's programs all take longer; the many small eager operations of loading and scoring a
+#: run would only fill the directory with entries that cost more to read than to compile.
+MIN_COMPILE_TIME_S = 0.5
+
+
+def default_cache_dir() -> Path:
+    """``$NANOSLAM_CACHE_DIR``, else ``$XDG_CACHE_HOME/nanoslam-jax/jax`` (``~/.cache`` by default)."""
+    env = os.environ.get(CACHE_ENV)
+    if env:
+        return Path(env).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base).expanduser() / "nanoslam-jax" / "jax"
+
+
+def enable_compile_cache(path: str | os.PathLike | None = None) -> str:
+    """Keep compiled programs in JAX's persistent compilation cache.
+
+    Args:
+        path: the cache directory (default: :func:`default_cache_dir`). When this process already
+            uses a cache directory (set earlier, or by ``JAX_COMPILATION_CACHE_DIR``), that one is kept.
+
+    Returns:
+        The cache directory in use.
+
+    Raises:
+        ValueError: naming the directory and ``NANOSLAM_CACHE_DIR`` when it cannot be created.
+    """
+    current = jax.config.jax_compilation_cache_dir
+    if current:
+        return str(current)
+    p = Path(path) if path is not None else default_cache_dir()
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"{p}: cannot create the compilation cache directory ({e.strerror}); "
+                         f"set {CACHE_ENV} to a writable directory or pass --no-cache") from None
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
+    jax.config.update("jax_compilation_cache_dir", str(p))
+    return str(p)
+
+
+_DURATIONS = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+    "/jax/core/compile/backend_compile_duration": "backend_s",
+}
+_COUNTS = {
+    "/jax/compilation_cache/cache_hits": "cache_hits",
+    "/jax/compilation_cache/cache_misses": "cache_misses",
+}
+
+
+@dataclasses.dataclass
+class CompileStats:
+    """Compile time of this process as JAX's monitoring events report it.
+
+    Attributes:
+        trace_s: tracing Python functions to jaxprs.
+        lower_s: lowering jaxprs to MLIR modules.
+        backend_s: XLA compilation, or loading from the persistent cache on a hit.
+        cache_hits: programs loaded from the persistent cache.
+        cache_misses: programs looked up in the persistent cache and compiled (a program under
+            the cache's minimum compile time is looked up, compiled, and not written).
+    """
+
+    trace_s: float = 0.0
+    lower_s: float = 0.0
+    backend_s: float = 0.0
+    cache_hits: int = 0
+    cache_misses: int = 0
+
+    @property
+    def total_s(self) -> float:
+        """Tracing, lowering and compiling (or loading) together."""
+        return self.trace_s + self.lower_s + self.backend_s
+
+    def since(self, earlier: "CompileStats") -> "CompileStats":
+        """What was added after the snapshot ``earlier``."""
+        return CompileStats(**{f.name: getattr(self, f.name) - getattr(earlier, f.name)
+                               for f in dataclasses.fields(self)})
+
+    def as_dict(self) -> dict:
+        return {**dataclasses.asdict(self), "total_s": self.total_s}
+
+
+_STATS: Optional[CompileStats] = None
+
+
+def _on_duration(event: str, duration: float, **_) -> None:
+    name = _DURATIONS.get(event)
+    if name is not None and _STATS is not None:
+        setattr(_STATS, name, getattr(_STATS, name) + duration)
+
+
+def _on_event(event: str, **_) -> None:
+    name = _COUNTS.get(event)
+    if name is not None and _STATS is not None:
+        setattr(_STATS, name, getattr(_STATS, name) + 1)
+
+
+def compile_stats() -> CompileStats:
+    """A snapshot of this process's compile statistics since the first call of this function.
+
+    The first call registers the listeners; call it early (commands do so at start) and take
+    differences with :meth:`CompileStats.since` to measure a stretch of work.
+    """
+    global _STATS
+    if _STATS is None:
+        _STATS = CompileStats()
+        jax.monitoring.register_event_duration_secs_listener(_on_duration)
+        jax.monitoring.register_event_listener(_on_event)
+    return dataclasses.replace(_STATS)
+
+
+# --------------------------------------------------------------------------- traced programs
+
+#: Bumped when the layout of the ``exported/`` entries changes.
+_EXPORT_FORMAT = "nanoslam-export-1"
+#: Programs :func:`compile_program` compiled in this process, by entry path (the key).
+_COMPILED: dict[Path, Callable] = {}
+
+
+@functools.lru_cache(maxsize=1)
+def _environment_digest() -> str:
+    """Hash of the code a trace runs: this package's source files and every installed
+    distribution's name and version (:func:`program_key` adds JAX's configuration, the static
+    settings and the arguments). A dependency installed in editable mode and edited in place keeps
+    its version, so it is not seen: clear the cache or pass ``--no-cache`` while editing one."""
+    h = hashlib.sha256(_EXPORT_FORMAT.encode())
+    package = Path(__file__).resolve().parent
+    for f in sorted(package.rglob("*.py")):
+        h.update(str(f.relative_to(package)).encode() + b"\0" + f.read_bytes() + b"\0")
+    dists = sorted({(d.metadata["Name"] or "", d.version) for d in importlib.metadata.distributions()})
+    h.update(repr(dists).encode())
+    return h.hexdigest()
+
+
+def program_key(fn: Callable, static: Any, args: tuple) -> str:
+    """The key of the traced program ``fn(static, *args)`` in the ``exported/`` cache.
+
+    Args:
+        fn: the jitted function (its module and name enter the key).
+        static: its static first argument (its ``repr`` enters the key: a frozen dataclass).
+        args: the traced arguments (their tree structure, shapes, dtypes and placement).
+    """
+    leaves, tree = jax.tree.flatten(args)
+    config = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
+    h = hashlib.sha256(_environment_digest().encode())
+    for part in (f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', repr(fn))}", repr(static), str(tree),
+                 repr(config), repr([(str(jax.typeof(x)), repr(getattr(x, "sharding", None))) for x in leaves]),
+                 repr(jax.devices())):
+        h.update(part.encode() + b"\0")
+    return h.hexdigest()[:40]
+
+
+def _exported_dir() -> Optional[Path]:
+    """Where traced programs are kept: ``exported/`` in the cache directory in use (None: no cache)."""
+    cache = jax.config.jax_compilation_cache_dir
+    return Path(cache) / "exported" if cache else None
+
+
+def _read_exported(path: Path):
+    try:
+        exported, out_tree = pickle.loads(path.read_bytes())
+        return jax.export.deserialize(exported), out_tree
+    except FileNotFoundError:
+        return None
+    except Exception:  # a damaged or foreign entry: trace afresh and overwrite it
+        return None
+
+
+def _write_exported(path: Path, exported, out_tree) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump((bytes(exported.serialize()), out_tree), f)
+        os.chmod(tmp, 0o644)  # as JAX's own entries: a shared cache directory stays readable
+        os.replace(tmp, path)  # atomic: concurrent runs never read half an entry
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
+    """``fn.lower(static, *args).compile()``, loading the traced program from the cache when it can.
+
+    Without a cache directory (:func:`enable_compile_cache` not called, or ``--no-cache``), or for
+    a program split over several devices (``static.devices > 1``), this is exactly
+    ``fn.lower(static, *args).compile()``. Otherwise the lowered program is exported
+    (:mod:`jax.export`) to ``exported/`` under :func:`program_key`, or read from there, and
+    compiled (the XLA layer of the cache then loads the executable). The result is the same
+    program: outputs are identical bit for bit (``tests/test_cache.py``). The key covers the
+    package's files as they are on disk: a script that swaps code in at run time (as
+    ``experiments/micro/ab_step.py --a-rev`` does) must not enable the cache.
+
+    Args:
+        fn: a ``jax.jit`` function whose first argument is static.
+        static: that static argument.
+        *args: example arguments (their shapes, dtypes and placement are those of every call).
+
+    Returns:
+        A callable taking ``*args`` and returning ``fn``'s output.
+    """
+    directory = _exported_dir()
+    if directory is None or getattr(static, "devices", 1) > 1:
+        return fn.lower(static, *args).compile()
+    key = program_key(fn, static, args)
+    path = directory / f"{key}.bin"
+    if path in _COMPILED:  # this process compiled it already (as jit's own in-memory caches would)
+        return _COMPILED[path]
+    leaves, in_tree = jax.tree.flatten(args)
+    loaded = _read_exported(path)
+    if loaded is None:
+        box = {}
+
+        def flat(*flat_args):
+            out = fn(static, *jax.tree.unflatten(in_tree, flat_args))
+            out_leaves, box["tree"] = jax.tree.flatten(out)
+            return out_leaves
+
+        try:
+            # Custom calls (LAPACK kernels of lineax's QR, ...) are allowed although their ABI is not
+            # guaranteed across jaxlib versions: an entry is only ever read back by the very same
+            # versions (every installed distribution's version is in its key).
+            exported = jax.export.export(jax.jit(flat), disabled_checks=[
+                jax.export.DisabledSafetyCheck.custom_call("ALL")])(*leaves)
+        except Exception:  # a program jax.export cannot hold: compile it directly (executable layer only)
+            compiled_direct = fn.lower(static, *args).compile()
+            _COMPILED[path] = compiled_direct
+            return compiled_direct
+        _write_exported(path, exported, box["tree"])
+        loaded = exported, box["tree"]
+    exported, out_tree = loaded
+    compiled = jax.jit(exported.call).lower(*leaves).compile()
+
+    def call(*call_args):
+        return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(call_args)))
+
+    _COMPILED[path] = call
+    return call

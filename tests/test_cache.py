@@ -1,0 +1,251 @@
+"""The persistent compilation cache: a second run in a fresh process loads the filter program
+instead of compiling it, gives the same outputs, and ``--no-cache`` bypasses the cache.
+
+Hits and misses are JAX's own statistics (its monitoring events, which ``nanoslam run`` records
+in ``metrics.json``), not wall-clock times. Each run is a fresh ``nanoslam`` process with
+``NANOSLAM_CACHE_DIR`` pointing at a test directory.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from nanoslam_jax import _cache
+from nanoslam_jax._cache import CACHE_ENV, compile_program, default_cache_dir, program_key
+
+# A small run that still compiles the whole filter program: FastSLAM 1.0 on 20 s of the simulated log.
+SMALL = ["--set", "filter.method=fastslam1", "--set", "filter.capacity=64", "--set", "filter.window=16",
+         "--set", "sim.duration=20", "--set", "output.plots=false", "--quiet"]
+
+
+def _run(out: Path, cache: Path, *extra: str) -> dict:
+    env = {**os.environ, CACHE_ENV: str(cache)}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    res = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(out), *SMALL, *extra],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr
+    return json.loads((out / "metrics.json").read_text())
+
+
+def _files(d: Path) -> set:
+    return {p.relative_to(d) for p in d.rglob("*") if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """The same run three times in fresh processes: cold cache, warm cache, warm cache with --no-cache."""
+    root = tmp_path_factory.mktemp("cache")
+    cache = root / "jax"
+    first = _run(root / "first", cache)
+    files_after_first = _files(cache)
+    second = _run(root / "second", cache)
+    files_after_second = _files(cache)
+    bypass = _run(root / "bypass", cache, "--no-cache")
+    return dict(root=root, cache=cache, first=first, second=second, bypass=bypass,
+                files=(files_after_first, files_after_second, _files(cache)))
+
+
+def test_first_run_compiles_and_writes_the_cache(runs):
+    c = runs["first"]["compilation"]
+    assert c["cache_dir"] == str(runs["cache"])
+    assert c["cache_hits"] == 0 and c["cache_misses"] >= 1
+    files = runs["files"][0]
+    assert [f for f in files if f.parts[0] == "exported"], "no traced program was kept"
+    assert [f for f in files if f.parts[0] != "exported"], "no executable was kept"
+
+
+def test_second_run_in_a_fresh_process_loads_from_the_cache(runs):
+    first, second = runs["first"]["compilation"], runs["second"]["compilation"]
+    assert second["cache_hits"] >= 1
+    assert second["cache_misses"] == 0, "a program was compiled again in the second run"
+    assert runs["files"][1] == runs["files"][0], "the second run wrote new cache entries"
+    # JAX's own accounting (not a wall-clock target): loading is cheaper than compiling, and the
+    # filter step was not traced again (its traced program came from the cache).
+    assert second["backend_s"] < first["backend_s"]
+    assert second["trace_s"] < 0.25 * first["trace_s"]
+
+
+def test_cached_run_gives_identical_outputs(runs):
+    root = runs["root"]
+    for name in ("trajectory.csv", "map.csv"):
+        assert (root / "first" / name).read_bytes() == (root / "second" / name).read_bytes(), name
+    keys = ["rmse_fixed", "rmse_aligned", "n_landmarks", "resample_count"]
+    assert {k: runs["first"][k] for k in keys} == {k: runs["second"][k] for k in keys}
+
+
+def test_no_cache_bypasses_the_cache(runs):
+    c = runs["bypass"]["compilation"]
+    assert c["cache_dir"] is None
+    assert c["cache_hits"] == 0 and c["cache_misses"] == 0  # the cache was never consulted
+    assert runs["files"][2] == runs["files"][1]
+    root = runs["root"]
+    assert (root / "bypass" / "trajectory.csv").read_bytes() == (root / "first" / "trajectory.csv").read_bytes()
+
+
+def test_cache_directory_default_and_override(monkeypatch, tmp_path):
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert default_cache_dir() == tmp_path / "xdg" / "nanoslam-jax" / "jax"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert default_cache_dir() == Path.home() / ".cache" / "nanoslam-jax" / "jax"
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "elsewhere"))
+    assert default_cache_dir() == tmp_path / "elsewhere"
+
+
+def test_unwritable_cache_directory_is_a_clear_error(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    env = {**os.environ, CACHE_ENV: str(blocker / "jax")}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    res = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(tmp_path / "r"), *SMALL],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 2
+    assert "Traceback" not in res.stderr
+    assert str(blocker / "jax") in res.stderr and CACHE_ENV in res.stderr and "--no-cache" in res.stderr
+
+
+@pytest.mark.parametrize("argv", [["run"], ["compare", "x.yaml"], ["sweep", "x.yaml"], ["simulate", "--out", "d"]])
+def test_every_computing_command_takes_no_cache(argv):
+    from nanoslam_jax.cli import _parser
+
+    assert _parser().parse_args([*argv, "--no-cache"]).no_cache is True
+    assert _parser().parse_args(argv).no_cache is False
+
+
+def test_sweep_no_cache_turns_the_sweep_files_cache_off(tmp_path, monkeypatch):
+    import argparse
+
+    from nanoslam_jax.sweep import _runner
+    from nanoslam_jax.sweep._cli import sweep_command
+
+    seen = {}
+
+    def fake_run_sweep(spec, out, **kwargs):
+        seen["compile_cache"] = spec.run.compile_cache
+        raise KeyboardInterrupt  # stop before anything runs
+
+    monkeypatch.setattr(_runner, "run_sweep", fake_run_sweep)
+    sweep = Path(__file__).resolve().parents[1] / "configs" / "sweep_example.yaml"
+    for flag, expected in ((True, False), (False, True)):
+        args = argparse.Namespace(sweep=str(sweep), overrides=[], ray_address=None, workers=None, batch=None,
+                                  dry_run=False, out=str(tmp_path / "s"), resume=False, data=None, quiet=True,
+                                  backend=None, parallel=None, vectorize=None, no_cache=flag)
+        assert sweep_command(args) == 130
+        assert seen["compile_cache"] is expected
+
+
+# --------------------------------------------------------------------------- traced programs, in-process
+
+
+@functools.partial(jax.jit, static_argnames=("scale",))
+def _toy(scale: float, x, y):
+    return {"sum": jnp.sum(x) * scale, "prod": x * y[0]}
+
+
+@pytest.fixture
+def toy_cache(tmp_path, monkeypatch):
+    """A directory for compile_program's traced programs in this process (JAX's XLA layer left as it is)."""
+    monkeypatch.setattr(_cache, "_exported_dir", lambda: tmp_path)
+    return tmp_path
+
+
+def _entries(d: Path) -> set:
+    return {p.name for p in d.glob("*.bin")}
+
+
+def test_compile_program_keeps_and_reuses_the_traced_program(toy_cache, monkeypatch):
+    x, y = jnp.arange(4.0), (jnp.ones(4) * 2,)
+    direct = _toy.lower(3.0, x, y).compile()(x, y)
+    first = compile_program(_toy, 3.0, x, y)
+    assert len(_entries(toy_cache)) == 1
+    assert compile_program(_toy, 3.0, x, y) is first  # in this process: the compiled program itself
+    # As in a fresh process (nothing compiled yet): the entry is read, not traced again.
+    monkeypatch.setattr(_cache, "_COMPILED", {})
+    monkeypatch.setattr(jax.export, "export", lambda *a, **k: pytest.fail("traced again"))
+    second = compile_program(_toy, 3.0, x, y)
+    assert second is not first
+    for out in (first(x, y), second(x, y)):
+        assert jax.tree.structure(out) == jax.tree.structure(direct)
+        for a, b in zip(jax.tree.leaves(out), jax.tree.leaves(direct)):
+            np.testing.assert_array_equal(a, b)
+    assert len(_entries(toy_cache)) == 1
+
+
+def test_program_key_changes_with_static_shapes_dtypes_sources_and_versions(monkeypatch):
+    x, y = jnp.arange(4.0), (jnp.ones(4),)
+    base = program_key(_toy, 3.0, (x, y))
+    assert program_key(_toy, 3.0, (x, y)) == base
+    assert program_key(_toy, 4.0, (x, y)) != base                          # a static setting
+    assert program_key(_toy, 3.0, (jnp.arange(5.0), y)) != base            # a shape
+    assert program_key(_toy, 3.0, (x.astype(jnp.float32), y)) != base     # a dtype
+    assert program_key(_toy, 3.0, ((x, y),)) != base                       # the tree structure
+    # The package's sources and the installed versions (jax, jaxlib, equinox, ...) enter the key.
+    _cache._environment_digest.cache_clear()
+    real = _cache.Path.read_bytes
+
+    def edited(self):
+        data = real(self)
+        return data + b"# edited" if self.name == "_scan.py" else data
+
+    monkeypatch.setattr(_cache.Path, "read_bytes", edited)
+    assert program_key(_toy, 3.0, (x, y)) != base
+    monkeypatch.setattr(_cache.Path, "read_bytes", real)
+    _cache._environment_digest.cache_clear()
+    assert program_key(_toy, 3.0, (x, y)) == base
+    dists = list(_cache.importlib.metadata.distributions())
+
+    class Upgraded:
+        metadata = {"Name": "jax"}
+        version = "999.0"
+
+    monkeypatch.setattr(_cache.importlib.metadata, "distributions", lambda: dists + [Upgraded()])
+    _cache._environment_digest.cache_clear()
+    assert program_key(_toy, 3.0, (x, y)) != base
+    _cache._environment_digest.cache_clear()
+
+
+def test_a_damaged_entry_is_traced_again(toy_cache):
+    x, y = jnp.arange(3.0), (jnp.ones(3),)
+    compile_program(_toy, 1.0, x, y)
+    (entry,) = toy_cache.glob("*.bin")
+    entry.write_bytes(b"not a program")
+    _cache._COMPILED.pop(entry)  # as in a fresh process
+    out = compile_program(_toy, 1.0, x, y)(x, y)
+    np.testing.assert_array_equal(out["prod"], x)
+    assert entry.read_bytes() != b"not a program"
+
+
+def test_without_a_cache_directory_nothing_is_written(monkeypatch):
+    monkeypatch.setattr(_cache, "_exported_dir", lambda: None)
+    monkeypatch.setattr(jax.export, "export", lambda *a, **k: pytest.fail("exported without a cache"))
+    x, y = jnp.arange(3.0), (jnp.ones(3),)
+    np.testing.assert_array_equal(compile_program(_toy, 2.0, x, y)(x, y)["prod"], x)
+
+
+@functools.partial(jax.jit, static_argnames=("k",))
+def _qr_solve(k: int, a, b):
+    import lineax as lx
+
+    # Least squares by lineax's QR: a LAPACK custom call (ormqr) whose ABI jax.export does not
+    # guarantee across versions, as the iterated proposal's solver uses.
+    return lx.linear_solve(lx.MatrixLinearOperator(a), b, solver=lx.QR(), throw=False).value[:k]
+
+
+def test_programs_with_lapack_custom_calls_are_kept_too(toy_cache, monkeypatch):
+    a = jnp.array([[3.0, 1.0], [1.0, 2.0], [0.5, 0.0]])
+    b = jnp.array([1.0, 2.0, 0.5])
+    expected = np.linalg.lstsq(np.asarray(a), np.asarray(b), rcond=None)[0]
+    np.testing.assert_allclose(compile_program(_qr_solve, 2, a, b)(a, b), expected, rtol=1e-12)
+    assert len(_entries(toy_cache)) == 1
+    monkeypatch.setattr(_cache, "_COMPILED", {})
+    monkeypatch.setattr(jax.export, "export", lambda *a, **k: pytest.fail("traced again"))
+    np.testing.assert_allclose(compile_program(_qr_solve, 2, a, b)(a, b), expected, rtol=1e-12)
