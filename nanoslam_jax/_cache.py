@@ -282,7 +282,10 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
             compiled_direct = fn.lower(static, *args).compile()
             _COMPILED[path] = compiled_direct
             return compiled_direct
-        _write_exported(path, exported, box["tree"])
+        try:
+            _write_exported(path, exported, box["tree"])
+        except (ImportError, OSError):  # no serializer, or an unwritable directory: the run goes on uncached
+            pass
         loaded = exported, box["tree"]
     exported, out_tree = loaded
     compiled = jax.jit(exported.call).lower(*leaves).compile()

@@ -148,7 +148,8 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
         ConfigError: ``out_dir`` holds a study already (without ``resume``), or none (with it).
     """
     from .._devices import SWEEP_DEVICES_PER_CORE, setup_devices
-    from ..sweep import ResultsFile, enable_compile_cache, read_results, resolve_parallel, run_sweep, sweep_from_dict
+    from .._cache import enable_compile_cache
+    from ..sweep import ResultsFile, read_results, resolve_parallel, run_sweep, sweep_from_dict
 
     out = Path(out_dir)
     if resume and not (out / "study.yaml").is_file():
@@ -164,6 +165,8 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
         (out / "configs" / f"{pt.point_id}.yaml").write_text(
             f"# study {spec.name}: {pt.label}, {pt.particles or 'no'} particles, seeds {pt.seeds[0]}..{pt.seeds[-1]}\n"
             + yaml.safe_dump(cfg, sort_keys=False))
+    # The cache the command set up (the user's, or $NANOSLAM_CACHE_DIR; none with --no-cache) serves
+    # the timing processes too; without one, the study keeps its programs in OUT/jax_cache.
     cache = enable_compile_cache(out / "jax_cache") if dict(spec.run).get("compile_cache", True) else None
     timing_file = ResultsFile(out / "timing.csv", _TIMING_COLUMNS)
     if (out / "timing.csv").exists():

@@ -54,7 +54,8 @@ def time_point(config_path: str, data_dir: Optional[str], segments: Optional[int
     import numpy as np
 
     from ..filter import run_filter, settings_from_config
-    from ..sweep import enable_compile_cache, load_log_data
+    from .._cache import enable_compile_cache
+    from ..sweep import load_log_data
 
     if cache:
         enable_compile_cache(cache)
