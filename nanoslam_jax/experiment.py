@@ -220,13 +220,13 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2) + "\n")
 
     if cfg.output.plots and finite:
-        _plots(out, cfg, log, t, est, landmarks, ess, static.n_particles, mk)
+        _plots(out, cfg, log, t, est, landmarks, ess, static.n_particles, mk, dr_poses)
     if not finite:
         raise FloatingPointError(f"{cfg.name}: the estimate became non-finite; metrics written to {out / 'metrics.json'}")
     return metrics
 
 
-def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk):
+def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
     from .plotting import plot_series, plot_trajectory
 
     gps = log.raw.gps
@@ -237,7 +237,13 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk):
                     None if landmarks is None else landmarks[:, :2], log.raw.truth_landmarks,
                     title=f"{cfg.name}: {cfg.filter.method}", reference_label=label, confirmed=confirmed)
     te, err = error_over_time(t, est[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"])
-    plot_series(out / "error.png", [(cfg.filter.method, te, err)], "position error [m]", f"{cfg.name}: error against {label}")
+    series = [(cfg.filter.method, te, err)]
+    if cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):
+        # The baseline: the vehicle model alone on the same log.
+        series.append(("dead reckoning", *error_over_time(t, dr_poses[:, :2], gps, rotation_deg=mk["rotation_deg"],
+                                                         frame=mk["frame"])))
+    plot_series(out / "error.png", series, "position error [m]", f"{cfg.name}: error against {label}",
+                logy=len(series) > 1)
     if ess is not None:
         plot_series(out / "ess.png", [("ESS", t, ess)], "effective sample size", f"{cfg.name}: ESS",
                     hline=cfg.filter.resample_threshold * n_particles)

@@ -1,0 +1,29 @@
+"""The dead-reckoning baseline every end-to-end accuracy test measures itself against.
+
+A SLAM result means something only next to what the vehicle model alone achieves on the same log:
+an accuracy bound that dead reckoning also meets cannot fail when SLAM stops working. These
+helpers compute the baseline in the test, on the test's own log, with the same protocol.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from nanoslam_jax.filter import dead_reckoning, settings_from_config
+from nanoslam_jax.metrics import evaluate
+
+
+def dead_reckoning_metrics(cfg, log) -> dict:
+    """The evaluation protocol's figures of noise-free dead reckoning on ``log`` (the vehicle model
+    driven by the logged controls from the origin), scored as the filter is."""
+    _, params = settings_from_config(cfg, log.segments.k_max)
+    poses = np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments)))
+    return evaluate(np.asarray(log.segments.time), poses[:, :2], log.raw.gps, frame=log.frame,
+                    rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+
+
+def assert_beats_dead_reckoning(rmse: float, dr_rmse: float, factor: float, what: str = "") -> None:
+    """``rmse`` must be at most ``dr_rmse / factor``."""
+    assert rmse * factor <= dr_rmse, (
+        f"{what}: RMSE {rmse:.3f} m is not {factor}x better than dead reckoning's {dr_rmse:.3f} m on the same log")
