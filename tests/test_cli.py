@@ -21,6 +21,7 @@ from nanoslam_jax import __version__
 from nanoslam_jax.cli import main
 from nanoslam_jax.config import config_from_dict, load_config
 from nanoslam_jax.data import load_victoria_park
+from nanoslam_jax.experiment import load_log
 from nanoslam_jax.metrics import evaluate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -281,13 +282,22 @@ def test_default_run_reports_error_against_ground_truth(default_run):
     m = _check_result_dir(d, cfg, filter_run=True)
     assert m["method"] == "nano"
     assert m["data"].startswith("simulated")
-    assert math.isfinite(m["rmse_fixed"]) and m["rmse_fixed"] < 5.0
-    map_keys = [k for k in m if k.startswith("map_")]
-    assert map_keys and "map_n_true" in m
-    assert m["map_n_true"] == cfg.sim.n_trees
+    assert math.isfinite(m["rmse_fixed"])
+    # The dead-reckoning baseline on the same log is in the metrics, scored by the same protocol.
+    log = load_log(cfg)
+    poses = np.loadtxt(d / "trajectory.csv", delimiter=",", skiprows=1)
+    assert poses.shape[0] == log.segments.time.shape[0]
+    from baselines import dead_reckoning_metrics
+
+    dr = dead_reckoning_metrics(cfg, log)
+    assert m["dr_rmse_fixed"] == pytest.approx(dr["rmse_fixed"], rel=1e-9)
+    assert m["dr_over_slam"] == pytest.approx(dr["rmse_fixed"] / m["rmse_fixed"], rel=1e-9)
+    # Map figures over the confirmed landmarks against the trees the true path could see.
+    assert 0 < m["map_n_true"] < cfg.sim.n_trees and m["map_n_est"] == m["n_confirmed"] <= m["n_landmarks"]
     traj = _trajectory(d)
     assert traj[-1, 0] <= 30.0
-    assert (d / "map.csv").read_text().splitlines()[0] == "x,y,cov_xx,cov_xy,cov_yy,hits"
+    assert (d / "map.csv").read_text().splitlines()[0] == (
+        "x,y,cov_xx,cov_xy,cov_yy,hits,misses,existence,confirmed,diameter,diameter_sd")
 
 
 def test_set_overrides_reach_the_run(default_run):
@@ -298,6 +308,33 @@ def test_set_overrides_reach_the_run(default_run):
     assert written.data.t_end == 30.0
     assert yaml.safe_load((d / "config.yaml").read_text())["filter"]["n_particles"] == 3
     assert _metrics(d)["n_particles"] == 3
+
+
+def test_the_embedded_default_beats_dead_reckoning_and_maps_the_trees(tmp_path, capsys):
+    """What a new user's first command runs (``nanoslam run``, the whole embedded default): the
+    output states the filter's error and dead reckoning's on the same log, SLAM is at least 5x
+    better, and the map holds the observable trees with little clutter.
+
+    Measured (seed 0): RMSE 0.70 m against dead reckoning's 43.08 m (61.7x); after the
+    trajectory's alignment 99 % of the observable trees have a confirmed landmark within 1 m and
+    1 % of the confirmed landmarks have no tree (82 % and 18 % in the SLAM frame). Over 32 runs
+    (simulated logs of sim.seed 0-7 x 4 filter seeds): RMSE median 1.01 m (IQR 0.62-1.62, worst
+    5.13), dead reckoning 37-49 m, at least 7.9x better in every run; RMSE < 2 m, found >= 90 % and
+    spurious <= 10 % (aligned) each hold in 27 of 32 runs (the misses are runs whose map closed the
+    second lap at an offset). The bounds below are those thresholds: seed 0 clears them by 2.9x in
+    RMSE and should on any CPU whose rounding leaves this run as it is here (CI's does).
+    """
+    out = tmp_path / "default"
+    rc, stdout, _ = _call(capsys, ["run", "--quiet", "--out", out])
+    assert rc == 0
+    first = stdout.strip().splitlines()[0]
+    assert first.startswith("nano: RMSE ") and "dead reckoning on the same log" in first
+    m = _metrics(out)
+    assert m["dr_rmse_fixed"] > 30.0  # the simulated odometry drifts like a real vehicle's
+    assert m["dr_over_slam"] >= 5.0, m["dr_over_slam"]
+    assert m["rmse_fixed"] < 2.0, m["rmse_fixed"]
+    assert m["landmark_overflow"] == 0
+    assert m["map_found_fraction_aligned"] >= 0.9 and m["map_spurious_fraction_aligned"] <= 0.1, m
 
 
 # --------------------------------------------------------------------------- dead reckoning on the real log
@@ -370,5 +407,5 @@ def test_nasrukf_run_writes_the_result_directory(tmp_path, capsys):
     m = _check_result_dir(out, load_config(None, overrides), filter_run=False)
     assert m["method"] == "nasrukf" and m["capacity"] == 128
     assert m["rmse_fixed"] < 0.5 and m["n_landmarks"] > 10 and m["resample_count"] == 0
-    assert (out / "map.csv").read_text().splitlines()[0] == "x,y,cov_xx,cov_xy,cov_yy,hits"
+    assert (out / "map.csv").read_text().splitlines()[0].startswith("x,y,cov_xx,cov_xy,cov_yy,hits,")
     assert not (out / "ess.png").exists()

@@ -32,7 +32,8 @@ def logit(p):
 
 #: Management settings of the hand computations below.
 MAP = dict(p_detect=0.8, p_false=0.2, birth_probability=0.5, confirm_probability=0.9, confirm_hits=3,
-           max_probability=0.99, remove_probability=0.1, tentative_scans=5)
+           max_probability=0.99, remove_probability=0.1, tentative_scans=5, view_margin=2.0, view_margin_deg=5.0,
+           occlusion_width=0.3, use_tentative=False)
 
 
 def settings(**extra):

@@ -200,7 +200,8 @@ def test_adaptive_noise_estimate_of_the_particles_converges_to_the_true_noise():
     residuals per particle, b = 0.99): 0.302-0.303 m, 1.030-1.062 deg. Bounds: within 10 %."""
     overrides = SIM + ["filter.method=fastslam2", "filter.n_particles=4", "noise.adaptive=true", "noise.sigma_r=1.0",
                        "noise.sigma_beta_deg=3.0", "noise.sigma_v=0.1", "noise.sigma_alpha_deg=0.5", "filter.gate=20",
-                       "filter.new_landmark=40", "sim.clutter_rate=0"]
+                       "filter.new_landmark=40", "sim.clutter_rate=0",
+                       "sim.sigma_v=0.1", "sim.sigma_alpha_deg=0.5", "sim.steering_bias_deg=0"]
     cfg = load_config(None, overrides)
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
