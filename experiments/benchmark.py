@@ -7,6 +7,7 @@ persistent compilation cache (so ``compile [s]`` is a cold compilation):
     python experiments/benchmark.py                      # the standard table and the second run
     python experiments/benchmark.py --only nano-N10      # one row
     python experiments/benchmark.py --only second-run    # the compilation cache alone
+    python experiments/benchmark.py --only data          # the data pipeline alone
     python experiments/benchmark.py --segments 1000      # quick look on the first 1000 scans
     python experiments/benchmark.py --json docs/data/benchmark.json   # the docs' performance table
 
@@ -18,13 +19,18 @@ whole run (trace, lower, backend compile-or-load time; cache hits and misses, fr
 events) and whether the two runs' ``trajectory.csv`` and ``map.csv`` are identical. Target: the
 second run spends at most 3 s compiling.
 
+``data``: the data pipeline without the filter, best of 5 (after one warm-up): simulating the
+default log (``SimConfig()``; target at most 2 s) and cutting the real log into segments
+(``make_segments`` with the paper's 30 m range; target at most 0.5 s).
+
 Rows: NANO with 10, 100 and 1000 particles (capacity 512), NANO at 10 particles with capacities
 256, 512 and 1024 (cost per scan should grow only by the capacity's linear term), NANO at 10
 particles in one compiled call (no chunks: the cost of the progress reporting), with the
 optimistix fixed-point solver instead of the while_loop, the other particle methods at 10
 particles (targets: at most 2x NANO's run time), EKF-SLAM with 512 landmark slots (target:
 at most 60 s for the whole log) and NASRUKF with 512 feature slots (target: at most 2x NANO's
-10-particle run time).
+10-particle run time). ``nano-N10-unmanaged`` switches landmark management off (target: the
+managed ``nano-N10`` at most 1.2x its run time).
 """
 
 from __future__ import annotations
@@ -41,6 +47,10 @@ import time
 from pathlib import Path
 
 SECOND_RUN = "second-run"
+DATA = "data"
+
+#: Targets of the ``data`` table, seconds.
+DATA_TARGETS = {"simulate the default log": 2.0, "segments of the real log": 0.5}
 
 ROWS: dict[str, list[str]] = {
     "nano-N10": [],
@@ -57,6 +67,7 @@ ROWS: dict[str, list[str]] = {
     "iterated-lm-N10": ["filter.method=iterated", "iterated.solver=levenberg_marquardt"],
     "ekf_slam-cap512": ["filter.method=ekf_slam"],
     "nasrukf": ["filter.method=nasrukf"],
+    "nano-N10-unmanaged": ["map.manage=false"],
 }
 
 
@@ -126,6 +137,27 @@ def second_run(config: str, data: str | None) -> dict:
     return dict(config=config, runs=runs, identical=identical)
 
 
+def data_timings(data: str | None) -> dict:
+    """Seconds of the data pipeline's two steps (best of 5 after a warm-up); see the module docstring."""
+    from nanoslam_jax.config import SimConfig, VehicleConfig, load_config, resolve_data_dir
+    from nanoslam_jax.data import load_victoria_park, make_segments
+    from nanoslam_jax.simulate import simulate
+
+    real = load_victoria_park(resolve_data_dir(load_config(None), data))
+    steps = {"simulate the default log": lambda: simulate(SimConfig(), VehicleConfig()),
+             "segments of the real log": lambda: make_segments(real, max_range=30.0)}
+    out = {}
+    for name, fn in steps.items():
+        fn()
+        times = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        out[name] = min(times)
+    return out
+
+
 def markdown(result: dict) -> str:
     """The Markdown tables of a benchmark result (as written by ``--json``)."""
     out = []
@@ -140,6 +172,12 @@ def markdown(result: dict) -> str:
             out.append(f"| {r['name']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
                        f"{r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
                        f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {load} |")
+    dt = result.get("data")
+    if dt:
+        if out:
+            out.append("")
+        out += ["| data step | best of 5 [s] | target [s] |", "|---|---|---|"]
+        out += [f"| {k} | {v:.3f} | {DATA_TARGETS.get(k, float('nan')):g} |" for k, v in dt.items()]
     sr = result.get("second_run")
     if sr:
         if out:
@@ -165,7 +203,7 @@ def _commit() -> str:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--only", nargs="*", choices=list(ROWS) + [SECOND_RUN], help="rows to run (default: all)")
+    p.add_argument("--only", nargs="*", choices=list(ROWS) + [SECOND_RUN, DATA], help="rows to run (default: all)")
     p.add_argument("--config", default="configs/victoria_park_nano.yaml")
     p.add_argument("--segments", type=int, help="use only the first N segments (not for second-run)")
     p.add_argument("--data", help="log directory")
@@ -177,7 +215,7 @@ def main() -> None:
         print(json.dumps(run_one(args.single, ROWS[args.single], args.config, args.segments, args.data)))
         return
 
-    wanted = args.only or list(ROWS) + [SECOND_RUN]
+    wanted = args.only or list(ROWS) + [SECOND_RUN, DATA]
     rows = []
     for name in [n for n in wanted if n in ROWS]:
         cmd = [sys.executable, __file__, "--single", name, "--config", args.config]
@@ -197,6 +235,8 @@ def main() -> None:
     result = dict(commit=_commit(), date=datetime.datetime.now().isoformat(timespec="minutes"),
                   cores=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                   command=" ".join(["python", "experiments/benchmark.py", *sys.argv[1:]]), rows=rows)
+    if DATA in wanted:
+        result["data"] = data_timings(args.data)
     if SECOND_RUN in wanted:
         result["second_run"] = second_run(args.config, args.data)
     print(markdown(result))

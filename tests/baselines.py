@@ -27,3 +27,14 @@ def assert_beats_dead_reckoning(rmse: float, dr_rmse: float, factor: float, what
     """``rmse`` must be at most ``dr_rmse / factor``."""
     assert rmse * factor <= dr_rmse, (
         f"{what}: RMSE {rmse:.3f} m is not {factor}x better than dead reckoning's {dr_rmse:.3f} m on the same log")
+
+
+def reported_map_quality(cfg, log, landmarks, metrics: dict) -> dict:
+    """:func:`nanoslam_jax.metrics.map_summary` of a reported map (one particle's or the Gaussian
+    filter's ``LandmarkMap``) against the simulated log's observable trees, in the SLAM frame and
+    after the trajectory's rigid alignment in ``metrics`` (what :func:`evaluate` returned)."""
+    from nanoslam_jax.metrics import map_summary
+
+    act = np.asarray(landmarks.active)
+    return map_summary(np.asarray(landmarks.mean)[act], np.asarray(landmarks.confirmed)[act], log.map_truth,
+                       cfg.metrics.map_radius, metrics)

@@ -225,17 +225,20 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
     run = sim_run
     o = run.outputs
     lm = assert_tracks_truth_and_maps_trees(log, params, run, rmse=0.6, max_error=1.2, associations=1.0, median=0.4)
-    # The state is consistent: active slots a prefix, count = landmarks, P exactly symmetric
-    # and positive definite on the active part, inactive slots untouched.
+    # The state is consistent: count one past the highest active slot (removed landmarks leave
+    # holes below it), P exactly symmetric and positive definite over the pose and the active
+    # landmarks, every inactive slot (holes included) an identity block without cross terms.
     st = run.state
     c = int(st.count)
-    assert c == int(np.asarray(o.n_landmarks)[-1]) and np.all(np.asarray(st.active) == (np.arange(static.capacity) < c))
+    act = np.asarray(st.landmarks.active)
+    assert act[c - 1] and not act[c:].any() and int(np.asarray(o.n_landmarks)[-1]) == int(act.sum())
     P = np.asarray(st.cov)
     assert np.array_equal(P, P.T)
-    m = 3 + 2 * c
-    assert np.linalg.eigvalsh(P[:m, :m]).min() > 0
-    np.testing.assert_array_equal(P[m:, m:], np.eye(P.shape[0] - m))
-    np.testing.assert_array_equal(P[:m, m:], 0.0)
+    rows = np.concatenate([np.arange(3), 3 + 2 * np.repeat(np.flatnonzero(act), 2) + np.tile([0, 1], int(act.sum()))])
+    free = np.setdiff1d(np.arange(P.shape[0]), rows)
+    assert np.linalg.eigvalsh(P[np.ix_(rows, rows)]).min() > 0
+    np.testing.assert_array_equal(P[np.ix_(free, free)], np.eye(free.size))
+    np.testing.assert_array_equal(P[np.ix_(rows, free)], 0.0)
     np.testing.assert_array_equal(np.asarray(lm.cov), np.asarray(landmark_blocks(st.cov, static.capacity)))
 
 
@@ -286,24 +289,37 @@ def test_step_output_matches_particle_filter_dtypes(sim, sim_run):
     assert int(sim_run.state.resample_count) == 0
 
 
-def test_victoria_park_first_scans_finite(vp_dir):
-    """The real log's first 500 segments with the paper's setting (capacity 512): nothing
-    non-finite, the map grows, detections associate, and the pose stays near GPS (measured: about
-    70 landmarks; position error against GPS, relative frame, well under 5 m)."""
-    config = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_nano.yaml"
-    cfg = load_config(config, ["filter.method=ekf_slam", f"data.path={vp_dir}"])
+def test_victoria_park_first_300_s(vp_dir):
+    """The real log's first 300 s with the paper's setting (configs/victoria_park_ekf_slam.yaml,
+    capacity 512): nothing non-finite, the map grows, detections associate, the pose stays near
+    GPS, and far nearer than dead reckoning, which drifts to 105.5 m RMSE (25.9 m after the best
+    rigid alignment) over these 300 s.
+
+    Measured (deterministic): rmse_fixed 1.62 m, rmse_aligned 1.34 m, 96 confirmed landmarks.
+    Bounds: a band around those (rounding on another CPU may change an association): fixed
+    1.2-2.0 m, aligned < 1.7 m, at least 40x below dead reckoning; 70-130 confirmed landmarks."""
+    from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
+    from nanoslam_jax.metrics import evaluate
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_ekf_slam.yaml"
+    cfg = load_config(config, [f"data.path={vp_dir}", "data.t_end=300"])
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
-    seg = jax.tree.map(lambda a: np.asarray(a)[:500], log.segments)
-    run = run_filter(static, params, seg, 0, chunk=500)
+    run = run_filter(static, params, log.segments, 0, chunk=500)
     for a in float_leaves(run.outputs) + float_leaves(run.state):
         assert np.all(np.isfinite(a))
     o = run.outputs
     assert int(np.sum(o.n_nonfinite)) == 0 and int(run.state.overflow) == 0
-    assert 20 < int(run.state.count) < 300
     assert np.mean(o.n_associated) > 1.0
+    m = evaluate(np.asarray(log.segments.time), np.asarray(o.best_pose)[:, :2], log.raw.gps, frame=log.frame,
+                 rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+    dr = dead_reckoning_metrics(cfg, log)["rmse_fixed"]
+    assert 1.2 < m["rmse_fixed"] < 2.0 and m["rmse_aligned"] < 1.7, m
+    assert_beats_dead_reckoning(m["rmse_fixed"], dr, 40.0, "EKF-SLAM, first 300 s")
+    lm = reported_map(run.state)
+    assert 70 <= int(np.sum(np.asarray(lm.active) & np.asarray(lm.confirmed))) <= 130
     P = np.asarray(run.state.cov)
     assert np.array_equal(P, P.T)
-    m = 3 + 2 * int(run.state.count)
-    ev = np.linalg.eigvalsh(P[:m, :m])
+    n = 3 + 2 * int(run.state.count)
+    ev = np.linalg.eigvalsh(P[:n, :n])
     assert ev.min() > -1e-9 * ev.max()

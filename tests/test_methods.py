@@ -164,7 +164,7 @@ def test_nano_beats_fastslam2_on_strongly_nonlinear_cases():
 
 # ----------------------------------------------------------------------------- filters on a simulated log
 
-SIM = ["sim.duration=60", "output.progress=false", "filter.capacity=192", "filter.window=40"]
+SIM = ["sim.duration=60", "output.progress=false", "filter.capacity=192", "filter.window=40", "filter.n_particles=10"]
 
 
 @pytest.fixture(scope="module")
@@ -173,22 +173,40 @@ def sim_log():
 
 
 @pytest.mark.parametrize("method,extra,bound", [
-    ("fastslam1", [], 1.5),
+    ("fastslam1", [], 1.0),
     ("fastslam2", [], 1.0),
     ("iterated", ["iterated.solver=levenberg_marquardt"], 1.0),
 ])
 def test_method_tracks_simulated_truth(sim_log, method, extra, bound):
-    """Each method (two seeds vmapped in one program) follows the simulated truth within ``bound`` m
-    RMSE over 60 s, with a finite estimate and landmarks near the true trees."""
+    """Each method, 10 particles, two seeds vmapped in one program, on the embedded default's
+    simulated log cut at 60 s (dead reckoning drifts to 5.18 m RMSE): a finite estimate within
+    ``bound`` m RMSE and at least 5x below dead reckoning, and a map near the true trees.
+
+    Measured RMSE, seeds 0-1: FastSLAM 1.0 0.55, 0.46 m; FastSLAM 2.0 0.65, 0.36 m; iterated
+    (Levenberg-Marquardt) 0.64, 0.36 m (6.5-14x below dead reckoning over seeds 0-3). Map of the
+    highest-weight particle after the trajectory's alignment, every method and seed: 49-50 confirmed
+    landmarks; all observable trees found within 1 m, 2 of the landmarks have no tree (4 %, the
+    clutter); matched RMS 0.16-0.26 m. Bounds: >= 40 confirmed, found >= 90 %, spurious <= 10 %,
+    matched RMS < 0.4 m.
+    """
+    from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics, reported_map_quality
+    from nanoslam_jax.filter import reported_map
+
     cfg = load_config(None, SIM + [f"filter.method={method}"] + extra)
     static, params = settings_from_config(cfg, sim_log.segments.k_max)
     run = run_batch(static, stack_params([params] * 2), sim_log.segments, [0, 1], chunk=1000)
+    dr = dead_reckoning_metrics(cfg, sim_log)["rmse_fixed"]
     t = np.asarray(sim_log.segments.time)
+    maps = jax.vmap(reported_map)(run.state)
     for i in range(2):
         est = np.asarray(run.outputs.best_pose[i])
         assert np.all(np.isfinite(est))
         m = evaluate(t, est[:, :2], sim_log.raw.gps, frame="slam")
         assert m["rmse_fixed"] < bound, (method, i, m["rmse_fixed"])
+        assert_beats_dead_reckoning(m["rmse_fixed"], dr, 5.0, f"{method} seed {i}")
+        q = reported_map_quality(cfg, sim_log, jax.tree.map(lambda a: a[i], maps), m)
+        assert q["n_confirmed"] >= 40 and q["map_found_fraction_aligned"] >= 0.9, (method, i, q)
+        assert q["map_spurious_fraction_aligned"] <= 0.1 and q["map_rmse_matched_aligned"] < 0.4, (method, i, q)
     assert int(np.sum(run.state.overflow)) == 0
 
 

