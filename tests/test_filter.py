@@ -205,8 +205,9 @@ def test_victoria_park_paper_setting(vp_dir):
 
     Measured rmse_fixed 5.06, 4.60, 5.59, 7.04 m (median 5.33), rmse_aligned 3.19, 4.43, 4.54,
     4.54 m; 175-178 confirmed landmarks. Over seeds 0-31 (docs/method/landmarks.md) rmse_fixed
-    has median 5.7 m, third quartile 8.6 m, worst 20.6 m, and 174-209 confirmed landmarks. Bounds
-    from that spread: the median of the four < 8.6 m (aligned < 6 m), each seed < 25 m and at
+    has median 5.85 m, third quartile 8.74 m, worst 20.63 m (aligned: 4.19, 5.20, 16.38 m), and
+    174-209 confirmed landmarks. Bounds from that spread: the median of the four < 8.74 m (aligned
+    < 6 m), each seed < 25 m and at
     least 5x below dead reckoning, 150-230 confirmed landmarks each.
     """
     from pathlib import Path
@@ -240,7 +241,7 @@ def test_victoria_park_paper_setting(vp_dir):
         aligned.append(m["rmse_aligned"])
         n_confirmed = int(np.sum(np.asarray(maps.active[i]) & np.asarray(maps.confirmed[i])))
         assert 150 <= n_confirmed <= 230, (seed, n_confirmed)
-    assert np.median(fixed) < 8.6 and np.median(aligned) < 6.0, (fixed, aligned)
+    assert np.median(fixed) < 8.74 and np.median(aligned) < 6.0, (fixed, aligned)
 
 
 def test_padding_segments_are_exact_no_ops():

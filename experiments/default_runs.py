@@ -1,0 +1,100 @@
+"""A config over several simulated logs and filter seeds: the spread behind README's figures of the
+embedded default.
+
+    python experiments/default_runs.py                         # the embedded default, 8 logs x 4 seeds
+    python experiments/default_runs.py --sims 4 --seeds 4 filter.n_particles=10
+    python experiments/default_runs.py --config my.yaml --json runs.json
+
+All logs are padded to the same detection rows per scan (one compiled program). For each
+simulated log (``sim.seed`` = 0, 1, ...) the filter seeds ``1000 * sim.seed + i`` run
+vmapped in one program; each run is scored by the evaluation protocol against the truth, next to
+noise-free dead reckoning on the same log, and its reported map (confirmed landmarks) against the
+trees its true path could see, in the SLAM frame and after the trajectory's rigid alignment.
+Prints one line per run and the medians, quartiles and worst cases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import numpy as np
+
+from nanoslam_jax.config import load_config
+from nanoslam_jax.experiment import load_log
+from nanoslam_jax.filter import dead_reckoning, reported_map, run_batch, settings_from_config, stack_params
+from nanoslam_jax.metrics import evaluate, map_summary
+
+
+def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds: int) -> list[dict]:
+    """Every filter seed's figures on the simulated log of ``sim_seed``."""
+    cfg = load_config(config, overrides + [f"sim.seed={sim_seed}"])
+    if cfg.data.kind != "simulated":
+        raise SystemExit(f"{config or 'embedded default'}: data.kind is {cfg.data.kind!r}; this script needs simulated logs")
+    log = load_log(cfg)
+    static, params = settings_from_config(cfg, log.segments.k_max)
+    seeds = 1000 * sim_seed + np.arange(n_seeds)
+    run = run_batch(static, stack_params([params] * n_seeds), log.segments, seeds, chunk=cfg.output.chunk)
+    t = np.asarray(log.segments.time)
+    protocol = dict(frame=log.frame, rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+    dr = evaluate(t, np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments)))[:, :2], log.raw.gps,
+                  **protocol)
+    maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
+    rows = []
+    for i, seed in enumerate(seeds):
+        m = evaluate(t, np.asarray(run.outputs.best_pose[i])[:, :2], log.raw.gps, **protocol)
+        act = maps.active[i]
+        q = map_summary(maps.mean[i][act], maps.confirmed[i][act], log.map_truth, cfg.metrics.map_radius, m)
+        rows.append(dict(sim_seed=sim_seed, seed=int(seed), rmse_fixed=m["rmse_fixed"], rmse_aligned=m["rmse_aligned"],
+                         dr_rmse_fixed=dr["rmse_fixed"], dr_over_slam=dr["rmse_fixed"] / m["rmse_fixed"],
+                         n_confirmed=q["n_confirmed"], found=q["map_found_fraction"],
+                         spurious=q["map_spurious_fraction"], found_aligned=q["map_found_fraction_aligned"],
+                         spurious_aligned=q["map_spurious_fraction_aligned"],
+                         overflow=int(np.asarray(run.state.overflow)[i])))
+    return rows
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", help="a config with data.kind: simulated (default: the embedded default)")
+    p.add_argument("--sims", type=int, default=8, help="simulated logs: sim.seed 0 .. sims-1")
+    p.add_argument("--seeds", type=int, default=4, help="filter seeds per log")
+    p.add_argument("--json", help="also write every run's row here")
+    p.add_argument("overrides", nargs="*", help="key=value config overrides")
+    a = p.parse_args()
+    t0 = time.perf_counter()
+    # One detection-row count for every log, so that one program serves them all.
+    k_max = max(load_log(load_config(a.config, a.overrides + [f"sim.seed={s}"])).segments.k_max for s in range(a.sims))
+    overrides = [f"data.k_max={k_max}"] + a.overrides
+    rows = []
+    for sim_seed in range(a.sims):
+        for r in runs_on_log(a.config, overrides, sim_seed, a.seeds):
+            rows.append(r)
+            print(f"sim {r['sim_seed']} seed {r['seed']}: RMSE {r['rmse_fixed']:.2f} m (aligned {r['rmse_aligned']:.2f}), "
+                  f"dead reckoning {r['dr_rmse_fixed']:.1f} m ({r['dr_over_slam']:.1f}x); {r['n_confirmed']} confirmed, "
+                  f"found {100 * r['found_aligned']:.0f} %, spurious {100 * r['spurious_aligned']:.1f} % (aligned)", flush=True)
+    col = {k: np.array([r[k] for r in rows], float) for k in rows[0]}
+
+    def spread(v):
+        return f"median {np.median(v):.2f} (IQR {np.percentile(v, 25):.2f}-{np.percentile(v, 75):.2f}), worst {np.max(v):.2f}"
+
+    print(f"\n{len(rows)} runs, {time.perf_counter() - t0:.0f} s")
+    print(f"RMSE fixed [m]: {spread(col['rmse_fixed'])}; aligned: {spread(col['rmse_aligned'])}")
+    print(f"dead reckoning [m]: {col['dr_rmse_fixed'].min():.1f}-{col['dr_rmse_fixed'].max():.1f}; "
+          f"dead reckoning / SLAM: median {np.median(col['dr_over_slam']):.1f}, least {col['dr_over_slam'].min():.1f}")
+    print(f"confirmed landmarks: median {np.median(col['n_confirmed']):.0f}; aligned map: found median "
+          f"{100 * np.median(col['found_aligned']):.0f} % (least {100 * col['found_aligned'].min():.0f} %), spurious median "
+          f"{100 * np.median(col['spurious_aligned']):.1f} % (most {100 * col['spurious_aligned'].max():.1f} %); "
+          f"SLAM frame: found {100 * np.median(col['found']):.0f} %, spurious {100 * np.median(col['spurious']):.1f} %")
+    print(f"RMSE < 2 m: {int(np.sum(col['rmse_fixed'] < 2))}/{len(rows)}; found >= 90 % and spurious <= 10 % (aligned): "
+          f"{int(np.sum((col['found_aligned'] >= 0.9) & (col['spurious_aligned'] <= 0.1)))}/{len(rows)}; "
+          f"capacity overflow in {int(np.sum(col['overflow'] > 0))}")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
