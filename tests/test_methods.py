@@ -302,7 +302,9 @@ def test_table1_config_is_valid():
     spec = load_compare_spec(Path(__file__).resolve().parent.parent / "configs" / "table1.yaml")
     methods = [load_config(spec.base, list(spec.set) + list(m.set)).filter.method for m in spec.methods]
     assert methods == ["ekf_slam", "fastslam1", "fastslam2", "ufastslam", "iterated", "nano", "nasrukf"]
-    assert spec.seeds == 8
+    # At least 16 seeds (the project's standard for accuracy claims), none of the seeds 0-15 the
+    # landmark-management defaults were tuned on.
+    assert spec.seeds >= 16 and spec.first_seed >= 16
 
 
 def test_nasrukf_ablation_config_is_valid():

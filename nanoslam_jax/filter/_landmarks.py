@@ -84,9 +84,24 @@ def gather_window(
     return local, idx, jnp.maximum(n_near - window, 0)
 
 
-def scatter_window(lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"]) -> LandmarkMap:
-    """Write every field of a local map back to its slots (``idx``; ``capacity`` is dropped)."""
-    return jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), lm, local)
+#: The fields landmark management changes in a local map (:func:`._management.manage_window`).
+MANAGED_FIELDS = ("log_odds", "misses", "confirmed", "active")
+
+
+def scatter_window(
+    lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"], fields: tuple[str, ...] | None = None
+) -> LandmarkMap:
+    """Write the fields of a local map back to their slots (``idx``; ``capacity`` is dropped).
+
+    Args:
+        lm: the particle's map.
+        local: its local map (from :func:`gather_window`), changed.
+        idx: the global slot of each local slot.
+        fields: the fields to write (default: every field).
+    """
+    if fields is None:
+        return jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), lm, local)
+    return lm._replace(**{f: getattr(lm, f).at[idx].set(getattr(local, f), mode="drop") for f in fields})
 
 
 def update_slots(

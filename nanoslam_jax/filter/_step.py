@@ -20,6 +20,7 @@ from ..models import circular_mean, innovation, range_bearing, wrap_angle
 from ..proposals import AbstractProposal, Detections
 from ._association import associate, predicted_measurements
 from ._landmarks import (
+    MANAGED_FIELDS,
     add_landmarks,
     ekf_update_loglik,
     gather_window,
@@ -262,7 +263,11 @@ def particle_update(
         local = update_slots(local, wt, upd_mean, upd_cov, upd_d, upd_dv)
         seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
         local = manage_window(local, x_s, seen, z, z_mask, diam, valid, scan, params.max_range, mp, static.occlusion)
-        lm = drop_stale(scatter_window(lm, local, idx), scan, mp)
+        # The matched rows' estimates go straight to their slots (k rows); of the window only the
+        # fields management changes are written back (scattering every field of all W slots
+        # cost more than the management itself).
+        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
+        lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), scan, mp)
     else:
         # Only the landmarks the scan's detections matched change: write those rows back.
         lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
