@@ -71,8 +71,10 @@ ROWS: dict[str, list[str]] = {
 }
 
 
-def run_one(name: str, overrides: list[str], config: str, segments: int | None, data: str | None) -> dict:
-    """Run one configuration in this process and return its measurements."""
+def run_one(name: str, overrides: list[str], config: str, segments: int | None, data: str | None,
+            repeats: int = 1) -> dict:
+    """Run one configuration in this process and return its measurements (``run_s``: the best of
+    ``repeats`` runs of the compiled program; ``compile_s``: the first run's)."""
     import jax
 
     from nanoslam_jax._devices import setup_run_devices
@@ -91,6 +93,10 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
     t0 = time.perf_counter()
     run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk)
     total = time.perf_counter() - t0
+    run_times = [run.run_s]
+    for _ in range(repeats - 1):
+        run_times.append(run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk).run_s)
+    run = run._replace(run_s=min(run_times))
     n = int(seg.time.shape[0])
     return {
         "name": name,
@@ -101,6 +107,7 @@ def run_one(name: str, overrides: list[str], config: str, segments: int | None, 
         "scans": n,
         "compile_s": run.compile_s,
         "run_s": run.run_s,
+        "run_s_all": run_times,
         "ms_per_scan": 1e3 * run.run_s / n,
         "total_s": total,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -208,17 +215,20 @@ def main() -> None:
     p.add_argument("--segments", type=int, help="use only the first N segments (not for second-run)")
     p.add_argument("--data", help="log directory")
     p.add_argument("--json", help="also write the tables as JSON here (the docs' performance page reads it)")
+    p.add_argument("--repeats", type=int, default=1,
+                   help="runs of each row's compiled program; run [s] is the best (default 1; 3 for ratios "
+                        "between rows on a noisy VM)")
     p.add_argument("--single", help=argparse.SUPPRESS)
     args = p.parse_args()
 
     if args.single:
-        print(json.dumps(run_one(args.single, ROWS[args.single], args.config, args.segments, args.data)))
+        print(json.dumps(run_one(args.single, ROWS[args.single], args.config, args.segments, args.data, args.repeats)))
         return
 
     wanted = args.only or list(ROWS) + [SECOND_RUN, DATA]
     rows = []
     for name in [n for n in wanted if n in ROWS]:
-        cmd = [sys.executable, __file__, "--single", name, "--config", args.config]
+        cmd = [sys.executable, __file__, "--single", name, "--config", args.config, "--repeats", str(args.repeats)]
         if args.segments:
             cmd += ["--segments", str(args.segments)]
         if args.data:
