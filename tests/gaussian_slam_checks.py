@@ -78,3 +78,35 @@ def assert_padding_is_noop(static, params, state, segments, chunk: int, pose):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         assert np.all(np.asarray(out.n_associated) == 0) and np.all(np.asarray(out.n_new) == 0)
         np.testing.assert_array_equal(np.asarray(out.best_pose), np.broadcast_to(np.asarray(pose), (chunk, 3)))
+
+
+def run_real_log_start(config_name: str, vp_dir, *, fixed: tuple[float, float], aligned: float, dr_factor: float,
+                       confirmed: tuple[int, int], what: str):
+    """Run ``configs/<config_name>`` over the real log's first 300 s and check it against GPS and
+    against dead reckoning on the same span: everything finite, no overflow, detections
+    associate, ``rmse_fixed`` inside the band ``fixed``, ``rmse_aligned`` below ``aligned``, at
+    least ``dr_factor`` times below dead reckoning's ``rmse_fixed``, and a confirmed-landmark count
+    inside ``confirmed``. Returns the run."""
+    from pathlib import Path
+
+    from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
+    from nanoslam_jax.filter import run_filter
+    from nanoslam_jax.metrics import evaluate
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / config_name,
+                      [f"data.path={vp_dir}", "data.t_end=300"])
+    log = load_log(cfg)
+    static, params = settings_from_config(cfg, log.segments.k_max)
+    run = run_filter(static, params, log.segments, 0, chunk=500)
+    for a in float_leaves(run.outputs) + float_leaves(run.state):
+        assert np.all(np.isfinite(a))
+    o = run.outputs
+    assert int(np.sum(o.n_nonfinite)) == 0 and int(run.state.overflow) == 0
+    assert np.mean(o.n_associated) > 1.0
+    m = evaluate(np.asarray(log.segments.time), np.asarray(o.best_pose)[:, :2], log.raw.gps, frame=log.frame,
+                 rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+    assert fixed[0] < m["rmse_fixed"] < fixed[1] and m["rmse_aligned"] < aligned, m
+    assert_beats_dead_reckoning(m["rmse_fixed"], dead_reckoning_metrics(cfg, log)["rmse_fixed"], dr_factor, what)
+    lm = reported_map(run.state)
+    assert confirmed[0] <= int(np.sum(np.asarray(lm.active) & np.asarray(lm.confirmed))) <= confirmed[1]
+    return run

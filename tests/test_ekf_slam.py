@@ -8,7 +8,6 @@ true poses and trees; exact invariances (capacity, padding). Three chunk program
 
 import dataclasses
 import math
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -17,13 +16,16 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import EkfSlamState, _scan, reported_map, run_filter, settings_from_config
-from nanoslam_jax.filter import _ekf_slam, _joint_gaussian
+from nanoslam_jax.filter import _joint_gaussian
 from nanoslam_jax.filter._joint_gaussian import landmark_blocks
-from nanoslam_jax.metrics import landmark_errors
 from nanoslam_jax.models import vehicle_step
-from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, float_leaves, simulated
+from gaussian_slam_checks import (
+    assert_padding_is_noop,
+    assert_tracks_truth_and_maps_trees,
+    run_real_log_start,
+    simulated,
+)
 
 SIM = ["sim.duration=60", "filter.method=ekf_slam"]
 CHUNK = 100
@@ -298,26 +300,8 @@ def test_victoria_park_first_300_s(vp_dir):
     Measured (deterministic): rmse_fixed 1.62 m, rmse_aligned 1.34 m, 96 confirmed landmarks.
     Bounds: a band around those (rounding on another CPU may change an association): fixed
     1.2-2.0 m, aligned < 1.7 m, at least 40x below dead reckoning; 70-130 confirmed landmarks."""
-    from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
-    from nanoslam_jax.metrics import evaluate
-
-    config = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_ekf_slam.yaml"
-    cfg = load_config(config, [f"data.path={vp_dir}", "data.t_end=300"])
-    log = load_log(cfg)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    run = run_filter(static, params, log.segments, 0, chunk=500)
-    for a in float_leaves(run.outputs) + float_leaves(run.state):
-        assert np.all(np.isfinite(a))
-    o = run.outputs
-    assert int(np.sum(o.n_nonfinite)) == 0 and int(run.state.overflow) == 0
-    assert np.mean(o.n_associated) > 1.0
-    m = evaluate(np.asarray(log.segments.time), np.asarray(o.best_pose)[:, :2], log.raw.gps, frame=log.frame,
-                 rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
-    dr = dead_reckoning_metrics(cfg, log)["rmse_fixed"]
-    assert 1.2 < m["rmse_fixed"] < 2.0 and m["rmse_aligned"] < 1.7, m
-    assert_beats_dead_reckoning(m["rmse_fixed"], dr, 40.0, "EKF-SLAM, first 300 s")
-    lm = reported_map(run.state)
-    assert 70 <= int(np.sum(np.asarray(lm.active) & np.asarray(lm.confirmed))) <= 130
+    run = run_real_log_start("victoria_park_ekf_slam.yaml", vp_dir, fixed=(1.2, 2.0), aligned=1.7, dr_factor=40.0,
+                             confirmed=(70, 130), what="EKF-SLAM, first 300 s")
     P = np.asarray(run.state.cov)
     assert np.array_equal(P, P.T)
     n = 3 + 2 * int(run.state.count)

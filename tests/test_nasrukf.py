@@ -22,7 +22,13 @@ from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import LandmarkMap, NasrukfState, _nasrukf, fuse_poses, run_filter, settings_from_config
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step
-from gaussian_slam_checks import assert_padding_is_noop, assert_tracks_truth_and_maps_trees, simulated, true_positions
+from gaussian_slam_checks import (
+    assert_padding_is_noop,
+    assert_tracks_truth_and_maps_trees,
+    run_real_log_start,
+    simulated,
+    true_positions,
+)
 from ukf_reference import dense_transform, random_spd, wrap
 
 SIM = ["sim.duration=60", "filter.method=nasrukf", "filter.capacity=256", "data.k_max=12", "output.progress=false"]
@@ -328,23 +334,5 @@ def test_victoria_park_first_300_s(vp_dir):
     Measured (deterministic): rmse_fixed 3.21 m, rmse_aligned 1.67 m, 94 confirmed features.
     Bounds: a band around those (rounding on another CPU may change an association): fixed
     2.5-4.0 m, aligned < 2.1 m, at least 25x below dead reckoning; 70-130 confirmed features."""
-    from pathlib import Path
-
-    from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
-    from nanoslam_jax.filter import reported_map
-
-    config = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_nasrukf.yaml"
-    cfg = load_config(config, [f"data.path={vp_dir}", "data.t_end=300"])
-    log = load_log(cfg)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    run = run_filter(static, params, log.segments, 0, chunk=500)
-    o = run.outputs
-    assert np.all(np.isfinite(np.asarray(o.best_pose))) and int(np.sum(o.n_nonfinite)) == 0
-    assert int(run.state.overflow) == 0
-    m = evaluate(np.asarray(log.segments.time), np.asarray(o.best_pose)[:, :2], log.raw.gps, frame=log.frame,
-                 rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
-    dr = dead_reckoning_metrics(cfg, log)["rmse_fixed"]
-    assert 2.5 < m["rmse_fixed"] < 4.0 and m["rmse_aligned"] < 2.1, m
-    assert_beats_dead_reckoning(m["rmse_fixed"], dr, 25.0, "NASRUKF, first 300 s")
-    lm = reported_map(run.state)
-    assert 70 <= int(np.sum(np.asarray(lm.active) & np.asarray(lm.confirmed))) <= 130
+    run_real_log_start("victoria_park_nasrukf.yaml", vp_dir, fixed=(2.5, 4.0), aligned=2.1, dr_factor=25.0,
+                       confirmed=(70, 130), what="NASRUKF, first 300 s")
