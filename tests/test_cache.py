@@ -181,6 +181,7 @@ def test_compile_program_keeps_and_reuses_the_traced_program(toy_cache, monkeypa
 
 
 def test_program_key_changes_with_static_shapes_dtypes_sources_and_versions(monkeypatch):
+    _cache._environment_digest.cache_clear()  # a digest cached by an earlier test under another JAX config
     x, y = jnp.arange(4.0), (jnp.ones(4),)
     base = program_key(_toy, 3.0, (x, y))
     assert program_key(_toy, 3.0, (x, y)) == base

@@ -30,12 +30,12 @@ import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax import enable_compile_cache
 from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.filter import run_filter, settings_from_config
-from nanoslam_jax.sweep import _runner
+from nanoslam_jax.sweep import _batch, _runner
 from nanoslam_jax.sweep import (
     TIMING_COLUMNS, expand, load_log_data, load_sweep, make_tasks, plan_groups, read_results, run_sweep,
     sample_random, sweep_from_dict,
 )
-from nanoslam_jax.sweep._runner import BatchOutput, BatchTask, _score, log_key
+from nanoslam_jax.sweep._batch import BatchOutput, BatchTask, _score, log_key
 
 BASE = {
     "name": "sweep-test",
@@ -80,14 +80,14 @@ def trace_counter(tmp_path_factory):
     from jax._src import compilation_cache
 
     counter = {"n": 0}
-    original = _runner.filter_scan
+    original = _batch.filter_scan
 
     def counting(*args, **kwargs):
         counter["n"] += 1
         return original(*args, **kwargs)
 
     mp = pytest.MonkeyPatch()
-    mp.setattr(_runner, "filter_scan", counting)
+    mp.setattr(_batch, "filter_scan", counting)
     previous = jax.config.jax_compilation_cache_dir
     if not previous:
         enable_compile_cache(tmp_path_factory.mktemp("jax_cache"))
@@ -238,7 +238,7 @@ def test_sweep_compiles_once_per_shape_and_writes_its_results(main_sweep, trace_
     # Three batches of one group: one trace, one compilation.
     assert trace_counter["n"] == 1
     static = res.groups[0].static
-    assert [e["batch"] for e in _runner.compile_events() if e["static"] == static] == [4]
+    assert [e["batch"] for e in _batch.compile_events() if e["static"] == static] == [4]
     rows = read_results(out / "results.csv")
     assert len(rows) == 12 and all(r["status"] == "ok" for r in rows)
     header = next(csv.reader(open(out / "results.csv")))
@@ -277,8 +277,8 @@ def test_vmapped_runs_equal_the_same_runs_alone(main_sweep):
     groups = plan_groups(spec, runs, logs)
     task = make_tasks(spec, groups, logs, done=set())[-1]  # the last batch: c0004, c0005 (random sigma_r)
     assert task.vectorize == "vmap"
-    host, _, _ = _runner.batch_outputs(task, log)
-    mapped, _, _ = _runner.batch_outputs(dataclasses.replace(task, vectorize="map"), log)
+    host, _, _ = _batch.batch_outputs(task, log)
+    mapped, _, _ = _batch.batch_outputs(dataclasses.replace(task, vectorize="map"), log)
     by_id = {r.run_id: r for r in runs}
     for i in (0, 3):
         run = by_id[task.run_ids[i]]
@@ -350,14 +350,14 @@ def test_failed_runs_are_recorded_and_the_sweep_goes_on(tmp_path, trace_counter,
     assert "landmark capacity overflow" in (tmp_path / "a" / "summary.md").read_text()
 
     # An exception in one group fails that group's runs with the reason; the other group runs.
-    original = _runner.batch_outputs
+    original = _batch.batch_outputs
 
     def broken(task, log):
         if task.static.n_particles == 5:
             raise MemoryError("boom")
         return original(task, log)
 
-    monkeypatch.setattr(_runner, "batch_outputs", broken)
+    monkeypatch.setattr(_batch, "batch_outputs", broken)
     raw = {**MAIN, "random": None, "grid": {"filter.gate": [4.0, 5.991]}, "shapes": {"filter.n_particles": [4, 5]}}
     res = run_sweep(spec_of(raw), tmp_path / "b", progress=False)
     rows = read_results(tmp_path / "b" / "results.csv")
@@ -385,7 +385,7 @@ def test_a_non_finite_estimate_fails_the_run():
 
     seg = Segments(t, np.zeros((n, 1)), np.zeros((n, 1, 2)), np.zeros((n, 1), bool), np.zeros((n, 2, 2)),
                    np.zeros((n, 2), bool), np.zeros((n, 2)), np.ones(n, bool))
-    log = _runner.LogData(seg, gps, "slam", None, "test")
+    log = _batch.LogData(seg, gps, "slam", None, "test")
     task = BatchTask("g0", Static(), 0, None, np.array([0]), 1, ((0.0, 8.0, 1.0),), True, ("c0-s0",))
     r = _score(0, out, log, task)
     assert r["status"] == "failed" and r["reason"] == "non-finite estimate from segment 4 (t = 2.00 s)"

@@ -15,9 +15,9 @@ from typing import TYPE_CHECKING, Any
 _EXPORTS = {
     "_spec": ("SweepSpec", "RunOptions", "RandomSpec", "RandomParam", "ConfigPoint", "Run", "load_sweep",
               "sweep_from_dict", "expand", "sample_random", "spec_identity", "METRIC_KEYS", "MAP_METRIC_KEYS"),
-    "_runner": ("run_sweep", "SweepResult", "LogData", "BatchTask", "BatchOutput", "Group", "batch_program",
-                "single_program", "execute_batch", "batch_outputs", "load_log_data", "plan_groups", "make_tasks", "compile_events",
-                "resolve_parallel", "AUTO_PARALLEL"),
+    "_batch": ("LogData", "BatchTask", "BatchOutput", "batch_program", "single_program", "execute_batch",
+               "batch_outputs", "load_log_data", "compile_events"),
+    "_runner": ("run_sweep", "SweepResult", "Group", "plan_groups", "make_tasks", "resolve_parallel", "AUTO_PARALLEL"),
     "_results": ("ResultsFile", "read_results", "summarize", "select_best", "write_summary", "write_best_yaml",
                  "TIMING_COLUMNS"),
     "_plots": ("plot_sweep", "plot_metric_vs_param", "plot_heatmap"),
@@ -47,10 +47,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from ._ray import import_ray, ray_iter  # noqa: F401
     from ._results import (  # noqa: F401
         TIMING_COLUMNS, ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary)
-    from ._runner import (  # noqa: F401
-        AUTO_PARALLEL, BatchOutput, BatchTask, Group, LogData, SweepResult, batch_program, compile_events,
-        batch_outputs, execute_batch, load_log_data, make_tasks, plan_groups, resolve_parallel, run_sweep,
+    from ._batch import (  # noqa: F401
+        BatchOutput, BatchTask, LogData, batch_outputs, batch_program, compile_events, execute_batch, load_log_data,
         single_program)
+    from ._runner import (  # noqa: F401
+        AUTO_PARALLEL, Group, SweepResult, make_tasks, plan_groups, resolve_parallel, run_sweep)
     from ._spec import (  # noqa: F401
         MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, expand,
         load_sweep, sample_random, spec_identity, sweep_from_dict)

@@ -13,7 +13,7 @@ from typing import Iterator, Optional, Sequence
 
 from ..config import ConfigError
 from .._cache import enable_compile_cache
-from ._runner import BatchTask, LogData, _first_line, execute_batch
+from ._batch import BatchTask, LogData, _first_line, execute_batch
 
 __all__ = ["ray_iter", "import_ray"]
 

@@ -1,0 +1,328 @@
+"""One batch of a sweep: the log it runs on, the compiled program of a (static settings,
+vectorisation, devices, batch size, segment shapes) key, and a batch's execution and scoring.
+
+A group's programs are kept in :data:`_PROGRAMS` (and in the persistent compilation cache of
+:mod:`nanoslam_jax._cache`, so a resumed sweep, a second sweep of the same shapes and worker
+processes load instead of compiling). :mod:`._runner` plans the batches and drives them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from typing import Any, NamedTuple, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..config import Config
+from ..data import Segments
+from ..filter import Params, Static, filter_scan, reported_map
+from ..metrics import evaluate, map_summary
+from ._spec import METRIC_KEYS
+
+
+# --------------------------------------------------------------------------- the log
+
+
+@dataclasses.dataclass(frozen=True)
+class LogData:
+    """A log as host arrays, ready to ship to a worker process or a Ray task.
+
+    Attributes:
+        segments: the (possibly truncated) segments, numpy arrays.
+        gps: ``(G, 3)`` GPS fixes (or the truth of a simulated log).
+        frame: metrics frame (``'relative'`` or ``'slam'``).
+        map_truth: the true trees a map is judged against (the observable ones of a simulated log;
+            ``None`` without ground truth).
+        source: where the log came from.
+    """
+
+    segments: Segments
+    gps: np.ndarray
+    frame: str
+    map_truth: Optional[np.ndarray]
+    source: str
+
+    @property
+    def time(self) -> np.ndarray:
+        return np.asarray(self.segments.time)
+
+
+def log_key(cfg: Config) -> tuple:
+    """What determines the log of a configuration (its data section; and the simulator's inputs)."""
+    if cfg.data.kind == "simulated":
+        return (cfg.data, cfg.sim, cfg.vehicle)
+    return (cfg.data,)
+
+
+def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optional[int] = None) -> LogData:
+    """Read (or simulate) the log of ``cfg`` and keep its first ``segments`` segments.
+
+    Args:
+        cfg: a configuration (its ``data``, ``sim`` and, for simulated logs, ``vehicle`` sections).
+        data_dir: a ``--data`` directory overriding ``data.path``.
+        segments: keep only this many leading segments (``None``: all).
+    """
+    from ..experiment import load_log
+
+    log = load_log(cfg, data_dir)
+    seg = log.segments
+    n = seg.time.shape[0] if segments is None else min(segments, seg.time.shape[0])
+    seg = type(seg)(*(np.asarray(a)[:n] for a in seg))
+    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source)
+
+
+# --------------------------------------------------------------------------- the compiled program
+
+
+class BatchOutput(NamedTuple):
+    """What the sweep program returns per run (a leading batch axis when batched).
+
+    Attributes:
+        best_pose, mean_pose: ``(segments, 3)`` estimates.
+        ess, iterations, n_associated: ``(segments,)`` per-segment records.
+        n_capped, n_nonfinite, window_overflow: ``(segments,)`` counts.
+        weight_reset: ``(segments,)`` all weights were reset.
+        overflow: new landmarks dropped for lack of capacity.
+        resample_count: resampling steps.
+        map_mean, map_active, map_confirmed: the reported map (for the map metrics).
+    """
+
+    best_pose: Any
+    mean_pose: Any
+    ess: Any
+    iterations: Any
+    n_associated: Any
+    n_capped: Any
+    n_nonfinite: Any
+    window_overflow: Any
+    weight_reset: Any
+    overflow: Any
+    resample_count: Any
+    map_mean: Any
+    map_active: Any
+    map_confirmed: Any
+
+
+def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
+    """One run: the filter from ``jax.random.key(seed)`` over all segments (as ``run_filter`` does)."""
+    state, out = filter_scan(static, params, segments, jax.random.key(seed))
+    lm = reported_map(state)
+    n = segments.time.shape[0]
+
+    def rec(name, dtype):
+        v = getattr(out, name, None)
+        return jnp.zeros(n, dtype) if v is None else v
+
+    zero = jnp.zeros((), jnp.int32)
+    return BatchOutput(
+        best_pose=out.best_pose, mean_pose=out.mean_pose, ess=rec("ess", float), iterations=rec("iterations", float),
+        n_associated=rec("n_associated", float), n_capped=rec("n_capped", jnp.int32),
+        n_nonfinite=rec("n_nonfinite", jnp.int32), window_overflow=rec("window_overflow", jnp.int32),
+        weight_reset=rec("weight_reset", bool),
+        overflow=getattr(state, "overflow", zero), resample_count=getattr(state, "resample_count", zero),
+        map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
+    )
+
+
+def _local_batch(static: Static, vectorize: str, params: Params, seeds, segments: Segments) -> BatchOutput:
+    member = functools.partial(_member, static)
+    if vectorize == "vmap":
+        return jax.vmap(member, in_axes=(0, 0, None))(params, seeds, segments)
+    return jax.lax.map(lambda ps: member(ps[0], ps[1], segments), (params, seeds))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1, 2))
+def batch_program(static: Static, vectorize: str, devices: int, params: Params, seeds, segments: Segments) -> BatchOutput:
+    """A batch of runs in one compiled program.
+
+    Args:
+        static: the group's static settings.
+        vectorize: ``'vmap'``: :func:`_member` vectorised over the batch (``jax.vmap``);
+            ``'map'``: the members one after another in the program (``lax.map``), each computed
+            exactly as a run alone (bit-identical to ``run_filter``).
+        devices: split the batch over this many JAX devices (``shard_map``; 1: no split).
+        params: hyperparameters with a leading batch axis on every leaf.
+        seeds: ``(batch,)`` integer seeds.
+        segments: the log's segments (shared by the batch).
+    """
+    local = functools.partial(_local_batch, static, vectorize)
+    if devices == 1:
+        return local(params, seeds, segments)
+    from jax.sharding import Mesh, PartitionSpec
+
+    mesh = Mesh(np.array(jax.devices()[:devices]), ("batch",))
+    split = PartitionSpec("batch")
+    return jax.shard_map(local, mesh=mesh, in_specs=(split, split, PartitionSpec()), out_specs=split,
+                         check_vma=False)(params, seeds, segments)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def single_program(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
+    """One run as its own program (the sequential baseline of the benchmark)."""
+    return _member(static, params, seed, segments)
+
+
+#: Compiled programs of this process: (Static, batch, segment shapes, devices) -> executable.
+_PROGRAMS: dict[tuple, Any] = {}
+#: Programs that failed to compile: key -> error message (later batches fail at once).
+_FAILED: dict[tuple, str] = {}
+#: One entry per compilation made by this process: dict(static, batch, devices, seconds).
+_COMPILE_EVENTS: list[dict] = []
+
+
+def compile_events() -> list[dict]:
+    """The compilations this process made for sweeps (one per group shape, if all is well)."""
+    return list(_COMPILE_EVENTS)
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchTask:
+    """One compiled call: up to ``batch`` runs of one group (padded to ``batch``).
+
+    Attributes:
+        group: the group label.
+        static: the group's static settings.
+        log_id: which log (index into the sweep's logs).
+        params: stacked hyperparameters (numpy), ``batch`` long (padding repeats the first run).
+        seeds: ``(batch,)`` seeds (padded likewise).
+        n_real: how many leading members are real runs.
+        metrics_opts: ``(gps_rotation_deg, jump_speed, map_radius)`` of each real run.
+        fail_on_overflow: a landmark capacity overflow fails the run.
+        run_ids: ids of the real runs.
+        devices: split the batch over this many JAX devices (1: no split).
+        vectorize: ``'vmap'`` or ``'map'`` (see :func:`batch_program`).
+    """
+
+    group: str
+    static: Static
+    log_id: int
+    params: Params
+    seeds: np.ndarray
+    n_real: int
+    metrics_opts: tuple
+    fail_on_overflow: bool
+    run_ids: tuple
+    devices: int = 1
+    vectorize: str = "vmap"
+
+    @property
+    def batch(self) -> int:
+        return int(self.seeds.shape[0])
+
+
+def _program_key(task: BatchTask, segments: Segments) -> tuple:
+    return (task.static, task.vectorize, task.devices, task.batch, tuple((a.shape, str(a.dtype)) for a in segments))
+
+
+def _place(task: BatchTask, segments: Segments):
+    if task.devices > len(jax.devices()):
+        raise RuntimeError(f"{task.devices} JAX devices requested, {len(jax.devices())} available")
+    return jax.tree.map(jnp.asarray, task.params), jnp.asarray(task.seeds), jax.tree.map(jnp.asarray, segments)
+
+
+def _first_line(e: BaseException, limit: int = 300) -> str:
+    msg = str(e).strip().splitlines()
+    text = f"{type(e).__name__}: {msg[0] if msg else ''}".strip()
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, float]:
+    """Run one batch with the group's compiled program (compiled on first use).
+
+    Returns:
+        ``(outputs, compile_s, run_s)``: host outputs of all ``task.batch`` members (padding
+        included), the time spent compiling (0 when the program was reused) and the execution time.
+
+    Raises:
+        Whatever compilation or execution raises.
+    """
+    key = _program_key(task, log.segments)
+    if key in _FAILED:
+        raise RuntimeError(_FAILED[key])
+    args = _place(task, log.segments)
+    compiled = _PROGRAMS.get(key)
+    compile_s = 0.0
+    if compiled is None:
+        t0 = time.perf_counter()
+        try:
+            compiled = batch_program.lower(task.static, task.vectorize, task.devices, *args).compile()
+        except Exception as e:
+            _FAILED[key] = f"compilation failed: {_first_line(e)}"
+            raise RuntimeError(_FAILED[key]) from e
+        compile_s = time.perf_counter() - t0
+        _PROGRAMS[key] = compiled
+        _COMPILE_EVENTS.append(dict(static=task.static, batch=task.batch, devices=task.devices, seconds=compile_s))
+    t1 = time.perf_counter()
+    out = jax.block_until_ready(compiled(*args))
+    run_s = time.perf_counter() - t1
+    return jax.tree.map(np.asarray, out), compile_s, run_s
+
+
+def execute_batch(task: BatchTask, log: LogData) -> list[dict]:
+    """Run one batch and score each real run.
+
+    Never raises for a failing run: an exception (compilation or execution) fails every run of
+    the batch with its reason; a non-finite estimate or (with ``fail_on_overflow``) a landmark
+    capacity overflow fails that run.
+
+    Returns:
+        One dict per real run: ``status`` (``ok``/``failed``), ``reason``, the metrics, ``run_s``
+        (the batch's execution time divided by its real runs) and ``compile_s`` (time spent
+        compiling or loading the program for this batch, on the batch's first run; 0 otherwise).
+    """
+    try:
+        host, compile_s, run_s = batch_outputs(task, log)
+    except Exception as e:  # a failing group must not stop the sweep
+        return [dict(status="failed", reason=f"error: {_first_line(e)}", run_s=math.nan, compile_s=0.0)
+                for _ in range(task.n_real)]
+    run_s /= max(task.n_real, 1)
+    rows = []
+    for i in range(task.n_real):
+        try:
+            r = _score(i, host, log, task)
+        except Exception as e:
+            r = dict(status="failed", reason=f"metrics: {_first_line(e)}")
+        r.update(run_s=run_s, compile_s=compile_s if i == 0 else 0.0)
+        rows.append(r)
+    return rows
+
+
+def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
+    """Metrics of member ``i`` (as ``run_experiment`` computes them) and its status."""
+    static = task.static
+    est = out.best_pose[i] if static.estimate == "best" else out.mean_pose[i]
+    t = log.time
+    m: dict = {}
+    reasons = []
+    finite = np.isfinite(est).all(axis=1)
+    rot, jump, radius = task.metrics_opts[i]
+    alignment = None
+    if finite.all():
+        alignment = evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump, frame=log.frame)
+        m.update({k: v for k, v in alignment.items() if k in METRIC_KEYS})
+    else:
+        j = int(np.argmin(finite))
+        reasons.append(f"non-finite estimate from segment {j} (t = {t[j]:.2f} s)")
+    has = out.n_associated[i] > 0
+    overflow = int(out.overflow[i])
+    act = np.asarray(out.map_active[i])
+    m.update(map_summary(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act], log.map_truth,
+                         radius, alignment))
+    m.update(
+        landmark_overflow=overflow,
+        window_overflow_max=int(np.max(out.window_overflow[i], initial=0)), resample_count=int(out.resample_count[i]),
+        ess_mean=float(np.mean(out.ess[i])), ess_min=float(np.min(out.ess[i])),
+        nano_iterations_mean=float(np.mean(out.iterations[i][has])) if has.any() else 0.0,
+        proposal_capped=int(np.sum(out.n_capped[i])), proposal_nonfinite=int(np.sum(out.n_nonfinite[i])),
+        weight_resets=int(np.sum(out.weight_reset[i])), associations_per_scan=float(np.mean(out.n_associated[i])),
+    )
+    if overflow > 0 and task.fail_on_overflow:
+        reasons.append(f"landmark capacity overflow: {overflow} new landmarks dropped (filter.capacity = {static.capacity})")
+    m["status"] = "failed" if reasons else "ok"
+    m["reason"] = "; ".join(reasons)
+    return m
