@@ -19,6 +19,13 @@ whole run (trace, lower, backend compile-or-load time; cache hits and misses, fr
 events) and whether the two runs' ``trajectory.csv`` and ``map.csv`` are identical. Target: the
 second run spends at most 3 s compiling.
 
+``management``: the cost of landmark management, paired. One process compiles the config with
+and without ``map.manage`` (10 particles), then runs the two programs alternately (A B, B A, ...)
+``--repeats`` times (at least 5), so both see the same machine: the VM's drift between rows, which
+on a shared 2-core machine is the size of the effect, cancels. Reports each setting's best and
+median run time, the ratio of the bests and the median of the per-round ratios. Target: the
+managed program at most 1.2x the unmanaged one.
+
 ``data``: the data pipeline without the filter, best of 5 (after one warm-up): simulating the
 default log (``SimConfig()``; target at most 2 s) and cutting the real log into segments
 (``make_segments`` with the paper's 30 m range; target at most 0.5 s).
@@ -48,6 +55,10 @@ from pathlib import Path
 
 SECOND_RUN = "second-run"
 DATA = "data"
+MANAGEMENT = "management"
+
+#: The ``management`` table's two settings (the 10-particle row with and without management).
+MANAGEMENT_VARIANTS = {"managed": [], "unmanaged": ["map.manage=false"]}
 
 #: Targets of the ``data`` table, seconds.
 DATA_TARGETS = {"simulate the default log": 2.0, "segments of the real log": 0.5}
@@ -144,6 +155,44 @@ def second_run(config: str, data: str | None) -> dict:
     return dict(config=config, runs=runs, identical=identical)
 
 
+def paired_timing(config: str, variants: dict[str, list[str]], segments: int | None, data: str | None,
+                  repeats: int) -> dict:
+    """Run each variant's compiled program ``repeats`` times, alternating their order every round
+    (see the ``management`` table in the module docstring); all variants share one process and log."""
+    import statistics
+
+    from nanoslam_jax._devices import setup_run_devices
+    from nanoslam_jax.config import load_config
+    from nanoslam_jax.experiment import load_log
+    from nanoslam_jax.filter import run_filter, settings_from_config
+
+    cfgs = {k: load_config(config, v) for k, v in variants.items()}
+    first = next(iter(cfgs.values()))
+    setup_run_devices(first.filter.split_devices, first.filter.n_particles)
+    seg = load_log(first, data).segments
+    if segments is not None:
+        seg = type(seg)(*(a[:segments] for a in seg))
+    progs = {}
+    for k, cfg in cfgs.items():
+        static, params = settings_from_config(cfg, seg.k_max)
+        run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk)  # compiled and warmed up
+        progs[k] = (static, params, cfg)
+    times: dict[str, list[float]] = {k: [] for k in variants}
+    load_before = os.getloadavg()[0]
+    for i in range(repeats):
+        for k in (list(variants) if i % 2 == 0 else list(variants)[::-1]):
+            static, params, cfg = progs[k]
+            times[k].append(run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk).run_s)
+    base = list(variants)[-1]
+    out = dict(config=config, repeats=repeats, scans=int(seg.time.shape[0]), base=base, variants={},
+               load=[round(load_before, 2), round(os.getloadavg()[0], 2)])
+    for k, ts in times.items():
+        ratios = [a / b for a, b in zip(ts, times[base])]
+        out["variants"][k] = dict(overrides=variants[k], run_s=ts, best_s=min(ts), median_s=statistics.median(ts),
+                                  ratio_best=min(ts) / min(times[base]), ratio_median=statistics.median(ratios))
+    return out
+
+
 def data_timings(data: str | None) -> dict:
     """Seconds of the data pipeline's two steps (best of 5 after a warm-up); see the module docstring."""
     from nanoslam_jax.config import SimConfig, VehicleConfig, load_config, resolve_data_dir
@@ -185,6 +234,18 @@ def markdown(result: dict) -> str:
             out.append("")
         out += ["| data step | best of 5 [s] | target [s] |", "|---|---|---|"]
         out += [f"| {k} | {v:.3f} | {DATA_TARGETS.get(k, float('nan')):g} |" for k, v in dt.items()]
+    mg = result.get("management")
+    if mg:
+        if out:
+            out.append("")
+        out += [f"Landmark management's cost, paired: {mg['repeats']} alternating runs of each compiled program in "
+                f"one process ({mg['scans']} scans; ratios against `{mg['base']}`):", "",
+                "| setting | best [s] | median [s] | ratio of bests | median of per-run ratios | load before / after |",
+                "|---|---|---|---|---|---|"]
+        load = " / ".join(f"{x:.1f}" for x in mg.get("load", ()))
+        for k, v in mg["variants"].items():
+            out.append(f"| {k} | {v['best_s']:.2f} | {v['median_s']:.2f} | {v['ratio_best']:.3f} | "
+                       f"{v['ratio_median']:.3f} | {load} |")
     sr = result.get("second_run")
     if sr:
         if out:
@@ -210,7 +271,7 @@ def _commit() -> str:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--only", nargs="*", choices=list(ROWS) + [SECOND_RUN, DATA], help="rows to run (default: all)")
+    p.add_argument("--only", nargs="*", choices=list(ROWS) + [SECOND_RUN, DATA, MANAGEMENT], help="rows to run (default: all)")
     p.add_argument("--config", default="configs/victoria_park_nano.yaml")
     p.add_argument("--segments", type=int, help="use only the first N segments (not for second-run)")
     p.add_argument("--data", help="log directory")
@@ -221,11 +282,15 @@ def main() -> None:
     p.add_argument("--single", help=argparse.SUPPRESS)
     args = p.parse_args()
 
+    if args.single == MANAGEMENT:
+        print(json.dumps(paired_timing(args.config, MANAGEMENT_VARIANTS, args.segments, args.data,
+                                       max(args.repeats, 5))))
+        return
     if args.single:
         print(json.dumps(run_one(args.single, ROWS[args.single], args.config, args.segments, args.data, args.repeats)))
         return
 
-    wanted = args.only or list(ROWS) + [SECOND_RUN, DATA]
+    wanted = args.only or list(ROWS) + [SECOND_RUN, DATA, MANAGEMENT]
     rows = []
     for name in [n for n in wanted if n in ROWS]:
         cmd = [sys.executable, __file__, "--single", name, "--config", args.config, "--repeats", str(args.repeats)]
@@ -245,6 +310,16 @@ def main() -> None:
     result = dict(commit=_commit(), date=datetime.datetime.now().isoformat(timespec="minutes"),
                   cores=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                   command=" ".join(["python", "experiments/benchmark.py", *sys.argv[1:]]), rows=rows)
+    if MANAGEMENT in wanted:
+        # In a subprocess of its own, like the rows (its peak memory and JAX state are its own).
+        cmd = [sys.executable, __file__, "--single", MANAGEMENT, "--config", args.config, "--repeats", str(args.repeats)]
+        cmd += ["--segments", str(args.segments)] if args.segments else []
+        cmd += ["--data", args.data] if args.data else []
+        res = subprocess.run(cmd, capture_output=True, text=True)
+        if res.returncode != 0:
+            print(f"{MANAGEMENT}: failed\n{res.stderr[-2000:]}", file=sys.stderr)
+        else:
+            result["management"] = json.loads(res.stdout.strip().splitlines()[-1])
     if DATA in wanted:
         result["data"] = data_timings(args.data)
     if SECOND_RUN in wanted:
