@@ -82,23 +82,28 @@ ROWS: dict[str, list[str]] = {
 }
 
 
+def _segments(cfg, data: str | None, segments: int | None):
+    """The log's segments (the first ``segments`` only, when given), after setting the devices up
+    as ``nanoslam run`` does."""
+    from nanoslam_jax._devices import setup_run_devices
+    from nanoslam_jax.experiment import load_log
+
+    setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)
+    seg = load_log(cfg, data).segments
+    return seg if segments is None else type(seg)(*(a[:segments] for a in seg))
+
+
 def run_one(name: str, overrides: list[str], config: str, segments: int | None, data: str | None,
             repeats: int = 1) -> dict:
     """Run one configuration in this process and return its measurements (``run_s``: the best of
     ``repeats`` runs of the compiled program; ``compile_s``: the first run's)."""
     import jax
 
-    from nanoslam_jax._devices import setup_run_devices
     from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import load_log
     from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
 
     cfg = load_config(config, overrides)
-    setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)  # as `nanoslam run` does
-    log = load_log(cfg, data)
-    seg = log.segments
-    if segments is not None:
-        seg = type(seg)(*(a[:segments] for a in seg))
+    seg = _segments(cfg, data, segments)
     static, params = settings_from_config(cfg, seg.k_max)
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
@@ -161,17 +166,11 @@ def paired_timing(config: str, variants: dict[str, list[str]], segments: int | N
     (see the ``management`` table in the module docstring); all variants share one process and log."""
     import statistics
 
-    from nanoslam_jax._devices import setup_run_devices
     from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import load_log
     from nanoslam_jax.filter import run_filter, settings_from_config
 
     cfgs = {k: load_config(config, v) for k, v in variants.items()}
-    first = next(iter(cfgs.values()))
-    setup_run_devices(first.filter.split_devices, first.filter.n_particles)
-    seg = load_log(first, data).segments
-    if segments is not None:
-        seg = type(seg)(*(a[:segments] for a in seg))
+    seg = _segments(next(iter(cfgs.values())), data, segments)
     progs = {}
     for k, cfg in cfgs.items():
         static, params = settings_from_config(cfg, seg.k_max)
@@ -214,6 +213,10 @@ def data_timings(data: str | None) -> dict:
     return out
 
 
+def _load(r: dict) -> str:
+    return " / ".join(f"{x:.1f}" for x in r.get("load", ()))
+
+
 def markdown(result: dict) -> str:
     """The Markdown tables of a benchmark result (as written by ``--json``)."""
     out = []
@@ -224,10 +227,9 @@ def markdown(result: dict) -> str:
                 "| peak RSS [MB] | landmarks | load before / after |")
         out += [head, "|" + "---|" * (head.count("|") - 1)]
         for r in result["rows"]:
-            load = " / ".join(f"{x:.1f}" for x in r.get("load", ()))
             out.append(f"| {r['name']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
                        f"{r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
-                       f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {load} |")
+                       f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {_load(r)} |")
     dt = result.get("data")
     if dt:
         if out:
@@ -242,10 +244,9 @@ def markdown(result: dict) -> str:
                 f"one process ({mg['scans']} scans; ratios against `{mg['base']}`):", "",
                 "| setting | best [s] | median [s] | ratio of bests | median of per-run ratios | load before / after |",
                 "|---|---|---|---|---|---|"]
-        load = " / ".join(f"{x:.1f}" for x in mg.get("load", ()))
         for k, v in mg["variants"].items():
             out.append(f"| {k} | {v['best_s']:.2f} | {v['median_s']:.2f} | {v['ratio_best']:.3f} | "
-                       f"{v['ratio_median']:.3f} | {load} |")
+                       f"{v['ratio_median']:.3f} | {_load(mg)} |")
     sr = result.get("second_run")
     if sr:
         if out:
@@ -256,11 +257,25 @@ def markdown(result: dict) -> str:
                 "| run [s] | wall [s] | load before / after |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in sr["runs"]:
             j = r["jax"]
-            load = " / ".join(f"{x:.1f}" for x in r.get("load", ()))
             out.append(f"| {r['run']} | {r['compile_s']:.2f} | {j['trace_s']:.2f} | {j['lower_s']:.2f} | "
                        f"{j['backend_s']:.2f} | {j['cache_hits']} | {j['cache_misses']} | {r['run_s']:.2f} | "
-                       f"{r['wall_s']:.1f} | {load} |")
+                       f"{r['wall_s']:.1f} | {_load(r)} |")
     return "\n".join(out)
+
+
+def _single(name: str, args) -> dict | None:
+    """Run one row (or the ``management`` table) in a fresh process without the persistent
+    compilation cache (so its compile time is a cold compilation and its memory its own)."""
+    cmd = [sys.executable, __file__, "--single", name, "--config", args.config, "--repeats", str(args.repeats)]
+    cmd += ["--segments", str(args.segments)] if args.segments else []
+    cmd += ["--data", args.data] if args.data else []
+    env = os.environ.copy()
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if res.returncode != 0:
+        print(f"{name}: failed\n{res.stderr[-2000:]}", file=sys.stderr)
+        return None
+    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
 def _commit() -> str:
@@ -293,33 +308,18 @@ def main() -> None:
     wanted = args.only or list(ROWS) + [SECOND_RUN, DATA, MANAGEMENT]
     rows = []
     for name in [n for n in wanted if n in ROWS]:
-        cmd = [sys.executable, __file__, "--single", name, "--config", args.config, "--repeats", str(args.repeats)]
-        if args.segments:
-            cmd += ["--segments", str(args.segments)]
-        if args.data:
-            cmd += ["--data", args.data]
-        env = os.environ.copy()
-        env.pop("JAX_COMPILATION_CACHE_DIR", None)  # rows measure a cold compilation
-        res = subprocess.run(cmd, capture_output=True, text=True, env=env)
-        if res.returncode != 0:
-            print(f"{name}: failed\n{res.stderr[-2000:]}", file=sys.stderr)
+        r = _single(name, args)
+        if r is None:
             continue
-        rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
-        r = rows[-1]
+        rows.append(r)
         print(f"{name}: {r['run_s']:.2f} s run, {r['compile_s']:.1f} s compile", file=sys.stderr, flush=True)
     result = dict(commit=_commit(), date=datetime.datetime.now().isoformat(timespec="minutes"),
                   cores=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                   command=" ".join(["python", "experiments/benchmark.py", *sys.argv[1:]]), rows=rows)
     if MANAGEMENT in wanted:
-        # In a subprocess of its own, like the rows (its peak memory and JAX state are its own).
-        cmd = [sys.executable, __file__, "--single", MANAGEMENT, "--config", args.config, "--repeats", str(args.repeats)]
-        cmd += ["--segments", str(args.segments)] if args.segments else []
-        cmd += ["--data", args.data] if args.data else []
-        res = subprocess.run(cmd, capture_output=True, text=True)
-        if res.returncode != 0:
-            print(f"{MANAGEMENT}: failed\n{res.stderr[-2000:]}", file=sys.stderr)
-        else:
-            result["management"] = json.loads(res.stdout.strip().splitlines()[-1])
+        mg = _single(MANAGEMENT, args)
+        if mg is not None:
+            result["management"] = mg
     if DATA in wanted:
         result["data"] = data_timings(args.data)
     if SECOND_RUN in wanted:
