@@ -4,7 +4,8 @@
     nanoslam config [CONFIG] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--set sim.key=value ...]
     nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
-                     [--quick] [--resume] [--methods LABEL ...] [--parallel MODE]   (study files)
+                     [--quick] [--resume] [--methods LABEL ...] [--particles N ...]
+                     [--parallel MODE]   (study files)
     nanoslam sweep SWEEP [--out DIR] [--resume] [--data DIR] [--set key=value ...] [--backend local|ray]
     nanoslam --version
 
@@ -78,6 +79,8 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--quick", action="store_true", help="study files: run the file's 'quick' variant")
     c.add_argument("--resume", action="store_true", help="study files: continue the study in --out")
     c.add_argument("--methods", nargs="+", metavar="LABEL", help="study files: run only these methods (labels)")
+    c.add_argument("--particles", nargs="+", type=int, metavar="N",
+                   help="study files: run only these particle counts (of the file's)")
     c.add_argument("--parallel", choices=["auto", "single", "devices", "processes"],
                    help="study files: how the sweep runner uses several cores (default: the file's run.parallel)")
     from .sweep._cli import add_sweep_parser
@@ -94,7 +97,7 @@ def _compare(args) -> int:
 
     if is_study_file(args.comparison):
         return _study(args)
-    for flag in ("quick", "resume", "parallel", "methods"):
+    for flag in ("quick", "resume", "parallel", "methods", "particles"):
         if getattr(args, flag):
             raise ConfigError(f"{args.comparison}: --{flag} applies to study files (with a 'particles' section) only")
     spec = load_compare_spec(args.comparison, tuple(args.overrides), seeds=args.seeds)
@@ -105,12 +108,25 @@ def _compare(args) -> int:
     return 0 if all(r["status"] == "ok" for r in rows) else 1
 
 
+def _study_flags(args) -> str:
+    """The flags that chose the study's points, as the command line gave them."""
+    flags = " --quick" if args.quick else ""
+    if args.seeds is not None:
+        flags += f" --seeds {args.seeds}"
+    if args.methods:
+        flags += " --methods " + " ".join(repr(m) if " " in m else m for m in args.methods)
+    if args.particles:
+        flags += " --particles " + " ".join(map(str, args.particles))
+    return flags
+
+
 def _study(args) -> int:
     import datetime as _dt
 
     from .study import load_study, run_study
 
-    spec = load_study(args.comparison, tuple(args.overrides), quick=args.quick, seeds=args.seeds, only=args.methods)
+    spec = load_study(args.comparison, tuple(args.overrides), quick=args.quick, seeds=args.seeds, only=args.methods,
+                      counts=args.particles)
     if args.resume and not args.out:
         raise ConfigError("--resume needs --out DIR (the study directory to continue)")
     out = Path(args.out) if args.out else Path("results") / f"{spec.name}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
@@ -119,7 +135,7 @@ def _study(args) -> int:
                         parallel=args.parallel)
     except KeyboardInterrupt:
         print(f"\nnanoslam: study interrupted; finished batches are saved in {out}; continue with:\n"
-              f"  nanoslam compare {args.comparison}{' --quick' if args.quick else ''} --out {out} --resume",
+              f"  nanoslam compare {args.comparison}{_study_flags(args)} --out {out} --resume",
               file=sys.stderr)
         return 130
     print((out / "summary.md").read_text())

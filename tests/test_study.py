@@ -95,6 +95,13 @@ def test_quick_variant_seeds_and_methods_overrides(tmp_path):
                     {"label": "B", "set": ["filter.method=nano"]}]})
     assert [(p.point_id, p.seeds) for p in expand_study(load_study(own))] == [
         ("B_N0010", (5, 6, 7)), ("B_N0020", (5, 6)), ("A_N0040", (5,))]
+    # --particles keeps only those counts (a method's own counts too), with the same point ids
+    assert [(p.point_id, p.seeds) for p in expand_study(load_study(own, counts=[20, 40]))] == [
+        ("B_N0020", (5, 6)), ("A_N0040", (5,))]
+    assert [p.point_id for p in expand_study(load_study(own, counts=[10]))] == ["B_N0010"]
+    for bad in ([7], [], [10, 30]):
+        with pytest.raises(ConfigError, match=r"--particles: expected particle counts of the study \[10, 20, 40\]"):
+            load_study(own, counts=bad)
 
 
 @pytest.mark.parametrize("change, fragment", [
@@ -250,13 +257,17 @@ def _csv(path: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+QUICK_N = min(yaml.safe_load(STUDY.read_text())["quick"]["particles"])
+
+
 @pytest.fixture(scope="module")
 def quick_study(tmp_path_factory):
     """The shipped quick variant on a small simulated log, NANO-SLAM and UFastSLAM at its
-    particle counts with 2 seeds each, run as a user runs it (a fresh process)."""
+    smallest particle count with 2 seeds each, run as a user runs it (a fresh process). (Each
+    point compiles twice, once for its batch and once for its timing process: ~15 s each.)"""
     out = tmp_path_factory.mktemp("study") / "quick"
     argv = ["compare", str(STUDY), "--quick", "--seeds", "2", "--methods", "NANO-SLAM", "UFastSLAM",
-            "--parallel", "single", "--out", str(out)]  # single: no batch padded to the device count
+            "--particles", str(QUICK_N), "--parallel", "single", "--out", str(out)]  # single: no batch padded to the device count
     for s in SIM + ["filter.row_buckets=never"]:  # row buckets: the same results, compiled once instead of thrice
         argv += ["--set", s]
     proc = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", *argv], capture_output=True, text=True,
@@ -268,7 +279,7 @@ def quick_study(tmp_path_factory):
 def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
     out, _, proc = quick_study
     q = yaml.safe_load(STUDY.read_text())["quick"]
-    counts = sorted(q["particles"])
+    counts = [QUICK_N]
     runs = _csv(out / "runs.csv")
     assert sorted((r["method"], int(r["particles"]), int(r["seed"])) for r in runs) == sorted(
         (m, n, s) for m in ("NANO-SLAM", "UFastSLAM") for n in counts for s in (0, 1))
@@ -276,7 +287,7 @@ def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
     # each point's medians are those of its sweep's own results.csv; seconds per log from its timing row
     timing = {r["point_id"]: r for r in _csv(out / "timing.csv")}
     summary = _csv(out / "summary.csv")
-    assert len(summary) == 4 and len(timing) == 4
+    assert len(summary) == 2 and len(timing) == 2
     for s in summary:
         pid = next(r["point_id"] for r in runs if r["method"] == s["method"] and r["particles"] == s["particles"])
         own = _csv(out / "runs" / pid / "results.csv")
@@ -311,5 +322,5 @@ def test_a_resumed_study_reuses_every_point(quick_study):
     proc = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", *argv, "--resume"], capture_output=True, text=True,
                           cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert proc.stderr.count("runs finished before") == 4 and proc.stderr.count("measured before") == 4
+    assert proc.stderr.count("runs finished before") == 2 and proc.stderr.count("measured before") == 2
     assert {p: (out / p).read_bytes() for p in ("runs.csv", "timing.csv")} == before

@@ -222,7 +222,8 @@ def _segments(value: Any, key: str, where: str) -> Optional[int]:
 
 
 def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool = False,
-               seeds: Optional[int] = None, only: Optional[Sequence[str]] = None) -> StudySpec:
+               seeds: Optional[int] = None, only: Optional[Sequence[str]] = None,
+               counts: Optional[Sequence[int]] = None) -> StudySpec:
     """Read and validate a study file.
 
     Args:
@@ -233,6 +234,8 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
             method still runs once).
         only: run only the methods with these labels (``None``: all of the file's, or of its
             ``quick.methods``).
+        counts: run only these particle counts (``None``: all of the file's, or of its
+            ``quick.particles``); each must be one of the study's counts.
 
     Raises:
         ConfigError: naming the file and the key, for unknown keys, wrong types, unknown labels,
@@ -278,6 +281,13 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         if not only or any(k not in have for k in only):
             raise ConfigError(f"{where}: --methods: expected labels of the study's methods {have}, got {list(only)}")
         methods = [m for m in methods if m.label in only]
+    if counts is not None:
+        have_n = sorted({n for n, _ in particles} | {n for m in methods if m.particles for n, _ in m.particles})
+        if not counts or any(not isinstance(n, int) or n not in have_n for n in counts):
+            raise ConfigError(f"{where}: --particles: expected particle counts of the study {have_n}, got {list(counts)}")
+        particles = tuple((n, s) for n, s in particles if n in counts)
+        methods = [m if m.particles is None else dataclasses.replace(m, particles=tuple((n, s) for n, s in m.particles if n in counts))
+                   for m in methods]
     if seeds is not None:
         _int(seeds, "--seeds", where, 1)
         particles = tuple((n, seeds) for n, _ in particles)
@@ -341,8 +351,11 @@ def expand_study(spec: StudySpec) -> list[StudyPoint]:
         if cfg.filter.method in DETERMINISTIC:
             rows.append(((0, order), StudyPoint(_safe(m.label), m.label, cfg.filter.method, None, (spec.first_seed,), cfg)))
             continue
-        width = max(4, len(str(max(n for n, _ in (m.particles or spec.particles)))))
-        for n, s in m.particles or spec.particles:
+        counts = m.particles if m.particles is not None else spec.particles  # () once --particles drops them all
+        if not counts:
+            continue
+        width = max(4, len(str(max(n for n, _ in counts))))
+        for n, s in counts:
             rows.append(((n, order), StudyPoint(f"{_safe(m.label)}_N{n:0{width}d}", m.label, cfg.filter.method, n,
                                                 tuple(range(spec.first_seed, spec.first_seed + s)),
                                                 point_config(spec, m, n))))
