@@ -16,7 +16,7 @@ import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.filter import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
 from nanoslam_jax.filter._landmarks import add_landmarks, update_slots
 from nanoslam_jax.filter._association import innovation_information
-from nanoslam_jax.filter._landmarks import first_true, prefix_count
+from nanoslam_jax.filter._landmarks import first_true, free_slots, prefix_count
 from nanoslam_jax.filter._params import Static
 from nanoslam_jax.filter._state import slots_in_use
 
@@ -456,3 +456,21 @@ def test_first_true_and_prefix_count_equal_numpy(n):
             expect[: min(size, ref.size)] = ref[:size]
             np.testing.assert_array_equal(np.asarray(idx), expect)
             assert int(count) == mask.sum()
+
+
+def test_free_slots_over_a_prefix_equal_numpy():
+    """The first k free slots searched over a prefix holding every active landmark plus k are
+    those of the whole map (numpy), with ``capacity`` where the map has fewer."""
+    rng = np.random.default_rng(3)
+    capacity, k = 512, 14
+    for in_use in (0, 1, 60, 128, 300, 505, 512):
+        active = np.zeros(capacity, bool)
+        active[:in_use] = rng.uniform(size=in_use) < 0.9
+        if in_use:
+            active[in_use - 1] = True
+        (free,) = np.nonzero(~active)
+        expect = np.full(k, capacity)
+        expect[: min(k, free.size)] = free[:k]
+        for slots in (None, in_use + k, 512):
+            np.testing.assert_array_equal(np.asarray(free_slots(jnp.asarray(active), k, slots)), expect,
+                                          err_msg=f"{in_use} {slots}")

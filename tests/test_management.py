@@ -162,6 +162,11 @@ def test_occlusion_on_a_hand_built_scene():
     zp = jnp.array([[20.0, 0.0], [5.0, 0.0]])
     hidden = occluded(zp, jnp.array([[10.0, 0.01]]), jnp.array([0.2]), jnp.array([True]), 0.0)
     np.testing.assert_array_equal(hidden, [True, False])
+    # Across the +-pi seam (behind the vehicle): 0.02 rad apart, half-angle atan(0.2 / 10) = 0.02
+    # rad, so the pair 0.015 rad apart is hidden and the one 0.03 rad apart is not.
+    zp = jnp.array([[20.0, -math.pi + 0.005], [20.0, -math.pi + 0.02], [20.0, math.pi - 0.02]])
+    hidden = occluded(zp, jnp.array([[10.0, math.pi - 0.01]]), jnp.array([0.2]), jnp.array([True]), 0.0)
+    np.testing.assert_array_equal(hidden, [True, False, True])
 
 
 def test_diameter_term_separates_two_trees_at_the_same_range_and_bearing():

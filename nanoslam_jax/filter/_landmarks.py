@@ -130,8 +130,25 @@ def update_slots(
     return lm
 
 
+def free_slots(active: Bool[Array, "capacity"], k: int, slots: int | None = None) -> Int[Array, "k"]:
+    """The first ``k`` free slots of a map in order (``capacity`` where there are fewer).
+
+    Args:
+        active: which slots hold a landmark.
+        k: how many free slots are wanted.
+        slots: search only the first ``slots`` slots (the search costs in proportion to them);
+            they must hold every active landmark and ``k`` free slots, e.g. a prefix holding
+            every active landmark plus ``k`` (default: all).
+    """
+    capacity = active.shape[0]
+    slots = capacity if slots is None else min(slots, capacity)
+    free, _ = first_true(~active[:slots], k)
+    return free if slots == capacity else jnp.where(free < slots, free, capacity)
+
+
 def add_landmarks(
-    lm: LandmarkMap, new: LandmarkMap, is_new: Bool[Array, "k"], contiguous: bool = False
+    lm: LandmarkMap, new: LandmarkMap, is_new: Bool[Array, "k"], contiguous: bool = False,
+    free: Int[Array, "k"] | None = None,
 ) -> tuple[LandmarkMap, Int[Array, ""]]:
     """Place new landmarks in free slots, in order.
 
@@ -145,6 +162,8 @@ def add_landmarks(
             management, since landmarks are only added): the free slots then start at the active
             count, which avoids a search over the whole capacity; a free slot then already holds
             zero misses.
+        free: the first ``k`` free slots when the caller has found them already
+            (:func:`free_slots` over a prefix); default: searched here.
 
     Returns:
         The updated map and the number of landmarks dropped for lack of capacity.
@@ -155,8 +174,8 @@ def add_landmarks(
     if contiguous:
         free = jnp.sum(lm.active) + jnp.arange(k_max)
         free = jnp.where(free < capacity, free, capacity)
-    else:
-        free, _ = first_true(~lm.active, k_max)
+    elif free is None:
+        free = free_slots(lm.active, k_max)
     target = jnp.where(is_new, free[order], capacity)
     fields = [f for f in LandmarkMap._fields if not (contiguous and f == "misses")]
     lm = lm._replace(**{f: getattr(lm, f).at[target].set(getattr(new, f), mode="drop") for f in fields})

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from .._trig import atan2, computed_once
 from ..models import range_bearing, wrap_angle
 from ._params import MapParams
 from ._state import LandmarkMap
@@ -85,18 +86,23 @@ def occluded(
     ``|beta_i - beta_j| < atan2(rho_i + width, r_i)`` (bearing difference wrapped).
 
     Args:
-        z_pred: predicted ``(r, beta)`` of the landmarks tested.
-        occluder_z: ``(r, beta)`` of the possible occluders (the scan's detections, landmarks).
+        z_pred: predicted ``(r, beta)`` of the landmarks tested (bearings in ``(-pi, pi]``).
+        occluder_z: ``(r, beta)`` of the possible occluders (the scan's detections, landmarks;
+            bearings in ``(-pi, pi]``).
         occluder_radius: their radii (half the diameter, m).
         occluder_mask: which occluders are real.
         width: half-width added to every occluder's radius (m).
     """
     r_o, b_o = occluder_z[:, 0], occluder_z[:, 1]
-    half = jnp.arctan2(occluder_radius + width, jnp.maximum(r_o, 1e-9))
+    # The vectorised arctangent (jnp.arctan2 runs one element at a time on XLA:CPU, ~15 ns each).
+    half = computed_once(atan2(occluder_radius + width, jnp.maximum(r_o, 1e-9)))
     # Occluders on the leading axis: the reduction then combines whole rows (vectorised on
     # XLA:CPU; over the trailing axis it was most of the management's cost).
     nearer = r_o[:, None] < z_pred[None, :, 0]
-    covers = jnp.abs(wrap_angle(b_o[:, None] - z_pred[None, :, 1])) < half[:, None]
+    # |wrap(d)| for bearings in (-pi, pi] (|d| < 2 pi), as min(|d|, 2 pi - |d|): the same values
+    # bit for bit as wrap_angle's, at a third of the cost.
+    d = jnp.abs(b_o[:, None] - z_pred[None, :, 1])
+    covers = jnp.minimum(d, 2.0 * jnp.pi - d) < half[:, None]
     return jnp.any(occluder_mask[:, None] & nearer & covers, axis=0)
 
 

@@ -23,6 +23,7 @@ from ._landmarks import (
     MANAGED_FIELDS,
     add_landmarks,
     ekf_update_loglik,
+    free_slots,
     gather_window,
     init_landmark,
     scatter_window,
@@ -149,8 +150,8 @@ def particle_update(
     per particle (the same Gaussian up to rounding). ``None``: propagated here.
 
     ``slot_bucket``: index into ``static.slot_buckets`` of a map prefix that holds every active
-    landmark (the local window is searched there; ``None``: the whole map). The same for all
-    particles, so under ``vmap`` it stays a branch.
+    landmark (the local window, and with management the free slots, are searched there;
+    ``None``: the whole map). The same for all particles, so under ``vmap`` it stays a branch.
 
     ``diam``: the diameter reported with each detection (``None``: zeros); ``scan``: the count of
     laser scans before this one (the clock of the landmarks' ``born``).
@@ -271,7 +272,13 @@ def particle_update(
     else:
         # Only the landmarks the scan's detections matched change: write those rows back.
         lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
-    lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage)
+    free = None
+    if static.manage and slot_bucket is not None and len(static.slot_buckets) > 1:
+        # The first K free slots lie in the prefix that held every active landmark before this
+        # scan (management only frees slots) plus K: searched there, not over the whole map.
+        branches = [lambda a, b=b: free_slots(a, K, b + K) for b in static.slot_buckets]
+        free = jax.lax.switch(slot_bucket, branches, lm.active)
+    lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage, free=free)
     has_assoc = jnp.any(used)
     return _ParticleOut(
         pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
