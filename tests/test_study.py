@@ -87,7 +87,10 @@ def test_quick_variant_seeds_and_methods_overrides(tmp_path):
     two = load_study(STUDY, quick=True, seeds=2, only=["NANO-SLAM", "EKF-SLAM"])
     assert [(p.label, p.particles, p.seeds) for p in expand_study(two)] == [
         ("EKF-SLAM", None, (0,)), ("NANO-SLAM", 10, (0, 1)), ("NANO-SLAM", 100, (0, 1))]
-    assert two.paired is None  # its compared methods were left out
+    # --methods narrows what runs, not the study: the comparison stays (it pairs whatever points
+    # the directory holds, e.g. after a --resume with the other methods)
+    assert two.paired.reference == "NANO-SLAM" and set(two.paired.against) == {"UFastSLAM", "FastSLAM 2.0"}
+    assert load_study(STUDY, quick=True, only=["NANO-SLAM"], counts=[10]).paired == two.paired
 
     own = _write(tmp_path / "own.yaml", {
         "base": str(ROOT / "configs" / "victoria_park_nano.yaml"), "first_seed": 5, "particles": {10: 3, 20: 2},
@@ -324,3 +327,12 @@ def test_a_resumed_study_reuses_every_point(quick_study):
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stderr.count("runs finished before") == 2 and proc.stderr.count("measured before") == 2
     assert {p: (out / p).read_bytes() for p in ("runs.csv", "timing.csv")} == before
+    # Resumed for one method: every point the directory holds stays in the tables, the paired
+    # comparison included.
+    before["paired.csv"] = (out / "paired.csv").read_bytes()
+    one = [a for a in argv if a != "NANO-SLAM"]
+    proc = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", *one, "--resume"], capture_output=True, text=True,
+                          cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stderr.count("runs finished before") == 1
+    assert {p: (out / p).read_bytes() for p in ("runs.csv", "timing.csv", "paired.csv")} == before

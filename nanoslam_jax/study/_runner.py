@@ -264,6 +264,8 @@ def write_tables(out: Path, spec: StudySpec, points: list[dict]) -> tuple[list, 
     paired = _paired_rows(spec, runs, summary)
     if paired:
         _write_csv(out / "paired.csv", paired)
+    else:
+        (out / "paired.csv").unlink(missing_ok=True)  # never one left from an earlier state of the study
     (out / "paired.md").write_text(_paired_markdown(spec, paired))
     return summary, paired
 

@@ -276,6 +276,7 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
             if not isinstance(keep, list) or not keep or any(k not in labels for k in keep):
                 raise ConfigError(f"{where}: key 'quick.methods': expected a list of method labels from {labels}, got {keep!r}")
             methods = [m for m in methods if m.label in keep]
+    in_variant = [m.label for m in methods]  # --methods and --particles narrow a run, not the study
     if only is not None:
         have = [m.label for m in methods]
         if not only or any(k not in have for k in only):
@@ -296,11 +297,10 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
     run = raw.get("run") or {}
     if not isinstance(run, dict):
         raise ConfigError(f"{where}: key 'run': expected a mapping of sweep run options, got {run!r}")
-    kept = [m.label for m in methods]
     paired = _paired(raw.get("paired"), labels, where)
     if paired is not None:  # the quick variant may drop some of the compared methods
-        against = tuple(a for a in paired.against if a in kept)
-        paired = dataclasses.replace(paired, against=against) if paired.reference in kept and against else None
+        against = tuple(a for a in paired.against if a in in_variant)
+        paired = dataclasses.replace(paired, against=against) if paired.reference in in_variant and against else None
     spec = StudySpec(
         name=str(raw.get("name", p.stem)) + ("-quick" if quick else ""), source=where, base=base,
         set=_str_list(raw.get("set"), "set", where) + tuple(overrides), methods=tuple(methods), particles=particles,
