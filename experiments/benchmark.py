@@ -88,7 +88,7 @@ def _segments(cfg, data: str | None, segments: int | None):
     from nanoslam_jax._devices import setup_run_devices
     from nanoslam_jax.experiment import load_log
 
-    setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)
+    setup_run_devices(cfg)
     seg = load_log(cfg, data).segments
     return seg if segments is None else type(seg)(*(a[:segments] for a in seg))
 

@@ -54,18 +54,23 @@ def setup_devices(n: int) -> int:
     return len(jax.devices())
 
 
-def setup_run_devices(split_devices: str, n_particles: int) -> int:
+def setup_run_devices(cfg) -> int:
     """Set up :data:`DEVICES_PER_CORE` JAX CPU devices per core when a single run's particles
     will be split over them (``filter.split_devices``; see
     :func:`~nanoslam_jax.filter.particle_devices`). Call first thing, before JAX's first
     computation.
 
+    Args:
+        cfg: the run's :class:`~nanoslam_jax.config.Config`.
+
     Returns:
         The number of JAX devices available.
     """
-    from .filter import particle_devices
+    from .filter import particle_devices, shardable
 
     cores = available_cores()
-    if cores > 1 and particle_devices(split_devices, n_particles, cores * DEVICES_PER_CORE) > 1:
+    split_ok = shardable(cfg.filter.method, cfg.nano.init)
+    if cores > 1 and particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, cores * DEVICES_PER_CORE,
+                                      split_ok=split_ok) > 1:
         return setup_devices(cores * DEVICES_PER_CORE)
     return len(jax.devices())

@@ -157,7 +157,7 @@ def _run(args) -> int:
     from .experiment import default_out_dir, run_experiment
 
     cfg = load_config(args.config, args.overrides)
-    setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)
+    setup_run_devices(cfg)
     out = Path(args.out) if args.out else default_out_dir(cfg)
     metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)
     keys = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "dr_rmse_fixed", "n_landmarks",

@@ -403,3 +403,19 @@ def test_particle_devices_takes_the_most_devices_that_divide_the_particles():
     assert particle_devices("always", 101, 4) == 1
     assert particle_devices("auto", SPLIT_DEVICES_FROM - 1, 4) == 1
     assert particle_devices("never", 1000, 4) == 1
+    assert particle_devices("always", 1000, 4, split_ok=False) == 1
+
+
+def test_least_squares_methods_are_not_split_over_devices():
+    """optimistix's least squares cannot run under shard_map (lineax issue #185; reproduced in
+    tests/test_sweep.py), so a run of the iterated proposal or of NANO-SLAM initialised at the
+    Gauss-Newton MAP keeps its particles on one device whatever ``filter.split_devices`` says."""
+    from nanoslam_jax.filter import shardable
+
+    over = ["filter.n_particles=1000", "filter.split_devices=always"]
+    for extra, split in ((["filter.method=iterated"], False), (["filter.method=nano", "nano.init=gauss_newton"], False),
+                         (["filter.method=nano"], True), (["filter.method=fastslam2"], True)):
+        cfg = load_config(None, over + extra)
+        assert shardable(cfg.filter.method, cfg.nano.init) is split, extra
+        static, _ = settings_from_config(cfg, 14)
+        assert (static.devices > 1) is (split and len(jax.devices()) > 1), extra

@@ -17,8 +17,12 @@ from __future__ import annotations
 import csv
 import dataclasses
 import itertools
+import json
 import math
 import re
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import jax
@@ -28,6 +32,7 @@ import yaml
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax import enable_compile_cache
+from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
 from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.filter import run_filter, settings_from_config
 from nanoslam_jax.sweep import _batch, _runner
@@ -459,3 +464,61 @@ def test_ray_backend_writes_the_same_results(main_sweep, tmp_path):
             ray.shutdown()
     assert res.n_new == 8
     assert rows_by_id(out / "results.csv") == grid_rows_of_main(main_sweep)
+
+
+def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
+    """``run.parallel: devices`` splits each batch over JAX devices with ``shard_map``. optimistix's
+    least squares (method ``iterated``) fails to compile under ``shard_map`` (lineax issue #185,
+    reproduced here so that this test notices when it is fixed): such a group runs each batch on
+    one device, the others stay split, and every run finishes, the iterated ones exactly as in a
+    single-device sweep. JAX fixes its device count at start-up, so this runs in a fresh
+    interpreter."""
+    code = textwrap.dedent(f"""
+        import csv, json
+        import jax
+        import nanoslam_jax
+        from nanoslam_jax.sweep import _batch, run_sweep, sweep_from_dict
+        base = {BASE!r}
+        raw = {{"base": base, "seeds": 2, "grid": {{"filter.gate": [5.991]}}, "plots": False,
+               "run": {{"batch": 2, "vectorize": "vmap", "compile_cache": False}}}}
+        both = sweep_from_dict({{**raw, "shapes": {{"filter.method": ["fastslam1", "iterated"]}}}})
+        run_sweep(both, {str(tmp_path / "devices")!r}, progress=False, parallel="devices", workers=2)  # 2 cores
+        split = sorted({{(e["static"].method, e["devices"]) for e in _batch.compile_events()}})
+        it = sweep_from_dict({{**raw, "base": {{**base, "filter": {{**base["filter"], "method": "iterated"}}}}}})
+        run_sweep(it, {str(tmp_path / "single")!r}, progress=False, parallel="single")
+        rows = {{}}
+        for name in ("devices", "single"):
+            with open({str(tmp_path)!r} + "/" + name + "/results.csv") as f:
+                rows[name] = list(csv.DictReader(f))
+        # The shard_map split of the iterated batch itself still fails:
+        import numpy as np
+        from nanoslam_jax.config import load_config
+        from nanoslam_jax.filter import settings_from_config
+        from nanoslam_jax.sweep import load_log_data
+        cfg = load_config(None, [f"{{k}}.{{kk}}={{vv}}" for k, v in base.items() if isinstance(v, dict)
+                                 for kk, vv in v.items()] + ["filter.method=iterated"])
+        log = load_log_data(cfg)
+        static, params = settings_from_config(cfg, log.segments.k_max)
+        stacked = jax.tree.map(lambda x: np.stack([np.asarray(x)] * 2), params)
+        try:
+            _batch.batch_program.lower(static, "vmap", 2, stacked, np.arange(2), log.segments).compile()
+            upstream = "compiles"
+        except ValueError as e:
+            upstream = str(e)
+        print(json.dumps(dict(split=split, upstream=upstream, rows=rows)))
+    """)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    r = json.loads(res.stdout.strip().splitlines()[-1])
+    (m1, d1), (m2, d2) = r["split"]  # the sweep sets up SWEEP_DEVICES_PER_CORE devices per core
+    assert (m1, m2) == ("fastslam1", "iterated") and d1 == 2 * SWEEP_DEVICES_PER_CORE and d2 == 1
+    assert "pytree does not match out_structure" in r["upstream"], r["upstream"]
+    devices, single = r["rows"]["devices"], r["rows"]["single"]
+    assert [row["status"] for row in devices] == ["ok"] * 4
+    # The same runs as alone on one device, to rounding (the device sweep pads the batch to 8).
+    iterated = [row for row in devices if row["filter.method"] == "iterated"]
+    assert [row["seed"] for row in iterated] == [row["seed"] for row in single]
+    for a, b in zip(iterated, single):
+        for k in ("rmse_fixed", "rmse_aligned", "final_error", "ess_min", "n_landmarks", "resample_count"):
+            assert float(a[k]) == pytest.approx(float(b[k]), rel=1e-9), k
+    assert all(math.isfinite(float(row["rmse_aligned"])) for row in devices)

@@ -21,6 +21,7 @@ from ._params import (
     Params as Params,
     Static as Static,
     particle_devices as particle_devices,
+    shardable as shardable,
     row_buckets as row_buckets,
     settings_from_config as settings_from_config,
 )

@@ -192,12 +192,24 @@ def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
     return ROW_BUCKETS if on else ()
 
 
-def particle_devices(setting: str, particles: int, devices: int | None = None) -> int:
+def shardable(method: str, nano_init: str = "prior") -> bool:
+    """Whether a method's per-particle work may run under ``shard_map`` (split over devices).
+
+    optimistix's least-squares solvers (method ``iterated``; NANO-SLAM with ``nano.init:
+    gauss_newton``) cannot: lineax compares the residual's structure with its operator's, and
+    inside ``shard_map`` the operator's carries a sharding the residual's lacks ("pytree does not
+    match out_structure"; lineax issue #185, open). Such runs stay on one device: a single run's
+    particles are not split, nor is a sweep batch of them.
+    """
+    return not (method == "iterated" or (method == "nano" and nano_init == "gauss_newton"))
+
+
+def particle_devices(setting: str, particles: int, devices: int | None = None, *, split_ok: bool = True) -> int:
     """JAX devices a single run's particles are split over for ``filter.split_devices``: for
     ``always``, and for ``auto`` from :data:`~nanoslam_jax.config.SPLIT_DEVICES_FROM` particles
     up, the most of the ``devices`` available (default: JAX's device count) that divide the
-    particles evenly; else 1."""
-    if setting == "never" or (setting == "auto" and particles < SPLIT_DEVICES_FROM):
+    particles evenly; else 1. ``split_ok`` False (a method that is not :func:`shardable`): 1."""
+    if not split_ok or setting == "never" or (setting == "auto" and particles < SPLIT_DEVICES_FROM):
         return 1
     if devices is None:
         import jax
@@ -224,7 +236,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         landmark_update="unscented" if f.method == "ufastslam" else "ekf",
         iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
         iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
-        devices=particle_devices(f.split_devices, f.n_particles),
+        devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(f.method, n.init)),
         adaptive_noise=nz.adaptive,
         nasrukf_feature=cfg.nasrukf.feature,
     )

@@ -50,7 +50,7 @@ def time_point(config_path: str, data_dir: Optional[str], segments: Optional[int
     from ..config import load_config
 
     cfg = load_config(config_path)
-    setup_run_devices(cfg.filter.split_devices, cfg.filter.n_particles)  # as `nanoslam run` does
+    setup_run_devices(cfg)  # as `nanoslam run` does
     import numpy as np
 
     from ..filter import run_filter, settings_from_config

@@ -31,7 +31,7 @@ from .._cache import enable_compile_cache
 from .._version import __version__
 from ..config import ConfigError
 from .._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
-from ..filter import AVAILABLE_METHODS, Static, row_buckets, settings_from_config
+from ..filter import AVAILABLE_METHODS, Static, row_buckets, settings_from_config, shardable
 from ._batch import BatchTask, LogData, _first_line, execute_batch, load_log_data, log_key
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
 from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, Run, SweepSpec, expand, spec_identity, spec_to_dict
@@ -162,8 +162,11 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
     for g in groups:
         pending = [r for r in g.runs if r.run_id not in done]
         k_max = by_id[g.log_id].segments.k_max
+        # optimistix's least squares fails under shard_map (see `shardable`): such a group's
+        # batches run whole on one device.
+        split = devices if shardable(g.static.method, g.static.nano_init) else 1
         # The proposal's row buckets pay off by the particles one call carries (per device).
-        per_call = g.static.n_particles * (max(1, g.batch // devices) if vectorize == "vmap" else 1)
+        per_call = g.static.n_particles * (max(1, g.batch // split) if vectorize == "vmap" else 1)
         static = dataclasses.replace(g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call),
                                      devices=1)  # the batch, not a run's particles, is split over devices
         for start in range(0, len(pending), g.batch):
@@ -177,7 +180,7 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
                 metrics_opts=tuple((r.point.config.metrics.gps_rotation_deg, r.point.config.metrics.jump_speed,
                                     r.point.config.metrics.map_radius)
                                    for r in chunk),
-                fail_on_overflow=spec.run.fail_on_overflow, run_ids=tuple(r.run_id for r in chunk), devices=devices,
+                fail_on_overflow=spec.run.fail_on_overflow, run_ids=tuple(r.run_id for r in chunk), devices=split,
                 vectorize=vectorize,
             ))
     return tasks
@@ -506,6 +509,10 @@ def run_sweep(
                  f"{f', {devices} devices' if devices > 1 else ''}); "
                  f"{n_skipped} finished before" + (f", {len(skipped)} invalid configurations skipped" if skipped else ""))
 
+    unsplit = sorted({t.group for t in tasks if t.devices < devices})
+    if unsplit:
+        prog.message(f"sweep: {', '.join(unsplit)}: each batch on one device (optimistix's least squares "
+                     f"cannot run under shard_map)")
     by_id = logs_by_id(logs)
     if mode == "ray":
         from ._ray import ray_iter
