@@ -504,11 +504,10 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
                 rows[name] = list(csv.DictReader(f))
         # The shard_map split of the iterated batch itself still fails:
         import numpy as np
-        from nanoslam_jax.config import load_config
+        from nanoslam_jax.config import config_from_dict
         from nanoslam_jax.filter import settings_from_config
         from nanoslam_jax.sweep import load_log_data
-        cfg = load_config(None, [f"{{k}}.{{kk}}={{vv}}" for k, v in base.items() if isinstance(v, dict)
-                                 for kk, vv in v.items()] + ["filter.method=iterated"])
+        cfg = config_from_dict(it.base)
         log = load_log_data(cfg)
         static, params = settings_from_config(cfg, log.segments.k_max)
         stacked = jax.tree.map(lambda x: np.stack([np.asarray(x)] * 2), params)
