@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import gc
 import hashlib
 import importlib.metadata
 import os
@@ -45,7 +46,7 @@ from typing import Any, Callable, Optional
 import jax
 
 __all__ = ["CACHE_ENV", "CompileStats", "compile_program", "compile_stats", "default_cache_dir",
-           "enable_compile_cache", "program_key"]
+           "enable_compile_cache", "memory_maps", "program_cache", "program_key", "release_programs"]
 
 #: Environment variable that moves the cache directory.
 CACHE_ENV = "NANOSLAM_CACHE_DIR"
@@ -173,6 +174,63 @@ _EXPORT_FORMAT = "nanoslam-export-1"
 _COMPILED: dict[Path, Callable] = {}
 
 
+# --------------------------------------------------------------------------- compiled code in memory
+
+#: :func:`release_programs` drops this process's compiled programs once its memory mappings reach
+#: this fraction of the kernel's limit.
+MAP_FRACTION = 0.5
+
+#: In-process dicts of compiled programs (registered with :func:`program_cache`).
+_PROGRAM_CACHES: list[dict] = [_COMPILED]
+
+
+def program_cache(programs: dict) -> dict:
+    """Register ``programs``, a module's dict of compiled programs, for :func:`release_programs`
+    to empty; returns it (``_PROGRAMS = program_cache({})``)."""
+    _PROGRAM_CACHES.append(programs)
+    return programs
+
+
+def memory_maps() -> Optional[tuple[int, int]]:
+    """``(regions, limit)``: the memory regions this process maps and the kernel's limit on them
+    (``vm.max_map_count``, 65530 unless raised); None where ``/proc`` does not tell (not Linux)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            regions = sum(1 for _ in f)
+    except OSError:
+        return None
+    try:
+        limit = int(Path("/proc/sys/vm/max_map_count").read_text())
+    except (OSError, ValueError):
+        limit = 65530
+    return regions, limit
+
+
+def release_programs(fraction: float = MAP_FRACTION) -> bool:
+    """Drop every compiled program this process holds (JAX's caches and this package's
+    :func:`program_cache` dicts) if its memory regions have reached ``fraction`` of the kernel's
+    limit; called before each compilation. Returns whether it dropped them.
+
+    XLA:CPU maps each compiled program's code and data into many memory regions (a filter program
+    takes hundreds to thousands) and keeps them while the executable lives. Linux limits a process
+    to ``vm.max_map_count`` regions; when a new program cannot be mapped, LLVM aborts the whole
+    process ("Unable to allocate section memory"), which the test suite did after about a hundred
+    filter programs. A long sweep over static settings or a study compiles as many. A dropped
+    program is compiled again (or loaded from the persistent cache) when next needed.
+
+    Args:
+        fraction: threshold as a fraction of the limit (0 drops unconditionally).
+    """
+    use = memory_maps()
+    if fraction > 0 and (use is None or use[0] < fraction * use[1]):
+        return False
+    for programs in _PROGRAM_CACHES:
+        programs.clear()
+    jax.clear_caches()
+    gc.collect()
+    return True
+
+
 @functools.lru_cache(maxsize=1)
 def _environment_digest() -> str:
     """Hash of the code a trace runs: this package's source files and every installed
@@ -255,6 +313,7 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
     Returns:
         A callable taking ``*args`` and returning ``fn``'s output.
     """
+    release_programs()
     directory = _exported_dir()
     if directory is None or getattr(static, "devices", 1) > 1:
         return fn.lower(static, *args).compile()

@@ -14,6 +14,18 @@ def compile_cache_dir(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.fixture(scope="module", autouse=True)
+def release_compiled_programs():
+    """After each test module, drop the programs it compiled. XLA:CPU keeps about 1,200 memory
+    regions per compiled filter program; the whole suite in one process compiles several hundred
+    programs and, without this, reaches the kernel's limit (``vm.max_map_count``), where LLVM
+    aborts the process (``nanoslam_jax._cache.release_programs``)."""
+    yield
+    from nanoslam_jax._cache import release_programs
+
+    release_programs(0)
+
+
 @pytest.fixture(scope="session")
 def vp_dir() -> Path:
     """The real Victoria Park log at ../shared/data/victoria_park (skips the test when absent)."""

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._cache import program_cache, release_programs
 from ..config import Config
 from ..data import Segments
 from ..filter import Params, Static, filter_scan, reported_map
@@ -168,7 +169,7 @@ def single_program(static: Static, params: Params, seed, segments: Segments) -> 
 
 
 #: Compiled programs of this process: (Static, batch, segment shapes, devices) -> executable.
-_PROGRAMS: dict[tuple, Any] = {}
+_PROGRAMS: dict[tuple, Any] = program_cache({})
 #: Programs that failed to compile: key -> error message (later batches fail at once).
 _FAILED: dict[tuple, str] = {}
 #: One entry per compilation made by this process: dict(static, batch, devices, seconds).
@@ -248,6 +249,7 @@ def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, fl
     compiled = _PROGRAMS.get(key)
     compile_s = 0.0
     if compiled is None:
+        release_programs()
         t0 = time.perf_counter()
         try:
             compiled = batch_program.lower(task.static, task.vectorize, task.devices, *args).compile()
