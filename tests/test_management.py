@@ -17,7 +17,7 @@ import pytest
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import LandmarkMap, associate, run_filter, settings_from_config
-from nanoslam_jax.filter._management import manage_window, occluded
+from nanoslam_jax.filter._management import manage_window, manage_window_prefix, occluded
 from nanoslam_jax.filter._scan import make_proposal
 from nanoslam_jax.filter._step import particle_update
 from nanoslam_jax.metrics import landmark_errors
@@ -167,6 +167,59 @@ def test_occlusion_on_a_hand_built_scene():
     zp = jnp.array([[20.0, -math.pi + 0.005], [20.0, -math.pi + 0.02], [20.0, math.pi - 0.02]])
     hidden = occluded(zp, jnp.array([[10.0, math.pi - 0.01]]), jnp.array([0.2]), jnp.array([True]), 0.0)
     np.testing.assert_array_equal(hidden, [True, False, True])
+
+
+def test_management_over_the_window_prefix_equals_the_whole_window():
+    """``manage_window_prefix`` (management over the 16, 32 or 64 leading window slots that hold
+    the particle's landmarks, one branch for a vmapped batch) gives every landmark what
+    management over the whole window gives: the hand-built occlusion scene in a 64-slot window
+    has the hand-computed misses, and random scenes (1-64 landmarks, alone and in a vmapped
+    batch; random detections and associations) match the whole-window computation bit for bit."""
+    cfg, static, params = settings()
+    mp, W = params.map, 64
+    rng = np.random.default_rng(5)
+
+    def scene(n):
+        r, b = rng.uniform(2, 40, W), rng.uniform(-np.pi, np.pi, W)
+        active = np.arange(W) < n
+        local = LandmarkMap.empty(W)._replace(
+            mean=jnp.asarray(np.where(active[:, None], np.stack([r * np.cos(b), r * np.sin(b)], -1), 0.0)),
+            active=jnp.asarray(active), confirmed=jnp.asarray(active & (rng.random(W) < 0.7)),
+            log_odds=jnp.asarray(np.where(active, rng.uniform(-1, 4, W), 0.0)),
+            hits=jnp.asarray(np.where(active, rng.integers(1, 6, W), 0).astype(np.int32)),
+            born=jnp.asarray(np.where(active, rng.integers(-10, 1, W), 0).astype(np.int32)),
+            diam=jnp.asarray(np.where(active, rng.uniform(0.1, 0.8, W), 0.0)))
+        seen = jnp.asarray(active & (rng.random(W) < 0.2))
+        z = jnp.asarray(np.stack([rng.uniform(2, 40, K), rng.uniform(-np.pi, np.pi, K)], -1))
+        return local, seen, z, jnp.asarray(rng.random(K) < 0.8)
+
+    def full(local, seen, z, z_mask):
+        return manage_window(local, jnp.zeros(3), seen, z, z_mask, jnp.full(K, 0.3), jnp.asarray(True), 0,
+                             params.max_range, mp, True)
+
+    def prefix(local, seen, z, z_mask):
+        manage = lambda loc, sn: full(loc, sn, z, z_mask)  # noqa: E731
+        return manage_window_prefix(local, seen, jnp.sum(local.active), manage)
+
+    # Alone: buckets 16, 16, 32, 32, 64, 64; the batch (at most 32) takes the 32 branch.
+    alone = [scene(n) for n in (1, 16, 17, 32, 33, 64)]
+    batch = jax.tree.map(lambda *a: jnp.stack(a), *[scene(n) for n in (1, 5, 16, 17, 0, 30, 32, 2)])
+    for got, want in ((jax.jit(jax.vmap(prefix))(*batch), jax.vmap(full)(*batch)),
+                      *((jax.jit(prefix)(*sc), full(*sc)) for sc in alone)):
+        for f in ("log_odds", "misses", "confirmed", "active"):
+            np.testing.assert_array_equal(np.asarray(getattr(got, f)), np.asarray(getattr(want, f)), err_msg=f)
+    # The hand-built scene of test_occlusion_on_a_hand_built_scene in the first 4 of 64 slots.
+    pts = [(10.0, 0.0), (20.0, 0.2), (20 * math.cos(math.radians(14)), 20 * math.sin(math.radians(14))),
+           (25 * math.cos(math.radians(-20)), 25 * math.sin(math.radians(-20)))]
+    first = np.arange(W) < 4
+    local = LandmarkMap.empty(W)._replace(
+        mean=jnp.asarray(np.concatenate([pts, np.zeros((W - 4, 2))])), active=jnp.asarray(first),
+        confirmed=jnp.asarray(first), log_odds=jnp.asarray(np.where(first, 3.0, 0.0)),
+        hits=jnp.asarray(np.where(first, 5, 0).astype(np.int32)), diam=jnp.full(W, 0.3))
+    z, z_mask = detections((6.0, math.radians(-20.5)))
+    out = prefix(local, jnp.zeros(W, bool), jnp.asarray(z), jnp.asarray(z_mask))
+    np.testing.assert_array_equal(np.asarray(out.misses)[:4], [1, 0, 1, 0])
+    np.testing.assert_array_equal(np.asarray(out.misses)[4:], 0)
 
 
 def test_diameter_term_separates_two_trees_at_the_same_range_and_bearing():

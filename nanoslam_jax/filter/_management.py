@@ -28,10 +28,13 @@ traced :class:`~nanoslam_jax.filter.MapParams` field, so one compilation serves 
 
 from __future__ import annotations
 
+from typing import Callable
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from .._batching import batch_max
 from .._trig import atan2, computed_once
 from ..models import range_bearing, wrap_angle
 from ._params import MapParams
@@ -151,6 +154,36 @@ def manage_window(
     keep = (log_odds >= mp.log_odds_remove) & (confirmed | fresh(local.born, scan, mp))
     return local._replace(log_odds=log_odds, misses=local.misses + missed.astype(jnp.int32), confirmed=confirmed,
                           active=local.active & keep)
+
+
+#: Prefix sizes of the local window that :func:`manage_window_prefix` runs management over.
+WINDOW_BUCKETS = (16, 32)
+
+
+def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, "window"], n_local: Int[Array, ""],
+                         manage: Callable[[LandmarkMap, Bool[Array, "b"]], LandmarkMap]) -> LandmarkMap:
+    """:func:`manage_window` (as ``manage(local, seen)``) over the smallest prefix of the window
+    that holds its ``n_local`` landmarks: 16, 32 or all slots (``lax.switch``).
+
+    The local window holds its landmarks in its leading slots (:func:`._landmarks.gather_window`)
+    and management leaves inactive slots inactive and counts them neither as missed nor as
+    occluders, so the prefix gives every landmark the same values as the whole window, at a
+    fraction of the cost of the occlusion test (window x (detections + window) pairs). The index
+    is :func:`~nanoslam_jax._batching.batch_max` of ``n_local``: one branch for all particles.
+    """
+    w = local.active.shape[0]
+    sizes = tuple(b for b in WINDOW_BUCKETS if b < w) + (w,)
+    if len(sizes) == 1:
+        return manage(local, seen)
+
+    def prefix(b):
+        def branch(loc, sn):
+            head = manage(jax.tree.map(lambda a: a[:b], loc), sn[:b])
+            return jax.tree.map(lambda h, a: a.at[:b].set(h), head, loc)
+        return branch
+
+    index = jnp.sum(batch_max(n_local) > jnp.asarray(sizes[:-1], jnp.int32)).astype(jnp.int32)
+    return jax.lax.switch(index, [prefix(b) for b in sizes], local, seen)
 
 
 def confirm_rule(log_odds: Float[Array, "*n"], hits: Int[Array, "*n"], mp: MapParams) -> Bool[Array, "*n"]:

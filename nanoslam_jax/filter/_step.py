@@ -34,7 +34,7 @@ from ._landmarks import (
 from ._params import Params, Static
 from ._prior import compose_prior, predict, relative_prior
 from ._resampling import effective_sample_size, normalise, resample
-from ._management import diameter_update, drop_stale, manage_window, new_landmarks
+from ._management import diameter_update, drop_stale, manage_window, manage_window_prefix, new_landmarks
 from ._srukf import adaptive_noise_rows
 from ._state import FilterState, LandmarkMap, Particles, count_confirmed, count_landmarks, slots_in_use
 
@@ -263,7 +263,9 @@ def particle_update(
         wt = jnp.where(existing, ws, W)
         local = update_slots(local, wt, upd_mean, upd_cov, upd_d, upd_dv)
         seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
-        local = manage_window(local, x_s, seen, z, z_mask, diam, valid, scan, params.max_range, mp, static.occlusion)
+        manage = lambda loc, sn: manage_window(loc, x_s, sn, z, z_mask, diam, valid, scan,  # noqa: E731
+                                               params.max_range, mp, static.occlusion)
+        local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
         # The matched rows' estimates go straight to their slots (k rows); of the window only the
         # fields management changes are written back (scattering every field of all W slots
         # cost more than the management itself).
