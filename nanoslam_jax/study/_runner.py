@@ -80,10 +80,11 @@ def _sweep_done(sweep_dir: Path, sweep, pt: StudyPoint) -> bool:
     """Whether the point's sweep directory holds every seed of this very point (an error if it
     holds another point's runs)."""
     from ..sweep import read_results, spec_identity
+    from ..sweep._spec import stored_identity
 
     if not (sweep_dir / "sweep.yaml").is_file():
         return False
-    old = (yaml.safe_load((sweep_dir / "sweep.yaml").read_text()) or {}).get("identity")
+    old = stored_identity((yaml.safe_load((sweep_dir / "sweep.yaml").read_text()) or {}).get("identity"))
     if old != spec_identity(sweep):
         raise ConfigError(f"{sweep_dir}: holds the runs of other settings of point {pt.point_id} than {sweep.source}'s; "
                           f"choose another --out")

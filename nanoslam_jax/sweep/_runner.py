@@ -34,7 +34,8 @@ from .._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
 from ..filter import AVAILABLE_METHODS, Static, row_buckets, settings_from_config, shardable
 from ._batch import BatchTask, LogData, _first_line, execute_batch, load_log_data, log_key
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
-from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, Run, SweepSpec, expand, spec_identity, spec_to_dict
+from ._spec import (MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, Run, SweepSpec, expand, spec_identity, spec_to_dict,
+                    stored_identity)
 
 __all__ = [
     "Group",
@@ -433,8 +434,8 @@ def run_sweep(
         if not (out / "sweep.yaml").is_file():
             raise ConfigError(f"{out}: no sweep to resume here (sweep.yaml not found)")
         old = yaml.safe_load((out / "sweep.yaml").read_text()) or {}
-        if old.get("identity") != spec_identity(spec):
-            key = _first_difference(old.get("identity") or {}, spec_identity(spec))
+        if stored_identity(old.get("identity")) != spec_identity(spec):
+            key = _first_difference(stored_identity(old.get("identity")), spec_identity(spec))
             raise ConfigError(f"{out}: was made by a different sweep ('{key}' differs from {spec.source}); "
                               f"resume it with the same sweep file, or choose another --out")
     elif results_path.exists():

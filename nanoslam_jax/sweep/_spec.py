@@ -45,6 +45,7 @@ __all__ = [
     "config_key_info",
     "spec_to_dict",
     "spec_identity",
+    "stored_identity",
     "sample_random",
     "METRIC_KEYS",
 ]
@@ -603,6 +604,18 @@ def spec_to_dict(spec: SweepSpec) -> dict:
 
 
 def spec_identity(spec: SweepSpec) -> dict:
-    """What decides a sweep's runs and their results (compared when a sweep is resumed)."""
+    """What decides a sweep's runs and their results (compared when a sweep is resumed). The base
+    config's ``name`` is a label and decides nothing a run computes, so a renamed sweep (or a
+    study's point under another study name) resumes its runs."""
     d = spec_to_dict(spec)
-    return {k: d[k] for k in ("segments", "seeds", "grid", "random", "shapes", "fail_on_overflow", "skip_invalid", "base")}
+    return stored_identity({k: d[k] for k in ("segments", "seeds", "grid", "random", "shapes", "fail_on_overflow",
+                                              "skip_invalid", "base")})
+
+
+def stored_identity(identity: dict | None) -> dict:
+    """An identity as read from a sweep directory's ``sweep.yaml``, comparable with
+    :func:`spec_identity` (directories written before the name was left out hold it)."""
+    out = dict(identity or {})
+    if isinstance(out.get("base"), dict):
+        out["base"] = {k: v for k, v in out["base"].items() if k != "name"}
+    return out
