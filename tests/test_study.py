@@ -59,10 +59,12 @@ def test_expansion_of_the_shipped_study_is_exact():
     assert len(pts) == len(particle_methods) * len(counts) + n_gaussian
     assert sum(len(p.seeds) for p in pts) == len(particle_methods) * sum(counts.values()) + n_gaussian
     got = {(p.label, p.particles): p.seeds for p in pts}
+    first = raw["first_seed"]
+    assert first >= 16  # seeds the tuning (on 0-15) never saw
     for label in particle_methods:
         for n, s in counts.items():
-            assert got[(label, n)] == tuple(range(s))
-    assert got[("EKF-SLAM", None)] == (0,) and got[("NASRUKF", None)] == (0,)
+            assert got[(label, n)] == tuple(range(first, first + s))
+    assert got[("EKF-SLAM", None)] == (first,) and got[("NASRUKF", None)] == (first,)
     for p in pts:  # each point's config is the method's at its particle count
         assert p.config.filter.method == p.method
         if p.particles is not None:
@@ -85,8 +87,9 @@ def test_quick_variant_seeds_and_methods_overrides(tmp_path):
     assert quick.name.endswith("-quick")
 
     two = load_study(STUDY, quick=True, seeds=2, only=["NANO-SLAM", "EKF-SLAM"])
+    f = yaml.safe_load(STUDY.read_text())["first_seed"]
     assert [(p.label, p.particles, p.seeds) for p in expand_study(two)] == [
-        ("EKF-SLAM", None, (0,)), ("NANO-SLAM", 10, (0, 1)), ("NANO-SLAM", 100, (0, 1))]
+        ("EKF-SLAM", None, (f,)), ("NANO-SLAM", 10, (f, f + 1)), ("NANO-SLAM", 100, (f, f + 1))]
     # --methods narrows what runs, not the study: the comparison stays (it pairs whatever points
     # the directory holds, e.g. after a --resume with the other methods)
     assert two.paired.reference == "NANO-SLAM" and set(two.paired.against) == {"UFastSLAM", "FastSLAM 2.0"}
@@ -281,11 +284,12 @@ def quick_study(tmp_path_factory):
 
 def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
     out, _, proc = quick_study
-    q = yaml.safe_load(STUDY.read_text())["quick"]
+    raw = yaml.safe_load(STUDY.read_text())
+    q = {**raw["quick"], "first_seed": raw["first_seed"]}
     counts = [QUICK_N]
     runs = _csv(out / "runs.csv")
     assert sorted((r["method"], int(r["particles"]), int(r["seed"])) for r in runs) == sorted(
-        (m, n, s) for m in ("NANO-SLAM", "UFastSLAM") for n in counts for s in (0, 1))
+        (m, n, s) for m in ("NANO-SLAM", "UFastSLAM") for n in counts for s in (q["first_seed"], q["first_seed"] + 1))
     assert all(r["status"] == "ok" for r in runs)
     # each point's medians are those of its sweep's own results.csv; seconds per log from its timing row
     timing = {r["point_id"]: r for r in _csv(out / "timing.csv")}
