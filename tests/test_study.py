@@ -285,11 +285,11 @@ def quick_study(tmp_path_factory):
 def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
     out, _, proc = quick_study
     raw = yaml.safe_load(STUDY.read_text())
-    q = {**raw["quick"], "first_seed": raw["first_seed"]}
+    q, first = raw["quick"], raw["first_seed"]
     counts = [QUICK_N]
     runs = _csv(out / "runs.csv")
     assert sorted((r["method"], int(r["particles"]), int(r["seed"])) for r in runs) == sorted(
-        (m, n, s) for m in ("NANO-SLAM", "UFastSLAM") for n in counts for s in (q["first_seed"], q["first_seed"] + 1))
+        (m, n, s) for m in ("NANO-SLAM", "UFastSLAM") for n in counts for s in (first, first + 1))
     assert all(r["status"] == "ok" for r in runs)
     # each point's medians are those of its sweep's own results.csv; seconds per log from its timing row
     timing = {r["point_id"]: r for r in _csv(out / "timing.csv")}

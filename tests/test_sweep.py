@@ -314,15 +314,13 @@ def test_vmapped_runs_equal_the_same_runs_alone(main_sweep):
 
 def test_sweep_identity_ignores_the_name_and_sees_every_setting():
     """A sweep resumes under another name (a label), never with another setting or seed list."""
-    from nanoslam_jax.sweep import spec_identity
+    from nanoslam_jax.sweep import spec_identity, stored_identity
 
     ident = spec_identity(spec_of(MAIN))
     assert spec_identity(spec_of(MAIN, base={**BASE, "name": "renamed"})) == ident
     assert spec_identity(spec_of(MAIN, base={**BASE, "noise": {**BASE["noise"], "sigma_r": 0.6}})) != ident
     assert spec_identity(spec_of(MAIN, seeds=3)) != ident
     # A directory written while the name was part of the identity resumes too.
-    from nanoslam_jax.sweep._spec import stored_identity
-
     old = {**ident, "base": {**ident["base"], "name": "old-name"}}
     assert stored_identity(old) == ident and stored_identity(None) == {}
 

@@ -79,8 +79,7 @@ def _say(stream, text: str) -> None:
 def _sweep_done(sweep_dir: Path, sweep, pt: StudyPoint) -> bool:
     """Whether the point's sweep directory holds every seed of this very point (an error if it
     holds another point's runs)."""
-    from ..sweep import read_results, spec_identity
-    from ..sweep._spec import stored_identity
+    from ..sweep import read_results, spec_identity, stored_identity
 
     if not (sweep_dir / "sweep.yaml").is_file():
         return False

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 _EXPORTS = {
     "_spec": ("SweepSpec", "RunOptions", "RandomSpec", "RandomParam", "ConfigPoint", "Run", "load_sweep",
-              "sweep_from_dict", "expand", "sample_random", "spec_identity", "METRIC_KEYS", "MAP_METRIC_KEYS"),
+              "sweep_from_dict", "expand", "sample_random", "spec_identity", "stored_identity", "METRIC_KEYS", "MAP_METRIC_KEYS"),
     "_batch": ("LogData", "BatchTask", "BatchOutput", "batch_program", "single_program", "execute_batch",
                "batch_outputs", "load_log_data", "compile_events"),
     "_runner": ("run_sweep", "SweepResult", "Group", "plan_groups", "make_tasks", "resolve_parallel", "AUTO_PARALLEL"),
@@ -54,4 +54,4 @@ if TYPE_CHECKING:  # pragma: no cover
         AUTO_PARALLEL, Group, SweepResult, make_tasks, plan_groups, resolve_parallel, run_sweep)
     from ._spec import (  # noqa: F401
         MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, expand,
-        load_sweep, sample_random, spec_identity, sweep_from_dict)
+        load_sweep, sample_random, spec_identity, stored_identity, sweep_from_dict)

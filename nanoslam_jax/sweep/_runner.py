@@ -434,8 +434,9 @@ def run_sweep(
         if not (out / "sweep.yaml").is_file():
             raise ConfigError(f"{out}: no sweep to resume here (sweep.yaml not found)")
         old = yaml.safe_load((out / "sweep.yaml").read_text()) or {}
-        if stored_identity(old.get("identity")) != spec_identity(spec):
-            key = _first_difference(stored_identity(old.get("identity")), spec_identity(spec))
+        held, wanted = stored_identity(old.get("identity")), spec_identity(spec)
+        if held != wanted:
+            key = _first_difference(held, wanted)
             raise ConfigError(f"{out}: was made by a different sweep ('{key}' differs from {spec.source}); "
                               f"resume it with the same sweep file, or choose another --out")
     elif results_path.exists():
