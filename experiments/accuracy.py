@@ -2,10 +2,12 @@
 
     python experiments/accuracy.py configs/victoria_park_nano.yaml --seeds 8
     python experiments/accuracy.py configs/victoria_park_nano.yaml --seeds 8 --set filter.estimate=mean
+    python experiments/accuracy.py configs/victoria_park_best.yaml --seeds 16 --set filter.estimate=path
 
 Reports, per seed and summarised (median, interquartile range, min, max): ``rmse_fixed``,
 ``rmse_aligned`` and their ``*_clean`` variants (victoria_park.md section 5), and the landmarks
-(all, and confirmed) in the best particle's map.
+(all, and confirmed) in the best particle's map. With ``filter.estimate: path`` also the filter's
+own estimate of the same runs (``rmse_*_best``), a paired comparison of the two.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 from nanoslam_jax import enable_compile_cache
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import run_batch, settings_from_config, stack_params, text_progress
+from nanoslam_jax.filter import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
 from nanoslam_jax.metrics import evaluate
 
 KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
@@ -44,26 +46,30 @@ def main() -> None:
     run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds, chunk=cfg.output.chunk,
                     progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
     t = np.asarray(log.segments.time)
-    est = run.outputs.best_pose if static.estimate == "best" else run.outputs.mean_pose
+    keys = KEYS + (("rmse_fixed_best", "rmse_aligned_best") if static.estimate == "path" else ())
+    est = reported_trajectory(static.estimate, run.outputs, run.state.best)
+    mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
     rows = []
     for i, s in enumerate(seeds):
-        m = evaluate(t, est[i][:, :2], log.raw.gps, rotation_deg=cfg.metrics.gps_rotation_deg,
-                     jump_speed=cfg.metrics.jump_speed, frame=log.frame)
+        m = evaluate(t, est[i][:, :2], log.raw.gps, **mk)
+        if static.estimate == "path":  # the filter's own estimate of the same run beside the path (paired)
+            b = evaluate(t, np.asarray(run.outputs.best_pose[i])[:, :2], log.raw.gps, **mk)
+            m.update(rmse_fixed_best=b["rmse_fixed"], rmse_aligned_best=b["rmse_aligned"])
         best = int(run.state.best[i])
         lm = run.state.particles.landmarks
-        rows.append({"seed": int(s), **{k: m[k] for k in KEYS},
+        rows.append({"seed": int(s), **{k: m[k] for k in keys},
                      "n_landmarks": int(lm.active[i, best].sum()),
                      "n_confirmed": int((lm.active[i, best] & lm.confirmed[i, best]).sum()),
                      "finite": bool(np.all(np.isfinite(est[i])))})
 
     print(f"\n{cfg.name}: {cfg.filter.method}, {static.n_particles} particles, {len(seeds)} seeds, "
           f"{t.shape[0]} scans, batch run {run.run_s:.1f} s (compile {run.compile_s:.1f} s)\n")
-    print("| seed | " + " | ".join(KEYS) + " | landmarks | confirmed |")
-    print("|---" * (len(KEYS) + 3) + "|")
+    print("| seed | " + " | ".join(keys) + " | landmarks | confirmed |")
+    print("|---" * (len(keys) + 3) + "|")
     for r in rows:
-        print(f"| {r['seed']} | " + " | ".join(f"{r[k]:.3f}" for k in KEYS) + f" | {r['n_landmarks']} | {r['n_confirmed']} |")
+        print(f"| {r['seed']} | " + " | ".join(f"{r[k]:.3f}" for k in keys) + f" | {r['n_landmarks']} | {r['n_confirmed']} |")
     summary = {}
-    for k in KEYS + ("n_landmarks", "n_confirmed"):
+    for k in keys + ("n_landmarks", "n_confirmed"):
         v = np.array([r[k] for r in rows], float)
         q1, med, q3 = np.percentile(v, [25, 50, 75])
         summary[k] = {"median": med, "q1": q1, "q3": q3, "min": v.min(), "max": v.max()}

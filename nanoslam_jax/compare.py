@@ -47,7 +47,8 @@ import yaml
 
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
-from .filter import GAUSSIAN_METHODS, dead_reckoning, reported_map, run_batch, run_filter, settings_from_config, stack_params
+from .filter import (GAUSSIAN_METHODS, dead_reckoning, reported_map, reported_trajectory, run_batch, run_filter,
+                     settings_from_config, stack_params)
 
 DETERMINISTIC = GAUSSIAN_METHODS + ("dead_reckoning",)
 RMSE_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
@@ -287,12 +288,12 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
     res.chunk_ms = 1e3 * np.asarray(single.chunk_s) / sizes
     mids = np.minimum(single.chunk_size * np.arange(len(sizes)) + sizes // 2, n - 1)
     res.chunk_t = t[mids]
-    est_key = "best_pose" if static.estimate == "best" else "mean_pose"
 
     if len(seeds) == 1:
         outputs = jax.tree.map(lambda a: np.asarray(a)[None], single.outputs)
         maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
         overflow = np.asarray(single.state.overflow)[None]
+        final_best = np.asarray(getattr(single.state, "best", 0))[None]
         res.batch_run_s = single.run_s
     else:
         batch = run_batch(static, stack_params([params] * len(seeds)), seg, np.asarray(seeds), chunk=cfg.output.chunk,
@@ -300,8 +301,9 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
         outputs = batch.outputs
         maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(batch.state))
         overflow = np.asarray(batch.state.overflow)
+        final_best = np.asarray(getattr(batch.state, "best", np.zeros(len(seeds), int)))
         res.batch_run_s = batch.run_s
-    est_all = np.asarray(getattr(outputs, est_key))
+    est_all = reported_trajectory(static.estimate, outputs, final_best)
     for i, s in enumerate(seeds):
         est = est_all[i]
         finite = bool(np.all(np.isfinite(est)))

@@ -161,7 +161,11 @@ class FilterConfig:
     resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f("systematic", static=True,
         doc="resampling scheme")
     resample_threshold: float = _f(0.5, lo=0.0, hi=1.0, doc="resample when ESS < threshold * N")
-    estimate: Literal["best", "mean"] = _f("best", static=True, doc="reported estimate: highest weight or weighted mean")
+    estimate: Literal["best", "mean", "path"] = _f("best", static=True,
+        doc="reported trajectory: at each segment the highest-weight particle's pose (best, the paper's) or the "
+            "weighted mean (mean); or path: the history of the particle that is best at the end of the log, "
+            "followed back through the resampling steps (the path its final map was built along; an offline, "
+            "smoothed estimate; particle methods only; records every particle's pose per segment)")
     row_buckets: Literal["auto", "always", "never"] = _f("auto", static=True,
         doc="run the proposal over only 4, 8 or k_max detection rows, the fewest that hold the scan's "
             "detections (same results; the proposal compiled three times, ~10 s more): 'auto' from "
@@ -460,6 +464,9 @@ def _check_consistency(cfg: Config, where: str) -> None:
         raise ConfigError(f"{where}key 'noise.adaptive': the adaptive noise estimate is available for "
                           f"filter.method {', '.join(ADAPTIVE_NOISE_METHODS)}, not {cfg.filter.method!r}; "
                           "set noise.adaptive to false")
+    if cfg.filter.estimate == "path" and cfg.filter.method in ("ekf_slam", "nasrukf", "dead_reckoning"):
+        raise ConfigError(f"{where}key 'filter.estimate': 'path' follows the particles' ancestry; filter.method "
+                          f"{cfg.filter.method!r} has no particles; use best (or mean)")
     if cfg.filter.new_landmark < cfg.filter.gate:
         raise ConfigError(f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
                           f"got {cfg.filter.new_landmark}")

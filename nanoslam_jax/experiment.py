@@ -25,7 +25,8 @@ from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
-from .filter import AVAILABLE_METHODS, GAUSSIAN_METHODS, dead_reckoning, reported_map, run_filter, settings_from_config, text_progress
+from .filter import (AVAILABLE_METHODS, GAUSSIAN_METHODS, dead_reckoning, reported_map, reported_trajectory, run_filter,
+                     settings_from_config, text_progress)
 from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
 
 
@@ -182,7 +183,7 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
                          progress=text_progress(cfg.name) if show else None)
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
-        est = best_pose if static.estimate == "best" else mean
+        est = reported_trajectory(static.estimate, o, run.state.best if static.estimate == "path" else None)
         ess = np.asarray(o.ess) if cfg.filter.method not in GAUSSIAN_METHODS else None
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
@@ -205,6 +206,7 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     if finite:
         metrics.update(evaluate(t, est[:, :2], log.raw.gps, **mk))
         if cfg.filter.method != "dead_reckoning":
+            # The other per-segment estimate (for path: the filter's own, the best particle's).
             other = evaluate(t, (mean if static.estimate == "best" else best_pose)[:, :2], log.raw.gps, **mk)
             tag = "wmean" if static.estimate == "best" else "best"
             metrics.update({f"rmse_fixed_{tag}": other["rmse_fixed"], f"rmse_aligned_{tag}": other["rmse_aligned"]})
@@ -214,7 +216,10 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
         metrics.update(map_summary(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, log.map_truth,
                                    cfg.metrics.map_radius, alignment=metrics if finite else None))
 
-    _write_csv(out / "trajectory.csv", ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, mean])
+    cols, table = ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, mean]
+    if cfg.filter.estimate == "path":  # x, y, phi: the ancestral path; the filter's own estimate beside it
+        cols, table = cols + ["best_x", "best_y", "best_phi"], np.c_[table, best_pose]
+    _write_csv(out / "trajectory.csv", cols, table)
     if landmarks is not None:
         _write_csv(out / "map.csv", MAP_COLUMNS, landmarks, fmt="%.9g")
     (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2) + "\n")

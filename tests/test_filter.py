@@ -370,7 +370,15 @@ def test_particles_split_over_devices_give_the_same_run():
         one = run_filter(dataclasses.replace(static, devices=1), params, log.segments, 0)
         two = run_filter(static, params, log.segments, 0)
         a, b = one.state.particles, two.state.particles
+        # filter.estimate: path split over the devices (the ancestors come out of the resampling's
+        # cond): the same filter, one genealogy branch per resampling, ending at the last best pose.
+        from nanoslam_jax.filter import reported_trajectory
+        p2 = run_filter(dataclasses.replace(static, estimate="path"), params, log.segments, 0)
+        path2 = reported_trajectory("path", p2.outputs, p2.state.best)
         print(json.dumps(dict(
+            path_same_filter=bool(np.array_equal(np.asarray(p2.outputs.best_pose), np.asarray(two.outputs.best_pose))),
+            path=float(np.max(np.abs(path2[-1] - np.asarray(p2.outputs.best_pose)[-1]))),
+            path_branches=int(np.sum(np.any(np.asarray(p2.outputs.ancestors) != np.arange(64), axis=1))),
             devices=static.devices, shards=len(b.landmarks.mean.sharding.device_set),
             maps_split=not b.landmarks.mean.sharding.is_fully_replicated,
             records_equal=all(np.array_equal(np.asarray(u), np.asarray(v)) for u, v in zip(
@@ -389,6 +397,7 @@ def test_particles_split_over_devices_give_the_same_run():
     assert r["resamples"][0] == r["resamples"][1] > 0
     assert r["landmarks"][0] == r["landmarks"][1] > 0
     assert r["pose"] < 1e-9 and r["log_w"] < 1e-9 and r["maps"] < 1e-9, r
+    assert r["path_same_filter"] and r["path"] == 0.0 and r["path_branches"] == r["resamples"][1], r
 
 
 def test_particle_devices_takes_the_most_devices_that_divide_the_particles():

@@ -25,6 +25,11 @@ from ._params import (
     row_buckets as row_buckets,
     settings_from_config as settings_from_config,
 )
+from ._path import (
+    ESTIMATES as ESTIMATES,
+    ancestral_path as ancestral_path,
+    reported_trajectory as reported_trajectory,
+)
 from ._prior import (
     compose_prior as compose_prior,
     predict as predict,

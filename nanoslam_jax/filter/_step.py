@@ -4,7 +4,7 @@ particle-set work (weights, estimate, resampling)."""
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -57,6 +57,11 @@ class StepOutput(NamedTuple):
         window_overflow: most landmarks near a particle that did not fit its window.
         overflow: new landmarks dropped for lack of capacity (all particles).
         weight_reset: all weights were non-finite and were reset to uniform.
+        poses: every particle's pose after the proposal (before resampling); recorded only with
+            ``filter.estimate: path``, else None.
+        ancestors: which of these particles each particle after the step descends from (the
+            resampling's ancestor indices; ``arange`` when it did not resample); only with
+            ``filter.estimate: path``. With ``poses`` the genealogy :func:`ancestral_path` follows.
     """
 
     best_pose: Float[Array, "3"]
@@ -73,6 +78,8 @@ class StepOutput(NamedTuple):
     window_overflow: Int[Array, ""]
     overflow: Int[Array, ""]
     weight_reset: Bool[Array, ""]
+    poses: Optional[Float[Array, "particles 3"]] = None
+    ancestors: Optional[Int[Array, "particles"]] = None
 
 
 class _ParticleOut(NamedTuple):
@@ -427,16 +434,20 @@ def _step(
         log_w = jnp.where(record.resampled, uniform, particles.log_w)
         particles = take_if(record.resampled, anc, particles._replace(log_w=log_w))
         best = jnp.where(record.resampled, best_after, best)
+        parents = jnp.where(record.resampled, anc, jnp.arange(n, dtype=anc.dtype))
     else:
         def do_resample(args):
-            parts, _ = args
+            parts, _, _ = args
             anc, best_after = ancestors(parts)
             # This device's new particles may descend from any device's: gather all maps.
             lms = jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], parts.landmarks)
             parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
-            return parts._replace(log_w=uniform), best_after
+            return parts._replace(log_w=uniform), best_after, anc.astype(jnp.int32)
 
-        particles, best = jax.lax.cond(record.resampled, do_resample, lambda a: a, (particles, best))
+        particles, best, parents = jax.lax.cond(record.resampled, do_resample, lambda a: a,
+                                                (particles, best, jnp.arange(n, dtype=jnp.int32)))
+    if static.estimate == "path":
+        record = record._replace(poses=out.pose, ancestors=parents.astype(jnp.int32))
     new_state = FilterState(
         particles=particles, key=key, best=best,
         resample_count=state.resample_count + record.resampled.astype(jnp.int32),

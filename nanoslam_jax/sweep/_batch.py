@@ -21,7 +21,7 @@ import numpy as np
 from .._cache import program_cache, release_programs
 from ..config import Config
 from ..data import Segments
-from ..filter import Params, Static, filter_scan, reported_map
+from ..filter import Params, Static, ancestral_path, filter_scan, reported_map
 from ..metrics import evaluate, map_summary
 from ._spec import METRIC_KEYS
 
@@ -91,6 +91,9 @@ class BatchOutput(NamedTuple):
         overflow: new landmarks dropped for lack of capacity.
         resample_count: resampling steps.
         map_mean, map_active, map_confirmed: the reported map (for the map metrics).
+        path_pose: ``(segments, 3)`` the final best particle's ancestral path (``filter.estimate:
+            path``; else None), followed back inside the program so that the particles' poses never
+            leave it.
     """
 
     best_pose: Any
@@ -107,6 +110,7 @@ class BatchOutput(NamedTuple):
     map_mean: Any
     map_active: Any
     map_confirmed: Any
+    path_pose: Any = None
 
 
 def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
@@ -127,6 +131,7 @@ def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOu
         weight_reset=rec("weight_reset", bool),
         overflow=getattr(state, "overflow", zero), resample_count=getattr(state, "resample_count", zero),
         map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
+        path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate == "path" else None,
     )
 
 
@@ -297,7 +302,7 @@ def execute_batch(task: BatchTask, log: LogData) -> list[dict]:
 def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     """Metrics of member ``i`` (as ``run_experiment`` computes them) and its status."""
     static = task.static
-    est = out.best_pose[i] if static.estimate == "best" else out.mean_pose[i]
+    est = {"best": out.best_pose, "mean": out.mean_pose, "path": out.path_pose}[static.estimate][i]
     t = log.time
     m: dict = {}
     reasons = []

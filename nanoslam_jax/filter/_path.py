@@ -1,0 +1,79 @@
+"""The reported trajectory: the best particle's pose per segment, the weighted mean, or the final
+best particle's ancestral path.
+
+A particle of a Rao-Blackwellised filter is a whole path hypothesis, and its map is conditioned
+on that path. The filter's per-segment estimates (``best``, ``mean``) report at each segment the
+particles alive then; ``path`` reports the history of the particle that is best at the end of the
+log, followed back through the resampling steps: the trajectory its final map was built along
+(FastSLAM's own estimate of the path). It uses every scan up to the end of the log, so it is an
+offline (smoothed) estimate, not a filtering one.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+#: The reported estimates (``filter.estimate``).
+ESTIMATES = ("best", "mean", "path")
+
+
+def ancestral_path(
+    poses: Float[Array, "segments particles 3"],
+    ancestors: Int[Array, "segments particles"],
+    final: Int[Array, ""],
+) -> Float[Array, "segments 3"]:
+    """The path of particle ``final`` of the last step, followed back through its ancestors.
+
+    Args:
+        poses: every particle's pose at each segment, after the proposal and before resampling
+            (``StepOutput.poses``).
+        ancestors: at each segment, the particle (of that segment's ``poses``) each particle after
+            the segment descends from (``StepOutput.ancestors``; ``arange`` without resampling).
+        final: the particle after the last segment whose path is wanted (``FilterState.best``).
+
+    Returns:
+        Its pose at each segment.
+    """
+
+    def back(j, step):
+        pose, parent = step
+        i = parent[j]
+        return i, pose[i]
+
+    ancestors = jnp.asarray(ancestors, jnp.int32)
+    _, path = jax.lax.scan(back, jnp.asarray(final, jnp.int32), (jnp.asarray(poses), ancestors), reverse=True)
+    return path
+
+
+@functools.partial(jax.jit, static_argnames=("batched",))
+def _ancestral_path(poses, ancestors, final, batched: bool):
+    return (jax.vmap(ancestral_path) if batched else ancestral_path)(poses, ancestors, final)
+
+
+def reported_trajectory(estimate: str, outputs, final_best=None) -> np.ndarray:
+    """The trajectory a run reports, as a host array ``(segments, 3)`` (``(batch, segments, 3)``
+    for a batch's outputs).
+
+    Args:
+        estimate: ``filter.estimate``: ``best``, ``mean`` or ``path``.
+        outputs: the run's per-segment :class:`StepOutput` (host or device arrays); ``path``
+            needs the ``poses`` and ``ancestors`` a run records with ``filter.estimate: path``.
+        final_best: ``FilterState.best`` after the last segment (``path`` only).
+    """
+    if estimate == "best":
+        return np.asarray(outputs.best_pose)
+    if estimate == "mean":
+        return np.asarray(outputs.mean_pose)
+    if estimate != "path":
+        raise ValueError(f"filter.estimate: expected one of {', '.join(ESTIMATES)}, got {estimate!r}")
+    if outputs.poses is None or final_best is None:
+        raise ValueError("filter.estimate 'path' needs the particles' poses and ancestors, which a run records "
+                         "only when its config has filter.estimate: path")
+    batched = np.ndim(outputs.poses) == 4
+    return np.asarray(_ancestral_path(jnp.asarray(outputs.poses), jnp.asarray(outputs.ancestors),
+                                      jnp.asarray(final_best), batched=batched))
