@@ -47,7 +47,7 @@ def main() -> None:
                     progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
     t = np.asarray(log.segments.time)
     keys = KEYS + (("rmse_fixed_best", "rmse_aligned_best") if static.estimate == "path" else ())
-    est = reported_trajectory(static.estimate, run.outputs, run.state.best)
+    est = reported_trajectory(static.estimate, run.outputs, run.state)
     mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
     rows = []
     for i, s in enumerate(seeds):

@@ -290,20 +290,17 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
     res.chunk_t = t[mids]
 
     if len(seeds) == 1:
-        outputs = jax.tree.map(lambda a: np.asarray(a)[None], single.outputs)
         maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
         overflow = np.asarray(single.state.overflow)[None]
-        final_best = np.asarray(getattr(single.state, "best", 0))[None]
+        est_all = reported_trajectory(static.estimate, single.outputs, single.state)[None]
         res.batch_run_s = single.run_s
     else:
         batch = run_batch(static, stack_params([params] * len(seeds)), seg, np.asarray(seeds), chunk=cfg.output.chunk,
                           progress=progress)
-        outputs = batch.outputs
         maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(batch.state))
         overflow = np.asarray(batch.state.overflow)
-        final_best = np.asarray(getattr(batch.state, "best", np.zeros(len(seeds), int)))
+        est_all = reported_trajectory(static.estimate, batch.outputs, batch.state)
         res.batch_run_s = batch.run_s
-    est_all = reported_trajectory(static.estimate, outputs, final_best)
     for i, s in enumerate(seeds):
         est = est_all[i]
         finite = bool(np.all(np.isfinite(est)))

@@ -183,7 +183,7 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
                          progress=text_progress(cfg.name) if show else None)
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
-        est = reported_trajectory(static.estimate, o, run.state.best if static.estimate == "path" else None)
+        est = reported_trajectory(static.estimate, o, run.state)
         ess = np.asarray(o.ess) if cfg.filter.method not in GAUSSIAN_METHODS else None
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0

@@ -55,15 +55,15 @@ def _ancestral_path(poses, ancestors, final, batched: bool):
     return (jax.vmap(ancestral_path) if batched else ancestral_path)(poses, ancestors, final)
 
 
-def reported_trajectory(estimate: str, outputs, final_best=None) -> np.ndarray:
+def reported_trajectory(estimate: str, outputs, state=None) -> np.ndarray:
     """The trajectory a run reports, as a host array ``(segments, 3)`` (``(batch, segments, 3)``
-    for a batch's outputs).
+    for a batch's outputs and state).
 
     Args:
         estimate: ``filter.estimate``: ``best``, ``mean`` or ``path``.
         outputs: the run's per-segment :class:`StepOutput` (host or device arrays); ``path``
             needs the ``poses`` and ``ancestors`` a run records with ``filter.estimate: path``.
-        final_best: ``FilterState.best`` after the last segment (``path`` only).
+        state: the run's final state (``path`` only: the path of its ``best`` particle is followed).
     """
     if estimate == "best":
         return np.asarray(outputs.best_pose)
@@ -71,9 +71,9 @@ def reported_trajectory(estimate: str, outputs, final_best=None) -> np.ndarray:
         return np.asarray(outputs.mean_pose)
     if estimate != "path":
         raise ValueError(f"filter.estimate: expected one of {', '.join(ESTIMATES)}, got {estimate!r}")
-    if outputs.poses is None or final_best is None:
+    if outputs.poses is None or state is None:
         raise ValueError("filter.estimate 'path' needs the particles' poses and ancestors, which a run records "
-                         "only when its config has filter.estimate: path")
+                         "only when its config has filter.estimate: path, and the run's final state")
     batched = np.ndim(outputs.poses) == 4
     return np.asarray(_ancestral_path(jnp.asarray(outputs.poses), jnp.asarray(outputs.ancestors),
-                                      jnp.asarray(final_best), batched=batched))
+                                      jnp.asarray(state.best), batched=batched))

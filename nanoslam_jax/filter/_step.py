@@ -425,6 +425,8 @@ def _step(
         return anc, jnp.argmax(parts.log_w[anc]).astype(jnp.int32)
 
     uniform = jnp.full((n,), -jnp.log(n), dtype=particles.log_w.dtype)
+    # filter.estimate: path records the genealogy: the resampling's ancestors, identity without it.
+    track = static.estimate == "path"
     if axis is None:
         # A conditional copy; under a sweep's vmap each run copies its maps only when it resamples.
         # The ancestors are drawn at every step (one uniform and a search over the weights, well
@@ -434,7 +436,7 @@ def _step(
         log_w = jnp.where(record.resampled, uniform, particles.log_w)
         particles = take_if(record.resampled, anc, particles._replace(log_w=log_w))
         best = jnp.where(record.resampled, best_after, best)
-        parents = jnp.where(record.resampled, anc, jnp.arange(n, dtype=anc.dtype))
+        parents = jnp.where(record.resampled, anc, jnp.arange(n, dtype=anc.dtype)) if track else None
     else:
         def do_resample(args):
             parts, _, _ = args
@@ -442,12 +444,12 @@ def _step(
             # This device's new particles may descend from any device's: gather all maps.
             lms = jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], parts.landmarks)
             parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
-            return parts._replace(log_w=uniform), best_after, anc.astype(jnp.int32)
+            return parts._replace(log_w=uniform), best_after, (anc if track else None)
 
         particles, best, parents = jax.lax.cond(record.resampled, do_resample, lambda a: a,
-                                                (particles, best, jnp.arange(n, dtype=jnp.int32)))
-    if static.estimate == "path":
-        record = record._replace(poses=out.pose, ancestors=parents.astype(jnp.int32))
+                                                (particles, best, jnp.arange(n, dtype=jnp.int32) if track else None))
+    if track:
+        record = record._replace(poses=out.pose, ancestors=parents)
     new_state = FilterState(
         particles=particles, key=key, best=best,
         resample_count=state.resample_count + record.resampled.astype(jnp.int32),
