@@ -40,6 +40,9 @@ def main() -> None:
         enable_compile_cache()  # as every nanoslam command: a repeated call loads the batch program
 
     cfg = load_config(args.config, args.overrides)
+    if cfg.filter.method == "dead_reckoning":
+        p.error("filter.method: dead_reckoning is deterministic (one run, no seeds to compare); score it with "
+                "`nanoslam run CONFIG --set filter.method=dead_reckoning`")
     log = load_log(cfg, args.data)
     static, params = settings_from_config(cfg, log.segments.k_max)
     seeds = np.arange(args.first_seed, args.first_seed + args.seeds)

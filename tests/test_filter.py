@@ -5,6 +5,7 @@ bit-level reproducibility. One static configuration is compiled for all simulate
 (about 20-25 s on 2 CPU cores); the real-log test compiles a second one.
 """
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -19,7 +20,8 @@ import pytest
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import _scan, dead_reckoning, reported_map, run_filter, settings_from_config
+from nanoslam_jax.filter import (_scan, dead_reckoning, reported_map, run_batch, run_filter, settings_from_config,
+                                 stack_params)
 from nanoslam_jax.metrics import evaluate
 
 # A capacity/window pair used by no other test module, so this module's first run really traces
@@ -195,6 +197,17 @@ def test_no_detections_is_dead_reckoning(sim, runs, trace_counter):
     # Dead reckoning really moved and turned (the comparison is not trivial).
     assert np.sum(np.hypot(*np.diff(dr[:, :2], axis=0).T)) > 200.0
     assert np.ptp(np.unwrap(dr[:, 2])) > np.pi
+
+
+def test_dead_reckoning_is_refused_by_the_filter_drivers(sim):
+    """Dead reckoning has no filter to scan: run_filter and run_batch say so, naming the key and
+    the function that computes it, before anything is traced."""
+    _, log, static, params = sim
+    dr = dataclasses.replace(static, method="dead_reckoning")
+    with pytest.raises(ValueError, match="filter.method: 'dead_reckoning' is deterministic.*dead_reckoning\\(params"):
+        run_filter(dr, params, log.segments, 0)
+    with pytest.raises(ValueError, match="filter.method: 'dead_reckoning' is deterministic"):
+        run_batch(dr, stack_params([params, params]), log.segments, [0, 1])
 
 
 @pytest.mark.slow

@@ -54,7 +54,18 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
 
         return IteratedProposal(solver=static.iterated_solver, max_iter=static.iterated_max_iter,
                                 tol=static.iterated_tol, landmark_noise=static.iterated_landmark_noise)
-    raise ValueError(f"filter.method: {static.method!r} is not available yet; available: {', '.join(AVAILABLE_METHODS)}")
+    raise ValueError(f"filter.method: {static.method!r} has no particle-filter proposal; expected one of "
+                     f"{', '.join(m for m in AVAILABLE_METHODS if m != 'dead_reckoning')}")
+
+
+def _check_filter_method(static: Static) -> None:
+    """Refuse, with a message naming the key, a method ``run_filter`` / ``run_batch`` cannot scan."""
+    if static.method == "dead_reckoning":
+        raise ValueError("filter.method: 'dead_reckoning' is deterministic and has no filter to run: use "
+                         "nanoslam_jax.filter.dead_reckoning(params, segments) (what `nanoslam run` and "
+                         "`nanoslam compare` do for it)")
+    if static.method not in AVAILABLE_METHODS:
+        raise ValueError(f"filter.method: expected one of {', '.join(AVAILABLE_METHODS)}, got {static.method!r}")
 
 
 def _masked_step(static: Static, params: Params, state, inp: tuple):
@@ -234,6 +245,7 @@ def run_filter(
         timed: record each chunk's wall time (``FilterRun.chunk_s``; the computation time per
             scan over the log, e.g. EKF-SLAM's growth with the map).
     """
+    _check_filter_method(static)
     state = _init(static, params, jax.random.key(seed))
     return _drive(_chunk, static, params, state, segments, chunk, progress, time_axis=0, timed=timed)
 
@@ -261,6 +273,7 @@ def run_batch(
 
     Each member's particles stay on one device (``static.devices`` is ignored).
     """
+    _check_filter_method(static)
     static = dataclasses.replace(static, devices=1)  # a batch member's particles stay on one device
     keys = jax.vmap(jax.random.key)(jnp.asarray(np.asarray(seeds)))
     state = _init_batch(static, params, keys)
