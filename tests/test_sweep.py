@@ -35,7 +35,7 @@ from nanoslam_jax import enable_compile_cache
 from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
 from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.filter import run_filter, settings_from_config
-from nanoslam_jax.sweep import _batch, _runner
+from nanoslam_jax.sweep import _batch, _plan
 from nanoslam_jax.sweep import (
     TIMING_COLUMNS, expand, load_log_data, load_sweep, make_tasks, plan_groups, read_results, run_sweep,
     sample_random, sweep_from_dict,
@@ -230,7 +230,7 @@ def test_groups_and_batches():
     assert all(r.point.config.filter.n_particles == g.static.n_particles for g in groups for r in g.runs)
     assert [g.batch for g in groups] == [33, 33]  # 2 batches of 33 (one padding run), not 64 + 1
     assert plan_groups(spec, runs, logs, batch=64, devices=2)[0].batch == 34
-    assert _runner.resolve_vectorize("auto") == "vmap" and _runner.resolve_vectorize("map") == "map"
+    assert _plan.resolve_vectorize("auto") == "vmap" and _plan.resolve_vectorize("map") == "map"
     assert plan_groups(spec, runs, logs, batch=16, split=2)[0].batch == 13  # 5 batches of 13, not 16 x 4 + 1
     assert plan_groups(spec, runs, logs, batch=100, split=2)[0].batch == 33
     tasks = make_tasks(spec, groups, logs, done={r.run_id for r in runs[:40]})

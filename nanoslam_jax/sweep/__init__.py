@@ -14,10 +14,12 @@ from typing import TYPE_CHECKING, Any
 
 _EXPORTS = {
     "_spec": ("SweepSpec", "RunOptions", "RandomSpec", "RandomParam", "ConfigPoint", "Run", "load_sweep",
-              "sweep_from_dict", "expand", "sample_random", "spec_identity", "stored_identity", "METRIC_KEYS", "MAP_METRIC_KEYS"),
+              "sweep_from_dict", "METRIC_KEYS", "MAP_METRIC_KEYS"),
+    "_expand": ("expand", "sample_random", "spec_identity", "stored_identity"),
+    "_plan": ("Group", "plan_groups", "make_tasks"),
     "_batch": ("LogData", "BatchTask", "BatchOutput", "batch_program", "single_program", "execute_batch",
                "batch_outputs", "load_log_data", "compile_events"),
-    "_runner": ("run_sweep", "SweepResult", "Group", "plan_groups", "make_tasks", "resolve_parallel", "AUTO_PARALLEL"),
+    "_runner": ("run_sweep", "SweepResult", "resolve_parallel", "AUTO_PARALLEL"),
     "_results": ("ResultsFile", "read_results", "summarize", "select_best", "write_summary", "write_best_yaml",
                  "TIMING_COLUMNS"),
     "_plots": ("plot_sweep", "plot_metric_vs_param", "plot_heatmap"),
@@ -50,8 +52,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from ._batch import (  # noqa: F401
         BatchOutput, BatchTask, LogData, batch_outputs, batch_program, compile_events, execute_batch, load_log_data,
         single_program)
-    from ._runner import (  # noqa: F401
-        AUTO_PARALLEL, Group, SweepResult, make_tasks, plan_groups, resolve_parallel, run_sweep)
+    from ._expand import expand, sample_random, spec_identity, stored_identity  # noqa: F401
+    from ._plan import Group, make_tasks, plan_groups  # noqa: F401
+    from ._runner import AUTO_PARALLEL, SweepResult, resolve_parallel, run_sweep  # noqa: F401
     from ._spec import (  # noqa: F401
-        MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, expand,
-        load_sweep, sample_random, spec_identity, stored_identity, sweep_from_dict)
+        MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, load_sweep,
+        sweep_from_dict)

@@ -52,7 +52,8 @@ def sweep_command(args) -> int:
     import dataclasses
 
     from ..config import ConfigError
-    from ._spec import expand, load_sweep
+    from ._expand import expand
+    from ._spec import load_sweep
 
     spec = load_sweep(args.sweep, tuple(args.overrides))
     if getattr(args, "no_cache", False):

@@ -1,16 +1,13 @@
-"""The sweep description: YAML schema, validation and its exact expansion into runs.
+"""The sweep description: YAML schema and validation.
 
 A sweep file names a base configuration, the traced hyperparameters to vary (a ``grid`` and/or
 ``random`` samples), the static *shape* settings to vary (``shapes``: each value combination is
 its own compiled program) and the seeds. :func:`load_sweep` validates it (every error names the
-sweep file and the key) and :func:`expand` turns it into the list of :class:`Run` objects, one per
-(configuration, seed), in a fixed order with stable ids.
+sweep file and the key); :func:`~._expand.expand` turns it into runs.
 """
 
 from __future__ import annotations
 
-import copy
-import itertools
 import math
 import os
 import types
@@ -18,8 +15,6 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Optional
-
-import numpy as np
 
 from ..config import (
     Config,
@@ -41,12 +36,7 @@ __all__ = [
     "Run",
     "load_sweep",
     "sweep_from_dict",
-    "expand",
     "config_key_info",
-    "spec_to_dict",
-    "spec_identity",
-    "stored_identity",
-    "sample_random",
     "METRIC_KEYS",
 ]
 
@@ -227,26 +217,6 @@ class Run:
     @property
     def config_id(self) -> str:
         return self.point.config_id
-
-
-# --------------------------------------------------------------------------- config keys
-
-
-def _get(cfg: Config, key: str) -> Any:
-    node: Any = cfg
-    for part in key.split("."):
-        node = getattr(node, part)
-    return node
-
-
-def _set(raw: dict, key: str, value: Any) -> None:
-    parts = key.split(".")
-    node = raw
-    for part in parts[:-1]:
-        if not isinstance(node.get(part), dict):
-            node[part] = {}
-        node = node[part]
-    node[parts[-1]] = value
 
 
 # --------------------------------------------------------------------------- parsing
@@ -497,125 +467,3 @@ def load_sweep(path: str | os.PathLike, overrides: tuple[str, ...] | list[str] =
     p = Path(path)
     raw = read_yaml_mapping(p, "sweep")
     return sweep_from_dict(raw, source=str(p), path=p, overrides=tuple(overrides))
-
-
-# --------------------------------------------------------------------------- expansion
-
-
-def sample_random(random: RandomSpec) -> list[dict]:
-    """The random samples: ``random.n`` mappings key -> value, reproducible from ``random.seed``.
-
-    Keys are drawn in file order for each sample in turn: uniform ``low + (high - low) u``,
-    log-uniform ``exp(log low + (log high - log low) u)``, or ``choice[rng.integers(len)]``.
-    """
-    rng = np.random.default_rng(random.seed)
-    out = []
-    for _ in range(random.n):
-        s = {}
-        for p in random.params:
-            if p.choice is not None:
-                s[p.key] = p.choice[int(rng.integers(len(p.choice)))]
-            elif p.log:
-                s[p.key] = float(math.exp(rng.uniform(math.log(p.low), math.log(p.high))))
-            else:
-                s[p.key] = float(rng.uniform(p.low, p.high))
-        out.append(s)
-    return out
-
-
-def _points(spec: SweepSpec) -> list[dict]:
-    """Value mappings of every configuration (shape combination outermost, then grid, then random)."""
-    shape_keys = [k for k, _ in spec.shapes]
-    grid_keys = [k for k, _ in spec.grid]
-    shape_combos = [dict(zip(shape_keys, c)) for c in itertools.product(*(v for _, v in spec.shapes))]
-    grid_combos = [dict(zip(grid_keys, c)) for c in itertools.product(*(v for _, v in spec.grid))]
-    if spec.random is None:
-        inner = grid_combos
-    else:
-        samples = sample_random(spec.random)
-        if spec.random.combine == "product":
-            inner = [{**g, **s} for g in grid_combos for s in samples]
-        else:
-            inner = (grid_combos if spec.grid else []) + samples
-    return [{**sc, **pt} for sc in shape_combos for pt in inner]
-
-
-def expand(spec: SweepSpec) -> tuple[list[ConfigPoint], list[Run], list[tuple[dict, str]]]:
-    """Every configuration and run of a sweep.
-
-    Returns:
-        ``(points, runs, skipped)``: the configurations in order (ids ``c0000``...), one
-        :class:`Run` per configuration and seed (configuration-major), and the value mappings
-        rejected by validation with the reason (only with ``run.skip_invalid``).
-
-    Raises:
-        ConfigError: a configuration is invalid (naming the sweep file, the configuration and
-            the key), unless ``run.skip_invalid``.
-    """
-    keys = spec.swept_keys
-    raws = _points(spec)
-    width = max(4, len(str(len(raws) - 1)))
-    points, skipped = [], []
-    for i, values in enumerate(raws):
-        raw = copy.deepcopy(spec.base)
-        for k, v in values.items():
-            _set(raw, k, v)
-        label = ", ".join(f"{k}={v!r}" for k, v in values.items()) or "the base config"
-        try:
-            cfg = config_from_dict(raw, source=f"{spec.source}: configuration {label}")
-        except ConfigError as e:
-            if spec.run.skip_invalid:
-                skipped.append((values, str(e)))
-                continue
-            raise
-        cid = f"c{len(points):0{width}d}"
-        points.append(ConfigPoint(cid, {k: _get(cfg, k) for k in keys}, cfg))
-    if not points:
-        raise ConfigError(f"{spec.source}: every configuration was rejected; first reason: {skipped[0][1]}")
-    runs = [Run(f"{p.config_id}-s{s}", p, s) for p in points for s in spec.seeds]
-    return points, runs, skipped
-
-
-def spec_to_dict(spec: SweepSpec) -> dict:
-    """The resolved sweep as a plain mapping (``sweep.yaml`` of a sweep directory).
-
-    Runtime options that cannot change any result (backend, parallelism, workers) are left out
-    of ``identity`` so a resumed sweep may use other ones.
-    """
-    d = {
-        "name": spec.name,
-        "source": spec.source,
-        "segments": spec.segments,
-        "seeds": list(spec.seeds),
-        "grid": {k: list(v) for k, v in spec.grid},
-        "random": None if spec.random is None else {
-            "n": spec.random.n, "seed": spec.random.seed, "combine": spec.random.combine,
-            "params": {p.key: ({"choice": list(p.choice)} if p.choice is not None
-                               else {"low": p.low, "high": p.high, "log": p.log}) for p in spec.random.params},
-        },
-        "shapes": {k: list(v) for k, v in spec.shapes},
-        "metric": spec.metric,
-        "goal": spec.goal,
-        "fail_on_overflow": spec.run.fail_on_overflow,
-        "skip_invalid": spec.run.skip_invalid,
-        "base": spec.base,
-    }
-    return d
-
-
-def spec_identity(spec: SweepSpec) -> dict:
-    """What decides a sweep's runs and their results (compared when a sweep is resumed). The base
-    config's ``name`` is a label and decides nothing a run computes, so a renamed sweep (or a
-    study's point under another study name) resumes its runs."""
-    d = spec_to_dict(spec)
-    return stored_identity({k: d[k] for k in ("segments", "seeds", "grid", "random", "shapes", "fail_on_overflow",
-                                              "skip_invalid", "base")})
-
-
-def stored_identity(identity: dict | None) -> dict:
-    """An identity as read from a sweep directory's ``sweep.yaml``, comparable with
-    :func:`spec_identity` (directories written before the name was left out hold it)."""
-    out = dict(identity or {})
-    if isinstance(out.get("base"), dict):
-        out["base"] = {k: v for k, v in out["base"].items() if k != "name"}
-    return out
