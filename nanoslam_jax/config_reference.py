@@ -2,7 +2,7 @@
 
 One generator serves the documentation's config reference page (:func:`reference_markdown`) and
 ``nanoslam config`` (:func:`annotated_yaml`). Both walk :class:`~nanoslam_jax.config.Config` and
-its sections with :func:`dataclasses.fields`, so a section or key added to ``config.py`` appears
+its sections with :func:`dataclasses.fields`, so a section or key added to ``_config_schema.py`` appears
 in both without further work, with the type, default, range, staticness and ``doc=`` string it
 was declared with.
 """

@@ -52,7 +52,7 @@ def test_the_walk_finds_every_section():
 @pytest.mark.parametrize("key", [k for k, _, _ in LEAVES])
 def test_every_key_has_a_doc_string(key):
     field = {k: f for k, f, _ in LEAVES}[key]
-    assert field.metadata.get("doc", "").strip(), f"{key} has no doc= in config.py"
+    assert field.metadata.get("doc", "").strip(), f"{key} has no doc= in _config_schema.py"
 
 
 def test_reference_lists_every_key_with_type_default_range_and_doc():
