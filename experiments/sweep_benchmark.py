@@ -41,8 +41,8 @@ log, float64.
 Every part compiles afresh (no persistent compilation cache), so the compile times are cold ones.
 
 The package's defaults (``run.parallel: auto`` = devices, ``run.vectorize: auto`` = vmap)
-are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PARALLEL`` and
-``AUTO_VECTORIZE`` in ``nanoslam_jax/sweep/_runner.py``.
+are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PARALLEL`` in
+``nanoslam_jax/sweep/_runner.py`` and ``AUTO_VECTORIZE`` in ``nanoslam_jax/sweep/_plan.py``.
 """
 
 from __future__ import annotations
