@@ -239,14 +239,24 @@ def test_gps_floor_recovers_a_known_frame_offset_noise_and_jumps():
     g = ant @ rotation_matrix(2.4 + delta).T + np.array([40.0, -7.0]) + sigma * rng.standard_normal(ant.shape)
     jumps = np.arange(200, g.shape[0], 500)
     g[jumps] += np.array([5.0, 0.0])
-    f = estimate_gps_floor(np.column_stack([gt, g]), t, pose, rotation_deg=-35.4)
+    # and one isolated fix 100 m off between gaps of 2.2 s and 4.4 s (as at t = 1223.3 s of the
+    # real log), which no window fit scores
+    m = 1800
+    g[m] += np.array([0.0, 100.0])
+    fixes = np.delete(np.column_stack([gt, g]), np.r_[m - 10:m, m + 1:m + 22], axis=0)
+    f = estimate_gps_floor(fixes, t, pose, rotation_deg=-35.4)
 
-    assert f.n_jumps == len(jumps) and f.jump_offset_median == pytest.approx(5.0, abs=0.3)
+    assert f.n_jumps == len(jumps) + 1 and f.jump_offset_median == pytest.approx(5.0, abs=0.3)
+    assert f.jump_offset_max == pytest.approx(100.0, abs=1.0)
+    # every fix counts in the RMSE: what the jumps alone add to an exact path's
+    n = fixes.shape[0]
+    assert f.n_fixes == n and f.jump_rmse == pytest.approx(math.sqrt((25.0 * len(jumps) + 100.0**2) / n), rel=0.02)
+    assert f.jump_rmse < f.aligned_floor < math.hypot(f.jump_rmse, 1.0) and f.fixed_floor_low >= f.aligned_floor
     assert f.white_sigma == pytest.approx(sigma, rel=0.2)
     assert np.allclose(f.antenna_offset, offset, atol=0.05) and f.clock_offset_s == pytest.approx(-lag, abs=0.02)
     for T, d, *_ in f.frame:  # the antenna offset leaks a little into the short fits
         assert d == pytest.approx(delta, abs=0.15), T
-    r = np.hypot(*(g - g[0]).T)
+    r = np.hypot(*(fixes[:, 1:] - fixes[0, 1:]).T)
     assert f.frame_rmse_2deg == pytest.approx(2 * math.sin(math.radians(1.0)) * np.sqrt(np.mean(r**2)), rel=1e-9)
     assert f.fixed_floor_low <= f.fixed_floor_high
     # the short-term error of clean fixes: the noise plus what the offset and lag leave in a
