@@ -40,14 +40,14 @@ def main() -> None:
         enable_compile_cache()  # as every nanoslam command: a repeated call loads the batch program
 
     cfg = load_config(args.config, args.overrides)
-    if cfg.filter.method == "dead_reckoning":
-        p.error("filter.method: dead_reckoning is deterministic (one run, no seeds to compare); score it with "
-                "`nanoslam run CONFIG --set filter.method=dead_reckoning`")
     log = load_log(cfg, args.data)
     static, params = settings_from_config(cfg, log.segments.k_max)
     seeds = np.arange(args.first_seed, args.first_seed + args.seeds)
-    run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds, chunk=cfg.output.chunk,
-                    progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
+    try:  # run_batch refuses a method it cannot run (dead reckoning: `nanoslam run` scores it) before tracing
+        run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds, chunk=cfg.output.chunk,
+                        progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
+    except ValueError as e:
+        p.error(str(e))
     t = np.asarray(log.segments.time)
     keys = KEYS + (("rmse_fixed_best", "rmse_aligned_best") if static.estimate == "path" else ())
     est = reported_trajectory(static.estimate, run.outputs, run.state)

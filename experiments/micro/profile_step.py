@@ -94,6 +94,8 @@ def main() -> None:
     p.add_argument("--top", type=int, default=25, help="rows per table")
     p.add_argument("--keep", help="keep the trace and hlo.txt in this directory")
     args = p.parse_args()
+    if args.start < 1:
+        p.error("--start: at least 1 (the stretch starts from the state a run over the scans before it reached)")
 
     import jax
 
@@ -108,11 +110,7 @@ def main() -> None:
     seg = load_log(cfg, args.data).segments
     static, params = settings_from_config(cfg, seg.k_max)
     part = lambda a, b: type(seg)(*(x[a:b] for x in seg))  # noqa: E731
-    state = run_filter(static, params, part(0, args.start), 0, chunk=args.start).state if args.start else None
-    if state is None:
-        from nanoslam_jax.filter._scan import _init
-
-        state = _init(static, params, jax.random.key(0))
+    state = run_filter(static, params, part(0, args.start), 0, chunk=args.start).state  # the stretch's start
     stretch = jax.tree.map(jax.numpy.asarray, part(args.start, args.start + args.scans))
     valid = jax.numpy.ones(stretch.time.shape[0], bool)
     program = jax.jit(lambda pr, st, sg, v: filter_scan(static, pr, sg, st.key, st, v)).lower(

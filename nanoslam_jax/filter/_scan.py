@@ -54,18 +54,18 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
 
         return IteratedProposal(solver=static.iterated_solver, max_iter=static.iterated_max_iter,
                                 tol=static.iterated_tol, landmark_noise=static.iterated_landmark_noise)
+    proposals = [m for m in AVAILABLE_METHODS if m not in GAUSSIAN_METHODS + ("dead_reckoning",)]
     raise ValueError(f"filter.method: {static.method!r} has no particle-filter proposal; expected one of "
-                     f"{', '.join(m for m in AVAILABLE_METHODS if m != 'dead_reckoning')}")
+                     f"{', '.join(proposals)}")
 
 
 def _check_filter_method(static: Static) -> None:
-    """Refuse, with a message naming the key, a method ``run_filter`` / ``run_batch`` cannot scan."""
+    """Refuse dead reckoning, which ``run_filter`` / ``run_batch`` cannot scan, before tracing (any
+    other unknown method is refused by :func:`make_proposal`)."""
     if static.method == "dead_reckoning":
         raise ValueError("filter.method: 'dead_reckoning' is deterministic and has no filter to run: use "
                          "nanoslam_jax.filter.dead_reckoning(params, segments) (what `nanoslam run` and "
                          "`nanoslam compare` do for it)")
-    if static.method not in AVAILABLE_METHODS:
-        raise ValueError(f"filter.method: expected one of {', '.join(AVAILABLE_METHODS)}, got {static.method!r}")
 
 
 def _masked_step(static: Static, params: Params, state, inp: tuple):
