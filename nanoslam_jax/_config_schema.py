@@ -67,7 +67,9 @@ class NoiseConfig:
         doc="re-estimate the measurement noise online from the residuals of the associated detections (the "
             "NASRUKF paper's eq. 11: R_k = (1 - d_k) R_k-1 + d_k diag(nu nu' - predicted covariance), "
             "d_k = (1 - b) / (1 - b^(k+1))), starting from sigma_r, sigma_beta (and nasrukf.sigma_diameter); "
-            "for nasrukf, nano, fastslam2, ufastslam")
+            "for nasrukf, nano, fastslam2, ufastslam. It credits the sensor with the residuals' variance less the "
+            "predicted one, so a control noise wider than the odometry's real error can drive it to adaptive_floor, "
+            "where association fails (configs/victoria_park_best.yaml: docs/results.md, stage 12)")
     forgetting: float = _f(0.99, lo=0.0, lo_open=True,
         doc="forgetting factor b of the adaptive estimate, 0 < b < 1 (its memory is about 1 / (1 - b) detections)")
     adaptive_floor: float = _f(0.01, lo=0.0, lo_open=True, hi=1.0,
