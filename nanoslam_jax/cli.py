@@ -168,6 +168,8 @@ def _run(args) -> int:
         print(f"{cfg.filter.method}: RMSE {metrics['rmse_fixed']:.2f} m against the {'truth' if metrics['frame'] == 'slam' else 'GPS'}; "
               f"dead reckoning on the same log: {metrics['dr_rmse_fixed']:.2f} m ({metrics['dr_over_slam']:.1f}x the error)")
     print(json.dumps(summary))
+    for w in metrics.get("warnings", []):
+        print(f"nanoslam: warning: {w}", file=sys.stderr)
     print(out)
     return 0
 

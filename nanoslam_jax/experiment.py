@@ -25,8 +25,8 @@ from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
-from .filter import (AVAILABLE_METHODS, GAUSSIAN_METHODS, dead_reckoning, reported_map, reported_trajectory, run_filter,
-                     settings_from_config, text_progress)
+from .filter import (AVAILABLE_METHODS, GAUSSIAN_METHODS, Params, Static, adaptive_noise_summary, configured_noise,
+                     dead_reckoning, reported_map, reported_trajectory, run_filter, settings_from_config, text_progress)
 from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
 
 
@@ -113,6 +113,21 @@ def versions() -> dict:
             "optimistix": optimistix.__version__, "numpy": np.__version__, "python": platform.python_version()}
 
 
+def adaptive_noise_report(static: Static, params: Params, state) -> tuple[dict, list[str]]:
+    """:func:`~nanoslam_jax.filter.adaptive_noise_summary` of a run's final state.
+
+    Args:
+        static: the run's static settings (``noise.adaptive`` on).
+        params: its hyperparameters (the configured noise and ``noise_floor``).
+        state: the filter's final state (a particle filter's or NASRUKF's).
+
+    Returns:
+        ``(metrics, warnings)`` as :func:`~nanoslam_jax.filter.adaptive_noise_summary` gives them.
+    """
+    noise = state.particles.noise if hasattr(state, "particles") else state.noise
+    return adaptive_noise_summary(np.asarray(noise), np.asarray(configured_noise(static, params)), float(params.noise_floor))
+
+
 def _write_csv(path: Path, header: list[str], rows: np.ndarray, fmt: str = "%.6f") -> None:
     np.savetxt(path, rows, delimiter=",", header=",".join(header), comments="", fmt=fmt)
 
@@ -197,6 +212,11 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
             compile_s=run.compile_s, run_s=run.run_s, ms_per_scan=1e3 * run.run_s / max(len(t), 1),
             n_particles=static.n_particles, capacity=static.capacity,
         )
+        if static.adaptive_noise:
+            noise_metrics, noise_warnings = adaptive_noise_report(static, params, run.state)
+            metrics.update(noise_metrics)
+            if noise_warnings:
+                metrics["warnings"] = noise_warnings
 
     # JAX's own count of this run's tracing, lowering and compiling (or loading from the cache).
     metrics["compilation"] = {**compile_stats().since(stats0).as_dict(),

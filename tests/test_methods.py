@@ -23,7 +23,7 @@ import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.cli import main as cli_main
 from nanoslam_jax.compare import load_compare_spec
 from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax.experiment import load_log
+from nanoslam_jax.experiment import adaptive_noise_report, load_log
 from nanoslam_jax.filter import run_batch, run_filter, settings_from_config, stack_params
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.proposals import Gaussian, IteratedProposal, map_estimate
@@ -210,26 +210,60 @@ def test_method_tracks_simulated_truth(sim_log, method, extra, bound):
     assert int(np.sum(run.state.overflow)) == 0
 
 
+_ADAPTIVE = SIM + ["filter.method=fastslam2", "filter.n_particles=4", "noise.adaptive=true", "noise.sigma_r=1.0",
+                   "noise.sigma_beta_deg=3.0", "noise.sigma_v=0.1", "noise.sigma_alpha_deg=0.5", "filter.gate=20",
+                   "filter.new_landmark=40", "sim.clutter_rate=0",
+                   "sim.sigma_v=0.1", "sim.sigma_alpha_deg=0.5", "sim.steering_bias_deg=0"]
+
+
+def _adaptive_run(extra=()):
+    cfg = load_config(None, _ADAPTIVE + list(extra))
+    log = load_log(cfg)
+    static, params = settings_from_config(cfg, log.segments.k_max)
+    return cfg, log, static, params, run_filter(static, params, log.segments, 0, chunk=1000)
+
+
 def test_adaptive_noise_estimate_of_the_particles_converges_to_the_true_noise():
     """``noise.adaptive`` in the particle filter (FastSLAM 2.0, 4 particles): each particle
     re-estimates R from its residuals at the prior. The simulator's detections carry sigma_r 0.3 m,
     sigma_beta 1 deg; the filter starts from 1.0 m and 3 deg (control noise at its true value, no
     clutter, wide gates so the gate does not truncate the residuals). Measured after 60 s (913
-    residuals per particle, b = 0.99): 0.302-0.303 m, 1.030-1.062 deg. Bounds: within 10 %."""
-    overrides = SIM + ["filter.method=fastslam2", "filter.n_particles=4", "noise.adaptive=true", "noise.sigma_r=1.0",
-                       "noise.sigma_beta_deg=3.0", "noise.sigma_v=0.1", "noise.sigma_alpha_deg=0.5", "filter.gate=20",
-                       "filter.new_landmark=40", "sim.clutter_rate=0",
-                       "sim.sigma_v=0.1", "sim.sigma_alpha_deg=0.5", "sim.steering_bias_deg=0"]
-    cfg = load_config(None, overrides)
-    log = load_log(cfg)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    run = run_filter(static, params, log.segments, 0, chunk=1000)
+    residuals per particle, b = 0.99): 0.302-0.303 m, 1.030-1.062 deg. Bounds: within 10 %. The
+    run's report (``metrics.json``'s ``noise_*`` keys) gives the same medians, no particle at the
+    floor and no warning."""
+    cfg, log, static, params, run = _adaptive_run()
     p = run.state.particles
     assert np.all(np.asarray(p.noise_count) > 500)
-    np.testing.assert_allclose(np.sqrt(np.asarray(p.noise)), np.broadcast_to([cfg.sim.sigma_r, np.radians(cfg.sim.sigma_beta_deg)], (4, 2)),
-                               rtol=0.1)
+    truth = [cfg.sim.sigma_r, np.radians(cfg.sim.sigma_beta_deg)]
+    np.testing.assert_allclose(np.sqrt(np.asarray(p.noise)), np.broadcast_to(truth, (4, 2)), rtol=0.1)
     m = evaluate(np.asarray(log.segments.time), np.asarray(run.outputs.best_pose)[:, :2], log.raw.gps, frame="slam")
     assert m["rmse_fixed"] < 0.5
+    report, warnings = adaptive_noise_report(static, params, run.state)
+    np.testing.assert_allclose([report["noise_sigma_r_final"], np.radians(report["noise_sigma_beta_deg_final"])],
+                               truth, rtol=0.1)
+    assert report["noise_at_floor_range"] == report["noise_at_floor_bearing"] == 0.0 and warnings == []
+
+
+def test_adaptive_noise_held_at_its_floor_is_reported_and_warned(tmp_path, capsys):
+    """With ``noise.adaptive_floor`` 0.5 the floor (sqrt(0.5) x 1.0 m, x 3 deg: 0.71 m, 2.1 deg)
+    lies above the simulator's true noise (0.3 m, 1 deg), which the estimate converges to when free
+    (the test above): every particle's estimate must end at the floor, and ``nanoslam run`` says so
+    in ``metrics.json`` and on stderr."""
+    cfg, log, static, params, run = _adaptive_run(["noise.adaptive_floor=0.5"])
+    floor = np.sqrt(0.5) * np.array([1.0, np.radians(3.0)])
+    np.testing.assert_allclose(np.sqrt(np.asarray(run.state.particles.noise)), np.broadcast_to(floor, (4, 2)), rtol=1e-9)
+    report, warnings = adaptive_noise_report(static, params, run.state)
+    assert report["noise_at_floor_range"] == report["noise_at_floor_bearing"] == 1.0
+    assert len(warnings) == 2 and all("noise.adaptive_floor" in w and "100 %" in w for w in warnings)
+    out = tmp_path / "run"
+    argv = ["run", "--quiet", "--out", str(out)] + sum([["--set", o] for o in _ADAPTIVE + ["noise.adaptive_floor=0.5",
+                                                                                             "output.plots=false"]], [])
+    assert cli_main(argv) == 0
+    err = capsys.readouterr().err
+    assert err.count("nanoslam: warning: noise.adaptive:") == 2 and "range noise" in err and "bearing noise" in err
+    saved = json.loads((out / "metrics.json").read_text())
+    assert saved["noise_at_floor_range"] == 1.0 and saved["warnings"] == warnings
+    assert saved["noise_sigma_r_final"] == pytest.approx(floor[0], rel=1e-9)
 
 
 # ----------------------------------------------------------------------------- nanoslam compare

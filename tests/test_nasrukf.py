@@ -18,7 +18,7 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import apply_overrides, config_from_dict, load_config
-from nanoslam_jax.experiment import load_log
+from nanoslam_jax.experiment import adaptive_noise_report, load_log
 from nanoslam_jax.filter import LandmarkMap, NasrukfState, _nasrukf, fuse_poses, run_filter, settings_from_config
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step
@@ -270,6 +270,9 @@ def test_adaptive_noise_estimate_converges_to_the_true_noise():
     np.testing.assert_allclose(sd, [cfg.sim.sigma_r, math.radians(cfg.sim.sigma_beta_deg)], rtol=0.1)
     err = np.hypot(*(np.asarray(run.outputs.best_pose)[:, :2] - true_positions(log)).T)
     assert np.sqrt(np.mean(err**2)) < 0.3
+    report, warnings = adaptive_noise_report(static, params, run.state)  # one filter: the fractions are 0 or 1
+    np.testing.assert_allclose([report["noise_sigma_r_final"], math.radians(report["noise_sigma_beta_deg_final"])], sd)
+    assert report["noise_at_floor_range"] == report["noise_at_floor_bearing"] == 0.0 and warnings == []
 
 
 def test_arc_features_estimate_the_radius_by_a_scalar_kalman_filter(sim, sim_run):

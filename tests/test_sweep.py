@@ -546,3 +546,25 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
         for k in ("rmse_fixed", "rmse_aligned", "final_error", "ess_min", "n_landmarks", "resample_count"):
             assert float(a[k]) == pytest.approx(float(b[k]), rel=1e-9), k
     assert all(math.isfinite(float(row["rmse_aligned"])) for row in devices)
+
+
+def test_adaptive_noise_sweep_records_where_the_estimates_ended(main_sweep, tmp_path):
+    """A sweep with ``noise.adaptive`` records ``noise_sigma_*_final`` and ``noise_at_floor_*``
+    (a sweep without it has no such columns). The filter starts from 1.0 m and 4 deg against the
+    simulator's 0.3 m and 1 deg: with ``noise.adaptive_floor`` 1.0 the floor is the configured
+    noise, which every particle's estimate, free, falls below (measured: 0.27 m), so it must end
+    there; with 0.01 (0.1 m, 0.4 deg) the estimates are free."""
+    assert "noise_at_floor_range" not in next(csv.reader(open(main_sweep[0] / "results.csv")))
+    base = {**BASE, "filter": {**BASE["filter"], "method": "fastslam2", "capacity": 192, "window": 40},
+            "noise": {**BASE["noise"], "sigma_r": 1.0, "sigma_beta_deg": 4.0, "adaptive": True}, "map": {"manage": True}}
+    raw = {"base": base, "seeds": 1, "grid": {"noise.adaptive_floor": [0.01, 1.0]}, "plots": False,
+           "run": {"batch": 2, "parallel": "single", "vectorize": "vmap"}}
+    run_sweep(spec_of(raw), tmp_path / "adaptive", progress=False)
+    rows = {float(r["noise.adaptive_floor"]): r for r in read_results(tmp_path / "adaptive" / "results.csv")}
+    free, held = rows[0.01], rows[1.0]
+    assert free["status"] == held["status"] == "ok", (free["reason"], held["reason"])
+    assert float(held["noise_at_floor_range"]) == float(held["noise_at_floor_bearing"]) == 1.0
+    assert float(held["noise_sigma_r_final"]) == pytest.approx(1.0, rel=1e-9)
+    assert float(held["noise_sigma_beta_deg_final"]) == pytest.approx(4.0, rel=1e-9)
+    assert float(free["noise_at_floor_range"]) == float(free["noise_at_floor_bearing"]) == 0.0
+    assert 0.1 < float(free["noise_sigma_r_final"]) < 1.0

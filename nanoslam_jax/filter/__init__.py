@@ -66,6 +66,7 @@ from ._state import (
 from ._step import StepOutput as StepOutput, filter_step as filter_step
 from ._ekf_slam import EkfSlamState as EkfSlamState, init_ekf_state as init_ekf_state, ekf_slam_step as ekf_slam_step
 from ._nasrukf import (
+    configured_noise as configured_noise,
     NasrukfFeatures as NasrukfFeatures,
     NasrukfState as NasrukfState,
     fuse_poses as fuse_poses,
@@ -74,7 +75,9 @@ from ._nasrukf import (
 )
 from ._srukf import (
     SigmaMeasurement as SigmaMeasurement,
+    NOISE_SUMMARY_KEYS as NOISE_SUMMARY_KEYS,
     adaptive_noise_rows as adaptive_noise_rows,
+    adaptive_noise_summary as adaptive_noise_summary,
     adaptive_noise_update as adaptive_noise_update,
     chol_rank_one as chol_rank_one,
     chol_rank_update as chol_rank_update,

@@ -13,7 +13,8 @@ These are the building blocks of NASRUKF FastSLAM (papers/nasrukf_fastslam_paper
   of eq. 10 and 12 (``Sz`` by QR and a rank-one update, ``K = (Pxz / Sz') / Sz``, the state's
   square root downdated by the columns of ``U = K Sz``).
 - :func:`adaptive_noise_update` / :func:`adaptive_noise_rows`: the measurement-noise estimate of
-  eq. 11 with the forgetting factor ``b``, ``d_k = (1 - b) / (1 - b^(k+1))``.
+  eq. 11 with the forgetting factor ``b``, ``d_k = (1 - b) / (1 - b^(k+1))``;
+  :func:`adaptive_noise_summary` (numpy, on the host) reports where a run's estimates ended.
 
 Conventions: the square root of a covariance ``P`` is a lower triangular ``L`` with ``L L' = P`` and
 a non-negative diagonal. Sigma points are those of :class:`~nanoslam_jax.quadrature.Unscented`
@@ -24,12 +25,14 @@ Everything works on one filter; ``jax.vmap`` it over features or particles.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..models import wrap_angle
@@ -304,3 +307,52 @@ def adaptive_noise_rows(
 
     (last, count), per_row = jax.lax.scan(body, (variance, jnp.asarray(k)), (nu, predicted, use))
     return per_row, last, count
+
+
+#: :func:`adaptive_noise_summary` warns when at least this fraction of the particles' estimates of a
+#: noise component ends a run at its floor.
+NOISE_FLOOR_WARN_FRACTION = 0.5
+
+#: The keys :func:`adaptive_noise_summary` always returns (sweeps record them as columns).
+NOISE_SUMMARY_KEYS = ("noise_sigma_r_final", "noise_sigma_beta_deg_final", "noise_at_floor_range",
+                      "noise_at_floor_bearing")
+
+_COMPONENTS = ("range", "bearing", "diameter")
+
+
+def adaptive_noise_summary(noise: ArrayLike, configured: ArrayLike, floor_fraction: float) -> tuple[dict, list[str]]:
+    """Where a run's adaptive measurement-noise estimates ended, and warnings where they sit at the floor.
+
+    An estimate held at its floor says the residuals were smaller than the filter predicted, not
+    that the sensor is that precise: the gates shrink and detections of mapped landmarks fail
+    association (``noise.adaptive``'s documentation).
+
+    Args:
+        noise: ``(particles, mz)`` or ``(mz,)`` final variances (range, bearing, and diameter for
+            arc features).
+        configured: ``(mz,)`` (or longer) configured variances.
+        floor_fraction: ``noise.adaptive_floor``, the floor as a fraction of ``configured``.
+
+    Returns:
+        ``(metrics, warnings)``: ``noise_sigma_r_final`` (m), ``noise_sigma_beta_deg_final`` (deg)
+        and, for arcs, ``noise_sigma_diameter_final`` (m): medians over the particles of the
+        estimated standard deviations; ``noise_at_floor_range`` / ``_bearing`` / ``_diameter``: the
+        fraction of the particles at the floor; one warning per component at the floor in at least
+        :data:`NOISE_FLOOR_WARN_FRACTION` of them.
+    """
+    noise = np.asarray(noise, float)
+    noise = noise.reshape(-1, noise.shape[-1])
+    floor = floor_fraction * np.asarray(configured, float)[: noise.shape[-1]]
+    at_floor = np.mean(noise <= floor * (1.0 + 1e-9), axis=0)
+    sigma = np.sqrt(np.median(noise, axis=0))
+    names = _COMPONENTS[: noise.shape[-1]]
+    metrics = {"noise_sigma_r_final": float(sigma[0]), "noise_sigma_beta_deg_final": math.degrees(sigma[1])}
+    if noise.shape[-1] > 2:
+        metrics["noise_sigma_diameter_final"] = float(sigma[2])
+    metrics.update({f"noise_at_floor_{n}": float(f) for n, f in zip(names, at_floor)})
+    warnings = [
+        f"noise.adaptive: the {n} noise estimate ended at noise.adaptive_floor ({floor_fraction:g} of the configured "
+        f"variance) in {100 * f:.0f} % of the particles: the residuals were smaller than the filter predicted, "
+        "so the gates shrank and detections of mapped landmarks may fail association; see the key's documentation"
+        for n, f in zip(names, at_floor) if f >= NOISE_FLOOR_WARN_FRACTION]
+    return metrics, warnings

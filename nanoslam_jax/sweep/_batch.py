@@ -21,7 +21,8 @@ import numpy as np
 from .._cache import program_cache, release_programs
 from ..config import Config
 from ..data import Segments
-from ..filter import Params, Static, ancestral_path, filter_scan, reported_map
+from ..filter import (Params, Static, adaptive_noise_summary, ancestral_path, configured_noise, filter_scan,
+                      reported_map)
 from ..metrics import evaluate, map_summary
 from ._spec import METRIC_KEYS
 
@@ -94,6 +95,8 @@ class BatchOutput(NamedTuple):
         path_pose: ``(segments, 3)`` the final best particle's ancestral path (``filter.estimate:
             path``; else None), followed back inside the program so that the particles' poses never
             leave it.
+        noise: the final measurement-noise variances (``noise.adaptive``; else None), for
+            :func:`~nanoslam_jax.filter.adaptive_noise_summary`.
     """
 
     best_pose: Any
@@ -111,6 +114,7 @@ class BatchOutput(NamedTuple):
     map_active: Any
     map_confirmed: Any
     path_pose: Any = None
+    noise: Any = None
 
 
 def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
@@ -132,6 +136,7 @@ def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOu
         overflow=getattr(state, "overflow", zero), resample_count=getattr(state, "resample_count", zero),
         map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
         path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate == "path" else None,
+        noise=(state.particles.noise if hasattr(state, "particles") else state.noise) if static.adaptive_noise else None,
     )
 
 
@@ -328,6 +333,9 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
         proposal_capped=int(np.sum(out.n_capped[i])), proposal_nonfinite=int(np.sum(out.n_nonfinite[i])),
         weight_resets=int(np.sum(out.weight_reset[i])), associations_per_scan=float(np.mean(out.n_associated[i])),
     )
+    if out.noise is not None:
+        p_i = jax.tree.map(lambda a: np.asarray(a)[i], task.params)
+        m.update(adaptive_noise_summary(out.noise[i], configured_noise(static, p_i), float(p_i.noise_floor))[0])
     if overflow > 0 and task.fail_on_overflow:
         reasons.append(f"landmark capacity overflow: {overflow} new landmarks dropped (filter.capacity = {static.capacity})")
     m["status"] = "failed" if reasons else "ok"
