@@ -65,13 +65,12 @@ from ._state import (
 )
 from ._step import StepOutput as StepOutput, filter_step as filter_step
 from ._ekf_slam import EkfSlamState as EkfSlamState, init_ekf_state as init_ekf_state, ekf_slam_step as ekf_slam_step
-from ._nasrukf import (
-    configured_noise as configured_noise,
+from ._nasrukf import fuse_poses as fuse_poses, nasrukf_step as nasrukf_step
+from ._nasrukf_state import (
     NasrukfFeatures as NasrukfFeatures,
     NasrukfState as NasrukfState,
-    fuse_poses as fuse_poses,
+    configured_noise as configured_noise,
     init_nasrukf_state as init_nasrukf_state,
-    nasrukf_step as nasrukf_step,
 )
 from ._srukf import (
     SigmaMeasurement as SigmaMeasurement,

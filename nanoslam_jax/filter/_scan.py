@@ -101,7 +101,7 @@ def initial_state(static: Static, params: Params, key: Key[Array, ""]):
 
         return init_ekf_state(static, params, key)
     if static.method == "nasrukf":
-        from ._nasrukf import init_nasrukf_state
+        from ._nasrukf_state import init_nasrukf_state
 
         return init_nasrukf_state(static, params, key)
     return init_state(static, params, key)

@@ -1,0 +1,131 @@
+"""The NASRUKF FastSLAM state (:mod:`._nasrukf`): the features' joint-state parts, the fused pose
+and the measurement-noise estimate, and the initial state.
+
+A feature is stored as ``(mean, gain, sqrt)``, its centre's (and for arcs its radius's) conditional
+given the pose, ``m | x ~ N(mean + gain (x - x_mean), sqrt sqrt')``, beside the same bookkeeping
+fields as the particle filters' landmarks (:class:`~._state.LandmarkMap`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, Key
+
+from .._linalg import mmt, sandwich, sym
+from ._params import Params, Static
+from ._state import LandmarkMap
+
+
+class NasrukfFeatures(NamedTuple):
+    """Fixed-capacity features: each joint state's feature part, given the shared pose.
+
+    Attributes:
+        mean: the feature's mean (centre, and radius for arcs) at the pose mean.
+        gain: its regression on the pose, ``Cov(m, x) Cov(x)^-1``.
+        sqrt: lower square root of its covariance given the pose.
+        active: which slots hold a feature.
+        hits: detections associated with each feature (1 at creation).
+        misses: scans in which it was in view, not hidden and not detected.
+        log_odds, confirmed, born, diam, diam_var: landmark management, as in
+            :class:`~._state.LandmarkMap`.
+    """
+
+    mean: Float[Array, "capacity f"]
+    gain: Float[Array, "capacity f 3"]
+    sqrt: Float[Array, "capacity f f"]
+    active: Bool[Array, "capacity"]
+    hits: Int[Array, "capacity"]
+    misses: Int[Array, "capacity"]
+    log_odds: Float[Array, "capacity"]
+    confirmed: Bool[Array, "capacity"]
+    born: Int[Array, "capacity"]
+    diam: Float[Array, "capacity"]
+    diam_var: Float[Array, "capacity"]
+
+    def book(self, cov: Float[Array, "capacity 2 2"] | None = None) -> LandmarkMap:
+        """The features as a :class:`~._state.LandmarkMap` (centres; ``cov``: their covariances,
+        default identity placeholders) for the shared landmark-management functions."""
+        n = self.active.shape[0]
+        cov = jnp.broadcast_to(jnp.eye(2, dtype=self.mean.dtype), (n, 2, 2)) if cov is None else cov
+        return LandmarkMap(mean=self.mean[:, :2], cov=cov, active=self.active, hits=self.hits, misses=self.misses,
+                           log_odds=self.log_odds, confirmed=self.confirmed, born=self.born, diam=self.diam,
+                           diam_var=self.diam_var)
+
+    def with_book(self, book: LandmarkMap) -> "NasrukfFeatures":
+        """The features with the bookkeeping fields of ``book`` (its mean and cov are not used)."""
+        return self._replace(**{k: getattr(book, k) for k in _BOOK})
+
+
+#: The bookkeeping fields features share with :class:`~._state.LandmarkMap`.
+_BOOK = ("active", "hits", "misses", "log_odds", "confirmed", "born", "diam", "diam_var")
+
+
+class NasrukfState(NamedTuple):
+    """The NASRUKF state carried from one segment to the next.
+
+    Attributes:
+        pose: the global (fused) pose mean.
+        pose_sqrt: its lower square root.
+        features: the per-feature joint states' feature parts.
+        noise: the measurement-noise variances in use (range, bearing, and diameter for arcs): the
+            configured ones, or the adaptive estimate.
+        noise_count: residuals the adaptive estimate has seen.
+        count: active features.
+        key: PRNG key (unused; carried for the driver).
+        resample_count: always 0 (no particles).
+        overflow: new features dropped so far because the slots were full.
+        scan: laser scans processed so far (the clock of ``born``).
+    """
+
+    pose: Float[Array, "3"]
+    pose_sqrt: Float[Array, "3 3"]
+    features: NasrukfFeatures
+    noise: Float[Array, "mz"]
+    noise_count: Int[Array, ""]
+    count: Int[Array, ""]
+    key: Key[Array, ""]
+    resample_count: Int[Array, ""]
+    overflow: Int[Array, ""]
+    scan: Int[Array, ""]
+
+    def landmark_map(self) -> LandmarkMap:
+        """The tree centres with their marginal covariances ``sqrt sqrt' + gain P gain'``."""
+        f = self.features
+        P = mmt(self.pose_sqrt, self.pose_sqrt)
+        g, s = f.gain[:, :2], f.sqrt[:, :2, :2]
+        cov = sym(mmt(s, s) + sandwich(g, P))
+        return f.book(jnp.where(f.active[:, None, None], cov, jnp.eye(2)))
+
+
+def feature_dim(static: Static) -> int:
+    """Feature dimension: 2 (centre) or 3 (centre and radius)."""
+    return 3 if static.nasrukf_feature == "arc" else 2
+
+
+def configured_noise(static: Static, params: Params) -> Float[Array, "mz"]:
+    """The configured measurement-noise variances (range, bearing, and diameter for arcs)."""
+    sig = [params.sigma_r, params.sigma_beta] + ([params.map.sigma_diameter] if static.nasrukf_feature == "arc" else [])
+    return jnp.square(jnp.stack([jnp.asarray(s, float) for s in sig]))
+
+
+def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> NasrukfState:
+    """The pose at the origin with covariance ``init_cov * I``, no features, the configured noise.
+
+    Args:
+        static: static settings (``capacity``, ``nasrukf_feature``).
+        params: hyperparameters (``init_cov``, noise).
+        key: PRNG key (carried, unused).
+    """
+    c, f = static.capacity, feature_dim(static)
+    zero = jnp.zeros((), jnp.int32)
+    empty = LandmarkMap.empty(c)
+    features = NasrukfFeatures(
+        mean=jnp.zeros((c, f)), gain=jnp.zeros((c, f, 3)), sqrt=jnp.broadcast_to(jnp.eye(f), (c, f, f)),
+        **{k: getattr(empty, k) for k in _BOOK})
+    return NasrukfState(
+        pose=jnp.zeros(3), pose_sqrt=jnp.sqrt(jnp.asarray(params.init_cov, float)) * jnp.eye(3), features=features,
+        noise=configured_noise(static, params), noise_count=zero, count=zero, key=key, resample_count=zero,
+        overflow=zero, scan=zero,
+    )
