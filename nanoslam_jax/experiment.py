@@ -26,7 +26,8 @@ from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
 from .filter import (AVAILABLE_METHODS, GAUSSIAN_METHODS, Params, Static, adaptive_noise_summary, configured_noise,
-                     dead_reckoning, reported_map, reported_trajectory, run_filter, settings_from_config, text_progress)
+                     dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
+                     text_progress)
 from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
 
 
@@ -124,8 +125,7 @@ def adaptive_noise_report(static: Static, params: Params, state) -> tuple[dict, 
     Returns:
         ``(metrics, warnings)`` as :func:`~nanoslam_jax.filter.adaptive_noise_summary` gives them.
     """
-    noise = state.particles.noise if hasattr(state, "particles") else state.noise
-    return adaptive_noise_summary(np.asarray(noise), np.asarray(configured_noise(static, params)), float(params.noise_floor))
+    return adaptive_noise_summary(np.asarray(noise_estimates(state)), np.asarray(configured_noise(static, params)), float(params.noise_floor))
 
 
 def _write_csv(path: Path, header: list[str], rows: np.ndarray, fmt: str = "%.6f") -> None:

@@ -82,6 +82,7 @@ from ._srukf import (
     chol_rank_update as chol_rank_update,
     forgetting_weight as forgetting_weight,
     measurement_update as measurement_update,
+    noise_estimates as noise_estimates,
     predict_measurement as predict_measurement,
     qr_factor as qr_factor,
     srukf_transform as srukf_transform,

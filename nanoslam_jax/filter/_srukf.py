@@ -320,6 +320,12 @@ NOISE_SUMMARY_KEYS = ("noise_sigma_r_final", "noise_sigma_beta_deg_final", "nois
 _COMPONENTS = ("range", "bearing", "diameter")
 
 
+def noise_estimates(state) -> Array:
+    """The adaptive measurement-noise variances a filter state holds: ``(particles, mz)`` for a
+    particle filter's state (each particle's), ``(mz,)`` for NASRUKF's (one estimate)."""
+    return state.particles.noise if hasattr(state, "particles") else state.noise
+
+
 def adaptive_noise_summary(noise: ArrayLike, configured: ArrayLike, floor_fraction: float) -> tuple[dict, list[str]]:
     """Where a run's adaptive measurement-noise estimates ended, and warnings where they sit at the floor.
 

@@ -22,7 +22,7 @@ from .._cache import program_cache, release_programs
 from ..config import Config
 from ..data import Segments
 from ..filter import (Params, Static, adaptive_noise_summary, ancestral_path, configured_noise, filter_scan,
-                      reported_map)
+                      noise_estimates, reported_map)
 from ..metrics import evaluate, map_summary
 from ._spec import METRIC_KEYS
 
@@ -136,7 +136,7 @@ def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOu
         overflow=getattr(state, "overflow", zero), resample_count=getattr(state, "resample_count", zero),
         map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
         path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate == "path" else None,
-        noise=(state.particles.noise if hasattr(state, "particles") else state.noise) if static.adaptive_noise else None,
+        noise=noise_estimates(state) if static.adaptive_noise else None,
     )
 
 
