@@ -279,6 +279,8 @@ def test_sweep_compiles_once_per_shape_and_writes_its_results(main_sweep, trace_
     q1, q3 = np.percentile(med[best_id], [25, 75])
     assert float(s["rmse_aligned_median"]) == pytest.approx(np.median(med[best_id]), rel=1e-12)
     assert (float(s["rmse_aligned_q1"]), float(s["rmse_aligned_q3"])) == pytest.approx((q1, q3), rel=1e-12)
+    # The worst and best seed: the largest and smallest of the seeds' errors.
+    assert (float(s["rmse_aligned_min"]), float(s["rmse_aligned_max"])) == (min(med[best_id]), max(med[best_id]))
     for f in ("sweep.yaml", "base_config.yaml", "version.json", "configs.csv", "summary.md"):
         assert (out / f).is_file()
     assert nanoslam_jax.__version__ in (out / "version.json").read_text()

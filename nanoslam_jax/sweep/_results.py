@@ -190,8 +190,8 @@ def summarize(rows: Sequence[dict], points: Sequence[ConfigPoint], groups: dict[
     Returns:
         Per configuration (in id order, only those with rows): ``config_id``, ``group``, the swept
         values, ``n_runs``, ``n_ok``, ``n_failed``, ``reasons`` (distinct failure reasons), and
-        ``<metric>_median``, ``<metric>_q1``, ``<metric>_q3`` over the runs with status ``ok``
-        (NaN when none).
+        ``<metric>_median``, ``<metric>_q1``, ``<metric>_q3``, ``<metric>_min`` and ``<metric>_max``
+        over the runs with status ``ok`` (NaN when none): for an error, ``_max`` is the worst seed.
     """
     by_cfg: dict[str, list[dict]] = {}
     for r in rows:
@@ -210,9 +210,11 @@ def summarize(rows: Sequence[dict], points: Sequence[ConfigPoint], groups: dict[
             v = v[np.isfinite(v)]
             if v.size:
                 q1, med, q3 = np.percentile(v, [25, 50, 75])
+                lo, hi = v.min(), v.max()
             else:
-                q1 = med = q3 = math.nan
+                q1 = med = q3 = lo = hi = math.nan
             s[f"{m}_median"], s[f"{m}_q1"], s[f"{m}_q3"] = float(med), float(q1), float(q3)
+            s[f"{m}_min"], s[f"{m}_max"] = float(lo), float(hi)
         out.append(s)
     return out
 
@@ -240,7 +242,7 @@ def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_ke
     """``summary.csv`` (every statistic) and ``summary.md`` (a readable table sorted by the metric)."""
     keys = list(spec.swept_keys)
     cols = ["config_id", "group", *keys, "n_runs", "n_ok", "n_failed"]
-    cols += [f"{m}_{s}" for m in metric_keys for s in ("median", "q1", "q3")] + ["reasons"]
+    cols += [f"{m}_{s}" for m in metric_keys for s in ("median", "q1", "q3", "min", "max")] + ["reasons"]
     tmp = out / "summary.csv.tmp"
     with open(tmp, "w", newline="") as f:
         w = csv.writer(f, lineterminator="\n")
@@ -256,8 +258,8 @@ def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_ke
     shown = [k for k in (m, "rmse_fixed", "rmse_aligned", "final_error", "n_landmarks") if k in metric_keys]
     shown = list(dict.fromkeys(shown))
     lines = [f"# Sweep {spec.name}", "",
-             f"{len(summary)} configurations x {len(spec.seeds)} seeds; median [q1, q3] over the seeds that "
-             f"finished ok; sorted by {m} ({'lower' if spec.goal == 'min' else 'higher'} is better)."
+             f"{len(summary)} configurations x {len(spec.seeds)} seeds; median [q1, q3] (min-max) over the seeds "
+             f"that finished ok; sorted by {m} ({'lower' if spec.goal == 'min' else 'higher'} is better)."
              + ("" if complete else " **Partial: the sweep has not finished.**"), ""]
     if best is not None:
         lines += [f"Best: **{best['config_id']}** ({', '.join(f'{k}={best[k]!r}' for k in keys) or 'the base config'}), "
@@ -268,7 +270,8 @@ def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_ke
     fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
     for s in order:
         cells = [s["config_id"], s["group"], *(fmt(s[k]) for k in keys), f"{s['n_ok']}/{s['n_runs']}"]
-        cells += [f"{s[f'{k}_median']:.4g} [{s[f'{k}_q1']:.4g}, {s[f'{k}_q3']:.4g}]" for k in shown]
+        cells += [f"{s[f'{k}_median']:.4g} [{s[f'{k}_q1']:.4g}, {s[f'{k}_q3']:.4g}] ({s[f'{k}_min']:.4g}-{s[f'{k}_max']:.4g})"
+                  for k in shown]
         lines.append("| " + " | ".join(cells) + " |")
     failed = [s for s in summary if s["n_failed"]]
     if failed:
