@@ -19,7 +19,8 @@ import pytest
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import apply_overrides, config_from_dict, load_config
 from nanoslam_jax.experiment import adaptive_noise_report, load_log
-from nanoslam_jax.filter import LandmarkMap, NasrukfState, _nasrukf, fuse_poses, run_filter, settings_from_config
+from nanoslam_jax.filter import (NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS, LandmarkMap, NasrukfState, _nasrukf, fuse_poses,
+                                 run_filter, settings_from_config)
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step
 from gaussian_slam_checks import (
@@ -305,12 +306,13 @@ def mmt_rows(gain, S):
 
 def test_sweep_over_nasrukf_hyperparameters_equals_single_runs(tmp_path):
     """``nanoslam sweep`` runs NASRUKF like the particle methods: traced keys (N_new, the gate) vary
-    in one vmapped program, and each row equals the same configuration run alone."""
+    in one vmapped program, and each row equals the same configuration run alone; with adaptive
+    noise and arc features, where the three noise estimates ended too (the diameter's included)."""
     from nanoslam_jax.sweep import read_results, run_sweep, sweep_from_dict
 
     base = {"data": {"kind": "simulated", "max_dr_per_segment": 2}, "sim": {"duration": 20},
-            "noise": {"sigma_v": 0.3, "sigma_alpha_deg": 1.5, "sigma_r": 0.5, "sigma_beta_deg": 2.0},
-            "filter": {"method": "nasrukf", "capacity": 96, "window": 24}}
+            "noise": {"sigma_v": 0.3, "sigma_alpha_deg": 1.5, "sigma_r": 0.5, "sigma_beta_deg": 2.0, "adaptive": True},
+            "filter": {"method": "nasrukf", "capacity": 96, "window": 24}, "nasrukf": {"feature": "arc"}}
     spec = sweep_from_dict({"name": "nasrukf-sweep", "base": base, "seeds": 1, "plots": False,
                             "grid": {"nasrukf.new_feature_hits": [1, 3], "filter.gate": [5.991, 9.0]},
                             "run": {"batch": 4, "parallel": "single", "vectorize": "vmap"}}, source="test")
@@ -327,6 +329,10 @@ def test_sweep_over_nasrukf_hyperparameters_equals_single_runs(tmp_path):
     m = evaluate(np.asarray(log.segments.time), np.asarray(alone.outputs.best_pose)[:, :2], log.raw.gps, frame="slam")
     np.testing.assert_allclose(float(row["rmse_fixed"]), m["rmse_fixed"], rtol=1e-9)
     assert int(row["n_landmarks"]) == int(alone.state.count)
+    report, _ = adaptive_noise_report(static, params, alone.state)
+    assert set(report) == set(NOISE_SUMMARY_KEYS) | set(NOISE_ARC_SUMMARY_KEYS)
+    for k, v in report.items():
+        np.testing.assert_allclose(float(row[k]), v, rtol=1e-9, atol=1e-12, err_msg=k)
 
 
 def test_victoria_park_first_300_s(vp_dir):

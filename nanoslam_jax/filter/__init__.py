@@ -74,6 +74,7 @@ from ._nasrukf_state import (
 )
 from ._srukf import (
     SigmaMeasurement as SigmaMeasurement,
+    NOISE_ARC_SUMMARY_KEYS as NOISE_ARC_SUMMARY_KEYS,
     NOISE_SUMMARY_KEYS as NOISE_SUMMARY_KEYS,
     adaptive_noise_rows as adaptive_noise_rows,
     adaptive_noise_summary as adaptive_noise_summary,

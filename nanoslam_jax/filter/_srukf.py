@@ -317,6 +317,9 @@ NOISE_FLOOR_WARN_FRACTION = 0.5
 NOISE_SUMMARY_KEYS = ("noise_sigma_r_final", "noise_sigma_beta_deg_final", "noise_at_floor_range",
                       "noise_at_floor_bearing")
 
+#: The keys :func:`adaptive_noise_summary` adds for NASRUKF's arc features (the diameter's noise).
+NOISE_ARC_SUMMARY_KEYS = ("noise_sigma_diameter_final", "noise_at_floor_diameter")
+
 _COMPONENTS = ("range", "bearing", "diameter")
 
 

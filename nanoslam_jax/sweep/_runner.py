@@ -25,7 +25,7 @@ from .._cache import enable_compile_cache
 from .._version import __version__
 from ..config import ConfigError
 from .._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
-from ..filter import AVAILABLE_METHODS, NOISE_SUMMARY_KEYS
+from ..filter import AVAILABLE_METHODS, NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS
 from ._batch import BatchTask, LogData, _first_line, execute_batch, load_log_data, log_key
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
 from ._expand import expand, spec_identity, spec_to_dict, stored_identity
@@ -337,6 +337,9 @@ def run_sweep(
                                                                        for _, l in logs.values()) else [])
     if any(g.static.adaptive_noise for g in groups):  # where the adaptive noise estimates ended
         metric_keys += list(NOISE_SUMMARY_KEYS)
+        if any(g.static.adaptive_noise and g.static.method == "nasrukf" and g.static.nasrukf_feature == "arc"
+               for g in groups):
+            metric_keys += list(NOISE_ARC_SUMMARY_KEYS)
     rf = ResultsFile(results_path, _columns(spec, metric_keys))
 
     out.mkdir(parents=True, exist_ok=True)
