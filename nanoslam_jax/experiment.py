@@ -125,7 +125,8 @@ def adaptive_noise_report(static: Static, params: Params, state) -> tuple[dict, 
     Returns:
         ``(metrics, warnings)`` as :func:`~nanoslam_jax.filter.adaptive_noise_summary` gives them.
     """
-    return adaptive_noise_summary(np.asarray(noise_estimates(state)), np.asarray(configured_noise(static, params)), float(params.noise_floor))
+    return adaptive_noise_summary(np.asarray(noise_estimates(state)), np.asarray(configured_noise(static, params)),
+                                  float(params.noise_floor))
 
 
 def _write_csv(path: Path, header: list[str], rows: np.ndarray, fmt: str = "%.6f") -> None:
