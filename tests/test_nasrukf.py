@@ -168,7 +168,7 @@ def test_feature_time_update_is_the_joint_gaussian_of_the_moved_pose():
     Cc = np.stack([random_spd(rng, 2, 0.5) for _ in range(4)])
     book = LandmarkMap.empty(4)._replace(active=jnp.ones(4, bool), hits=jnp.ones(4, jnp.int32))
     feats = _nasrukf.NasrukfFeatures(mean=jnp.zeros((4, 2)), gain=jnp.asarray(A), sqrt=jnp.asarray(np.linalg.cholesky(Cc)),
-                                     **{k: getattr(book, k) for k in _nasrukf._BOOK})
+                                     landmarks=book)
     out = _nasrukf.propagate_features(feats, T, D)
     g, s = np.asarray(out.gain), np.asarray(out.sqrt)
     for i in range(4):
@@ -227,7 +227,7 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
     # The state is consistent: count = active features, square roots lower triangular with a
     # positive diagonal, marginal covariances positive definite.
     st = run.state
-    act = np.asarray(st.features.active)
+    act = np.asarray(st.features.landmarks.active)
     c = int(st.count)
     assert c == int(np.asarray(o.n_landmarks)[-1]) == int(act.sum())
     S = np.asarray(st.features.sqrt)[act]
@@ -287,10 +287,10 @@ def test_arc_features_estimate_the_radius_by_a_scalar_kalman_filter(sim, sim_run
     static_a, params_a = settings_from_config(cfg, log.segments.k_max)
     run = run_filter(static_a, params_a, log.segments, 0, chunk=CHUNK)
     f = run.state.features
-    act = np.asarray(f.active)
+    act = np.asarray(f.landmarks.active)
     assert act.sum() > 50 and np.asarray(f.mean).shape[1] == 3
     var = np.asarray(f.sqrt)[act, 2, 2] ** 2 + np.asarray(mmt_rows(f.gain, run.state.pose_sqrt))[act]
-    np.testing.assert_allclose(var, cfg.map.sigma_diameter**2 / (4 * np.asarray(f.hits)[act]), rtol=1e-6)
+    np.testing.assert_allclose(var, cfg.map.sigma_diameter**2 / (4 * np.asarray(f.landmarks.hits)[act]), rtol=1e-6)
     rho = np.asarray(f.mean)[act, 2]
     assert np.all((rho > 0.0) & (rho < 0.35)) and 0.05 < np.median(rho) < 0.3
     diff = np.hypot(*(np.asarray(run.outputs.best_pose)[:, :2] - np.asarray(sim_run.outputs.best_pose)[:, :2]).T)

@@ -102,7 +102,7 @@ from ._srukf import (
     predict_measurement,
     srukf_transform,
 )
-from ._nasrukf_state import _BOOK, NasrukfFeatures, NasrukfState, configured_noise, feature_dim
+from ._nasrukf_state import NasrukfFeatures, NasrukfState, configured_noise, feature_dim
 from ._step import StepOutput
 
 
@@ -313,7 +313,7 @@ def nasrukf_step(
     f = feats
     radius = params.max_range + params.window_margin
     d2 = jnp.square(f.mean[:, 0] - x0[0]) + jnp.square(f.mean[:, 1] - x0[1])
-    idx, n_near = first_true(f.active & (d2 < jnp.square(radius)), W)
+    idx, n_near = first_true(f.landmarks.active & (d2 < jnp.square(radius)), W)
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), f)
     in_window = idx < capacity
     z_mask = seg.z_mask & valid
@@ -330,8 +330,8 @@ def nasrukf_step(
     z_hat, s_inv = association_information(x0, P0, mean, gain, sqrt, jnp.diag(noise[:2]))
     mp = params.map
     var_d = jnp.square(mp.sigma_diameter)
-    diam_term = (seg.diam, jnp.concatenate([local.diam, seg.diam]),
-                 1.0 / (jnp.concatenate([local.diam_var, jnp.full(K, var_d)]) + var_d), mp.use_diameter)
+    diam_term = (seg.diam, jnp.concatenate([local.landmarks.diam, seg.diam]),
+                 1.0 / (jnp.concatenate([local.landmarks.diam_var, jnp.full(K, var_d)]) + var_d), mp.use_diameter)
     assoc = nearest_neighbours(z_hat, s_inv, in_window, seg.z, z_mask, params.gate, params.new_landmark,
                                static.sequential, diam_term)
     matched = assoc.slot >= 0
@@ -358,22 +358,24 @@ def nasrukf_step(
         rows.x, rows.L, pred, z, jax.vmap(jnp.diag)(jnp.sqrt(row_noise)), (2,), (1,))[:2])
 
     # 5. Fusion of the pose estimates of the features with enough data, 6. feedback.
-    hits_before = jnp.where(existing, local.hits[ws], 1)
+    hits_before = jnp.where(existing, local.landmarks.hits[ws], 1)
     fuse = matched & (hits_before >= params.new_feature_hits)
     if static.manage:  # tentative features (and those started in this scan) move the pose only if asked
-        fuse = fuse & ((existing & local.confirmed[ws]) | mp.use_tentative)
+        fuse = fuse & ((existing & local.landmarks.confirmed[ws]) | mp.use_tentative)
     x_g, S_g = fuse_poses(x0, S0, post.x[:, :3], post.L[:, :3, :3], fuse)
     upd = jax.vmap(to_conditional, (0, 0, 0, None))(post.x[:, :3], post.x[:, 3:], post.L, x_g)
     ini = jax.vmap(to_conditional, (0, 0, 0, None))(new_y[:, :3], new_y[:, 3:], new_L, x_g)
     feats = feats._replace(mean=feats.mean + mv(feats.gain, _minus(x_g, x0)))
     target = jnp.where(existing, idx[ws], capacity)
-    d_old = jnp.where(existing, local.diam[ws], seg.diam[ps])
-    dv_old = jnp.where(existing, local.diam_var[ws], var_d)
+    d_old = jnp.where(existing, local.landmarks.diam[ws], seg.diam[ps])
+    dv_old = jnp.where(existing, local.landmarks.diam_var[ws], var_d)
     upd_d, upd_dv = diameter_update(d_old, dv_old, seg.diam, mp.sigma_diameter)
+    lms = feats.landmarks
     feats = feats._replace(
         mean=feats.mean.at[target].set(upd[0], mode="drop"), gain=feats.gain.at[target].set(upd[1], mode="drop"),
-        sqrt=feats.sqrt.at[target].set(upd[2], mode="drop"), hits=feats.hits.at[target].add(1, mode="drop"),
-        diam=feats.diam.at[target].set(upd_d, mode="drop"), diam_var=feats.diam_var.at[target].set(upd_dv, mode="drop"))
+        sqrt=feats.sqrt.at[target].set(upd[2], mode="drop"),
+        landmarks=lms._replace(hits=lms.hits.at[target].add(1, mode="drop"), diam=lms.diam.at[target].set(upd_d, mode="drop"),
+                               diam_var=lms.diam_var.at[target].set(upd_dv, mode="drop")))
 
     # Existence of the window's features at the fused pose (a removed feature frees its slot).
     if static.manage:
@@ -384,7 +386,7 @@ def nasrukf_step(
         win = manage_window(win, x_g, seen, seg.z, z_mask, seg.diam, valid & seg.is_scan, state.scan, params.max_range, mp,
                             static.occlusion)
         book = drop_stale(jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), book, win), state.scan, mp)
-        feats = feats.with_book(book)
+        feats = feats._replace(landmarks=book)  # its mean and cov are not used
 
     # New features as they leave the scan (updated if a later detection matched one), in free slots.
     is_new = assoc.is_new
@@ -396,8 +398,8 @@ def nasrukf_step(
         scan=state.scan, mp=mp, manage=static.manage)
     new = NasrukfFeatures(
         mean=ini[0].at[pt].set(upd[0], mode="drop"), gain=ini[1].at[pt].set(upd[1], mode="drop"),
-        sqrt=ini[2].at[pt].set(upd[2], mode="drop"), **{k: getattr(new_book, k) for k in _BOOK})
-    free, _ = first_true(~feats.active, K)
+        sqrt=ini[2].at[pt].set(upd[2], mode="drop"), landmarks=new_book)
+    free, _ = first_true(~feats.landmarks.active, K)
     free = free[jnp.clip(jnp.cumsum(is_new) - 1, 0, K - 1)]
     room = free < capacity
     dest = jnp.where(is_new & room, free, capacity)
@@ -410,7 +412,7 @@ def nasrukf_step(
     new_state = NasrukfState(
         pose=keep(x_g, state.pose), pose_sqrt=keep(S_g, state.pose_sqrt), features=keep(feats, state.features),
         noise=keep(noise, state.noise), noise_count=keep(noise_count, state.noise_count),
-        count=jnp.where(valid, jnp.sum(feats.active), state.count).astype(jnp.int32), key=state.key,
+        count=jnp.where(valid, jnp.sum(feats.landmarks.active), state.count).astype(jnp.int32), key=state.key,
         resample_count=state.resample_count, overflow=state.overflow + overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
     )
@@ -420,7 +422,8 @@ def nasrukf_step(
     record = StepOutput(
         best_pose=x, mean_pose=x, ess=jnp.ones((), x.dtype), resampled=jnp.zeros((), bool),
         n_landmarks=new_state.count.astype(jnp.int32),
-        n_confirmed=jnp.sum(new_state.features.active & new_state.features.confirmed).astype(jnp.int32), iterations=jnp.zeros((), x.dtype), n_capped=zero,
+        n_confirmed=jnp.sum(new_state.features.landmarks.active & new_state.features.landmarks.confirmed).astype(jnp.int32),
+        iterations=jnp.zeros((), x.dtype), n_capped=zero,
         n_nonfinite=(~finite).astype(jnp.int32), n_associated=jnp.sum(matched).astype(x.dtype),
         n_new=added.astype(x.dtype), window_overflow=jnp.maximum(n_near - W, 0).astype(jnp.int32),
         overflow=overflow, weight_reset=jnp.zeros((), bool),

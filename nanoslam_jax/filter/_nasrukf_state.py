@@ -3,7 +3,7 @@ and the measurement-noise estimate, and the initial state.
 
 A feature is stored as ``(mean, gain, sqrt)``, its centre's (and for arcs its radius's) conditional
 given the pose, ``m | x ~ N(mean + gain (x - x_mean), sqrt sqrt')``, beside the same bookkeeping
-fields as the particle filters' landmarks (:class:`~._state.LandmarkMap`).
+fields as the particle filters' landmarks (a :class:`~._state.LandmarkMap`).
 """
 
 from __future__ import annotations
@@ -25,41 +25,23 @@ class NasrukfFeatures(NamedTuple):
         mean: the feature's mean (centre, and radius for arcs) at the pose mean.
         gain: its regression on the pose, ``Cov(m, x) Cov(x)^-1``.
         sqrt: lower square root of its covariance given the pose.
-        active: which slots hold a feature.
-        hits: detections associated with each feature (1 at creation).
-        misses: scans in which it was in view, not hidden and not detected.
-        log_odds, confirmed, born, diam, diam_var: landmark management, as in
-            :class:`~._state.LandmarkMap`.
+        landmarks: the per-feature bookkeeping (``active``, ``hits``, ``misses``, ``log_odds``,
+            ``confirmed``, ``born``, ``diam``, ``diam_var``) as a :class:`~._state.LandmarkMap`
+            whose ``mean`` and ``cov`` are not used (the features' own are above), as EKF-SLAM's
+            state keeps its landmarks' bookkeeping.
     """
 
     mean: Float[Array, "capacity f"]
     gain: Float[Array, "capacity f 3"]
     sqrt: Float[Array, "capacity f f"]
-    active: Bool[Array, "capacity"]
-    hits: Int[Array, "capacity"]
-    misses: Int[Array, "capacity"]
-    log_odds: Float[Array, "capacity"]
-    confirmed: Bool[Array, "capacity"]
-    born: Int[Array, "capacity"]
-    diam: Float[Array, "capacity"]
-    diam_var: Float[Array, "capacity"]
+    landmarks: LandmarkMap
 
     def book(self, cov: Float[Array, "capacity 2 2"] | None = None) -> LandmarkMap:
         """The features as a :class:`~._state.LandmarkMap` (centres; ``cov``: their covariances,
         default identity placeholders) for the shared landmark-management functions."""
-        n = self.active.shape[0]
+        n = self.mean.shape[0]
         cov = jnp.broadcast_to(jnp.eye(2, dtype=self.mean.dtype), (n, 2, 2)) if cov is None else cov
-        return LandmarkMap(mean=self.mean[:, :2], cov=cov, active=self.active, hits=self.hits, misses=self.misses,
-                           log_odds=self.log_odds, confirmed=self.confirmed, born=self.born, diam=self.diam,
-                           diam_var=self.diam_var)
-
-    def with_book(self, book: LandmarkMap) -> "NasrukfFeatures":
-        """The features with the bookkeeping fields of ``book`` (its mean and cov are not used)."""
-        return self._replace(**{k: getattr(book, k) for k in _BOOK})
-
-
-#: The bookkeeping fields features share with :class:`~._state.LandmarkMap`.
-_BOOK = ("active", "hits", "misses", "log_odds", "confirmed", "born", "diam", "diam_var")
+        return self.landmarks._replace(mean=self.mean[:, :2], cov=cov)
 
 
 class NasrukfState(NamedTuple):
@@ -96,7 +78,7 @@ class NasrukfState(NamedTuple):
         P = mmt(self.pose_sqrt, self.pose_sqrt)
         g, s = f.gain[:, :2], f.sqrt[:, :2, :2]
         cov = sym(mmt(s, s) + sandwich(g, P))
-        return f.book(jnp.where(f.active[:, None, None], cov, jnp.eye(2)))
+        return f.book(jnp.where(f.landmarks.active[:, None, None], cov, jnp.eye(2)))
 
 
 def feature_dim(static: Static) -> int:
@@ -120,10 +102,9 @@ def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> N
     """
     c, f = static.capacity, feature_dim(static)
     zero = jnp.zeros((), jnp.int32)
-    empty = LandmarkMap.empty(c)
     features = NasrukfFeatures(
         mean=jnp.zeros((c, f)), gain=jnp.zeros((c, f, 3)), sqrt=jnp.broadcast_to(jnp.eye(f), (c, f, f)),
-        **{k: getattr(empty, k) for k in _BOOK})
+        landmarks=LandmarkMap.empty(c))
     return NasrukfState(
         pose=jnp.zeros(3), pose_sqrt=jnp.sqrt(jnp.asarray(params.init_cov, float)) * jnp.eye(3), features=features,
         noise=configured_noise(static, params), noise_count=zero, count=zero, key=key, resample_count=zero,
