@@ -33,11 +33,9 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from .._summary import summary_stats
+
 __all__ = ["number", "error_values", "summary_stats", "summarize_points", "paired_comparison", "equal_time"]
-
-#: Stand-in for an infinite error inside ``np.quantile`` (interpolating towards ``inf`` can give NaN).
-_BIG = 1e300
-
 
 def number(v: Any) -> float:
     """A CSV cell or a Python value as a float (empty or unparsable: NaN; ``inf`` is kept)."""
@@ -53,19 +51,6 @@ def error_values(rows: Sequence[dict], metric: str) -> np.ndarray:
     """One error per row: the metric of a finished run, ``inf`` for a failed one (or a NaN metric)."""
     out = np.array([number(r.get(metric)) if r.get("status") == "ok" else math.inf for r in rows], float)
     return np.where(np.isnan(out), math.inf, out)
-
-
-def summary_stats(values: np.ndarray) -> dict:
-    """``median``, ``q1``, ``q3`` (linear interpolation, as ``numpy.percentile``), ``worst`` (max)
-    and ``best`` (min) of errors that may hold ``inf``; a quantile that reaches an ``inf`` is ``inf``.
-    All NaN for no values."""
-    v = np.asarray(values, float)
-    if v.size == 0:
-        return dict(median=math.nan, q1=math.nan, q3=math.nan, worst=math.nan, best=math.nan)
-    q = np.quantile(np.minimum(v, _BIG), [0.5, 0.25, 0.75])
-    top = np.max(v[np.isfinite(v)], initial=-math.inf)
-    q = [math.inf if x > top else float(x) for x in q]
-    return dict(median=q[0], q1=q[1], q3=q[2], worst=float(np.max(v)), best=float(np.min(v)))
 
 
 def _key(r: dict) -> tuple:

@@ -15,6 +15,7 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 import yaml
 
+from .._summary import summary_stats
 from .._version import __version__
 from ..config import config_to_dict
 from ._spec import ConfigPoint, SweepSpec
@@ -208,13 +209,9 @@ def summarize(rows: Sequence[dict], points: Sequence[ConfigPoint], groups: dict[
         for m in metric_keys:
             v = np.array([_num(r.get(m, "")) for r in ok], float)
             v = v[np.isfinite(v)]
-            if v.size:
-                q1, med, q3 = np.percentile(v, [25, 50, 75])
-                lo, hi = v.min(), v.max()
-            else:
-                q1 = med = q3 = lo = hi = math.nan
-            s[f"{m}_median"], s[f"{m}_q1"], s[f"{m}_q3"] = float(med), float(q1), float(q3)
-            s[f"{m}_min"], s[f"{m}_max"] = float(lo), float(hi)
+            st = summary_stats(v)
+            s.update({f"{m}_median": st["median"], f"{m}_q1": st["q1"], f"{m}_q3": st["q3"],
+                      f"{m}_min": st["best"], f"{m}_max": st["worst"]})
         out.append(s)
     return out
 
