@@ -8,9 +8,20 @@ import pytest
 
 @pytest.fixture(scope="session", autouse=True)
 def compile_cache_dir(tmp_path_factory) -> Path:
-    """Commands run in-process keep their compiled programs in a test directory, never in the
-    user's cache directory (``NANOSLAM_CACHE_DIR`` unless the caller set it)."""
-    path = Path(os.environ.setdefault("NANOSLAM_CACHE_DIR", str(tmp_path_factory.mktemp("nanoslam_cache"))))
+    """One compilation cache for the whole test session, never the user's cache directory.
+
+    Many modules compile the same filter program (the embedded default, the small simulated logs
+    the sweep and method tests share): with JAX's persistent cache enabled in every test process
+    and shared by pytest-xdist's workers (the session's base directory), a program is compiled
+    once per session and loaded afterwards. Commands run in fresh processes get it through
+    ``NANOSLAM_CACHE_DIR`` (unless the caller set one). Tests of the cache itself use their own
+    directories in fresh processes."""
+    from nanoslam_jax._cache import enable_compile_cache
+
+    base = tmp_path_factory.getbasetemp()
+    session = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # xdist: .../pytest-N/popen-gwK
+    path = Path(os.environ.setdefault("NANOSLAM_CACHE_DIR", str(session / "nanoslam_cache")))
+    enable_compile_cache(path)
     return path
 
 
