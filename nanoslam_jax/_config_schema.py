@@ -252,6 +252,28 @@ class MetricsConfig:
 
 
 @dataclass(frozen=True)
+class SmootherConfig:
+    """Offline smoothing of the final best particle's path and map by least squares
+    (:mod:`nanoslam_jax.smoother`). It needs ``filter.estimate: path``."""
+
+    enabled: bool = _f(False, static=True,
+        doc="after the run, refine the final best particle's ancestral path and confirmed landmarks by "
+            "least squares over all odometry and detections (an offline estimate: trajectory.csv and the "
+            "rmse_* metrics are then the smoothed path's; the filter's own beside it)")
+    odometry_scale: float = _f(0.3, lo=0.0, lo_open=True, static=True,
+        doc="the odometry factors' covariance is the filter's segment prior covariance times this")
+    floor_xy: float = _f(0.1, lo=0.0, static=True,
+        doc="standard deviation added to each position coordinate of every odometry factor (m)")
+    floor_phi_deg: float = _f(0.3, lo=0.0, static=True,
+        doc="standard deviation added to the heading of every odometry factor (deg)")
+    huber: float = _f(2.0, lo=0.0, lo_open=True, static=True,
+        doc="Huber threshold on a detection's whitened residual norm")
+    max_iter: int = _f(50, lo=1, static=True, doc="Levenberg-Marquardt iterations at most")
+    tol: float = _f(1e-3, lo=0.0, lo_open=True, static=True,
+        doc="converged when no coordinate moves more than this (m, rad)")
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """The Victoria Park-like simulator (data.kind = simulated)."""
 
@@ -300,6 +322,7 @@ class Config:
     nano: NanoConfig = field(default_factory=NanoConfig)
     iterated: IteratedConfig = field(default_factory=IteratedConfig)
     nasrukf: NasrukfConfig = field(default_factory=NasrukfConfig)
+    smoother: SmootherConfig = field(default_factory=SmootherConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     output: OutputConfig = field(default_factory=OutputConfig)

@@ -218,6 +218,10 @@ def method_config(spec: CompareSpec, m: MethodSpec) -> Config:
         cfg = load_config(spec.base, list(spec.set) + list(m.set))
     except ConfigError as e:
         raise ConfigError(f"{spec.source}: method {m.label!r}: {e}") from None
+    if cfg.smoother.enabled:
+        raise ConfigError(f"{spec.source}: method {m.label!r}: smoother.enabled is not available in comparisons, "
+                          "which score the filters' own estimates; set it to false (nanoslam run and "
+                          "experiments/accuracy.py score the smoothed path)")
     return dataclasses.replace(cfg, name=f"{spec.name}-{m.label}")
 
 

@@ -36,6 +36,7 @@ from ._config_schema import (
     NasrukfConfig,
     NoiseConfig,
     OutputConfig,
+    SmootherConfig,
     SimConfig,
     VehicleConfig,
 )
@@ -54,6 +55,7 @@ __all__ = [
     "MetricsConfig",
     "SimConfig",
     "OutputConfig",
+    "SmootherConfig",
     "load_config",
     "config_from_dict",
     "config_to_dict",
@@ -199,6 +201,10 @@ def _check_consistency(cfg: Config, where: str) -> None:
     if cfg.filter.estimate == "path" and cfg.filter.method in ("ekf_slam", "nasrukf", "dead_reckoning"):
         raise ConfigError(f"{where}key 'filter.estimate': 'path' follows the particles' ancestry; filter.method "
                           f"{cfg.filter.method!r} has no particles; use best (or mean)")
+    if cfg.smoother.enabled and cfg.filter.estimate != "path":
+        raise ConfigError(f"{where}key 'smoother.enabled': the smoother starts from the final best particle's "
+                          f"ancestral path, which a run records only with filter.estimate: path (got "
+                          f"{cfg.filter.estimate!r}); set filter.estimate to path")
     if cfg.filter.new_landmark < cfg.filter.gate:
         raise ConfigError(f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
                           f"got {cfg.filter.new_landmark}")

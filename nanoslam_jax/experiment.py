@@ -29,6 +29,7 @@ from .filter import (AVAILABLE_METHODS, GAUSSIAN_METHODS, Params, Static, adapti
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
                      text_progress)
 from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
+from .smoother import SmootherSettings, final_map, smooth_run
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,6 +201,14 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
         est = reported_trajectory(static.estimate, o, run.state)
+        unsmoothed = est
+        if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
+            sm = smooth_run(est, final_map(run.state), seg, params, SmootherSettings.from_config(cfg.smoother),
+                            cfg.filter.prior)
+            est = sm.poses
+            metrics.update(smoother_iterations=sm.iterations, smoother_converged=sm.converged,
+                           smoother_associated=sm.associated, smoother_detections=sm.detections,
+                           smoother_cost_initial=sm.initial_cost, smoother_cost=sm.cost, smoother_s=sm.seconds)
         ess = np.asarray(o.ess) if cfg.filter.method not in GAUSSIAN_METHODS else None
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
@@ -231,6 +240,9 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
             other = evaluate(t, (mean if static.estimate == "best" else best_pose)[:, :2], log.raw.gps, **mk)
             tag = "wmean" if static.estimate == "best" else "best"
             metrics.update({f"rmse_fixed_{tag}": other["rmse_fixed"], f"rmse_aligned_{tag}": other["rmse_aligned"]})
+        if cfg.smoother.enabled and np.all(np.isfinite(unsmoothed)):  # the path the smoother started from
+            before = evaluate(t, unsmoothed[:, :2], log.raw.gps, **mk)
+            metrics.update(rmse_fixed_path=before["rmse_fixed"], rmse_aligned_path=before["rmse_aligned"])
         if "dr_rmse_fixed" in metrics:
             metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
     if landmarks is not None:
@@ -240,6 +252,8 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     cols, table = ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, mean]
     if cfg.filter.estimate == "path":  # x, y, phi: the ancestral path; the filter's own estimate beside it
         cols, table = cols + ["best_x", "best_y", "best_phi"], np.c_[table, best_pose]
+    if cfg.smoother.enabled:  # x, y, phi: the smoothed path; the ancestral path it started from beside it
+        cols, table = cols + ["path_x", "path_y", "path_phi"], np.c_[table, unsmoothed]
     _write_csv(out / "trajectory.csv", cols, table)
     if landmarks is not None:
         _write_csv(out / "map.csv", MAP_COLUMNS, landmarks, fmt="%.9g")

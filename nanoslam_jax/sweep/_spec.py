@@ -60,7 +60,7 @@ _RUN_KEYS = ("batch", "memory_gb", "vectorize", "backend", "parallel", "workers"
 _RAY_KEYS = ("address", "num_cpus")
 #: Config keys no sweep may vary: identity, the seed (use ``seeds``), and output settings.
 _UNSWEEPABLE = ("name", "seed")
-_UNSWEEPABLE_SECTIONS = ("output",)
+_UNSWEEPABLE_SECTIONS = ("output", "smoother")  # smoother: host-side, after the run (experiments/smoother_tuning.py)
 
 
 @dataclass(frozen=True)
@@ -376,6 +376,9 @@ def _load_base(raw: Any, overrides: tuple[str, ...], path: Optional[Path], where
         cfg = config_from_dict(mapping, source=f"{where}: base")
     else:
         raise ConfigError(f"{where}: key 'base': expected a config file name or a mapping of config keys, got {raw!r}")
+    if cfg.smoother.enabled:
+        raise ConfigError(f"{where}: key 'base': smoother.enabled is not available in sweeps (the smoother runs on "
+                          "the host after a run; tune it with experiments/smoother_tuning.py); set it to false")
     return config_to_dict(cfg)
 
 
