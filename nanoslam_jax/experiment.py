@@ -209,6 +209,10 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
             metrics.update(smoother_iterations=sm.iterations, smoother_converged=sm.converged,
                            smoother_associated=sm.associated, smoother_detections=sm.detections,
                            smoother_cost_initial=sm.initial_cost, smoother_cost=sm.cost, smoother_s=sm.seconds)
+            if not sm.converged:
+                metrics.setdefault("warnings", []).append(
+                    f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "
+                    f"{cfg.smoother.max_iter}, smoother.tol {cfg.smoother.tol:g}); the smoothed path is reported as it stands")
         ess = np.asarray(o.ess) if cfg.filter.method not in GAUSSIAN_METHODS else None
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
@@ -226,7 +230,7 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
             noise_metrics, noise_warnings = adaptive_noise_report(static, params, run.state)
             metrics.update(noise_metrics)
             if noise_warnings:
-                metrics["warnings"] = noise_warnings
+                metrics.setdefault("warnings", []).extend(noise_warnings)
 
     # JAX's own count of this run's tracing, lowering and compiling (or loading from the cache).
     metrics["compilation"] = {**compile_stats().since(stats0).as_dict(),

@@ -171,3 +171,17 @@ def test_run_with_the_smoother_on_a_simulated_log(tmp_path):
     assert m["rmse_aligned"] < m["rmse_aligned_path"]
     header = (out / "trajectory.csv").read_text().splitlines()[0].split(",")
     assert header[-3:] == ["path_x", "path_y", "path_phi"]
+    assert "warnings" not in m
+
+
+def test_a_smoother_that_does_not_converge_is_warned_about(tmp_path, capsys):
+    from nanoslam_jax.cli import main
+
+    out = tmp_path / "run"
+    main(["run", "--out", str(out), "--quiet", "--set", "sim.duration=30", "--set", "filter.estimate=path",
+          "--set", "smoother.enabled=true", "--set", "smoother.max_iter=1", "--set", "smoother.tol=1e-12",
+          "--set", "output.plots=false"])
+    m = json.loads((out / "metrics.json").read_text())
+    assert not m["smoother_converged"] and m["smoother_iterations"] == 1
+    assert any("smoother: stopped after 1 iterations" in w for w in m["warnings"])
+    assert "smoother: stopped after 1 iterations" in capsys.readouterr().err
