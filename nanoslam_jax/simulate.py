@@ -62,6 +62,7 @@ from scipy.spatial import cKDTree
 
 from .config import SimConfig, VehicleConfig
 from .data._types import RawLog
+from .models._angles import wrap_angle_np
 
 __all__ = [
     "simulate",
@@ -96,12 +97,6 @@ _PATH_DS = 0.25
 # --------------------------------------------------------------------------- helpers
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """Wrap angles to (-pi, pi] (numpy twin of :func:`nanoslam_jax.models.wrap_angle`)."""
-    w = np.mod(np.asarray(a) + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
-
-
 def _wrap_scalar(a: float) -> float:
     w = math.fmod(a + math.pi, 2.0 * math.pi)
     if w < 0.0:
@@ -129,7 +124,7 @@ def _step_np(x: np.ndarray, u: np.ndarray, dt: np.ndarray, vehicle: VehicleConfi
     s, c = np.sin(phi), np.cos(phi)
     dx = vc * c - w * (a * s + b * c)
     dy = vc * s + w * (a * c - b * s)
-    return np.stack([x[:, 0] + dt * dx, x[:, 1] + dt * dy, _wrap(phi + dt * w)], axis=1)
+    return np.stack([x[:, 0] + dt * dx, x[:, 1] + dt * dy, wrap_angle_np(phi + dt * w)], axis=1)
 
 
 def _superellipse(aspect: float, n: int = 20000) -> tuple[np.ndarray, float]:
@@ -371,7 +366,7 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None)
     dy = trees[None, :, 1] - scan_poses[:, None, 1]
     r = np.hypot(dx, dy) + rng_det.normal(0.0, 1.0, (n_s, n_l)) * sim.sigma_r
     beta_noise = rng_det.normal(0.0, 1.0, (n_s, n_l)) * math.radians(sim.sigma_beta_deg)
-    beta = _wrap(np.arctan2(dy, dx) - scan_poses[:, None, 2] + beta_noise)
+    beta = wrap_angle_np(np.arctan2(dy, dx) - scan_poses[:, None, 2] + beta_noise)
     hit = rng_det.random((n_s, n_l)) < sim.p_detect
     diam = np.clip(tree_diam[None, :] + rng_det.normal(0.0, 0.02, (n_s, n_l)), 0.1, 0.6)
     keep = hit & (r > 0.0) & (r < max_range) & (np.abs(beta) <= half_fov)
@@ -385,7 +380,7 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None)
         c_t = np.repeat(scan_t, n_clut)
         c_r = max_range * np.sqrt(1.0 - rng_clut.random(tot))  # in (0, max_range]
         c_r = np.minimum(c_r, np.nextafter(max_range, 0.0))
-        c_b = _wrap(rng_clut.uniform(-half_fov, half_fov, tot))
+        c_b = wrap_angle_np(rng_clut.uniform(-half_fov, half_fov, tot))
         c_d = rng_clut.uniform(0.1, 0.6, tot)
         rows.append(np.stack([c_t, c_r, c_b, c_d], axis=1))
     det = np.concatenate(rows, axis=0)

@@ -22,6 +22,7 @@ import numpy as np
 import scipy.io
 from jaxtyping import Float
 
+from ..models._angles import wrap_angle_np
 from ._types import RawLog
 
 __all__ = ["LogFormatError", "load_victoria_park", "write_victoria_park"]
@@ -230,12 +231,6 @@ def _read_gps_mat(path: Path) -> Float[np.ndarray, "n 3"]:
     return np.stack([t, c * lo - s * la, s * lo + c * la], axis=1)
 
 
-def _wrap(a: Float[np.ndarray, "*shape"]) -> Float[np.ndarray, "*shape"]:
-    """Wrap angles to (-pi, pi]."""
-    w = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
-
-
 # --------------------------------------------------------------------------- public API
 
 
@@ -292,7 +287,7 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
     dr = _read_mat(dr_path, _DR_MAT) if dr_path.suffix == ".mat" else _read_ascii(dr_path, _INPUTS)
     gps = _read_gps_mat(gps_path) if gps_path.suffix == ".mat" else _read_ascii(gps_path, _GPS)
     detections = _read_ascii(det_path, _MEASUREMENTS)
-    detections[:, 2] = _wrap(detections[:, 2] - np.pi / 2)
+    detections[:, 2] = wrap_angle_np(detections[:, 2] - np.pi / 2)
 
     truth = {}
     for key, table in (("truth_poses", _TRUTH_POSES), ("truth_landmarks", _TRUTH_LANDMARKS),

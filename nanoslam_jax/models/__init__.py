@@ -1,6 +1,6 @@
 """Vehicle and measurement models with autodiff Jacobians."""
 
-from ._angles import circular_mean as circular_mean, wrap_angle as wrap_angle
+from ._angles import circular_mean as circular_mean, wrap_angle as wrap_angle, wrap_angle_np as wrap_angle_np
 from ._range_bearing import (
     innovation as innovation,
     inverse_range_bearing as inverse_range_bearing,

@@ -1,6 +1,7 @@
 """Angle wrapping."""
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 
@@ -16,6 +17,12 @@ def wrap_angle(a: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
     # round() leaves -pi at -pi (and round-off can land just outside): the interval is (-pi, pi].
     w = jnp.where(w <= -jnp.pi, w + 2.0 * jnp.pi, w)
     return jnp.where(w > jnp.pi, w - 2.0 * jnp.pi, w)
+
+
+def wrap_angle_np(a: Float[ArrayLike, "*shape"]) -> Float[np.ndarray, "*shape"]:
+    """:func:`wrap_angle` in numpy, for host code (data loading, simulation, the smoother): (-pi, pi]."""
+    w = np.mod(np.asarray(a) + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
 
 
 def circular_mean(angles: Float[ArrayLike, "n"], weights: Float[ArrayLike, "n"]) -> Float[Array, ""]:
