@@ -47,8 +47,8 @@ import scipy.sparse as sp
 from jaxtyping import Array, Bool, Float, Int
 
 from .filter._params import Params
-from .filter._prior import relative_prior
-from .models import range_bearing
+from .filter import relative_priors
+from .models import innovation, range_bearing, wrap_angle, wrap_angle_np
 
 __all__ = ["SmootherSettings", "Smoothed", "associate_path", "final_map", "segment_motion", "smooth_path", "smooth_run"]
 
@@ -109,8 +109,7 @@ class Smoothed(NamedTuple):
     seconds: float
 
 
-def _wrap(a):
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
+_relative_priors = jax.jit(relative_priors, static_argnums=2)  # one compilation per log shape and kind
 
 
 def segment_motion(
@@ -118,8 +117,7 @@ def segment_motion(
 ) -> tuple[Float[Array, "segments 3"], Float[Array, "segments 3 3"]]:
     """Each segment's motion prior in the frame of its start pose (mean and covariance), as the
     filter's prior computes it (:func:`~nanoslam_jax.filter.relative_prior`)."""
-    return jax.jit(jax.vmap(relative_prior, (0, 0, 0, None, None)), static_argnums=4)(
-        segments.dt, segments.u, segments.dr_mask, params, kind)
+    return _relative_priors(segments, params, kind)
 
 
 def associate_path(
@@ -147,8 +145,8 @@ def associate_path(
         m = lm[start:start + 256]
         dx, dy = m[None, :, 0] - x[:, None, 0], m[None, :, 1] - x[:, None, 1]
         r = np.hypot(dx, dy)
-        b = _wrap(np.arctan2(dy, dx) - x[:, None, 2])
-        d2 = ((zz[:, None, 0] - r) / sigma_r) ** 2 + (_wrap(zz[:, None, 1] - b) / sigma_beta) ** 2
+        b = wrap_angle_np(np.arctan2(dy, dx) - x[:, None, 2])
+        d2 = ((zz[:, None, 0] - r) / sigma_r) ** 2 + (wrap_angle_np(zz[:, None, 1] - b) / sigma_beta) ** 2
         j = np.argmin(d2, axis=1)
         d = d2[np.arange(len(seg)), j]
         better = d < best
@@ -160,13 +158,11 @@ def associate_path(
 def _odometry_residual(xa, xb, motion):
     c, s = jnp.cos(xa[2]), jnp.sin(xa[2])
     dx, dy = xb[0] - xa[0], xb[1] - xa[1]
-    dphi = xb[2] - xa[2] - motion[2]
-    return jnp.stack([c * dx + s * dy - motion[0], -s * dx + c * dy - motion[1], jnp.arctan2(jnp.sin(dphi), jnp.cos(dphi))])
+    return jnp.stack([c * dx + s * dy - motion[0], -s * dx + c * dy - motion[1], wrap_angle(xb[2] - xa[2] - motion[2])])
 
 
 def _detection_residual(x, m, z):
-    e = z - range_bearing(x, m)
-    return jnp.stack([e[0], jnp.arctan2(jnp.sin(e[1]), jnp.cos(e[1]))])
+    return innovation(z, range_bearing(x, m))
 
 
 @jax.jit
@@ -318,7 +314,7 @@ def smooth_path(
                     break
                 continue
             Xn = X + step
-            Xn[2:nP:3] = _wrap(Xn[2:nP:3])
+            Xn[2:nP:3] = wrap_angle_np(Xn[2:nP:3])
             new_cost, Jn, en = linearise(Xn)
             if np.isfinite(new_cost) and new_cost <= cost:
                 break

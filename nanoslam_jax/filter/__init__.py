@@ -50,6 +50,7 @@ from ._scan import (
     filter_scan as filter_scan,
     initial_state as initial_state,
     make_proposal as make_proposal,
+    relative_priors as relative_priors,
     reported_map as reported_map,
     run_batch as run_batch,
     run_filter as run_filter,

@@ -90,7 +90,15 @@ def segment_priors(
     :func:`filter_scan` computes it for all segments at once, before the scan."""
     if static.method in GAUSSIAN_METHODS or static.prior_cov != "reset":
         return None
-    return jax.vmap(relative_prior, (0, 0, 0, None, None))(segments.dt, segments.u, segments.dr_mask, params, static.prior)
+    return relative_priors(segments, params, static.prior)
+
+
+def relative_priors(
+    segments: Segments, params: Params, kind: str = "unscented"
+) -> tuple[Float[Array, "segments 3"], Float[Array, "segments 3 3"]]:
+    """:func:`relative_prior` of every segment (``kind``: ``filter.prior``). Traced inside the
+    filter's program by :func:`segment_priors`; the offline smoother calls its compiled form."""
+    return jax.vmap(relative_prior, (0, 0, 0, None, None))(segments.dt, segments.u, segments.dr_mask, params, kind)
 
 
 def initial_state(static: Static, params: Params, key: Key[Array, ""]):
