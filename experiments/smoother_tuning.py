@@ -27,13 +27,15 @@ from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.smoother import SmootherSettings, final_map, smooth_run
+from target_score import score as target_score  # experiments/ is on the path when this script runs
 
 
-def _score(fixed: np.ndarray, aligned: np.ndarray, converged: np.ndarray, a: float, f: float, w: float) -> float:
-    if not converged.all() or not (np.isfinite(fixed).all() and np.isfinite(aligned).all()):
-        return float("inf")
-    mf, ma = np.median(fixed), np.median(aligned)
-    return float(max(ma / a, mf / f, aligned.max() / (w * ma), fixed.max() / (w * mf)))
+def _score(fixed: np.ndarray, aligned: np.ndarray, ok: np.ndarray, a: float, f: float, w: float) -> float:
+    """target_score.py's score of one setting's seeds (a seed not ``ok`` counts as a failed run)."""
+    row = {"rmse_aligned_median": np.median(aligned), "rmse_fixed_median": np.median(fixed),
+           "rmse_aligned_max": np.max(aligned), "rmse_fixed_max": np.max(fixed),
+           "n_failed": int(np.sum(~ok | ~np.isfinite(fixed) | ~np.isfinite(aligned)))}
+    return float(target_score(row, a, f, w)["score"])
 
 
 def main() -> None:
