@@ -75,7 +75,7 @@ def main() -> None:
         settings = SmootherSettings.from_config(cfg.smoother)
         smoothed = [smooth_run(est[i], final_map(run.state, i), log.segments, params, settings, cfg.filter.prior)
                     for i in range(len(seeds))]
-        keys += ("rmse_fixed_path", "rmse_aligned_path", "smoother_iterations", "smoother_s")
+        keys += ("rmse_fixed_path", "rmse_aligned_path", "smoother_iterations", "smoother_merged", "smoother_s")
     mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
     rows = []
     for i, s in enumerate(seeds):
@@ -84,7 +84,8 @@ def main() -> None:
         if smoothed is not None:  # the path the smoother started from, paired
             pth = evaluate(t, est[i][:, :2], log.raw.gps, **mk)
             m.update(rmse_fixed_path=pth["rmse_fixed"], rmse_aligned_path=pth["rmse_aligned"],
-                     smoother_iterations=smoothed[i].iterations, smoother_s=smoothed[i].seconds)
+                     smoother_iterations=smoothed[i].iterations, smoother_merged=smoothed[i].merged,
+                     smoother_s=smoothed[i].seconds)
             if not smoothed[i].converged:
                 print(f"warning: seed {s}: the smoother stopped after {smoothed[i].iterations} iterations without converging")
         if static.estimate == "path":  # the filter's own estimate of the same run beside the path (paired)

@@ -271,6 +271,24 @@ class SmootherConfig:
     max_iter: int = _f(50, lo=1, static=True, doc="Levenberg-Marquardt iterations at most")
     tol: float = _f(1e-3, lo=0.0, lo_open=True, static=True,
         doc="converged when no coordinate moves more than this (m, rad)")
+    loop_closure: bool = _f(True, static=True,
+        doc="after a first solve, find trees the run mapped twice (a stretch of new landmarks that a rigid "
+            "transform lays onto earlier ones) and join them, then solve again (docs/method/smoother.md)")
+    loop_closure_window: float = _f(50.0, lo=0.0, lo_open=True, static=True,
+        doc="the landmarks first seen in a window this long (s) are registered together against earlier ones")
+    loop_closure_radius: float = _f(1.0, lo=0.0, lo_open=True, static=True,
+        doc="a copy lies within this distance (m) of its original after the transform; two landmarks this close "
+            "and never detected together are joined")
+    loop_closure_search: float = _f(40.0, lo=0.0, static=True,
+        doc="the transform moves a window's landmarks by at most this (m): the drift searched for")
+    loop_closure_max_turn_deg: float = _f(30.0, lo=0.0, hi=180.0, static=True,
+        doc="the transform turns a window's landmarks by at most this (deg)")
+    loop_closure_min_inliers: int = _f(6, lo=2, static=True,
+        doc="a transform is taken when at least this many landmarks of the window fall onto earlier ones")
+    loop_closure_accept: float = _f(0.9, lo=0.0, hi=1.0, static=True,
+        doc="the joins are kept when, solved again, at least this fraction of their detections lies within "
+            "filter.gate")
+    loop_closure_rounds: int = _f(2, lo=1, static=True, doc="searches for copies (each followed by a solve) at most")
 
 
 @dataclass(frozen=True)

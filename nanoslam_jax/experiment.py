@@ -208,7 +208,8 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
             est = sm.poses
             metrics.update(smoother_iterations=sm.iterations, smoother_converged=sm.converged,
                            smoother_associated=sm.associated, smoother_detections=sm.detections,
-                           smoother_cost_initial=sm.initial_cost, smoother_cost=sm.cost, smoother_s=sm.seconds)
+                           smoother_cost_initial=sm.initial_cost, smoother_cost=sm.cost, smoother_s=sm.seconds,
+                           smoother_merged=sm.merged, smoother_rejected=sm.rejected)
             if not sm.converged:
                 metrics.setdefault("warnings", []).append(
                     f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "

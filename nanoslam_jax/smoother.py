@@ -23,6 +23,12 @@ whole log (GraphSLAM / SAM):
   whitened residual's norm) so that a wrong association pulls with a bounded force. Detections
   are associated once, before the iterations, to the nearest confirmed landmark of the final map
   seen from the ancestral path within the chi-square ``filter.gate``; the rest are left out.
+* **Loop closure** (``smoother.loop_closure``): a particle that came back to ground it had mapped
+  with its pose drifted beyond the gate mapped the trees there a second time, and along its path
+  the copies agree with each other. After a first solve, stretches of newly mapped landmarks are
+  registered against the earlier map (:mod:`nanoslam_jax._loop_closure`); copies found are joined
+  to their originals, the problem is solved again, and the joins are kept only where their
+  detections then fit.
 * **Solver**: Levenberg-Marquardt on the normal equations, whose matrix is sparse (block
   tridiagonal over the poses, block diagonal over the landmarks, plus each detection's
   pose-landmark block): the poses are eliminated by a banded Cholesky factorisation
@@ -48,9 +54,11 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .filter._params import Params
 from .filter import relative_priors
+from ._loop_closure import LoopClosureSettings, co_observed, find_duplicates
 from .models import innovation, range_bearing, wrap_angle, wrap_angle_np
 
-__all__ = ["SmootherSettings", "Smoothed", "associate_path", "final_map", "segment_motion", "smooth_path", "smooth_run"]
+__all__ = ["LoopClosureSettings", "SmootherSettings", "Smoothed", "associate_path", "final_map", "segment_motion",
+           "smooth_path", "smooth_run"]
 
 
 class SmootherSettings(NamedTuple):
@@ -67,6 +75,9 @@ class SmootherSettings(NamedTuple):
         huber: the Huber loss's threshold on a detection's whitened residual norm.
         max_iter: Levenberg-Marquardt iterations at most.
         tol: converged when no pose or landmark coordinate moves more than this (m, rad).
+        loop_closure: how trees mapped twice are searched for and joined after a first solve
+            (:class:`LoopClosureSettings`); ``None``: not searched for.
+        loop_closure_rounds: searches (each followed by a solve) at most.
     """
 
     odometry_scale: float = 0.3
@@ -75,12 +86,19 @@ class SmootherSettings(NamedTuple):
     huber: float = 2.0
     max_iter: int = 50
     tol: float = 1e-3
+    loop_closure: LoopClosureSettings | None = None
+    loop_closure_rounds: int = 2
 
     @classmethod
     def from_config(cls, sc) -> "SmootherSettings":
         """From the config's ``smoother`` section (:class:`nanoslam_jax.config.SmootherConfig`)."""
-        return cls(odometry_scale=sc.odometry_scale, floor_xy=sc.floor_xy, floor_phi=float(np.deg2rad(sc.floor_phi_deg)),
-                   huber=sc.huber, max_iter=sc.max_iter, tol=sc.tol)
+        lc = LoopClosureSettings(
+            window=sc.loop_closure_window, radius=sc.loop_closure_radius, search=sc.loop_closure_search,
+            max_turn=float(np.deg2rad(sc.loop_closure_max_turn_deg)), min_inliers=sc.loop_closure_min_inliers,
+            accept=sc.loop_closure_accept)
+        return cls(odometry_scale=sc.odometry_scale, floor_xy=sc.floor_xy,
+                   floor_phi=float(np.deg2rad(sc.floor_phi_deg)), huber=sc.huber, max_iter=sc.max_iter, tol=sc.tol,
+                   loop_closure=lc if sc.loop_closure else None, loop_closure_rounds=sc.loop_closure_rounds)
 
 
 class Smoothed(NamedTuple):
@@ -88,7 +106,8 @@ class Smoothed(NamedTuple):
 
     Attributes:
         poses: the pose at each segment.
-        landmarks: the landmarks' positions (the final map's confirmed landmarks, in its order).
+        landmarks: the landmarks' positions (the final map's confirmed landmarks, in its order; a
+            copy joined to its original by the loop closure at the original's position).
         associated: detections that entered as factors.
         detections: detections of the log.
         iterations: Levenberg-Marquardt iterations taken.
@@ -96,6 +115,9 @@ class Smoothed(NamedTuple):
             detections) at the start and at the end.
         converged: whether the last step moved nothing by more than ``tol``.
         seconds: wall time of the smoothing.
+        merged: landmarks joined to another as copies of the same tree (loop closure).
+        rejected: groups of joins (a window's registration, a close pair) found but dropped: their
+            detections did not fit after a solve.
     """
 
     poses: Float[np.ndarray, "segments 3"]
@@ -107,6 +129,8 @@ class Smoothed(NamedTuple):
     cost: float
     converged: bool
     seconds: float
+    merged: int = 0
+    rejected: int = 0
 
 
 _relative_priors = jax.jit(relative_priors, static_argnums=2)  # one compilation per log shape and kind
@@ -226,6 +250,7 @@ def smooth_path(
     sigma_beta: float,
     gate: float,
     settings: SmootherSettings = SmootherSettings(),
+    time_s: Float[np.ndarray, "segments"] | None = None,
 ) -> Smoothed:
     """Smooth a path and its map by Levenberg-Marquardt over odometry and detection factors.
 
@@ -238,31 +263,97 @@ def smooth_path(
         sigma_r, sigma_beta: measurement noise (m, rad).
         gate: chi-square gate of the association.
         settings: the smoother's settings.
+        time_s: each segment's time (s); needed by the loop closure (``settings.loop_closure``).
 
     Returns:
         The smoothed poses and landmarks and the solver's account.
     """
     t0 = time.perf_counter()
     path = np.asarray(path, float)
-    lm0 = np.asarray(landmarks, float).reshape(-1, 2)
-    T = path.shape[0]
-    seg, det, lid = associate_path(path, lm0, z, z_mask, sigma_r, sigma_beta, gate)
-    # Only landmarks that explain a detection are variables (the others keep their positions).
-    seen, lid = np.unique(lid, return_inverse=True)
-    lid = lid.reshape(-1)
-    lm_all, lm0, M = lm0, lm0[seen], len(seen)
-    n = len(seg)
-    n_pad = _pad(n)
-    zz = np.zeros((n_pad, 2))
-    zz[:n] = np.asarray(z)[seg, det]
-    seg_p, lid_p = np.zeros(n_pad, int), np.zeros(n_pad, int)
-    seg_p[:n], lid_p[:n] = seg, lid
-
+    lm_all = np.asarray(landmarks, float).reshape(-1, 2)
+    seg, det, lid = associate_path(path, lm_all, z, z_mask, sigma_r, sigma_beta, gate)
+    zz = np.asarray(z)[seg, det].reshape(-1, 2)
     cov = settings.odometry_scale * np.asarray(motion_cov, float) + np.diag(
         [settings.floor_xy ** 2, settings.floor_xy ** 2, settings.floor_phi ** 2]) + 1e-12 * np.eye(3)
     w_odo = np.transpose(np.linalg.cholesky(np.linalg.inv(cov)), (0, 2, 1))  # whitened e = W e, W'W = cov^-1
     w_det = np.array([1.0 / sigma_r, 1.0 / sigma_beta])
     motion = np.asarray(motion_mean, float)
+
+    def solve(poses, lms, seg_, zz_, lid_):
+        return _solve(poses, lms, seg_, zz_, lid_, motion, w_odo, w_det, settings)
+
+    poses, lm_out = path, lm_all.copy()
+    poses, lm_out, iterations, initial_cost, cost, converged = solve(poses, lm_out, seg, zz, lid)
+    merged, rejected, owner = 0, 0, np.arange(len(lm_out))
+    if settings.loop_closure is not None and time_s is not None and len(lid):
+        t = np.asarray(time_s, float)
+        for _ in range(settings.loop_closure_rounds):
+            first = np.full(len(lm_out), np.inf)
+            np.minimum.at(first, lid, t[seg])
+            parent, group = find_duplicates(lm_out, first, np.isfinite(first), co_observed(seg, lid, len(lm_out)),
+                                            settings.loop_closure)
+            while np.any(parent[parent] != parent):  # chains of copies end at the original
+                parent = parent[parent]
+            kept = False
+            for _ in range(2):
+                new_lid = parent[lid]
+                joined = new_lid != lid
+                if not np.any(joined):
+                    break
+                p2, l2, it, _, c2, conv2 = solve(poses, lm_out, seg, zz, new_lid)
+                iterations += it
+                # Verification: a true loop closure lets the joined detections fit as the others do
+                # once the path has moved; a false one leaves them outside the gate. A group that
+                # does not fit is dropped and the rest solved again.
+                fit = _whitened_d2(p2, l2, seg[joined], zz[joined], new_lid[joined], sigma_r, sigma_beta) < gate
+                g = group[lid[joined]]
+                bad = [k for k in np.unique(g) if np.mean(fit[g == k]) < settings.loop_closure.accept]
+                if not bad:
+                    kept = True
+                    break
+                rejected += len(bad)
+                drop = np.isin(group, bad)
+                parent[drop] = np.nonzero(drop)[0]
+            if not kept:
+                break
+            merged += int(np.sum((parent != np.arange(len(parent))) & (owner == np.arange(len(owner)))))
+            poses, lm_out, cost, converged, owner = p2, l2, c2, conv2, parent[owner]
+            # The path has moved: associate every detection again, to the landmarks that remain.
+            live = np.nonzero(owner == np.arange(len(owner)))[0]
+            seg, det, lid = associate_path(poses, lm_out[live], z, z_mask, sigma_r, sigma_beta, gate)
+            lid, zz = live[lid], np.asarray(z)[seg, det].reshape(-1, 2)
+            poses, lm_out, it, _, cost, converged = solve(poses, lm_out, seg, zz, lid)
+            iterations += it
+    return Smoothed(poses=poses, landmarks=lm_out[owner], associated=int(len(seg)),
+                    detections=int(np.sum(z_mask)), iterations=iterations, initial_cost=float(initial_cost),
+                    cost=float(cost), converged=converged, seconds=time.perf_counter() - t0, merged=merged,
+                    rejected=rejected)
+
+
+def _whitened_d2(poses, lms, seg, z_obs, lid, sigma_r, sigma_beta) -> np.ndarray:
+    """Each detection's squared residual against its landmark, whitened by the measurement noise."""
+    x, m = poses[seg], lms[lid]
+    dx, dy = m[:, 0] - x[:, 0], m[:, 1] - x[:, 1]
+    er = (z_obs[:, 0] - np.hypot(dx, dy)) / sigma_r
+    eb = wrap_angle_np(z_obs[:, 1] - np.arctan2(dy, dx) + x[:, 2]) / sigma_beta
+    return er ** 2 + eb ** 2
+
+
+def _solve(path, lm_all, seg, z_obs, lid, motion, w_odo, w_det, settings: SmootherSettings):
+    """Levenberg-Marquardt from ``path`` and ``lm_all`` over the odometry factors and the detections
+    ``z_obs`` (made at segments ``seg`` of landmarks ``lid``). Returns the poses, all landmarks
+    (those without a detection unchanged), iterations, initial and final cost, converged."""
+    T = path.shape[0]
+    # Only landmarks that explain a detection are variables (the others keep their positions).
+    seen, lid = np.unique(lid, return_inverse=True)
+    lid = lid.reshape(-1)
+    lm0, M = lm_all[seen], len(seen)
+    n = len(seg)
+    n_pad = _pad(n)
+    zz = np.zeros((n_pad, 2))
+    zz[:n] = z_obs
+    seg_p, lid_p = np.zeros(n_pad, int), np.zeros(n_pad, int)
+    seg_p[:n], lid_p[:n] = seg, lid
     nP, nV = 3 * T, 3 * T + 2 * M
     k = float(settings.huber)
 
@@ -332,9 +423,7 @@ def smooth_path(
             break
     lm_out = lm_all.copy()
     lm_out[seen] = X[nP:].reshape(M, 2)
-    return Smoothed(poses=X[:nP].reshape(T, 3), landmarks=lm_out, associated=int(n),
-                    detections=int(np.sum(z_mask)), iterations=it, initial_cost=float(initial_cost), cost=float(cost),
-                    converged=converged, seconds=time.perf_counter() - t0)
+    return X[:nP].reshape(T, 3), lm_out, it, initial_cost, cost, converged
 
 
 def final_map(state, index: int | None = None) -> Float[np.ndarray, "landmarks 2"]:
@@ -361,4 +450,5 @@ def smooth_run(path, landmarks, segments, params: Params, settings: SmootherSett
     """
     mean, cov = segment_motion(segments, params, prior)
     return smooth_path(path, landmarks, np.asarray(segments.z), np.asarray(segments.z_mask), np.asarray(mean),
-                       np.asarray(cov), float(params.sigma_r), float(params.sigma_beta), float(params.gate), settings)
+                       np.asarray(cov), float(params.sigma_r), float(params.sigma_beta), float(params.gate), settings,
+                       np.asarray(segments.time))
