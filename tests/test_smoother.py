@@ -275,3 +275,16 @@ def test_loop_closure_leaves_a_map_without_copies_alone():
     closed = smooth_path(*args, SmootherSettings(loop_closure=LoopClosureSettings()), p["time"])
     assert closed.merged == 0 and closed.rejected == 0
     np.testing.assert_array_equal(closed.poses, plain.poses)
+
+
+def test_loop_closure_drops_joins_that_do_not_fit():
+    """Joins whose detections do not fit after the solve are dropped, and the first solution stands:
+    with an acceptance no join can reach, the copies are found (rejected) and nothing changes."""
+    from nanoslam_jax.smoother import LoopClosureSettings
+
+    p = _mapped_twice()
+    args = (p["path"], p["lm"], p["z"], p["mask"], p["motion"], p["cov"], p["sr"], p["sb"], 13.8)
+    plain = smooth_path(*args, SmootherSettings(), p["time"])
+    strict = smooth_path(*args, SmootherSettings(loop_closure=LoopClosureSettings(accept=1.01)), p["time"])
+    assert strict.merged == 0 and strict.rejected >= 1
+    np.testing.assert_array_equal(strict.poses, plain.poses)
