@@ -125,11 +125,15 @@ def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndar
     if len(th) == 0:
         return empty
     tree = cKDTree(old)
-    # Count inliers of every hypothesis at once (not yet one-to-one, nor checked for co-observation).
-    R = np.stack([np.stack([np.cos(th), -np.sin(th)], 1), np.stack([np.sin(th), np.cos(th)], 1)], 1)  # (H, 2, 2)
-    pts = np.einsum("hij,nj->hni", R, new) + tr[:, None, :]
-    d, _ = tree.query(pts.reshape(-1, 2), distance_upper_bound=s.radius)
-    counts = np.isfinite(d).reshape(len(th), n).sum(1)
+    # Count every hypothesis's inliers (not yet one-to-one, nor checked for co-observation), in
+    # chunks that bound the memory.
+    counts = np.zeros(len(th), int)
+    for a in range(0, len(th), 20000):
+        t_, r_ = th[a:a + 20000], tr[a:a + 20000]
+        R = np.stack([np.stack([np.cos(t_), -np.sin(t_)], 1), np.stack([np.sin(t_), np.cos(t_)], 1)], 1)
+        pts = np.einsum("hij,nj->hni", R, new) + r_[:, None, :]
+        d, _ = tree.query(pts.reshape(-1, 2), distance_upper_bound=s.radius)
+        counts[a:a + 20000] = np.isfinite(d).reshape(len(t_), n).sum(1)
     best_i, best_j = empty
     for h in np.argsort(-counts)[:5]:  # the leading hypotheses, made one-to-one and refined
         if counts[h] < need:
