@@ -110,10 +110,11 @@ class Smoothed(NamedTuple):
             copy joined to its original by the loop closure at the original's position).
         associated: detections that entered as factors.
         detections: detections of the log.
-        iterations: Levenberg-Marquardt iterations taken.
+        iterations: Levenberg-Marquardt iterations taken over all solves (the loop closure solves again;
+            ``max_iter`` bounds each solve).
         initial_cost, cost: the objective (half the sum of squared whitened residuals, Huber for
             detections) at the start and at the end.
-        converged: whether the last step moved nothing by more than ``tol``.
+        converged: whether the last solve's last step moved nothing by more than ``tol``.
         seconds: wall time of the smoothing.
         merged: landmarks joined to another as copies of the same tree (loop closure).
         rejected: groups of joins (a window's registration, a close pair) found but dropped: their
