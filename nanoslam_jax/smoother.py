@@ -145,6 +145,14 @@ def segment_motion(
     return _relative_priors(segments, params, kind)
 
 
+def _whitened_d2(x, m, z, sigma_r: float, sigma_beta: float) -> np.ndarray:
+    """Squared residual of detections ``z`` (range, bearing) of landmarks ``m`` seen from poses
+    ``x``, whitened by the measurement noise; the arrays broadcast over their leading axes."""
+    dx, dy = m[..., 0] - x[..., 0], m[..., 1] - x[..., 1]
+    return (((z[..., 0] - np.hypot(dx, dy)) / sigma_r) ** 2
+            + (wrap_angle_np(z[..., 1] - np.arctan2(dy, dx) + x[..., 2]) / sigma_beta) ** 2)
+
+
 def associate_path(
     path: Float[np.ndarray, "segments 3"],
     landmarks: Float[np.ndarray, "landmarks 2"],
@@ -168,10 +176,7 @@ def associate_path(
     idx = np.zeros(len(seg), int)
     for start in range(0, len(lm), 256):  # bounded memory: detections x 256 landmarks at a time
         m = lm[start:start + 256]
-        dx, dy = m[None, :, 0] - x[:, None, 0], m[None, :, 1] - x[:, None, 1]
-        r = np.hypot(dx, dy)
-        b = wrap_angle_np(np.arctan2(dy, dx) - x[:, None, 2])
-        d2 = ((zz[:, None, 0] - r) / sigma_r) ** 2 + (wrap_angle_np(zz[:, None, 1] - b) / sigma_beta) ** 2
+        d2 = _whitened_d2(x[:, None], m[None], zz[:, None], sigma_r, sigma_beta)
         j = np.argmin(d2, axis=1)
         d = d2[np.arange(len(seg)), j]
         better = d < best
@@ -306,7 +311,7 @@ def smooth_path(
                 # Verification: a true loop closure lets the joined detections fit as the others do
                 # once the path has moved; a false one leaves them outside the gate. A group that
                 # does not fit is dropped and the rest solved again.
-                fit = _whitened_d2(p2, l2, seg[joined], zz[joined], new_lid[joined], sigma_r, sigma_beta) < gate
+                fit = _whitened_d2(p2[seg[joined]], l2[new_lid[joined]], zz[joined], sigma_r, sigma_beta) < gate
                 g = group[lid[joined]]
                 bad = [k for k in np.unique(g) if np.mean(fit[g == k]) < settings.loop_closure.accept]
                 if not bad:
@@ -317,7 +322,7 @@ def smooth_path(
                 parent[drop] = np.nonzero(drop)[0]
             if not kept:
                 break
-            merged += int(np.sum((parent != np.arange(len(parent))) & (owner == np.arange(len(owner)))))
+            merged += int(np.sum(parent != np.arange(len(parent))))  # copies joined earlier have no detections
             poses, lm_out, cost, converged, owner = p2, l2, c2, conv2, parent[owner]
             # The path has moved: associate every detection again, to the landmarks that remain.
             live = np.nonzero(owner == np.arange(len(owner)))[0]
@@ -329,15 +334,6 @@ def smooth_path(
                     detections=int(np.sum(z_mask)), iterations=iterations, initial_cost=float(initial_cost),
                     cost=float(cost), converged=converged, seconds=time.perf_counter() - t0, merged=merged,
                     rejected=rejected)
-
-
-def _whitened_d2(poses, lms, seg, z_obs, lid, sigma_r, sigma_beta) -> np.ndarray:
-    """Each detection's squared residual against its landmark, whitened by the measurement noise."""
-    x, m = poses[seg], lms[lid]
-    dx, dy = m[:, 0] - x[:, 0], m[:, 1] - x[:, 1]
-    er = (z_obs[:, 0] - np.hypot(dx, dy)) / sigma_r
-    eb = wrap_angle_np(z_obs[:, 1] - np.arctan2(dy, dx) + x[:, 2]) / sigma_beta
-    return er ** 2 + eb ** 2
 
 
 def _solve(path, lm_all, seg, z_obs, lid, motion, w_odo, w_det, settings: SmootherSettings):
