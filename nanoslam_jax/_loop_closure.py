@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from jaxtyping import Bool, Float, Int
+from jaxtyping import Float, Int
 from scipy.spatial import cKDTree
 
 from .models import wrap_angle_np
@@ -157,7 +157,6 @@ def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndar
 def find_duplicates(
     landmarks: Float[np.ndarray, "landmarks 2"],
     first_seen: Float[np.ndarray, "landmarks"],
-    alive: Bool[np.ndarray, "landmarks"],
     together: sp.spmatrix,
     settings: LoopClosureSettings = LoopClosureSettings(),
 ) -> tuple[Int[np.ndarray, "landmarks"], Int[np.ndarray, "landmarks"]]:
@@ -165,8 +164,8 @@ def find_duplicates(
 
     Args:
         landmarks: the landmarks' positions.
-        first_seen: the time each was first detected (s); ``inf`` for one never detected.
-        alive: the landmarks taking part (the others are neither copies nor originals).
+        first_seen: the time each was first detected (s); ``inf`` for one never detected, which
+            takes no part (neither copy nor original).
         together: which landmarks were detected in the same scan (:func:`co_observed`).
         settings: the search's settings.
 
@@ -177,7 +176,7 @@ def find_duplicates(
     """
     L = np.asarray(landmarks, float)
     parent = np.arange(len(L))
-    first = np.where(alive, first_seen, np.inf)
+    first = np.asarray(first_seen, float)
     done = np.isfinite(first)
     group = np.full(len(L), -1)
     if not np.any(done):

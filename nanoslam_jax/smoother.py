@@ -296,7 +296,7 @@ def smooth_path(
         for _ in range(settings.loop_closure_rounds):
             first = np.full(len(lm_out), np.inf)
             np.minimum.at(first, lid, t[seg])
-            parent, group = find_duplicates(lm_out, first, np.isfinite(first), co_observed(seg, lid, len(lm_out)),
+            parent, group = find_duplicates(lm_out, first, co_observed(seg, lid, len(lm_out)),
                                             settings.loop_closure)
             while np.any(parent[parent] != parent):  # chains of copies end at the original
                 parent = parent[parent]
