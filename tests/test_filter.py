@@ -275,6 +275,31 @@ def test_padding_segments_are_exact_no_ops():
         np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
 
 
+def test_map_history_holds_the_best_particles_map_after_each_chunk():
+    """``FilterRun.history``: after each chunk the best particle's confirmed landmarks, which are
+    those of a run stopped there; the last entry is the final map, in a batch run too."""
+    from nanoslam_jax.data import Segments
+    from nanoslam_jax.smoother import final_map
+
+    cfg = load_config(None, ["data.t_end=30", "filter.n_particles=4"])
+    log = load_log(cfg)
+    static, params = settings_from_config(cfg, log.segments.k_max)
+    n = log.segments.time.shape[0]
+    k = n // 2 + 1
+    run = run_filter(static, params, log.segments, 3, chunk=k)
+    mean, held = run.history
+    assert mean.shape[0] == held.shape[0] == 2
+    np.testing.assert_array_equal(mean[-1][held[-1]], final_map(run.state))
+    head = run_filter(static, params, Segments(*(np.asarray(a)[:k] for a in log.segments)), 3, chunk=k)
+    first = final_map(head.state)
+    assert len(first) > 0
+    np.testing.assert_array_equal(mean[0][held[0]], first)
+    batch = run_batch(static, stack_params([params, params]), log.segments, [3, 4], chunk=k)
+    assert batch.history.mean.shape[:2] == (2, 2)
+    for i in range(2):
+        np.testing.assert_array_equal(batch.history.mean[-1, i][batch.history.held[-1, i]], final_map(batch.state, i))
+
+
 def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     """The proposal over the scan's bucket of rows equals the proposal over all ``k_max`` rows
     (rows past the last real detection carry no association), and under ``vmap`` over particles

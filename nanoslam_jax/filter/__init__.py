@@ -46,6 +46,7 @@ from ._scan import (
     AVAILABLE_METHODS as AVAILABLE_METHODS,
     GAUSSIAN_METHODS as GAUSSIAN_METHODS,
     FilterRun as FilterRun,
+    MapHistory as MapHistory,
     dead_reckoning as dead_reckoning,
     filter_scan as filter_scan,
     initial_state as initial_state,

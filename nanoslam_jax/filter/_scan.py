@@ -172,6 +172,24 @@ def _init_batch(static: Static, params: Params, keys) -> FilterState:
     return jax.vmap(lambda p, k: initial_state(static, p, k))(params, keys)
 
 
+class MapHistory(NamedTuple):
+    """The best particle's map at the end of each chunk of a run (host arrays).
+
+    A particle whose pose drifts where it comes back to trees it mapped earlier misses them where
+    it expects them, and landmark management removes them; its final map then holds only the
+    drifted copies it made instead. The offline smoother takes the removed landmarks back from
+    here (:func:`nanoslam_jax.smoother.held_landmarks`).
+
+    Attributes:
+        mean: the landmark slots' positions (a leading batch axis after the chunk axis for
+            :func:`run_batch`).
+        held: which slots held a confirmed landmark.
+    """
+
+    mean: Float[np.ndarray, "chunks *batch slots 2"]
+    held: Bool[np.ndarray, "chunks *batch slots"]
+
+
 class FilterRun(NamedTuple):
     """Outputs of :func:`run_filter` (host arrays).
 
@@ -182,6 +200,8 @@ class FilterRun(NamedTuple):
         run_s: run time after compilation (all chunks).
         chunk_s: wall time of each chunk call (only when timed or with progress; else empty).
         chunk_size: segments per chunk.
+        history: the best particle's confirmed landmarks after each chunk (``None`` for the
+            methods without particles).
     """
 
     state: FilterState
@@ -190,6 +210,16 @@ class FilterRun(NamedTuple):
     run_s: float
     chunk_s: tuple = ()
     chunk_size: int = 0
+    history: MapHistory | None = None
+
+
+def _best_map(state: FilterState) -> tuple[Float[Array, "slots 2"], Bool[Array, "slots"]]:
+    lm = state.particles.landmarks
+    return lm.mean[state.best], lm.active[state.best] & lm.confirmed[state.best]
+
+
+_best_map_single = jax.jit(_best_map)
+_best_map_batch = jax.jit(jax.vmap(_best_map))
 
 
 def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
@@ -211,11 +241,15 @@ def _drive(chunk_fn, static: Static, params: Params, state: FilterState, segment
     t0 = time.perf_counter()
     compiled = compile_program(chunk_fn, static, params, state, *piece(0))  # traced and compiled, or cached
     compile_s = time.perf_counter() - t0
-    outs, chunk_s = [], []
+    outs, chunk_s, held = [], [], []
+    best_map = _best_map_single if time_axis == 0 else _best_map_batch
+    particles = isinstance(state, FilterState)  # EKF-SLAM and NASRUKF have one map, no particles
     t1 = tc = time.perf_counter()
     for c in range(n_chunks):
         state, out = compiled(params, state, *piece(c))
         outs.append(out)
+        if particles:
+            held.append(best_map(state))
         if progress is not None or timed:
             jax.block_until_ready(state)
             now = time.perf_counter()
@@ -226,7 +260,8 @@ def _drive(chunk_fn, static: Static, params: Params, state: FilterState, segment
     jax.block_until_ready(state)
     run_s = time.perf_counter() - t1
     cat = lambda *a: np.take(np.concatenate([np.asarray(x) for x in a], axis=time_axis), np.arange(n), axis=time_axis)  # noqa: E731
-    return FilterRun(state, jax.tree.map(cat, *outs), compile_s, run_s, tuple(chunk_s), chunk)
+    history = MapHistory(*(np.stack([np.asarray(h[i]) for h in held]) for i in (0, 1))) if held else None
+    return FilterRun(state, jax.tree.map(cat, *outs), compile_s, run_s, tuple(chunk_s), chunk, history)
 
 
 def run_filter(
