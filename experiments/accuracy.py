@@ -30,7 +30,7 @@ from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
 from nanoslam_jax.metrics import evaluate
-from nanoslam_jax.smoother import SmootherSettings, final_map, smooth_run
+from nanoslam_jax.smoother import SmootherSettings, smooth_run, smoother_map
 
 KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
 
@@ -73,7 +73,8 @@ def main() -> None:
     smoothed = None
     if cfg.smoother.enabled:  # the final best particle's path and map refined offline, per seed
         settings = SmootherSettings.from_config(cfg.smoother)
-        smoothed = [smooth_run(est[i], final_map(run.state, i), log.segments, params, settings, cfg.filter.prior)
+        maps = [smoother_map(run, settings, i) for i in range(len(seeds))]  # (final map, held landmarks)
+        smoothed = [smooth_run(est[i], maps[i][0], log.segments, params, settings, cfg.filter.prior, maps[i][1])
                     for i in range(len(seeds))]
         keys += ("rmse_fixed_path", "rmse_aligned_path", "smoother_iterations", "smoother_merged", "smoother_s")
     mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)

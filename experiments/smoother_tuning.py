@@ -26,7 +26,7 @@ from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
 from nanoslam_jax.metrics import evaluate
-from nanoslam_jax.smoother import SmootherSettings, final_map, smooth_run
+from nanoslam_jax.smoother import SmootherSettings, smooth_run, smoother_map
 from target_score import score as target_score  # experiments/ is on the path when this script runs
 
 
@@ -68,7 +68,6 @@ def main() -> None:
     run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds, chunk=cfg.output.chunk,
                     progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
     paths = reported_trajectory("path", run.outputs, run.state)
-    maps = [final_map(run.state, i) for i in range(len(seeds))]
     t = np.asarray(log.segments.time)
     mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
     base = [evaluate(t, paths[i][:, :2], log.raw.gps, **mk) for i in range(len(seeds))]
@@ -80,7 +79,8 @@ def main() -> None:
         settings = SmootherSettings.from_config(sc)
         rows = []
         for i, s in enumerate(seeds):
-            sm = smooth_run(paths[i], maps[i], log.segments, params, settings, cfg.filter.prior)
+            final, held = smoother_map(run, settings, i)
+            sm = smooth_run(paths[i], final, log.segments, params, settings, cfg.filter.prior, held)
             m = evaluate(t, sm.poses[:, :2], log.raw.gps, **mk)
             rows.append(dict(seed=int(s), rmse_fixed=m["rmse_fixed"], rmse_aligned=m["rmse_aligned"],
                              rmse_fixed_path=base[i]["rmse_fixed"], rmse_aligned_path=base[i]["rmse_aligned"],

@@ -285,10 +285,22 @@ class SmootherConfig:
         doc="the transform turns a window's landmarks by at most this (deg)")
     loop_closure_min_inliers: int = _f(6, lo=2, static=True,
         doc="a transform is taken when at least this many landmarks of the window fall onto earlier ones")
-    loop_closure_accept: float = _f(0.9, lo=0.0, hi=1.0, static=True,
-        doc="the joins are kept when, solved again, at least this fraction of their detections lies within "
-            "filter.gate")
+    loop_closure_accept: float = _f(0.75, lo=0.0, hi=1.0, static=True,
+        doc="a group of joins (a window, a close pair) is kept when, solved again, at least this fraction of its "
+            "copies' detections lies within filter.gate of a landmark")
     loop_closure_rounds: int = _f(2, lo=1, static=True, doc="searches for copies (each followed by a solve) at most")
+    map_history: bool = _f(True, static=True,
+        doc="the map also holds the confirmed landmarks the best particle held at the end of a chunk of the run "
+            "(output.chunk segments) but not at its end: trees that a drifted particle removed and mapped again "
+            "elsewhere, which the loop closure can then join (docs/method/smoother.md)")
+    map_history_radius: float = _f(1.0, lo=0.0, static=True,
+        doc="a held landmark within this distance (m) of one of the final map, or of one held later, is the same tree")
+    map_history_min: int = _f(5, lo=1, static=True,
+        doc="a held landmark joins the map when it explains at least this many detections the final map leaves "
+            "unexplained along the path ...")
+    map_history_below: float = _f(0.8, lo=0.0, hi=1.0, static=True,
+        doc="... when the final map explains less than this fraction of the log's detections along the path (a "
+            "particle that lost the trees of its first visit; 0.88-0.89 on Victoria Park for the runs that did not)")
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from .models import wrap_angle_np
 
-__all__ = ["LoopClosureSettings", "find_duplicates", "co_observed"]
+__all__ = ["LoopClosureSettings", "co_observed", "find_duplicates", "path_moved_by_copies"]
 
 
 class LoopClosureSettings(NamedTuple):
@@ -40,8 +40,9 @@ class LoopClosureSettings(NamedTuple):
         max_turn: the transform turns the submap by at most this (rad).
         min_inliers: a transform is accepted when at least this many landmarks of the submap
             fall onto earlier landmarks.
-        accept: after the joined landmarks are solved for, the loop closures are kept when at
-            least this fraction of their detections lies within the association gate.
+        accept: after the joined landmarks are solved for, a group of joins is kept when at
+            least this fraction of its copies' detections lies within the association gate of a
+            landmark.
         hypotheses: pairs of the submap's landmarks tried as one side of a correspondence (at
             most; drawn at random with a fixed seed when the submap has more).
     """
@@ -51,7 +52,7 @@ class LoopClosureSettings(NamedTuple):
     search: float = 40.0
     max_turn: float = float(np.deg2rad(30.0))
     min_inliers: int = 6
-    accept: float = 0.9
+    accept: float = 0.75
     hypotheses: int = 200
 
 
@@ -211,3 +212,38 @@ def find_duplicates(
         group[b] = group.max() + 1
     return parent, group
 
+
+def path_moved_by_copies(poses, landmarks, seg, lid, parent, group, time_s, settings: LoopClosureSettings):
+    """The path moved as the copies' registration says: where a group's copies were detected, the
+    poses moved by the rigid transform that takes the copies onto their originals.
+
+    A drifted stretch of path is where its copies were seen, and it drifted gradually: each group
+    of at least ``settings.min_inliers`` copies gives its transform at the median segment of its
+    copies' detections; the transforms are interpolated linearly between groups, from the identity
+    one ``settings.window`` before the first copy detection to the identity one window after the
+    last. This is the start of the solve that joins the copies, which from the drifted path itself
+    may not reach the solution (Levenberg-Marquardt crawls along the odometry over a large
+    correction)."""
+    knots, copies = [], []
+    for k in np.unique(group[group >= 0]):
+        c = np.nonzero((group == k) & (parent != np.arange(len(parent))))[0]
+        if len(c) < settings.min_inliers:
+            continue
+        th, tr = _rigid_fit(landmarks[c], landmarks[parent[c]])
+        at = seg[np.isin(lid, c)]
+        if len(at) == 0:
+            continue
+        knots.append((float(np.median(at)), th, tr[0], tr[1]))
+        copies.append(at)
+    if not knots:
+        return poses
+    knots.sort()
+    at = np.concatenate(copies)
+    t = np.asarray(time_s, float)
+    lo = min(int(np.searchsorted(t, t[at.min()] - settings.window)), int(knots[0][0]) - 1)
+    hi = max(int(np.searchsorted(t, t[at.max()] + settings.window)), int(knots[-1][0]) + 1)
+    x = [lo] + [k[0] for k in knots] + [hi]
+    th, tx, ty = (np.interp(np.arange(len(poses)), x, [0.0] + [k[i] for k in knots] + [0.0]) for i in (1, 2, 3))
+    c, s = np.cos(th), np.sin(th)
+    p = poses
+    return np.stack([c * p[:, 0] - s * p[:, 1] + tx, s * p[:, 0] + c * p[:, 1] + ty, wrap_angle_np(p[:, 2] + th)], 1)

@@ -29,7 +29,7 @@ from .filter import (AVAILABLE_METHODS, GAUSSIAN_METHODS, Params, Static, adapti
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
                      text_progress)
 from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
-from .smoother import SmootherSettings, final_map, smooth_run
+from .smoother import SmootherSettings, smooth_run, smoother_map
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,8 +203,9 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
         est = reported_trajectory(static.estimate, o, run.state)
         unsmoothed = est
         if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
-            sm = smooth_run(est, final_map(run.state), seg, params, SmootherSettings.from_config(cfg.smoother),
-                            cfg.filter.prior)
+            settings = SmootherSettings.from_config(cfg.smoother)
+            final, held = smoother_map(run, settings)
+            sm = smooth_run(est, final, seg, params, settings, cfg.filter.prior, held)
             est = sm.poses
             metrics.update(smoother_iterations=sm.iterations, smoother_converged=sm.converged,
                            smoother_associated=sm.associated, smoother_detections=sm.detections,

@@ -9,7 +9,10 @@ particle's. This module revises it after the run, as a full smoothing-and-mappin
 whole log (GraphSLAM / SAM):
 
 * **Variables**: the pose of every segment and the position of every confirmed landmark of the
-  final best particle's map, started from its ancestral path and its map.
+  final best particle's map, started from its ancestral path and its map; with
+  ``smoother.map_history`` also the landmarks it held at the end of an earlier chunk of the run
+  and lost since (a drifted particle removes the trees it no longer detects where it expects them),
+  where they explain detections the final map does not (:func:`held_landmarks`).
 * **Odometry factors**: between consecutive poses, the segment's motion in the frame of its start
   pose, ``x_{t-1}^{-1} (+) x_t`` (with the heading difference wrapped), against the prior mean
   the filter used (:func:`~nanoslam_jax.filter.relative_prior`, the unscented transform over the
@@ -27,14 +30,16 @@ whole log (GraphSLAM / SAM):
   with its pose drifted beyond the gate mapped the trees there a second time, and along its path
   the copies agree with each other. After a first solve, stretches of newly mapped landmarks are
   registered against the earlier map (:mod:`nanoslam_jax._loop_closure`); copies found are joined
-  to their originals, the problem is solved again, and the joins are kept only where their
-  detections then fit.
+  to their originals, the problem is solved again from the path moved by the registration's
+  transforms (:func:`~nanoslam_jax._loop_closure.path_moved_by_copies`) or, where the joins do not
+  fit from there, from the path as it was, and the joins are kept only where their detections then
+  fit.
 * **Solver**: Levenberg-Marquardt on the normal equations, whose matrix is sparse (block
   tridiagonal over the poses, block diagonal over the landmarks, plus each detection's
   pose-landmark block): the poses are eliminated by a banded Cholesky factorisation
   (:func:`scipy.linalg.cholesky_banded`) and the landmarks' dense Schur complement solved. The
   first pose's predecessor is the origin, which fixes the gauge as the filter's start does.
-  Residual Jacobians come from autodiff.
+  Residual Jacobians come from autodiff (:mod:`nanoslam_jax._least_squares`).
 
 The result uses every scan of the log to place every pose: an offline estimate, not a filtering
 one. It is compared with the filter's own estimate of the same run wherever it is reported.
@@ -46,19 +51,17 @@ import time
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
 from jaxtyping import Array, Bool, Float, Int
 
 from .filter._params import Params
 from .filter import relative_priors
-from ._loop_closure import LoopClosureSettings, co_observed, find_duplicates
-from .models import innovation, range_bearing, wrap_angle, wrap_angle_np
+from ._loop_closure import LoopClosureSettings, co_observed, find_duplicates, path_moved_by_copies
+from ._least_squares import _solve
+from .models import wrap_angle_np
 
-__all__ = ["LoopClosureSettings", "SmootherSettings", "Smoothed", "associate_path", "final_map", "segment_motion",
-           "smooth_path", "smooth_run"]
+__all__ = ["LoopClosureSettings", "SmootherSettings", "Smoothed", "associate_path", "final_map", "held_landmarks",
+           "segment_motion", "smooth_path", "smooth_run", "smoother_map"]
 
 
 class SmootherSettings(NamedTuple):
@@ -78,6 +81,15 @@ class SmootherSettings(NamedTuple):
         loop_closure: how trees mapped twice are searched for and joined after a first solve
             (:class:`LoopClosureSettings`); ``None``: not searched for.
         loop_closure_rounds: searches (each followed by a solve) at most.
+        map_history: the map also holds the landmarks the best particle held at the end of a chunk
+            of the run but no longer at its end (:func:`smoother_map`).
+        map_history_radius: a held landmark nearer than this (m) to a kept one is the same tree.
+        map_history_min: a held landmark joins the map when it explains at least this many
+            detections that the final map leaves unexplained along the path ...
+        map_history_below: ... and the final map explains less than this fraction of the log's
+            detections along the path: a particle that removed the trees of its first visit.
+            Otherwise the history is not used (what a run's management removed for cause, which
+            its history also holds, stays out).
     """
 
     odometry_scale: float = 0.3
@@ -88,6 +100,10 @@ class SmootherSettings(NamedTuple):
     tol: float = 1e-3
     loop_closure: LoopClosureSettings | None = None
     loop_closure_rounds: int = 2
+    map_history: bool = False
+    map_history_radius: float = 1.0
+    map_history_min: int = 5
+    map_history_below: float = 0.8
 
     @classmethod
     def from_config(cls, sc) -> "SmootherSettings":
@@ -98,7 +114,9 @@ class SmootherSettings(NamedTuple):
             accept=sc.loop_closure_accept)
         return cls(odometry_scale=sc.odometry_scale, floor_xy=sc.floor_xy,
                    floor_phi=float(np.deg2rad(sc.floor_phi_deg)), huber=sc.huber, max_iter=sc.max_iter, tol=sc.tol,
-                   loop_closure=lc if sc.loop_closure else None, loop_closure_rounds=sc.loop_closure_rounds)
+                   loop_closure=lc if sc.loop_closure else None, loop_closure_rounds=sc.loop_closure_rounds,
+                   map_history=sc.map_history, map_history_radius=sc.map_history_radius,
+                   map_history_min=sc.map_history_min, map_history_below=sc.map_history_below)
 
 
 class Smoothed(NamedTuple):
@@ -106,8 +124,9 @@ class Smoothed(NamedTuple):
 
     Attributes:
         poses: the pose at each segment.
-        landmarks: the landmarks' positions (the final map's confirmed landmarks, in its order; a
-            copy joined to its original by the loop closure at the original's position).
+        landmarks: the landmarks' positions (the final map's confirmed landmarks, in its order,
+            then the held landmarks taken back; a copy joined to its original by the loop closure
+            at the original's position).
         associated: detections that entered as factors.
         detections: detections of the log.
         iterations: Levenberg-Marquardt iterations taken over all solves (the loop closure solves again;
@@ -185,66 +204,6 @@ def associate_path(
     return seg[ok], det[ok], idx[ok]
 
 
-def _odometry_residual(xa, xb, motion):
-    c, s = jnp.cos(xa[2]), jnp.sin(xa[2])
-    dx, dy = xb[0] - xa[0], xb[1] - xa[1]
-    return jnp.stack([c * dx + s * dy - motion[0], -s * dx + c * dy - motion[1], wrap_angle(xb[2] - xa[2] - motion[2])])
-
-
-def _detection_residual(x, m, z):
-    return innovation(z, range_bearing(x, m))
-
-
-@jax.jit
-def _odometry_linearised(xa, xb, motion):
-    f = lambda a, b, d: (_odometry_residual(a, b, d), *jax.jacfwd(_odometry_residual, (0, 1))(a, b, d))  # noqa: E731
-    return jax.vmap(f)(xa, xb, motion)
-
-
-@jax.jit
-def _detection_linearised(x, m, z):
-    f = lambda a, b, c: (_detection_residual(a, b, c), *jax.jacfwd(_detection_residual, (0, 1))(a, b, c))  # noqa: E731
-    return jax.vmap(f)(x, m, z)
-
-
-def _pad(n: int) -> int:
-    """Association arrays are padded to a multiple of 4096 so that runs with different counts share
-    one compiled linearisation."""
-    return max(4096, -(-n // 4096) * 4096)
-
-
-#: Upper bandwidth of the poses' block of the normal matrix: a pose (3 unknowns) is tied to the
-#: next one only, so an entry is at most 5 places from the diagonal.
-_BAND = 5
-
-
-def _solve_normal(H: sp.spmatrix, rhs: np.ndarray, n_poses: int) -> np.ndarray:
-    """Solve ``H x = rhs`` for the smoother's normal matrix (symmetric positive definite): poses
-    first (a banded block, tied to each other only by consecutive odometry factors), then the
-    landmarks (a block-diagonal block). The poses are eliminated with a banded Cholesky
-    factorisation, the landmarks' Schur complement (dense, two unknowns per landmark) is solved,
-    and the poses are substituted back: exact, and linear in the number of poses."""
-    H = H.tocsr()
-    nP = n_poses
-    A = H[:nP, :nP].tocoo()
-    upper = A.col >= A.row
-    if np.any(A.col - A.row > _BAND):
-        raise ValueError("smoother: the poses' normal matrix is not banded (an odometry factor ties non-consecutive poses)")
-    ab = np.zeros((_BAND + 1, nP))
-    ab[_BAND + A.row[upper] - A.col[upper], A.col[upper]] = A.data[upper]
-    cb = sla.cholesky_banded(ab, lower=False)
-    rp, rl = rhs[:nP], rhs[nP:]
-    if rl.size == 0:
-        return sla.cho_solve_banded((cb, False), rp)
-    B = H[:nP, nP:].toarray()
-    C = H[nP:, nP:].toarray()
-    Y = sla.cho_solve_banded((cb, False), np.column_stack([B, rp]))
-    YB, yp = Y[:, :-1], Y[:, -1]
-    S = C - B.T @ YB
-    xl = sla.solve(0.5 * (S + S.T), rl - B.T @ yp, assume_a="pos")
-    return np.concatenate([yp - YB @ xl, xl])
-
-
 def smooth_path(
     path: Float[np.ndarray, "segments 3"],
     landmarks: Float[np.ndarray, "landmarks 2"],
@@ -257,6 +216,7 @@ def smooth_path(
     gate: float,
     settings: SmootherSettings = SmootherSettings(),
     time_s: Float[np.ndarray, "segments"] | None = None,
+    held: Float[np.ndarray, "held 2"] | None = None,
 ) -> Smoothed:
     """Smooth a path and its map by Levenberg-Marquardt over odometry and detection factors.
 
@@ -270,6 +230,10 @@ def smooth_path(
         gate: chi-square gate of the association.
         settings: the smoother's settings.
         time_s: each segment's time (s); needed by the loop closure (``settings.loop_closure``).
+        held: landmarks the run held earlier but not at its end (:func:`held_landmarks`). When
+            ``landmarks`` explain less than ``settings.map_history_below`` of the detections along
+            ``path``, each that explains at least ``settings.map_history_min`` of the others joins
+            them.
 
     Returns:
         The smoothed poses and landmarks and the solver's account.
@@ -278,6 +242,15 @@ def smooth_path(
     path = np.asarray(path, float)
     lm_all = np.asarray(landmarks, float).reshape(-1, 2)
     seg, det, lid = associate_path(path, lm_all, z, z_mask, sigma_r, sigma_beta, gate)
+    if held is not None and len(held) and len(seg) < settings.map_history_below * np.sum(z_mask):
+        left = np.array(z_mask, bool)
+        left[seg, det] = False
+        _, _, j = associate_path(path, held, z, left, sigma_r, sigma_beta, gate)
+        held = np.asarray(held, float).reshape(-1, 2)
+        back = held[np.bincount(j, minlength=len(held)) >= settings.map_history_min]
+        if len(back):
+            lm_all = np.concatenate([lm_all, back])
+            seg, det, lid = associate_path(path, lm_all, z, z_mask, sigma_r, sigma_beta, gate)
     zz = np.asarray(z)[seg, det].reshape(-1, 2)
     cov = settings.odometry_scale * np.asarray(motion_cov, float) + np.diag(
         [settings.floor_xy ** 2, settings.floor_xy ** 2, settings.floor_phi ** 2]) + 1e-12 * np.eye(3)
@@ -306,12 +279,31 @@ def smooth_path(
                 joined = new_lid != lid
                 if not np.any(joined):
                     break
-                p2, l2, it, _, c2, conv2 = solve(poses, lm_out, seg, zz, new_lid)
-                iterations += it
-                # Verification: a true loop closure lets the joined detections fit as the others do
-                # once the path has moved; a false one leaves them outside the gate. A group that
-                # does not fit is dropped and the rest solved again.
-                fit = _whitened_d2(p2[seg[joined]], l2[new_lid[joined]], zz[joined], sigma_r, sigma_beta) < gate
+                keep = np.nonzero(parent == np.arange(len(parent)))[0]
+                # Two starts: the path moved as the copies' transforms say, every detection
+                # associated again to the landmarks that are not copies (a large correction, which
+                # Levenberg-Marquardt does not make from the drifted path); and, unless the joins
+                # fit from there as a whole, the path as it is with the copies' detections given to
+                # their originals. The solution that explains more of the copies' detections is kept.
+                moved = path_moved_by_copies(poses, lm_out, seg, lid, parent, group, t, settings.loop_closure)
+                starts = [(poses, seg, zz, new_lid)]
+                if moved is not poses:
+                    s2, d2, j2 = associate_path(moved, lm_out[keep], z, z_mask, sigma_r, sigma_beta, gate)
+                    starts.insert(0, (moved, s2, np.asarray(z)[s2, d2].reshape(-1, 2), keep[j2]))
+                best = None
+                for start, a_seg, a_z, a_lid in starts:
+                    sol = solve(start, lm_out, a_seg, a_z, a_lid)
+                    iterations += sol[2]
+                    # Verification: a true loop closure lets the copies' detections fit a landmark
+                    # as the others do once the path has moved; a false one leaves them outside the
+                    # gate. A group that does not fit is dropped and the rest solved again.
+                    fit = np.min(_whitened_d2(sol[0][seg[joined]][:, None], sol[1][keep][None], zz[joined][:, None],
+                                              sigma_r, sigma_beta), axis=1) < gate
+                    if best is None or np.mean(fit) > np.mean(best[1]):
+                        best = (sol, fit)
+                    if np.mean(fit) >= settings.loop_closure.accept:
+                        break
+                (p2, l2, _, _, c2, conv2), fit = best
                 g = group[lid[joined]]
                 bad = [k for k in np.unique(g) if np.mean(fit[g == k]) < settings.loop_closure.accept]
                 if not bad:
@@ -336,93 +328,6 @@ def smooth_path(
                     rejected=rejected)
 
 
-def _solve(path, lm_all, seg, z_obs, lid, motion, w_odo, w_det, settings: SmootherSettings):
-    """Levenberg-Marquardt from ``path`` and ``lm_all`` over the odometry factors and the detections
-    ``z_obs`` (made at segments ``seg`` of landmarks ``lid``). Returns the poses, all landmarks
-    (those without a detection unchanged), iterations, initial and final cost, converged."""
-    T = path.shape[0]
-    # Only landmarks that explain a detection are variables (the others keep their positions).
-    seen, lid = np.unique(lid, return_inverse=True)
-    lid = lid.reshape(-1)
-    lm0, M = lm_all[seen], len(seen)
-    n = len(seg)
-    n_pad = _pad(n)
-    zz = np.zeros((n_pad, 2))
-    zz[:n] = z_obs
-    seg_p, lid_p = np.zeros(n_pad, int), np.zeros(n_pad, int)
-    seg_p[:n], lid_p[:n] = seg, lid
-    nP, nV = 3 * T, 3 * T + 2 * M
-    k = float(settings.huber)
-
-    # Fixed sparsity pattern: odometry rows (3 per segment) then detection rows (2 per detection).
-    ro = np.arange(3 * T).reshape(T, 3)
-    rows_prev = np.repeat(ro[1:], 3, axis=1).ravel()
-    cols_prev = np.tile(np.arange(3), (T - 1, 3)).ravel() + np.repeat(3 * np.arange(T - 1), 9)
-    rows_cur = np.repeat(ro, 3, axis=1).ravel()
-    cols_cur = np.tile(np.arange(3), (T, 3)).ravel() + np.repeat(3 * np.arange(T), 9)
-    rd = 3 * T + np.arange(2 * n).reshape(n, 2)
-    rows_dx = np.repeat(rd, 3, axis=1).ravel()
-    cols_dx = np.tile(np.arange(3), (n, 2)).ravel() + np.repeat(3 * seg, 6)
-    rows_dm = np.repeat(rd, 2, axis=1).ravel()
-    cols_dm = np.tile(np.arange(2), (n, 2)).ravel() + np.repeat(nP + 2 * lid, 4)
-    rows = np.concatenate([rows_prev, rows_cur, rows_dx, rows_dm])
-    cols = np.concatenate([cols_prev, cols_cur, cols_dx, cols_dm])
-
-    def linearise(X):
-        P, L = X[:nP].reshape(T, 3), X[nP:].reshape(M, 2)
-        xa = np.concatenate([np.zeros((1, 3)), P[:-1]])
-        eo, Ja, Jb = (np.asarray(a) for a in _odometry_linearised(xa, P, motion))
-        eo, Ja, Jb = np.einsum("tij,tj->ti", w_odo, eo), w_odo @ Ja, w_odo @ Jb
-        ed, Jx, Jm = (np.asarray(a)[:n] for a in _detection_linearised(P[seg_p], L[lid_p] if M else np.zeros((n_pad, 2)), zz))
-        ed, Jx, Jm = ed * w_det, Jx * w_det[:, None], Jm * w_det[:, None]
-        norm = np.linalg.norm(ed, axis=1)
-        huber = norm > k
-        cost = 0.5 * np.sum(eo ** 2) + np.sum(np.where(huber, k * norm - 0.5 * k * k, 0.5 * norm ** 2))
-        sw = np.sqrt(np.where(huber, k / np.maximum(norm, 1e-300), 1.0))  # IRLS weights of the Huber loss
-        vals = np.concatenate([Ja[1:].ravel(), Jb.ravel(), (Jx * sw[:, None, None]).ravel(),
-                               (Jm * sw[:, None, None]).ravel()])
-        J = sp.csr_matrix((vals, (rows, cols)), shape=(3 * T + 2 * n, nV))
-        e = np.concatenate([eo.ravel(), (ed * sw[:, None]).ravel()])
-        return cost, J, e
-
-    X = np.concatenate([path.ravel(), lm0.ravel()])
-    cost, J, e = linearise(X)
-    initial_cost, lam, converged, it = cost, 1e-4, False, 0
-    for it in range(1, settings.max_iter + 1):
-        H = (J.T @ J).tocsr()
-        g = J.T @ e
-        d = H.diagonal()
-        while True:
-            try:
-                step = _solve_normal(H + sp.diags(lam * d + 1e-12), -g, nP)
-            except np.linalg.LinAlgError:  # not positive definite to working precision: damp more
-                lam *= 10.0
-                if lam > 1e8:
-                    step = np.zeros_like(X)
-                    break
-                continue
-            Xn = X + step
-            Xn[2:nP:3] = wrap_angle_np(Xn[2:nP:3])
-            new_cost, Jn, en = linearise(Xn)
-            if np.isfinite(new_cost) and new_cost <= cost:
-                break
-            lam *= 10.0
-            if lam > 1e8:
-                step = np.zeros_like(X)
-                break
-        if not np.any(step):
-            converged = not np.any(g)  # at a stationary point; else damping could not lower the cost
-            break
-        X, cost, J, e = Xn, new_cost, Jn, en
-        lam = max(lam / 10.0, 1e-9)
-        if np.max(np.abs(step)) < settings.tol:
-            converged = True
-            break
-    lm_out = lm_all.copy()
-    lm_out[seen] = X[nP:].reshape(M, 2)
-    return X[:nP].reshape(T, 3), lm_out, it, initial_cost, cost, converged
-
-
 def final_map(state, index: int | None = None) -> Float[np.ndarray, "landmarks 2"]:
     """The positions of the confirmed landmarks of a run's final best particle (``index``: the
     member of a batch run)."""
@@ -433,7 +338,57 @@ def final_map(state, index: int | None = None) -> Float[np.ndarray, "landmarks 2
     return take(lm.mean)[keep]
 
 
-def smooth_run(path, landmarks, segments, params: Params, settings: SmootherSettings, prior: str = "unscented") -> Smoothed:
+def held_landmarks(
+    history, final: Float[np.ndarray, "landmarks 2"], index: int | None = None, radius: float = 1.0
+) -> Float[np.ndarray, "held 2"]:
+    """Landmarks the best particle held at the end of a chunk of the run but not at its end.
+
+    A particle that comes back with its pose drifted to trees it mapped earlier misses them where
+    it expects them, and landmark management removes them; its final map holds only the drifted
+    copies it made instead, and the detections of its first visit are left without a landmark.
+    The run's :class:`~nanoslam_jax.filter.MapHistory` still has them. Every confirmed landmark
+    of the history farther than ``radius`` from the final map's and from each other is returned,
+    the later chunk's position first (a tree the particles mapped in different slots is one).
+
+    Args:
+        history: ``FilterRun.history``.
+        final: the final map's landmarks (:func:`final_map`).
+        index: the member of a batch run.
+        radius: distance (m) below which a held landmark is the same tree as one kept.
+    """
+    mean, held = np.asarray(history.mean), np.asarray(history.held)
+    if index is not None:
+        mean, held = mean[:, index], held[:, index]
+    cand = np.concatenate([mean[c][held[c]] for c in range(len(mean) - 1, -1, -1)]).reshape(-1, 2)
+    kept = np.asarray(final, float).reshape(-1, 2)
+    out = []
+    for x in cand:
+        if len(kept) and np.min(np.hypot(*(kept - x).T)) < radius:
+            continue
+        out.append(x)
+        kept = np.vstack([kept, x])
+    return np.asarray(out, float).reshape(-1, 2)
+
+
+def smoother_map(run, settings: SmootherSettings, index: int | None = None
+                 ) -> tuple[Float[np.ndarray, "landmarks 2"], Float[np.ndarray, "held 2"] | None]:
+    """The landmarks a run's smoothing starts from: the final best particle's confirmed ones
+    (:func:`final_map`) and, with ``settings.map_history``, those it held earlier but no longer
+    (:func:`held_landmarks`; else ``None``): the ``landmarks`` and ``held`` of :func:`smooth_run`.
+
+    Args:
+        run: the run (:class:`~nanoslam_jax.filter.FilterRun`).
+        settings: the smoother's settings.
+        index: the member of a batch run.
+    """
+    final = final_map(run.state, index)
+    if not settings.map_history or run.history is None:
+        return final, None
+    return final, held_landmarks(run.history, final, index, settings.map_history_radius)
+
+
+def smooth_run(path, landmarks, segments, params: Params, settings: SmootherSettings, prior: str = "unscented",
+               held=None) -> Smoothed:
     """:func:`smooth_path` for a run: the log's detections and motion priors from ``segments`` and
     ``params`` (one run's hyperparameters), the association gate ``params.gate``.
 
@@ -444,8 +399,9 @@ def smooth_run(path, landmarks, segments, params: Params, settings: SmootherSett
         params: the run's hyperparameters.
         settings: the smoother's settings.
         prior: ``filter.prior``, how the motion prior is propagated.
+        held: landmarks the run held earlier but not at its end (:func:`smoother_map`).
     """
     mean, cov = segment_motion(segments, params, prior)
     return smooth_path(path, landmarks, np.asarray(segments.z), np.asarray(segments.z_mask), np.asarray(mean),
                        np.asarray(cov), float(params.sigma_r), float(params.sigma_beta), float(params.gate), settings,
-                       np.asarray(segments.time))
+                       np.asarray(segments.time), held)
