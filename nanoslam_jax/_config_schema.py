@@ -300,7 +300,7 @@ class SmootherConfig:
             "unexplained along the path ...")
     map_history_below: float = _f(0.8, lo=0.0, hi=1.0, static=True,
         doc="... when the final map explains less than this fraction of the log's detections along the path (a "
-            "particle that lost the trees of its first visit; 0.88-0.89 on Victoria Park for the runs that did not)")
+            "particle that lost the trees of its first visit; 0.87-0.90 on Victoria Park for the runs that did not)")
 
 
 @dataclass(frozen=True)
