@@ -214,8 +214,8 @@ class FilterRun(NamedTuple):
 
 
 def _best_map(state: FilterState) -> tuple[Float[Array, "slots 2"], Bool[Array, "slots"]]:
-    lm = state.particles.landmarks
-    return lm.mean[state.best], lm.active[state.best] & lm.confirmed[state.best]
+    lm = reported_map(state)  # the fields not returned are not computed under jit
+    return lm.mean, lm.active & lm.confirmed
 
 
 _best_map_single = jax.jit(_best_map)
