@@ -301,37 +301,53 @@ def test_map_history_holds_the_best_particles_map_after_each_chunk():
 
 
 def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
-    """The proposal over the scan's bucket of rows equals the proposal over all ``k_max`` rows
-    (rows past the last real detection carry no association), and under ``vmap`` over particles
-    (the detection mask shared) the bucket choice stays a branch instead of computing all."""
-    from nanoslam_jax.filter._step import _proposal_over_rows
+    """The per-row work over the scan's bucket of rows (the proposal, the sampled pose, the
+    weight's likelihoods, the landmarks' starts and EKF updates) equals the same work over all
+    ``k_max`` rows on the real rows (rows past the last real detection carry no association), and
+    under ``vmap`` over particles (the detection mask shared) the bucket choice stays a branch
+    instead of computing all."""
+    import dataclasses
+
+    from nanoslam_jax.filter._scan import make_proposal
+    from nanoslam_jax.filter._step import _row_work, _rows_over_buckets
     from nanoslam_jax.models import range_bearing
-    from nanoslam_jax.proposals import Detections, NanoProposal
-    from nanoslam_jax.quadrature import Cubature
+    from nanoslam_jax.proposals import Detections
 
     rng = np.random.default_rng(3)
     n, k = 5, 8
-    prop = NanoProposal(Cubature(), jnp.asarray(1e-6), jnp.asarray(1.0))
-    R = jnp.diag(jnp.array([0.5**2, math.radians(2.0) ** 2]))
+    static, params = settings_from_config(load_config(None), k)
+    static = dataclasses.replace(static, row_buckets=(2, 4))
+    prop = make_proposal(static, params)
+    R = params.R
     x0 = jnp.asarray(rng.normal(size=(n, 3)) * [1.0, 1.0, 0.1])
     P0 = jnp.broadcast_to(jnp.diag(jnp.array([0.4, 0.4, 0.02])), (n, 3, 3))
     m = jnp.asarray(rng.uniform(-20.0, 20.0, (n, k, 2)))
     truth = x0 + jnp.asarray(rng.normal(size=(n, 3)) * [0.5, 0.5, 0.05])
     z = jax.vmap(jax.vmap(range_bearing, (None, 0)))(truth, m)
     cov = jnp.broadcast_to(0.05 * jnp.eye(2), (n, k, 2, 2))
+    eps = jnp.asarray(rng.normal(size=(n, 3)))
+    # Rows 1 and 4 match the landmark the row before them started.
+    ps = jnp.broadcast_to(jnp.array([0, 0, 0, 0, 3, 0, 0, 0]), (n, k))
     bucketed = jax.jit(jax.vmap(
-        lambda x, P, d, zm: _proposal_over_rows(prop, x, P, d, R, zm, (2, 4)), (0, 0, 0, None)))
-    full = jax.jit(jax.vmap(lambda x, P, d: prop(x, P, d, R)))
+        lambda x, P, d, ex, p, e, zm: _rows_over_buckets(static, params, prop, x, P, R, d, ex, p, e, zm),
+        (0, 0, 0, 0, 0, 0, None)))
+    full = jax.jit(jax.vmap(lambda x, P, d, ex, p, e: _row_work(static, params, prop, x, P, R, d, ex, p, e)))
     for n_real in (0, 1, 2, 3, 4, 5, 8):
         z_mask = jnp.arange(k) < n_real
         # Each particle associates its own subset of the real detections.
-        assoc = z_mask & jnp.asarray(rng.uniform(size=(n, k)) < 0.8)
+        assoc = z_mask & jnp.asarray(rng.uniform(size=(n, k)) < 0.8) & ~jnp.isin(jnp.arange(k), jnp.array([1, 4]))
         det = Detections(z, m, cov, assoc)
-        got, want = bucketed(x0, P0, det, z_mask), full(x0, P0, det)
-        np.testing.assert_allclose(got.mean, want.mean, rtol=0, atol=1e-12, err_msg=f"{n_real} detections")
-        np.testing.assert_allclose(got.cov, want.cov, rtol=1e-12, atol=1e-15, err_msg=f"{n_real} detections")
-        np.testing.assert_array_equal(got.iterations, want.iterations)
-    jaxpr = str(jax.make_jaxpr(bucketed)(x0, P0, det, jnp.arange(k) < 3))
+        got, want = bucketed(x0, P0, det, assoc, ps, eps, z_mask), full(x0, P0, det, assoc, ps, eps)
+        msg = f"{n_real} detections"
+        np.testing.assert_allclose(got.proposal.mean, want.proposal.mean, rtol=0, atol=1e-12, err_msg=msg)
+        np.testing.assert_allclose(got.proposal.cov, want.proposal.cov, rtol=1e-12, atol=1e-15, err_msg=msg)
+        np.testing.assert_array_equal(got.proposal.iterations, want.proposal.iterations)
+        np.testing.assert_allclose(got.pose, want.pose, rtol=0, atol=1e-12, err_msg=msg)
+        for f in ("ll", "llp", "new_mean", "new_cov", "upd_mean", "upd_cov"):
+            a, b = getattr(got, f)[:, :n_real], getattr(want, f)[:, :n_real]
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12, err_msg=f"{f}, {msg}")
+            assert getattr(got, f).shape == getattr(want, f).shape
+    jaxpr = str(jax.make_jaxpr(bucketed)(x0, P0, det, assoc, ps, eps, jnp.arange(k) < 3))
     assert "cond[" in jaxpr and jaxpr.count("while[") == 3  # one branch each for 2, 4 and 8 rows
 
 

@@ -181,12 +181,13 @@ class Params(NamedTuple):
         return jnp.diag(jnp.stack([jnp.square(self.sigma_v), jnp.square(self.sigma_alpha)]))
 
 
-#: Detection-row counts the proposal may run over (then ``k_max``): see ``filter.row_buckets``.
+#: Detection-row counts the per-row work (proposal, weight, landmark updates) may run over (then
+#: ``k_max``): see ``filter.row_buckets``.
 ROW_BUCKETS = (4, 8)
 
 
 def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
-    """The proposal's row buckets for ``filter.row_buckets`` and the particles one program
+    """The row buckets for ``filter.row_buckets`` and the particles one program
     carries (for a vmapped sweep batch: particles times runs)."""
     on = setting == "always" or (setting == "auto" and particles >= ROW_BUCKETS_FROM)
     return ROW_BUCKETS if on else ()
