@@ -6,10 +6,14 @@ once under ``jax.profiler.trace``; every XLA operation the trace records (leaf o
 loops and conditionals are not counted twice) is attributed to the project function its
 HLO metadata names (the innermost frame in ``nanoslam_jax``), and to its ``op_name`` path
 (which loop, branch and ``vmap`` it runs in: ``cond/branch_k_fun/while/body`` below the particles'
-``vmap`` is an iterative proposal inside the row-bucket switch). Prints both tables.
+``vmap`` is an iterative proposal inside the row-bucket switch). Prints both tables. With
+``--callers``, an operation of a small helper (matrix algebra, trigonometry, the models) is named
+by its call chain up to the function that called it, and a third table adds the helpers' time
+to those calling functions.
 
     python experiments/micro/profile_step.py --particles 1000 --start 1500 --scans 100
     python experiments/micro/profile_step.py --particles 10 --set filter.method=ufastslam --top 15
+    python experiments/micro/profile_step.py --particles 1000 --callers   # helpers by their callers
 
 One device (``filter.split_devices: never``), so the table is the step's work, not the
 devices' overlap. The trace and the compiled HLO stay in ``--keep DIR`` when given.
@@ -48,8 +52,20 @@ def _sections(hlo: list[str]) -> dict[str, dict[int, str]]:
     return out
 
 
-def _attribution(hlo_text: str) -> tuple[dict[str, str], dict[str, str]]:
-    """Each HLO instruction's project function (``file:function``) and ``op_name`` path."""
+#: Project modules of small helpers (matrix algebra, trigonometry, the models): with
+#: ``--callers`` an operation in one of them is also attributed to the function that called it.
+_HELPERS = ("_linalg.py", "_trig.py", "models/")
+
+
+def _attribution(hlo_text: str, callers: bool = False) -> tuple[dict[str, str], dict[str, str]]:
+    """Each HLO instruction's project function (``file:function``) and ``op_name`` path.
+
+    With ``callers``, an instruction whose innermost project frame is a helper (:data:`_HELPERS`)
+    is named by the chain of frames up to the first one outside them, innermost first
+    (``_linalg.py:mm < proposals/_natural_gradient.py:expected_grad_hess.<locals>.at_point``).
+    Call chains are only complete when the program was traced with
+    ``JAX_TRACEBACK_IN_LOCATIONS_LIMIT=-1`` (``main`` sets it).
+    """
     lines = hlo_text.split("\n")
     t = _sections(lines)
     files = {k: v.strip('"') for k, v in t.get("FileNames", {}).items()}
@@ -71,15 +87,20 @@ def _attribution(hlo_text: str) -> tuple[dict[str, str], dict[str, str]]:
         if op:
             path[name] = "/".join(op.group(1).split("/")[1:-1]) or "(top level)"
         fid = re.search(r"stack_frame_id=(\d+)", line)
-        seen = set()
         fid = int(fid.group(1)) if fid else None
+        chain, seen = [], set()
         while fid in frames and fid not in seen:  # innermost frame first, then its callers
             seen.add(fid)
             file, func = locs.get(int(frames[fid]["file_location_id"]), (None, "?"))
             if file is not None:
-                where[name] = f"{file}:{func}"
-                break
-            fid = int(frames[fid].get("parent_frame_id", 0))
+                chain.append(f"{file}:{func}")
+                if not callers or not file.startswith(_HELPERS):
+                    break
+            # The printed parent is one past the parent's row (0: no parent).
+            fid = int(frames[fid].get("parent_frame_id", 0)) - 1
+        if chain:
+            # Consecutive frames of one function (a helper calling itself on parts) named once.
+            where[name] = " < ".join(f for i, f in enumerate(chain) if i == 0 or f != chain[i - 1])
     return where, path
 
 
@@ -93,10 +114,16 @@ def main() -> None:
     p.add_argument("--scans", type=int, default=100, help="scans in the profiled stretch")
     p.add_argument("--top", type=int, default=25, help="rows per table")
     p.add_argument("--keep", help="keep the trace and hlo.txt in this directory")
+    p.add_argument("--callers", action="store_true",
+                   help="name an operation of a small helper (matrix algebra, trigonometry, the models) "
+                        "by its call chain up to the project function that called it")
     args = p.parse_args()
     if args.start < 1:
         p.error("--start: at least 1 (the stretch starts from the state a run over the scans before it reached)")
 
+    # Whole call chains in the HLO metadata (JAX keeps the innermost 10 frames by default,
+    # mostly its own); must be set before JAX is imported.
+    os.environ.setdefault("JAX_TRACEBACK_IN_LOCATIONS_LIMIT", "-1")
     import jax
 
     import nanoslam_jax  # noqa: F401  (float64)
@@ -130,8 +157,8 @@ def main() -> None:
     with gzip.open(trace) as f:
         events = json.load(f)
     events = events["traceEvents"] if isinstance(events, dict) else events
-    where, path = _attribution(hlo)
-    by_where, by_path, total = collections.Counter(), collections.Counter(), 0.0
+    where, path = _attribution(hlo, args.callers)
+    by_where, by_path, by_caller, total = collections.Counter(), collections.Counter(), collections.Counter(), 0.0
     for e in events:
         name = e.get("name", "")
         if e.get("ph") != "X" or name.startswith(_CONTAINERS) or " " in name:
@@ -139,11 +166,15 @@ def main() -> None:
         d = e.get("dur", 0) / 1e3
         total += d
         by_where[where.get(name, "(no source)")] += d
+        by_caller[where.get(name, "(no source)").split(" < ")[-1]] += d
         by_path[path.get(name, "(no op_name)")] += d
 
     print(f"\n{cfg.name}: {static.method}, {args.particles} particles, scans {args.start}-{args.start + args.scans}, "
           f"one device: {wall:.2f} s under the profiler, {total:.0f} ms in leaf operations\n")
-    for title, table in (("project function", by_where), ("op_name path", by_path)):
+    tables = [("project function", by_where), ("op_name path", by_path)]
+    if args.callers:  # the helpers' time added to the functions that called them
+        tables.insert(1, ("calling function", by_caller))
+    for title, table in tables:
         print(f"| {title} | ms | share |\n|---|---|---|")
         for k, v in table.most_common(args.top):
             print(f"| `{k}` | {v:.1f} | {100 * v / total:.1f} % |")
