@@ -284,7 +284,7 @@ def quick_study(tmp_path_factory):
     out = tmp_path_factory.mktemp("study") / "quick"
     argv = ["compare", str(STUDY), "--quick", "--seeds", "2", "--methods", "NANO-SLAM", "UFastSLAM",
             "--particles", str(QUICK_N), "--parallel", "single", "--out", str(out)]  # single: no batch padded to the device count
-    for s in SIM + ["filter.row_buckets=never"]:  # row buckets: the same results, compiled once instead of thrice
+    for s in SIM + ["filter.row_buckets=never"]:  # row buckets: the same results (to rounding), compiled once instead of thrice
         argv += ["--set", s]
     proc = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", *argv], capture_output=True, text=True,
                           cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
