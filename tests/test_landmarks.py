@@ -252,6 +252,54 @@ def test_associate_many_random_scans_claim_once(assoc_fn):
             assert np.all(ACTIVE[matched[matched < W]])
 
 
+@pytest.mark.parametrize("sequential", [True, False])
+def test_association_over_the_window_prefix_equals_the_whole_window(sequential):
+    """``associate_window_prefix`` (the association over the 16, 32 or 64 leading window slots that
+    hold the particle's landmarks, one branch for a vmapped batch) gives every detection what the
+    association over the whole 64-slot window gives, provisional slots included (window + k):
+    random scenes of 0-64 landmarks (in the leading slots, as ``gather_window`` leaves them) with
+    detections of some of them, of nothing and twice of one new landmark, alone and in a batch
+    (whose branch is its largest landmark count)."""
+    from nanoslam_jax.filter._association import associate_window_prefix
+
+    Wp, k = 64, 6
+    rng = np.random.default_rng(11)
+
+    def scene(n):
+        x = rng.normal(size=3) * [2.0, 2.0, 0.3]
+        mean = x[:2] + rng.uniform(-25, 25, (Wp, 2))
+        a = rng.normal(size=(Wp, 2, 2))
+        cov = a @ np.swapaxes(a, 1, 2) * 0.05 + 0.01 * np.eye(2)
+        active = np.arange(Wp) < n
+        local = LandmarkMap.empty(Wp)._replace(mean=jnp.asarray(mean), cov=jnp.asarray(cov),
+                                               active=jnp.asarray(active))
+        z = np.stack([g(x, mean[rng.integers(0, max(n, 1))]) + rng.normal(size=2) * [0.3, 0.01]
+                      for _ in range(k)])
+        z[3] = [22.0, -1.0]  # a new landmark ...
+        z[4] = z[3] + [0.1, 0.003]  # ... detected twice (sequential: the second matches slot W + 3)
+        z_mask = jnp.asarray(rng.uniform(size=k) < 0.9).at[3].set(True).at[4].set(True)
+        return local, jnp.asarray(x), jnp.asarray(z), z_mask
+
+    def args(x, z, z_mask):
+        return (x, jnp.asarray(P), z, z_mask, jnp.asarray(R), jnp.asarray(GATE), jnp.asarray(NEW), sequential)
+
+    full = jax.jit(lambda loc, x, z, zm: associate(loc, *args(x, z, zm)))
+    prefix = jax.jit(lambda loc, x, z, zm: associate_window_prefix(loc, *args(x, z, zm)))
+    counts = (0, 1, 16, 17, 32, 33, 64)
+    scenes = [scene(n) for n in counts]
+    for n, sc in zip(counts, scenes):
+        got, want = prefix(*sc), full(*sc)
+        for f in ("slot", "is_new", "d2"):
+            np.testing.assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f"{f}, {n} landmarks")
+    assert any(int(full(*sc).slot[4]) == Wp + 3 for sc in scenes) == sequential  # the provisional slot
+    assert any(int(s) in range(16, 64) for sc in scenes for s in full(*sc).slot)  # matches past the first bucket
+    batch = jax.tree.map(lambda *a: jnp.stack(a), *[scene(n) for n in (1, 5, 16, 17, 0, 30, 32, 2)])
+    got, want = jax.jit(jax.vmap(prefix))(*batch), jax.vmap(full)(*batch)
+    for f in ("slot", "is_new", "d2"):
+        np.testing.assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f"batch {f}")
+    assert "cond[" in str(jax.make_jaxpr(jax.vmap(prefix))(*batch))  # a branch, not every prefix computed
+
+
 # ----------------------------------------------------------------------------- window gather/scatter
 
 CAP = 10

@@ -8,10 +8,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from .._batching import batch_max
 from .._linalg import sandwich
 from .._trig import computed_once
 from ..models import range_bearing, range_bearing_jacobian_components, range_bearing_jacobians, wrap_angle
-from ._landmarks import init_landmark
+from ._landmarks import WINDOW_BUCKETS, init_landmark
 from ._state import LandmarkMap
 
 
@@ -108,6 +109,33 @@ def associate(
         slot_var = jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, diam.shape)]) + var_d
         diam_term = (diam, slot_diam, 1.0 / slot_var, use_diameter)
     return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term)
+
+
+def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
+    """:func:`associate` (same arguments) over the smallest prefix of the local window that holds
+    its landmarks: 16, 32 or all slots (``lax.switch``).
+
+    The local window holds its landmarks in its leading slots (:func:`._landmarks.gather_window`)
+    and inactive slots never match, so every detection gets the association it gets over the whole
+    window, while the predicted detections and innovation covariances are computed for
+    ``prefix + k_max`` slots instead of ``window + k_max``. A provisional landmark keeps its slot
+    number (``window + k``). The index is :func:`~nanoslam_jax._batching.batch_max` of the landmark
+    count: one branch for all particles (and for a sweep's batch).
+    """
+    w = local.active.shape[0]
+    sizes = tuple(b for b in WINDOW_BUCKETS if b < w) + (w,)
+    if len(sizes) == 1:
+        return associate(local, *args, **kwargs)
+
+    def prefix(b):
+        def branch(loc):
+            a = associate(jax.tree.map(lambda f: f[:b], loc), *args, **kwargs)
+            return a._replace(slot=jnp.where(a.slot >= b, a.slot - b + w, a.slot))
+        return branch
+
+    n_local = jnp.sum(local.active)
+    index = jnp.sum(batch_max(n_local) > jnp.asarray(sizes[:-1], jnp.int32)).astype(jnp.int32)
+    return jax.lax.switch(index, [prefix(b) for b in sizes], local)
 
 
 def nearest_neighbours(

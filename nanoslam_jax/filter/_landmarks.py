@@ -84,6 +84,13 @@ def gather_window(
     return local, idx, jnp.maximum(n_near - window, 0)
 
 
+#: Prefix sizes of the local window (then the whole window) that the association
+#: (:func:`._association.associate_window_prefix`) and management
+#: (:func:`._management.manage_window_prefix`) run over: the smallest that holds the window's
+#: landmarks, which :func:`gather_window` puts in its leading slots.
+WINDOW_BUCKETS = (16, 32)
+
+
 #: The fields landmark management changes in a local map (:func:`._management.manage_window`).
 MANAGED_FIELDS = ("log_odds", "misses", "confirmed", "active")
 

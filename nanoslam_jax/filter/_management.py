@@ -37,6 +37,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._batching import batch_max
 from .._trig import atan2, computed_once
 from ..models import range_bearing, wrap_angle
+from ._landmarks import WINDOW_BUCKETS
 from ._params import MapParams
 from ._state import LandmarkMap
 
@@ -154,10 +155,6 @@ def manage_window(
     keep = (log_odds >= mp.log_odds_remove) & (confirmed | fresh(local.born, scan, mp))
     return local._replace(log_odds=log_odds, misses=local.misses + missed.astype(jnp.int32), confirmed=confirmed,
                           active=local.active & keep)
-
-
-#: Prefix sizes of the local window that :func:`manage_window_prefix` runs management over.
-WINDOW_BUCKETS = (16, 32)
 
 
 def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, "window"], n_local: Int[Array, ""],
