@@ -11,7 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal, Optional
 
-#: ``filter.row_buckets: auto`` splits the per-row work (proposal, weight, landmark updates) from this many particles up.
+#: ``filter.row_buckets: auto`` splits the per-row work (proposal, weight, landmark updates) and the
+#: association's window from this many particles up.
 ROW_BUCKETS_FROM = 64
 #: ``filter.split_devices: auto`` splits a run's particles over the CPU devices from this many up.
 SPLIT_DEVICES_FROM = 64
@@ -118,7 +119,8 @@ class FilterConfig:
             "smoothed estimate; particle methods only; records every particle's pose per segment)")
     row_buckets: Literal["auto", "always", "never"] = _f("auto", static=True,
         doc="run the proposal, the weight's likelihoods and the landmarks' updates over only 4, 8 or k_max "
-            "detection rows, the fewest that hold the scan's detections (the same results to rounding; "
+            "detection rows, the fewest that hold the scan's detections, and the association over the "
+            "16, 32 or all window slots that hold the particles' landmarks (the same results to rounding; "
             "compiled three times, ~15 s more): 'auto' from "
             f"{ROW_BUCKETS_FROM} particles up, where the particles' arithmetic outweighs per-operation overhead")
     split_devices: Literal["auto", "always", "never"] = _f("auto", static=True,
