@@ -8,11 +8,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._batching import batch_max
 from .._linalg import sandwich
 from .._trig import computed_once
 from ..models import range_bearing, range_bearing_jacobian_components, range_bearing_jacobians, wrap_angle
-from ._landmarks import WINDOW_BUCKETS, init_landmark
+from ._landmarks import init_landmark, window_prefixes
 from ._state import LandmarkMap
 
 
@@ -119,11 +118,10 @@ def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
     and inactive slots never match, so every detection gets the association it gets over the whole
     window, while the predicted detections and innovation covariances are computed for
     ``prefix + k_max`` slots instead of ``window + k_max``. A provisional landmark keeps its slot
-    number (``window + k``). The index is :func:`~nanoslam_jax._batching.batch_max` of the landmark
-    count: one branch for all particles (and for a sweep's batch).
+    number (``window + k``). One branch for all particles (:func:`._landmarks.window_prefixes`).
     """
     w = local.active.shape[0]
-    sizes = tuple(b for b in WINDOW_BUCKETS if b < w) + (w,)
+    sizes, index = window_prefixes(w, jnp.sum(local.active))
     if len(sizes) == 1:
         return associate(local, *args, **kwargs)
 
@@ -133,8 +131,6 @@ def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
             return a._replace(slot=jnp.where(a.slot >= b, a.slot - b + w, a.slot))
         return branch
 
-    n_local = jnp.sum(local.active)
-    index = jnp.sum(batch_max(n_local) > jnp.asarray(sizes[:-1], jnp.int32)).astype(jnp.int32)
     return jax.lax.switch(index, [prefix(b) for b in sizes], local)
 
 

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from .._batching import batch_max
 from .._linalg import chol2, det2, gaussian_logpdf, inv2, mm, mmt, mt, mv, sandwich, sym
 from .._trig import computed_once
 from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
@@ -89,6 +90,18 @@ def gather_window(
 #: (:func:`._management.manage_window_prefix`) run over: the smallest that holds the window's
 #: landmarks, which :func:`gather_window` puts in its leading slots.
 WINDOW_BUCKETS = (16, 32)
+
+
+def window_prefixes(w: int, n_local: Int[Array, ""]) -> tuple[tuple[int, ...], Int[Array, ""]]:
+    """The prefix sizes of a ``w``-slot local window (:data:`WINDOW_BUCKETS` below ``w``, then
+    ``w``) and the index of the smallest that holds ``n_local`` landmarks.
+
+    The index is :func:`~nanoslam_jax._batching.batch_max` of ``n_local``: under ``vmap`` (the
+    particles, a sweep's batch) it is the same for every member, so a ``lax.switch`` on it stays
+    one branch.
+    """
+    sizes = tuple(b for b in WINDOW_BUCKETS if b < w) + (w,)
+    return sizes, jnp.sum(batch_max(n_local) > jnp.asarray(sizes[:-1], jnp.int32)).astype(jnp.int32)
 
 
 #: The fields landmark management changes in a local map (:func:`._management.manage_window`).

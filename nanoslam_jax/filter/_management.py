@@ -34,10 +34,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._batching import batch_max
 from .._trig import atan2, computed_once
 from ..models import range_bearing, wrap_angle
-from ._landmarks import WINDOW_BUCKETS
+from ._landmarks import window_prefixes
 from ._params import MapParams
 from ._state import LandmarkMap
 
@@ -165,11 +164,10 @@ def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, "window"], n_loca
     The local window holds its landmarks in its leading slots (:func:`._landmarks.gather_window`)
     and management leaves inactive slots inactive and counts them neither as missed nor as
     occluders, so the prefix gives every landmark the same values as the whole window, at a
-    fraction of the cost of the occlusion test (window x (detections + window) pairs). The index
-    is :func:`~nanoslam_jax._batching.batch_max` of ``n_local``: one branch for all particles.
+    fraction of the cost of the occlusion test (window x (detections + window) pairs). One branch
+    for all particles (:func:`._landmarks.window_prefixes`).
     """
-    w = local.active.shape[0]
-    sizes = tuple(b for b in WINDOW_BUCKETS if b < w) + (w,)
+    sizes, index = window_prefixes(local.active.shape[0], n_local)
     if len(sizes) == 1:
         return manage(local, seen)
 
@@ -179,7 +177,6 @@ def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, "window"], n_loca
             return jax.tree.map(lambda h, a: a.at[:b].set(h), head, loc)
         return branch
 
-    index = jnp.sum(batch_max(n_local) > jnp.asarray(sizes[:-1], jnp.int32)).astype(jnp.int32)
     return jax.lax.switch(index, [prefix(b) for b in sizes], local, seen)
 
 
