@@ -309,7 +309,7 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     import dataclasses
 
     from nanoslam_jax.filter._scan import make_proposal
-    from nanoslam_jax.filter._step import _row_work, _rows_over_buckets
+    from nanoslam_jax.filter._rows import row_work, rows_over_buckets
     from nanoslam_jax.models import range_bearing
     from nanoslam_jax.proposals import Detections
 
@@ -329,9 +329,9 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     # Rows 1 and 4 match the landmark the row before them started.
     ps = jnp.broadcast_to(jnp.array([0, 0, 0, 0, 3, 0, 0, 0]), (n, k))
     bucketed = jax.jit(jax.vmap(
-        lambda x, P, d, ex, p, e, zm: _rows_over_buckets(static, params, prop, x, P, R, d, ex, p, e, zm),
+        lambda x, P, d, ex, p, e, zm: rows_over_buckets(static, params, prop, x, P, R, d, ex, p, e, zm),
         (0, 0, 0, 0, 0, 0, None)))
-    full = jax.jit(jax.vmap(lambda x, P, d, ex, p, e: _row_work(static, params, prop, x, P, R, d, ex, p, e)))
+    full = jax.jit(jax.vmap(lambda x, P, d, ex, p, e: row_work(static, params, prop, x, P, R, d, ex, p, e)))
     for n_real in (0, 1, 2, 3, 4, 5, 8):
         z_mask = jnp.arange(k) < n_real
         # Each particle associates its own subset of the real detections.
