@@ -20,7 +20,6 @@ from nanoslam_jax.filter import LandmarkMap, associate, run_filter, settings_fro
 from nanoslam_jax.filter._management import manage_window, manage_window_prefix, occluded
 from nanoslam_jax.filter._scan import make_proposal
 from nanoslam_jax.filter._step import particle_update
-from nanoslam_jax.metrics import landmark_errors
 
 K = 3
 CAP = 8

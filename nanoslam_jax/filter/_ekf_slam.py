@@ -50,7 +50,6 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key
 
 from ..data import Segments
-from ..models import range_bearing
 from ._joint_gaussian import (
     association_distances,
     ekf_slam_augment,

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._trig import atan2, computed_once
-from ..models import range_bearing, wrap_angle
+from ..models import range_bearing
 from ._landmarks import window_prefixes
 from ._params import MapParams
 from ._state import LandmarkMap
