@@ -199,6 +199,18 @@ def test_no_detections_is_dead_reckoning(sim, runs, trace_counter):
     assert np.ptp(np.unwrap(dr[:, 2])) > np.pi
 
 
+def test_recorded_landmark_counts_are_the_reported_maps(sim, runs):
+    """The landmark counts a step records (counted over the slot bucket's prefix plus ``k_max``
+    slots, not the whole capacity) equal the reported particle's whole map at the end of a run
+    whose map has grown past the first slot bucket."""
+    run = runs(0)
+    lm = reported_map(run.state)
+    active, confirmed = np.asarray(lm.active), np.asarray(lm.confirmed)
+    assert np.nonzero(active)[0].max() >= sim[2].slot_buckets[0]  # the prefix is not the first bucket
+    assert int(np.asarray(run.outputs.n_landmarks)[-1]) == int(active.sum())
+    assert int(np.asarray(run.outputs.n_confirmed)[-1]) == int((active & confirmed).sum())
+
+
 def test_dead_reckoning_is_refused_by_the_filter_drivers(sim):
     """Dead reckoning has no filter to scan: run_filter and run_batch say so, naming the key and
     the function that computes it, before anything is traced."""

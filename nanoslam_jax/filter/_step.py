@@ -32,7 +32,7 @@ from ._resampling import effective_sample_size, normalise, resample
 from ._rows import rows_over_buckets
 from ._management import diameter_update, drop_stale, manage_window, manage_window_prefix, new_landmarks
 from ._srukf import adaptive_noise_rows
-from ._state import FilterState, LandmarkMap, Particles, count_confirmed, count_landmarks, slots_in_use
+from ._state import FilterState, LandmarkMap, Particles, slots_in_use
 
 
 class StepOutput(NamedTuple):
@@ -241,14 +241,33 @@ def particle_update(
         branches = [lambda a, b=b: free_slots(a, K, b + K) for b in static.slot_buckets]
         free = jax.lax.switch(slot_bucket, branches, lm.active)
     lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage, free=free)
+    n_landmarks, n_confirmed = _counts(static, lm, slot_bucket)
     has_assoc = jnp.any(used)
     return _ParticleOut(
         pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
         result=jnp.where(has_assoc, prop.result, 0), has_assoc=has_assoc,
         n_associated=jnp.sum(matched), n_new=jnp.sum(assoc.is_new),
-        window_overflow=window_overflow, overflow=overflow, n_landmarks=count_landmarks(lm).astype(jnp.int32),
-        n_confirmed=count_confirmed(lm).astype(jnp.int32), noise=noise, noise_count=noise_count,
+        window_overflow=window_overflow, overflow=overflow, n_landmarks=n_landmarks, n_confirmed=n_confirmed,
+        noise=noise, noise_count=noise_count,
     )
+
+
+def _counts(static: Static, lm: LandmarkMap, slot_bucket: Int[Array, ""] | None) -> tuple[Int[Array, ""], Int[Array, ""]]:
+    """The map's active and confirmed landmarks after a scan (``count_landmarks``,
+    ``count_confirmed``).
+
+    With a slot bucket they are counted over its prefix plus ``k_max`` slots only: the bucket held
+    every active landmark before the scan, and a scan places its new landmarks in the first free
+    slots (at most ``k_max`` past the bucket). The same counts, for the slots the map uses instead
+    of its whole capacity at every step.
+    """
+    def counts(active, confirmed):
+        return jnp.sum(active, dtype=jnp.int32), jnp.sum(active & confirmed, dtype=jnp.int32)
+
+    if slot_bucket is None or len(static.slot_buckets) == 1:
+        return counts(lm.active, lm.confirmed)
+    branches = [lambda a, c, n=b + static.k_max: counts(a[:n], c[:n]) for b in static.slot_buckets]
+    return jax.lax.switch(slot_bucket, branches, lm.active, lm.confirmed)
 
 
 def _gather_small(fields: dict, skip: str, axis_name: str) -> dict:
