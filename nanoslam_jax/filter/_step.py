@@ -32,7 +32,7 @@ from ._resampling import effective_sample_size, normalise, resample
 from ._rows import rows_over_buckets
 from ._management import diameter_update, drop_stale, manage_window, manage_window_prefix, new_landmarks
 from ._srukf import adaptive_noise_rows
-from ._state import FilterState, LandmarkMap, Particles, slots_in_use
+from ._state import FilterState, LandmarkMap, Particles, count_confirmed, count_landmarks, slots_in_use
 
 
 class StepOutput(NamedTuple):
@@ -162,11 +162,8 @@ def particle_update(
     x0, P0 = computed_once((x0, P0))
 
     radius = params.max_range + params.window_margin
-    if slot_bucket is None or len(static.slot_buckets) == 1:
-        local, idx, window_overflow = gather_window(lm, x0[:2], W, radius)
-    else:
-        branches = [lambda lm, x, b=b: gather_window(lm, x, W, radius, b) for b in static.slot_buckets]
-        local, idx, window_overflow = jax.lax.switch(slot_bucket, branches, lm, x0[:2])
+    local, idx, window_overflow = _over_slot_bucket(
+        static, slot_bucket, lambda b, lm, x: gather_window(lm, x, W, radius, b), lm, x0[:2])
     # With the row buckets (many particles per call), also the association over the window's
     # prefix: the same association, compiled three times, which pays off only where the particles'
     # arithmetic outweighs the compilation (no faster at 10 particles, ~40 % longer to compile).
@@ -234,14 +231,16 @@ def particle_update(
     else:
         # Only the landmarks the scan's detections matched change: write those rows back.
         lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
+    # Every active landmark lies in the slot bucket before this scan (management only frees
+    # slots), so the scan's new landmarks go to its first K free slots at most K past it: the
+    # free slots are searched there and the map's landmarks counted there, not over the capacity.
+    past = lambda b: None if b is None else b + K  # noqa: E731
     free = None
-    if static.manage and slot_bucket is not None and len(static.slot_buckets) > 1:
-        # The first K free slots lie in the prefix that held every active landmark before this
-        # scan (management only frees slots) plus K: searched there, not over the whole map.
-        branches = [lambda a, b=b: free_slots(a, K, b + K) for b in static.slot_buckets]
-        free = jax.lax.switch(slot_bucket, branches, lm.active)
+    if static.manage:
+        free = _over_slot_bucket(static, slot_bucket, lambda b, a: free_slots(a, K, past(b)), lm.active)
     lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage, free=free)
-    n_landmarks, n_confirmed = _counts(static, lm, slot_bucket)
+    n_landmarks, n_confirmed = _over_slot_bucket(
+        static, slot_bucket, lambda b, m: _counts(jax.tree.map(lambda a: a[:past(b)], m)), lm)
     has_assoc = jnp.any(used)
     return _ParticleOut(
         pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
@@ -252,22 +251,18 @@ def particle_update(
     )
 
 
-def _counts(static: Static, lm: LandmarkMap, slot_bucket: Int[Array, ""] | None) -> tuple[Int[Array, ""], Int[Array, ""]]:
-    """The map's active and confirmed landmarks after a scan (``count_landmarks``,
-    ``count_confirmed``).
-
-    With a slot bucket they are counted over its prefix plus ``k_max`` slots only: the bucket held
-    every active landmark before the scan, and a scan places its new landmarks in the first free
-    slots (at most ``k_max`` past the bucket). The same counts, for the slots the map uses instead
-    of its whole capacity at every step.
-    """
-    def counts(active, confirmed):
-        return jnp.sum(active, dtype=jnp.int32), jnp.sum(active & confirmed, dtype=jnp.int32)
-
+def _over_slot_bucket(static: Static, slot_bucket: Int[Array, ""] | None, fn, *operands):
+    """``fn(slots, *operands)`` with ``slots`` the size of the map prefix ``slot_bucket`` names (a
+    ``lax.switch`` over ``static.slot_buckets``; the index is the same for all particles, so under
+    ``vmap`` it stays one branch), or ``fn(None, *operands)`` (the whole map) without buckets."""
     if slot_bucket is None or len(static.slot_buckets) == 1:
-        return counts(lm.active, lm.confirmed)
-    branches = [lambda a, c, n=b + static.k_max: counts(a[:n], c[:n]) for b in static.slot_buckets]
-    return jax.lax.switch(slot_bucket, branches, lm.active, lm.confirmed)
+        return fn(None, *operands)
+    return jax.lax.switch(slot_bucket, [functools.partial(fn, b) for b in static.slot_buckets], *operands)
+
+
+def _counts(lm: LandmarkMap) -> tuple[Int[Array, ""], Int[Array, ""]]:
+    """:func:`count_landmarks` and :func:`count_confirmed` of one particle's map, as int32."""
+    return count_landmarks(lm).astype(jnp.int32), count_confirmed(lm).astype(jnp.int32)
 
 
 def _gather_small(fields: dict, skip: str, axis_name: str) -> dict:
