@@ -66,16 +66,20 @@ def assert_tracks_truth_and_maps_trees(log, params, run, *, rmse: float, max_err
 
 def assert_padding_is_noop(static, params, state, segments, chunk: int, pose):
     """Padding (valid False), whether zero segments or real ones, leaves ``state`` bit for bit and
-    reports ``pose`` with no associations."""
+    reports ``pose`` with no associations when scanned (:func:`filter_scan`); the driver's chunk
+    program skips it and returns ``state`` as it was."""
     seg = jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[:chunk]), segments)
     invalid = jnp.zeros(chunk, bool)
+    scan = jax.jit(_scan.filter_scan, static_argnums=0)
     for s in (seg, jax.tree.map(jnp.zeros_like, seg)):
-        new, out = _scan._chunk(static, params, state, s, invalid)
-        assert type(new) is type(state)
-        for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(new)):
-            if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
-                a, b = jax.random.key_data(a), jax.random.key_data(b)
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        new, out = scan(static, params, s, state.key, state, invalid)
+        skipped, _ = _scan._chunk(static, params, state, s, invalid)
+        for result in (new, skipped):
+            assert type(result) is type(state)
+            for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(result)):
+                if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+                    a, b = jax.random.key_data(a), jax.random.key_data(b)
+                np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         assert np.all(np.asarray(out.n_associated) == 0) and np.all(np.asarray(out.n_new) == 0)
         np.testing.assert_array_equal(np.asarray(out.best_pose), np.broadcast_to(np.asarray(pose), (chunk, 3)))
 

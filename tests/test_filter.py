@@ -287,6 +287,26 @@ def test_padding_segments_are_exact_no_ops():
         np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
 
 
+def test_scan_prefix_is_the_scan_of_the_prefix():
+    """The chunk program's loop (:func:`_scan_prefix`, which skips the padding): over the first
+    ``length`` entries it is ``lax.scan`` of them (carry and outputs), zeros after."""
+    from nanoslam_jax.filter._scan import _scan_prefix
+
+    def f(c, x):
+        return c * 0.5 + x["a"], {"y": c + x["b"], "z": jnp.stack([c, x["a"]]), "k": (x["a"] > 3).astype(jnp.int32)}
+
+    xs = {"a": jnp.arange(10.0), "b": jnp.linspace(0.0, 1.0, 10)}
+    run = jax.jit(lambda n: _scan_prefix(f, jnp.float64(1.0), xs, n))
+    for n in (0, 1, 4, 10):
+        carry, ys = run(n)
+        ref_carry, ref_ys = jax.lax.scan(f, jnp.float64(1.0), jax.tree.map(lambda a: a[:n], xs))
+        np.testing.assert_array_equal(np.asarray(carry), np.asarray(ref_carry))
+        for k in ref_ys:
+            assert ys[k].shape == (10,) + ref_ys[k].shape[1:] and ys[k].dtype == ref_ys[k].dtype
+            np.testing.assert_array_equal(np.asarray(ys[k])[:n], np.asarray(ref_ys[k]))
+            assert not np.any(np.asarray(ys[k])[n:])
+
+
 def test_map_history_holds_the_best_particles_map_after_each_chunk():
     """``FilterRun.history``: after each chunk the best particle's confirmed landmarks, which are
     those of a run stopped there; the last entry is the final map, in a batch run too."""

@@ -2,7 +2,8 @@
 
 :func:`filter_scan` is pure (jit- and vmap-friendly: sweeps vmap it over :class:`Params` and
 keys). :func:`run_filter` is the host driver: it compiles one chunk program and calls it over
-fixed-size chunks of the log (padding the last), reporting progress between chunks.
+fixed-size chunks of the log (padding the last, whose padding the program skips), reporting
+progress between chunks.
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ import time
 from typing import Callable, NamedTuple, Optional
 
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Key
+from jaxtyping import Array, Bool, Float, Int, Key
 
 from .._cache import compile_program
 from ..data import Segments
@@ -151,9 +153,40 @@ def filter_scan(
     return jax.lax.scan(functools.partial(_masked_step, static, params), state, inputs)
 
 
+def _scan_prefix(f, init, xs, length: Int[Array, ""]):
+    """``jax.lax.scan(f, init, xs)`` over the first ``length`` entries of ``xs`` only (a loop with
+    a traced trip count): the carry after them, and the outputs stacked to the full length of
+    ``xs``, zeros past ``length``.
+
+    ``f`` is traced once, as ``lax.scan`` traces it: its jaxpr gives the outputs' shapes and is
+    what the loop evaluates (tracing a many-particle filter step takes seconds).
+    """
+    total = jax.tree.leaves(xs)[0].shape[0]
+    closed, out_shapes = jax.make_jaxpr(f, return_shape=True)(init, jax.tree.map(lambda a: a[0], xs))
+    step, out_tree = jax.extend.core.jaxpr_as_fun(closed), jax.tree.structure(out_shapes)
+    ys = jax.tree.map(lambda s: jnp.zeros((total,) + s.shape, s.dtype), out_shapes[1])
+
+    def body(i, c):
+        carry, ys = c
+        x = jax.tree.map(lambda a: jax.lax.dynamic_index_in_dim(a, i, keepdims=False), xs)
+        carry, y = jax.tree.unflatten(out_tree, step(*jax.tree.leaves((carry, x))))
+        return carry, jax.tree.map(lambda buf, v: jax.lax.dynamic_update_index_in_dim(buf, v, i, 0), ys, y)
+
+    return jax.lax.fori_loop(0, length, body, (init, ys))
+
+
+def _scan_real(static: Static, params: Params, state, segments: Segments, valid):
+    """:func:`filter_scan` of a chunk whose padding (``valid`` False) is a suffix, run up to its
+    last real segment: the padding is not computed (a padding step leaves the state unchanged
+    but costs a whole step), and its records are zeros, which the driver drops."""
+    inputs = (segments, valid, segment_priors(static, params, segments))
+    last = jnp.max(jnp.where(valid, jnp.arange(valid.shape[0]) + 1, 0))
+    return _scan_prefix(functools.partial(_masked_step, static, params), state, inputs, last)
+
+
 @functools.partial(jax.jit, static_argnames=("static",))
 def _chunk(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
-    return filter_scan(static, params, segments, state.key, state, valid)
+    return _scan_real(static, params, state, segments, valid)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
@@ -163,7 +196,7 @@ def _init(static: Static, params: Params, key) -> FilterState:
 
 @functools.partial(jax.jit, static_argnames=("static",))
 def _chunk_batch(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
-    run = lambda p, s: filter_scan(static, p, segments, s.key, s, valid)  # noqa: E731
+    run = lambda p, s: _scan_real(static, p, s, segments, valid)  # noqa: E731
     return jax.vmap(run)(params, state)
 
 
@@ -277,7 +310,8 @@ def run_filter(
     """Run the filter over a log in compiled chunks of ``chunk`` segments.
 
     One program is compiled for a chunk and called over the log; the last chunk is padded with
-    no-op segments, so the whole log needs one compilation whatever its length.
+    no-op segments, so the whole log needs one compilation whatever its length. The program stops
+    after a chunk's last real segment, so the padding costs no filter steps.
 
     Args:
         static, params: filter settings.
