@@ -67,7 +67,7 @@ def assert_tracks_truth_and_maps_trees(log, params, run, *, rmse: float, max_err
 def assert_padding_is_noop(static, params, state, segments, chunk: int, pose):
     """Padding (valid False), whether zero segments or real ones, leaves ``state`` bit for bit and
     reports ``pose`` with no associations when scanned (:func:`filter_scan`); the driver's chunk
-    program skips it and returns ``state`` as it was."""
+    program (``skip_padding``) skips it and returns ``state`` as it was."""
     seg = jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[:chunk]), segments)
     invalid = jnp.zeros(chunk, bool)
     scan = jax.jit(_scan.filter_scan, static_argnums=0)

@@ -130,7 +130,7 @@ def reported_map(state) -> LandmarkMap:
 
 def filter_scan(
     static: Static, params: Params, segments: Segments, key: Key[Array, ""], state: Optional[FilterState] = None,
-    valid: Optional[Bool[Array, "segments"]] = None,
+    valid: Optional[Bool[Array, "segments"]] = None, skip_padding: bool = False,
 ) -> tuple[FilterState, StepOutput]:
     """Run the filter over all segments in one ``lax.scan``.
 
@@ -141,6 +141,9 @@ def filter_scan(
         key: PRNG key (used when ``state`` is None to start, and for all sampling).
         state: state to continue from (default: a fresh state from ``key``).
         valid: which segments are real (padding segments leave the state unchanged).
+        skip_padding: stop after the last real segment (a loop with a traced trip count): the
+            padding after it is not computed (a padding step leaves the state unchanged but costs
+            a whole step), and its records are zeros. The chunk driver's setting.
 
     Returns:
         The final state and a :class:`StepOutput` per segment.
@@ -150,7 +153,10 @@ def filter_scan(
     if valid is None:
         valid = jnp.ones(segments.time.shape[0], bool)
     inputs = (segments, valid, segment_priors(static, params, segments))
-    return jax.lax.scan(functools.partial(_masked_step, static, params), state, inputs)
+    step = functools.partial(_masked_step, static, params)
+    if skip_padding:
+        return _scan_prefix(step, state, inputs, jnp.max(jnp.where(valid, jnp.arange(valid.shape[0]) + 1, 0)))
+    return jax.lax.scan(step, state, inputs)
 
 
 def _scan_prefix(f, init, xs, length: Int[Array, ""]):
@@ -175,18 +181,9 @@ def _scan_prefix(f, init, xs, length: Int[Array, ""]):
     return jax.lax.fori_loop(0, length, body, (init, ys))
 
 
-def _scan_real(static: Static, params: Params, state, segments: Segments, valid):
-    """:func:`filter_scan` of a chunk whose padding (``valid`` False) is a suffix, run up to its
-    last real segment: the padding is not computed (a padding step leaves the state unchanged
-    but costs a whole step), and its records are zeros, which the driver drops."""
-    inputs = (segments, valid, segment_priors(static, params, segments))
-    last = jnp.max(jnp.where(valid, jnp.arange(valid.shape[0]) + 1, 0))
-    return _scan_prefix(functools.partial(_masked_step, static, params), state, inputs, last)
-
-
 @functools.partial(jax.jit, static_argnames=("static",))
 def _chunk(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
-    return _scan_real(static, params, state, segments, valid)
+    return filter_scan(static, params, segments, state.key, state, valid, skip_padding=True)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
@@ -196,7 +193,7 @@ def _init(static: Static, params: Params, key) -> FilterState:
 
 @functools.partial(jax.jit, static_argnames=("static",))
 def _chunk_batch(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
-    run = lambda p, s: _scan_real(static, p, s, segments, valid)  # noqa: E731
+    run = lambda p, s: filter_scan(static, p, segments, s.key, s, valid, skip_padding=True)  # noqa: E731
     return jax.vmap(run)(params, state)
 
 
