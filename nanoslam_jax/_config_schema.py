@@ -125,7 +125,7 @@ class FilterConfig:
             f"{ROW_BUCKETS_FROM} particles up, where the particles' arithmetic outweighs per-operation overhead")
     split_devices: Literal["auto", "always", "never"] = _f("auto", static=True,
         doc="split a single run's particles over the JAX CPU devices (one per core; `nanoslam run` sets them "
-            f"up) when they divide evenly; same results. 'auto': from {SPLIT_DEVICES_FROM} particles up "
+            f"up) when they divide evenly; the same results to rounding. 'auto': from {SPLIT_DEVICES_FROM} particles up "
             "(measured 1.5x faster over the full log at 100 particles, slower at 10); never for "
             "filter.method iterated or nano.init gauss_newton (optimistix's least squares cannot run split)")
 
