@@ -126,7 +126,7 @@ class FilterConfig:
     split_devices: Literal["auto", "always", "never"] = _f("auto", static=True,
         doc="split a single run's particles over the JAX CPU devices (one per core; `nanoslam run` sets them "
             f"up) when they divide evenly; the same results to rounding. 'auto': from {SPLIT_DEVICES_FROM} particles up "
-            "(measured 1.5x faster over the full log at 100 particles, slower at 10); never for "
+            "(on 2 cores measured 1.7x faster per scan at 100 particles, no faster at 10); never for "
             "filter.method iterated or nano.init gauss_newton (optimistix's least squares cannot run split)")
 
 

@@ -15,15 +15,11 @@ import jax
 
 
 #: JAX CPU devices per core for a single run's split particles. XLA:CPU already runs one device's
-#: program on more than one core (a one-device process uses about 1.8 of 2 cores), so more devices
-#: than cores only add devices that wait for each other at every scan (the particles' outputs are
-#: gathered) and share the cores. Two devices per core had measured better on early code (whole log
-#: at 1000 particles 144.0 s over 2 devices, 126.3 s over 4, commit a79558f); on today's program, on
-#: the 2-core development machine (commit d07a79e), 2 devices beat 4: the whole log at 1000
-#: particles 55.1 / 55.7 s against 62.5 / 61.7 s (``experiments/benchmark.py --only nano-N1000``,
-#: alternated processes), at 100 particles 5.5 / 5.5 s against 7.1 / 7.0 s (best of 3 runs each), and
-#: ``experiments/micro/ab_step.py --particles 1000 --devices 2`` (and ``--devices 4``) 7.9-8.1 against
-#: 8.8-9.0 ms per scan. Sweeps have their own count (:data:`SWEEP_DEVICES_PER_CORE`).
+#: program on more than one core, so more devices than cores only wait for each other at every
+#: scan (the particles' outputs are gathered) and share the cores: on the 2-core development
+#: machine 2 devices beat 4 (whole log at 1000 particles 55 s against 62 s; the measurements and
+#: commands are in docs/performance.md, "Several cores"). Sweeps have their own count
+#: (:data:`SWEEP_DEVICES_PER_CORE`).
 DEVICES_PER_CORE = 1
 
 #: JAX CPU devices per core for a sweep's batches (``run.parallel: devices``). A batch's devices

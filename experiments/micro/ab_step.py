@@ -123,7 +123,7 @@ def main() -> None:
         final, records = out
         lm = final.particles.landmarks
         empty = LandmarkMap.empty(lm.active.shape[-1], lm.active.shape[:-1])
-        keep = lambda a, e: jnp.where(lm.active.reshape(lm.active.shape + (1,) * (a.ndim - 2)), a, e)  # noqa: E731
+        keep = lambda a, e: jnp.where(lm.active.reshape(lm.active.shape + (1,) * (a.ndim - lm.active.ndim)), a, e)  # noqa: E731
         lm = jax.tree.map(keep, lm, empty)
         return final._replace(particles=final.particles._replace(landmarks=lm)), records
 
