@@ -11,7 +11,7 @@ both; the table gives the minimum and the median of the repeats.
     python experiments/micro/ab_step.py --particles 1000 --a-rev HEAD~1 --start 1500 --scans 200 --repeat 6
 
 ``--a-rev REV`` compares code instead of settings: setting A runs the filter step of git revision
-REV (its ``filter/_step.py``, ``_rows.py`` where it has one, ``_prior.py``, ``_landmarks.py`` and
+REV (its ``filter/_step.py``, ``_rows.py`` where it has one, ``_prior.py``, ``_landmarks.py``, ``_management.py`` and
 ``_association.py``; the rest of the package is the working tree's), setting B the working tree's. The state at ``--start`` comes from running
 setting A's config over the scans before it (on one device, working tree). The largest difference
 between the two programs' outputs (final state and per-scan records) is printed too, and again
@@ -31,12 +31,13 @@ import types
 
 
 def step_at_revision(rev: str):
-    """``filter_step`` of git revision ``rev``: its filter step, row work, prior, landmark and
-    association modules loaded under other names, everything else the working tree's."""
+    """``filter_step`` of git revision ``rev``: its filter step, row work, prior, landmark,
+    management and association modules loaded under other names, everything else the working
+    tree's."""
     import nanoslam_jax.filter  # noqa: F401  (the package the modules' relative imports resolve in)
 
     mods = {"_prior": "_ab_prior", "_landmarks": "_ab_landmarks", "_association": "_ab_association",
-            "_rows": "_ab_rows", "_step": "_ab_step"}
+            "_management": "_ab_management", "_rows": "_ab_rows", "_step": "_ab_step"}
     sources = {}
     for name in mods:
         path = f"nanoslam_jax/filter/{name}.py"
