@@ -11,12 +11,13 @@ both; the table gives the minimum and the median of the repeats.
     python experiments/micro/ab_step.py --particles 1000 --a-rev HEAD~1 --start 1500 --scans 200 --repeat 6
 
 ``--a-rev REV`` compares code instead of settings: setting A runs the filter step of git revision
-REV (its ``filter/_step.py``, ``_rows.py`` where it has one, ``_prior.py``, ``_landmarks.py``, ``_management.py`` and
-``_association.py``; the rest of the package is the working tree's), setting B the working tree's. The state at ``--start`` comes from running
-setting A's config over the scans before it (on one device, working tree). The largest difference
-between the two programs' outputs (final state and per-scan records) is printed too, and again
-with the final maps' inactive slots ignored (what an inactive slot holds is never read, so a change
-that leaves them differently is still exact), with the number of resamplings in the stretch.
+REV (its ``filter/_step.py``, ``_rows.py`` where it has one, ``_prior.py``, ``_landmarks.py``,
+``_management.py`` and ``_association.py``; the rest of the package is the working tree's),
+setting B the working tree's. The state at ``--start`` comes from running setting A's config over
+the scans before it (on one device, working tree). The largest difference between the two
+programs' outputs (final state and per-scan records) is printed too, and again with the final
+maps' inactive slots ignored (what an inactive slot holds is never read, so a change that leaves
+them differently is still exact), with the number of resamplings in the stretch.
 """
 
 from __future__ import annotations
