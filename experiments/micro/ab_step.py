@@ -12,8 +12,11 @@ both; the table gives the minimum and the median of the repeats.
 
 ``--a-rev REV`` compares code instead of settings: setting A runs the filter step of git revision
 REV (its ``filter/_step.py``, ``_rows.py`` where it has one, ``_prior.py``, ``_landmarks.py``,
-``_management.py`` and ``_association.py``; the rest of the package is the working tree's),
-setting B the working tree's. The state at ``--start`` comes from running setting A's config over
+``_management.py``, ``_association.py`` and ``_state.py``; the rest of the package is the working
+tree's), setting B the working tree's. A starts from the same state converted to the revision's
+state types field by field (so that a change of the map's storage can be compared too: a map type
+with ``build(**fields)`` and ``fields()``, or a ``NamedTuple`` of the fields), and the outputs are
+compared field by field. The state at ``--start`` comes from running setting A's config over
 the scans before it (on one device, working tree). The largest difference between the two
 programs' outputs (final state and per-scan records) is printed too, and again with the final
 maps' inactive slots ignored (what an inactive slot holds is never read, so a change that leaves
@@ -37,7 +40,7 @@ def step_at_revision(rev: str):
     tree's."""
     import nanoslam_jax.filter  # noqa: F401  (the package the modules' relative imports resolve in)
 
-    mods = {"_prior": "_ab_prior", "_landmarks": "_ab_landmarks", "_association": "_ab_association",
+    mods = {"_state": "_ab_state", "_prior": "_ab_prior", "_landmarks": "_ab_landmarks", "_association": "_ab_association",
             "_management": "_ab_management", "_rows": "_ab_rows", "_step": "_ab_step"}
     sources = {}
     for name in mods:
@@ -57,7 +60,22 @@ def step_at_revision(rev: str):
         module.__package__ = "nanoslam_jax.filter"
         sys.modules[module.__name__] = module
         exec(compile(src, f"{rev}:{path}", "exec"), module.__dict__)
-    return sys.modules["nanoslam_jax.filter._ab_step"].filter_step
+    return sys.modules["nanoslam_jax.filter._ab_step"].filter_step, sys.modules["nanoslam_jax.filter._ab_state"]
+
+
+def map_fields(lm) -> dict:
+    """A landmark map's fields by name, whichever the map type (``fields()`` or a ``NamedTuple``)."""
+    return lm.fields() if hasattr(lm, "fields") else lm._asdict()
+
+
+def state_for(state_module, state):
+    """``state`` (the working tree's types) as the filter state of ``state_module`` (a revision's
+    ``_state``), its maps converted field by field."""
+    lm_type = state_module.LandmarkMap
+    fields = map_fields(state.particles.landmarks)
+    lm = lm_type.build(**fields) if hasattr(lm_type, "build") else lm_type(**fields)
+    particles = state_module.Particles(**state.particles._replace(landmarks=lm)._asdict())
+    return state_module.FilterState(**state._replace(particles=particles)._asdict())
 
 
 def main() -> None:
@@ -96,7 +114,10 @@ def main() -> None:
     state = run_filter(dataclasses.replace(static_a, devices=1), params_a, before, 0, chunk=args.start).state
     stretch = jax.tree.map(jax.numpy.asarray, type(seg)(*(a[args.start:args.start + args.scans] for a in seg)))
 
-    steps = {"A": step_at_revision(args.a_rev) if args.a_rev else filter_step, "B": filter_step}
+    steps, starts = {"A": filter_step, "B": filter_step}, {"A": state, "B": state}
+    if args.a_rev:
+        steps["A"], state_module = step_at_revision(args.a_rev)
+        starts["A"] = state_for(state_module, state)
     programs, outputs = {}, {}
     for k, (static, params) in settings.items():
         proposal = make_proposal(static, params)
@@ -110,9 +131,16 @@ def main() -> None:
             return jax.lax.scan(lambda c, x: step(static, pr, proposal, c, x), st, sg)
 
         t0 = time.perf_counter()
-        programs[k] = jax.jit(scan).lower(state, stretch, params).compile()
+        programs[k] = jax.jit(scan).lower(starts[k], stretch, params).compile()
         print(f"{k}: compiled in {time.perf_counter() - t0:.1f} s ({static.row_buckets=}, {static.devices=})", flush=True)
-        outputs[k] = jax.block_until_ready(programs[k](state, stretch, params))
+        outputs[k] = jax.block_until_ready(programs[k](starts[k], stretch, params))
+
+    def canonical(out, maps=None):
+        # The final state without its maps, the maps' fields by name, the records.
+        final, records = out
+        maps = map_fields(final.particles.landmarks) if maps is None else maps
+        return final._replace(particles=final.particles._replace(landmarks=None)), maps, records
+
     def largest_difference(outs) -> float:
         diffs = [float(np.max(np.abs(np.asarray(a, float) - np.asarray(b, float)), initial=0.0))
                  for a, b in zip(*(jax.tree.leaves(o) for o in outs))
@@ -122,14 +150,13 @@ def main() -> None:
     def active_slots_only(out):
         # The final maps with every inactive slot set to the empty map's values: what an inactive
         # slot holds is never read (a landmark placed in it writes every field).
-        final, records = out
-        lm = final.particles.landmarks
-        empty = LandmarkMap.empty(lm.active.shape[-1], lm.active.shape[:-1])
-        keep = lambda a, e: jnp.where(lm.active.reshape(lm.active.shape + (1,) * (a.ndim - lm.active.ndim)), a, e)  # noqa: E731
-        lm = jax.tree.map(keep, lm, empty)
-        return final._replace(particles=final.particles._replace(landmarks=lm)), records
+        lm = map_fields(out[0].particles.landmarks)
+        active = lm["active"]
+        empty = map_fields(LandmarkMap.empty(active.shape[-1], active.shape[:-1]))
+        keep = lambda a, e: jnp.where(active.reshape(active.shape + (1,) * (a.ndim - active.ndim)), a, e)  # noqa: E731
+        return canonical(out, {f: keep(a, empty[f]) for f, a in lm.items()})
 
-    print(f"largest difference between the outputs of A and B: {largest_difference(outputs.values()):.3g} "
+    print(f"largest difference between the outputs of A and B: {largest_difference([canonical(o) for o in outputs.values()]):.3g} "
           f"(inactive map slots ignored: "
           f"{largest_difference([active_slots_only(o) for o in outputs.values()]):.3g})")
 
@@ -139,7 +166,7 @@ def main() -> None:
     for _ in range(args.repeat):
         for k, prog in programs.items():
             t0 = time.perf_counter()
-            jax.block_until_ready(prog(state, stretch, settings[k][1]))
+            jax.block_until_ready(prog(starts[k], stretch, settings[k][1]))
             times[k].append(1e3 * (time.perf_counter() - t0) / args.scans)
 
     print(f"\n{args.particles} particles, scans {args.start}-{args.start + args.scans}, {args.repeat} alternated repeats\n")
