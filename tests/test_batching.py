@@ -1,6 +1,5 @@
-"""take_if, batch_max and compacted_while_loop: the same values as the plain code, alone and under
-vmap, a switch on batch_max stays a branch under vmap, and the compacted loop runs the whole batch
-only while many members go on."""
+"""take_if and batch_max: the same values as the plain code, alone and under vmap, and a switch on
+batch_max stays a branch under vmap."""
 
 import jax
 import jax.extend.core
@@ -8,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax._batching import batch_max, compacted_while_loop, take_if
+from nanoslam_jax._batching import batch_max, take_if
 
 
 def _tree(rng, *lead):
@@ -108,91 +107,3 @@ def test_switch_on_batch_max_stays_a_branch_under_vmap():
     assert "cond" not in _primitives(jax.make_jaxpr(jax.vmap(plain))(i, v).jaxpr)  # every branch, selected
     assert "cond" in _primitives(jax.make_jaxpr(jax.vmap(bounded))(i, v).jaxpr)
     np.testing.assert_array_equal(jax.vmap(bounded)(i, v), np.cumsum(np.asarray(v), axis=1)[:, :4])
-
-
-# compacted_while_loop on Newton's iteration for square roots: each member iterates until its own
-# tolerance is met, so the members take from 0 to about 20 iterations.
-MAX_ITER = 60
-
-
-def _newton_cond(ops, c):
-    a, tol = ops
-    i, x = c
-    return (i < MAX_ITER) & (jnp.abs(x * x - a) > tol * a)
-
-
-def _newton_body(ops, c):
-    a, _ = ops
-    i, x = c
-    return i + 1, 0.5 * (x + a / x)
-
-
-def _newton_reference(a, tol, x0):
-    """Each member alone, in Python: its iteration count and its root."""
-    out_i, out_x = [], []
-    for ai, ti, xi in zip(np.broadcast_to(a, np.shape(x0)), np.broadcast_to(tol, np.shape(x0)), x0):
-        i, x = 0, float(xi)
-        while i < MAX_ITER and abs(x * x - ai) > ti * ai:
-            i, x = i + 1, 0.5 * (x + ai / x)
-        out_i.append(i)
-        out_x.append(x)
-    return np.asarray(out_i), np.asarray(out_x)
-
-
-def _newton(a, tol, x0, **kw):
-    return compacted_while_loop(_newton_cond, _newton_body, (a, tol), (jnp.int32(0), x0), **kw)
-
-
-def test_compacted_while_loop_alone_is_the_while_loop():
-    i, x = jax.jit(_newton)(jnp.float64(7.0), jnp.float64(1e-12), jnp.float64(1.0))
-    want_i, want_x = _newton_reference(7.0, 1e-12, np.asarray([1.0]))
-    assert int(i) == want_i[0] and float(x) == want_x[0]
-    np.testing.assert_allclose(float(x), np.sqrt(7.0), rtol=1e-12)
-
-
-@pytest.mark.parametrize("n,compact_to", [(256, None), (256, 8), (40, None), (300, 100)])
-def test_compacted_while_loop_batched_equals_each_member_alone(n, compact_to):
-    """Batched (the small batch an eighth of 256, a fixed 8, none for 40 members, a third of 300),
-    every member's iteration count and root are its own, bit for bit: members that need many more
-    iterations than the small batch holds, members done at once, and a shared tolerance."""
-    rng = np.random.default_rng(4)
-    a = np.exp(rng.uniform(-8.0, 18.0, n))
-    x0 = np.where(rng.random(n) < 0.2, np.sqrt(a), 1.0)  # a fifth start at the root: done at once
-    tol = 1e-13
-    got_i, got_x = jax.jit(jax.vmap(lambda a, x: _newton(a, tol, x, compact_to=compact_to)))(jnp.asarray(a), jnp.asarray(x0))
-    want_i, want_x = _newton_reference(a, tol, x0)
-    assert want_i.max() > 15 and (want_i == 0).sum() > n // 10  # the spread the test is about
-    np.testing.assert_array_equal(np.asarray(got_i), want_i)
-    np.testing.assert_array_equal(np.asarray(got_x), want_x)
-
-
-def test_compacted_while_loop_few_members_left_and_unbatched_operands():
-    """All but three members done after a few iterations (the small batch then runs the three and
-    padding); the operand shared by the batch (in_axes None) is broadcast."""
-    n = 128
-    x0 = np.full(n, 3.0)
-    x0[[5, 70, 127]] = [1e-3, 1e6, 42.0]  # far from the root: many iterations
-    got_i, got_x = jax.vmap(_newton, (None, None, 0))(jnp.float64(9.0), jnp.float64(1e-14), jnp.asarray(x0))
-    want_i, want_x = _newton_reference(9.0, 1e-14, x0)
-    np.testing.assert_array_equal(np.asarray(got_i), want_i)
-    np.testing.assert_array_equal(np.asarray(got_x), want_x)
-
-
-def test_compacted_while_loop_under_two_vmaps():
-    rng = np.random.default_rng(5)
-    a = np.exp(rng.uniform(-5.0, 12.0, (3, 80)))
-    got_i, got_x = jax.jit(jax.vmap(jax.vmap(lambda a, x: _newton(a, 1e-12, x))))(jnp.asarray(a), jnp.ones((3, 80)))
-    want_i, want_x = _newton_reference(a.reshape(-1), 1e-12, np.ones(240))
-    np.testing.assert_array_equal(np.asarray(got_i).reshape(-1), want_i)
-    np.testing.assert_array_equal(np.asarray(got_x).reshape(-1), want_x)
-
-
-def test_compacted_while_loop_runs_the_whole_batch_only_while_many_members_go_on():
-    """The batched program has the plain loop's structure plus the small batch's: a while loop
-    over the whole batch, a gather of the members left, a second while loop over them."""
-    a = jnp.exp(jnp.linspace(-3.0, 9.0, 128))
-    jaxpr = jax.make_jaxpr(jax.vmap(lambda a: _newton(a, 1e-12, jnp.float64(1.0))))(a).jaxpr
-    loops = [e for e in jaxpr.eqns if e.primitive.name == "while"]
-    assert len(loops) == 2
-    # The second loop runs over the small batch (an eighth of 128).
-    assert all(v.aval.shape[:1] == (16,) for v in loops[1].outvars if v.aval.ndim)
