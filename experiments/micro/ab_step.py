@@ -37,13 +37,14 @@ import types
 
 
 def step_at_revision(rev: str):
-    """``filter_step`` of git revision ``rev``: its filter step, row work, prior, landmark,
-    management and association modules loaded under other names, everything else the working
-    tree's."""
+    """``filter_step`` of git revision ``rev`` and the revision's ``_state`` module: its filter
+    step, row work, prior, landmark, management, association and state modules loaded under other
+    names, everything else the working tree's."""
     import nanoslam_jax.filter  # noqa: F401  (the package the modules' relative imports resolve in)
 
-    mods = {"_state": "_ab_state", "_prior": "_ab_prior", "_landmarks": "_ab_landmarks", "_association": "_ab_association",
-            "_management": "_ab_management", "_rows": "_ab_rows", "_step": "_ab_step"}
+    mods = {"_state": "_ab_state", "_prior": "_ab_prior", "_landmarks": "_ab_landmarks",
+            "_association": "_ab_association", "_management": "_ab_management", "_rows": "_ab_rows",
+            "_step": "_ab_step"}
     sources = {}
     for name in mods:
         path = f"nanoslam_jax/filter/{name}.py"
@@ -100,6 +101,7 @@ def main() -> None:
     if args.devices > 1:
         jax.config.update("jax_num_cpu_devices", args.devices)
     import numpy as np
+    from scipy.stats import binomtest
 
     import nanoslam_jax  # noqa: F401  (float64)
     from nanoslam_jax.config import load_config
@@ -178,8 +180,6 @@ def main() -> None:
         over = " ".join(args.a if k == "A" else args.b) or "(config)"
         print(f"| {k} | {over} | {min(v):.3f} | {float(np.median(v)):.3f} | {' / '.join(f'{x:.2f}' for x in v)} |")
     # Paired by round (A then B, back to back): the drift between rounds cancels in each ratio.
-    from scipy.stats import binomtest
-
     ratio = np.asarray(times["B"]) / np.asarray(times["A"])
     faster = int(np.sum(ratio < 1.0))
     print(f"\nB / A per round: median {float(np.median(ratio)):.3f}, range {ratio.min():.3f}-{ratio.max():.3f}; "
