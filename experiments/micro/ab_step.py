@@ -160,7 +160,8 @@ def main() -> None:
         keep = lambda a, e: jnp.where(active.reshape(active.shape + (1,) * (a.ndim - active.ndim)), a, e)  # noqa: E731
         return canonical(out, {f: keep(a, empty[f]) for f, a in lm.items()})
 
-    print(f"largest difference between the outputs of A and B: {largest_difference([canonical(o) for o in outputs.values()]):.3g} "
+    whole = largest_difference([canonical(o) for o in outputs.values()])
+    print(f"largest difference between the outputs of A and B: {whole:.3g} "
           f"(inactive map slots ignored: "
           f"{largest_difference([active_slots_only(o) for o in outputs.values()]):.3g})")
 
