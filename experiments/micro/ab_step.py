@@ -15,10 +15,9 @@ than about 5 % shows only there, if at all.
 ``--a-rev REV`` compares code instead of settings: setting A runs the filter step of git revision
 REV (its ``filter/_step.py``, ``_rows.py`` where it has one, ``_prior.py``, ``_landmarks.py``,
 ``_management.py``, ``_association.py`` and ``_state.py``; the rest of the package is the working
-tree's), setting B the working tree's. A starts from the same state converted to the revision's
-state types field by field (so that a change of the map's storage can be compared too: a map type
-with ``build(**fields)`` and ``fields()``, or a ``NamedTuple`` of the fields), and the outputs are
-compared field by field. The state at ``--start`` comes from running setting A's config over
+tree's), setting B the working tree's. A starts from the same state, converted field by field to
+the revision's state types (``NamedTuple``s; a revision whose state has other fields needs its own
+conversion in :func:`state_for`). The state at ``--start`` comes from running setting A's config over
 the scans before it (on one device, working tree). The largest difference between the two
 programs' outputs (final state and per-scan records) is printed too, and again with the final
 maps' inactive slots ignored (what an inactive slot holds is never read, so a change that leaves
@@ -66,17 +65,10 @@ def step_at_revision(rev: str):
     return sys.modules["nanoslam_jax.filter._ab_step"].filter_step, sys.modules["nanoslam_jax.filter._ab_state"]
 
 
-def map_fields(lm) -> dict:
-    """A landmark map's fields by name, whichever the map type (``fields()`` or a ``NamedTuple``)."""
-    return lm.fields() if hasattr(lm, "fields") else lm._asdict()
-
-
 def state_for(state_module, state):
     """``state`` (the working tree's types) as the filter state of ``state_module`` (a revision's
-    ``_state``), its maps converted field by field."""
-    lm_type = state_module.LandmarkMap
-    fields = map_fields(state.particles.landmarks)
-    lm = lm_type.build(**fields) if hasattr(lm_type, "build") else lm_type(**fields)
+    ``_state``), field by field."""
+    lm = state_module.LandmarkMap(**state.particles.landmarks._asdict())
     particles = state_module.Particles(**state.particles._replace(landmarks=lm)._asdict())
     return state_module.FilterState(**state._replace(particles=particles)._asdict())
 
@@ -139,12 +131,6 @@ def main() -> None:
         print(f"{k}: compiled in {time.perf_counter() - t0:.1f} s ({static.row_buckets=}, {static.devices=})", flush=True)
         outputs[k] = jax.block_until_ready(programs[k](starts[k], stretch, params))
 
-    def canonical(out, maps=None):
-        # The final state without its maps, the maps' fields by name, the records.
-        final, records = out
-        maps = map_fields(final.particles.landmarks) if maps is None else maps
-        return final._replace(particles=final.particles._replace(landmarks=None)), maps, records
-
     def largest_difference(outs) -> float:
         diffs = [float(np.max(np.abs(np.asarray(a, float) - np.asarray(b, float)), initial=0.0))
                  for a, b in zip(*(jax.tree.leaves(o) for o in outs))
@@ -154,13 +140,16 @@ def main() -> None:
     def active_slots_only(out):
         # The final maps with every inactive slot set to the empty map's values: what an inactive
         # slot holds is never read (a landmark placed in it writes every field).
-        lm = map_fields(out[0].particles.landmarks)
-        active = lm["active"]
-        empty = map_fields(LandmarkMap.empty(active.shape[-1], active.shape[:-1]))
-        keep = lambda a, e: jnp.where(active.reshape(active.shape + (1,) * (a.ndim - active.ndim)), a, e)  # noqa: E731
-        return canonical(out, {f: keep(a, empty[f]) for f, a in lm.items()})
+        # The maps as dicts of their fields: A's and B's map types are different classes.
+        final, records = out
+        lm = final.particles.landmarks
+        empty = LandmarkMap.empty(lm.active.shape[-1], lm.active.shape[:-1])._asdict()
+        keep = lambda a, e: jnp.where(lm.active.reshape(lm.active.shape + (1,) * (a.ndim - lm.active.ndim)), a, e)  # noqa: E731
+        maps = {f: keep(a, empty[f]) for f, a in lm._asdict().items()}
+        return final._replace(particles=final.particles._replace(landmarks=None)), maps, records
 
-    whole = largest_difference([canonical(o) for o in outputs.values()])
+    # A's and B's states are NamedTuples of the same fields (state_for): their leaves line up.
+    whole = largest_difference(list(outputs.values()))
     print(f"largest difference between the outputs of A and B: {whole:.3g} "
           f"(inactive map slots ignored: "
           f"{largest_difference([active_slots_only(o) for o in outputs.values()]):.3g})")
