@@ -211,9 +211,6 @@ class NanoConfig:
     solver: Literal["optimistix", "while_loop"] = _f("while_loop", static=True,
         doc="the iteration as a plain lax.while_loop (default: measured faster) or as an optimistix "
             "fixed-point solve with a KL stopping rule (same iterates)")
-    chunk: int = _f(128, lo=0, static=True,
-        doc="particles per chunk the while_loop iterates in (0: all of a device's particles at once); "
-            "each chunk runs until its own particles have converged, with the same iterates")
 
 
 @dataclass(frozen=True)

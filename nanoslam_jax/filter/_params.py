@@ -44,7 +44,6 @@ class Static:
     landmark_noise: bool = False
     nano_init: str = "prior"
     nano_solver: str = "while_loop"
-    nano_chunk: int = 128
     landmark_update: str = "ekf"
     iterated_solver: str = "gauss_newton"
     iterated_max_iter: int = 10
@@ -234,7 +233,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         resampler=f.resampler, estimate=f.estimate, manage=cfg.map.manage, occlusion=cfg.map.occlusion,
         quadrature=n.quadrature,
         gh_order=n.gh_order, hessian=n.hessian, max_iter=n.max_iter, landmark_noise=n.landmark_noise,
-        nano_init=n.init, nano_solver=n.solver, nano_chunk=n.chunk,
+        nano_init=n.init, nano_solver=n.solver,
         landmark_update="unscented" if f.method == "ufastslam" else "ekf",
         iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
         iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),

@@ -42,8 +42,7 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
         rule = make_rule(static.quadrature, alpha=params.nano_alpha, beta=params.nano_beta,
                          kappa=params.nano_kappa, order=static.gh_order)
         return NanoProposal(rule, params.gamma, params.step, max_iter=static.max_iter, hessian=static.hessian,
-                            landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver,
-                            chunk=static.nano_chunk)
+                            landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver)
     if static.method == "fastslam1":
         return PriorProposal()
     if static.method == "fastslam2":

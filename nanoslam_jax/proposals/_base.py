@@ -70,16 +70,14 @@ def wrap_pose(x: Float[Array, "3"]) -> Float[Array, "3"]:
     return x.at[2].set(wrap_angle(x[2]))
 
 
-def range_bearing_residuals(det: Detections) -> jax.tree_util.Partial:
-    """``x -> z_k - g(x, m_k)`` (bearing wrapped) for all rows of ``det``: a
-    :class:`jax.tree_util.Partial`, whose arrays are pytree leaves rather than closed-over values
-    (so that a loop over it can take them as operands)."""
-    return jax.tree_util.Partial(_range_bearing_residual, det)
+def range_bearing_residuals(det: Detections):
+    """``x -> z_k - g(x, m_k)`` (bearing wrapped) for all rows of ``det``."""
 
+    def residual(x):
+        z_hat = jax.vmap(range_bearing, (None, 0))(x, det.mean)
+        return jax.vmap(innovation)(det.z, z_hat)
 
-def _range_bearing_residual(det: Detections, x: Float[Array, "3"]) -> Float[Array, "k 2"]:
-    z_hat = jax.vmap(range_bearing, (None, 0))(x, det.mean)
-    return jax.vmap(innovation)(det.z, z_hat)
+    return residual
 
 
 def noise_information(x0: Float[Array, "3"], det: Detections, R: Float[Array, "2 2"], landmark_noise: bool) -> Float[Array, "k 2 2"]:

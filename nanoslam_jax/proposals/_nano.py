@@ -33,8 +33,6 @@ class NanoProposal(AbstractProposal):
         init: ``'prior'`` or ``'gauss_newton'`` (start from the Gauss-Newton MAP and its
             Laplace precision).
         solver: ``'optimistix'`` or ``'while_loop'``.
-        chunk: with ``'while_loop'`` under ``vmap``, the particles per chunk the loop iterates in
-            (0: the whole batch at once).
     """
 
     rule: QuadratureRule
@@ -45,7 +43,6 @@ class NanoProposal(AbstractProposal):
     landmark_noise: bool = eqx.field(static=True, default=False)
     init: str = eqx.field(static=True, default="prior")
     solver: str = eqx.field(static=True, default="while_loop")
-    chunk: int = eqx.field(static=True, default=0)
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         prior = Gaussian(x0, sym(inv3(P0)), P0)
@@ -57,6 +54,6 @@ class NanoProposal(AbstractProposal):
         out = natural_gradient_gaussian(
             prior, residual, weights, det.mask, self.rule, gamma=self.gamma, step=self.step,
             max_iter=self.max_iter, hessian=self.hessian, solver=self.solver, start=start,
-            diff=pose_difference, project=wrap_pose, chunk=self.chunk,
+            diff=pose_difference, project=wrap_pose,
         )
         return ProposalResult(out.q.mean, out.q.cov, out.iterations, out.result)

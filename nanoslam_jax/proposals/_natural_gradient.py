@@ -24,7 +24,6 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from .._batching import chunked_while_loop
 from .._linalg import chol3, inv3, logdet_spd, mm, mt, mv, quad_form, sym, tsum
 from ..quadrature import QuadratureRule
 
@@ -189,7 +188,6 @@ def natural_gradient_gaussian(
     start: Gaussian | None = None,
     diff: Callable = jnp.subtract,
     project: Callable = lambda x: x,
-    chunk: int = 0,
 ) -> NaturalGradientResult:
     """The Gaussian minimising ``KL(q || prior) + E_q[l]`` by natural-gradient iteration.
 
@@ -208,13 +206,6 @@ def natural_gradient_gaussian(
         start: initial iterate (default: the prior).
         diff: ``(a, b) -> a - b`` on the state space (wraps angles for poses).
         project: maps an iterate back onto the state space (wraps angles for poses).
-        chunk: with ``solver='while_loop'`` under ``vmap``, the members per chunk the batch
-            iterates in (0: the whole batch at once;
-            :func:`~nanoslam_jax._batching.chunked_while_loop`).
-
-    ``residual`` must not close over traced values (under ``jit`` or ``vmap``): pass them as
-    the leaves of a pytree callable, e.g. a :class:`jax.tree_util.Partial`
-    (:func:`~nanoslam_jax.proposals.range_bearing_residuals` is one).
     """
     problem = NaturalGradientProblem(rule, prior, residual, weights, mask, jnp.asarray(step, prior.mean.dtype),
                                      hessian, diff, project)
@@ -226,23 +217,18 @@ def natural_gradient_gaussian(
         (x, lam), steps = sol.value, sol.stats["num_steps"]
         capped = sol.result != optx.RESULTS.successful
     else:
-        # The loop's traced values are its operands (the problem's arrays and gamma), so that
-        # under vmap the batch can iterate in chunks (chunked_while_loop).
-        arrays, fixed = eqx.partition(problem, eqx.is_array)
-
-        def cond(ops, c):
+        def cond(c):
             i, _, kl = c
-            return (i < max_iter) & ~(kl < ops[1])
+            return (i < max_iter) & ~(kl < gamma)
 
-        def body(ops, c):
+        def body(c):
             i, y, _ = c
-            y_new = eqx.combine(ops[0], fixed)(y)
+            y_new = problem(y)
             q = Gaussian(y[0], y[1], _inv(y[1]))
             kl = kl_gaussian(q, Gaussian(y_new[0], y_new[1], _inv(y_new[1])), diff)
             return i + 1, y_new, jnp.where(jnp.isfinite(kl), kl, jnp.inf)
 
-        init = (jnp.array(0), y0, jnp.array(jnp.inf, prior.mean.dtype))
-        steps, (x, lam), kl = chunked_while_loop(cond, body, (arrays, gamma), init, chunk=chunk)
+        steps, (x, lam), kl = jax.lax.while_loop(cond, body, (jnp.array(0), y0, jnp.array(jnp.inf, prior.mean.dtype)))
         capped = ~(kl < gamma)
     P = _inv(lam)
     finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(P))
