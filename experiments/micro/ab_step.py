@@ -12,6 +12,9 @@ than about 5 % shows only there, if at all.
         --devices 2 --start 1000 --scans 300 --repeat 5
     python experiments/micro/ab_step.py --particles 1000 --a-rev HEAD~1 --start 1500 --scans 200 --repeat 6
 
+``--start 0`` times the log from its first scan (the state a run starts from, seed 0); any other
+start runs setting A's config over the scans before it first (below).
+
 ``--a-rev REV`` compares code instead of settings: setting A runs the filter step of git revision
 REV (its ``filter/_step.py``, ``_rows.py`` where it has one, ``_prior.py``, ``_landmarks.py``,
 ``_management.py``, ``_association.py`` and ``_state.py``; the rest of the package is the working
@@ -98,16 +101,25 @@ def main() -> None:
     import nanoslam_jax  # noqa: F401  (float64)
     from nanoslam_jax.config import load_config
     from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import LandmarkMap, filter_step, make_proposal, run_filter, settings_from_config
+    from nanoslam_jax.filter import (LandmarkMap, filter_step, initial_state, make_proposal, run_filter,
+                                     settings_from_config)
     from nanoslam_jax.filter._scan import segment_priors
 
     base = [f"filter.n_particles={args.particles}"]
     cfgs = {k: load_config(args.config, base + list(v)) for k, v in (("A", args.a), ("B", args.b))}
     seg = load_log(cfgs["A"], args.data).segments
     settings = {k: settings_from_config(c, seg.k_max) for k, c in cfgs.items()}
-    before = type(seg)(*(a[:args.start] for a in seg))
+    n = seg.time.shape[0]
+    if not (0 <= args.start and 1 <= args.scans and args.start + args.scans <= n):
+        raise SystemExit(f"--start {args.start} --scans {args.scans}: the stretch must lie in the log's {n} "
+                         f"segments (--start at least 0, --scans at least 1, --start + --scans at most {n})")
     static_a, params_a = settings["A"]
-    state = run_filter(dataclasses.replace(static_a, devices=1), params_a, before, 0, chunk=args.start).state
+    static_1 = dataclasses.replace(static_a, devices=1)
+    if args.start == 0:  # the state run_filter starts from (seed 0)
+        state = initial_state(static_1, params_a, jax.random.key(0))
+    else:
+        before = type(seg)(*(a[:args.start] for a in seg))
+        state = run_filter(static_1, params_a, before, 0, chunk=args.start).state
     stretch = jax.tree.map(jax.numpy.asarray, type(seg)(*(a[args.start:args.start + args.scans] for a in seg)))
 
     steps, starts = {"A": filter_step, "B": filter_step}, {"A": state, "B": state}
