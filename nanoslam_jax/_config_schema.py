@@ -57,6 +57,38 @@ class VehicleConfig:
 
 
 @dataclass(frozen=True)
+class ModelConfig:
+    """Which motion and measurement models the filter uses (see the page "Your own robot and sensor")."""
+
+    motion: str = _f("ackermann", static=True,
+        doc="motion model: 'ackermann' (the Victoria Park car; sections vehicle and noise), 'unicycle' "
+            "(differential drive with (v, omega) odometry; section unicycle), 'random_walk' (no odometry; section "
+            "random_walk), or an import path 'module:Class' of a nanoslam_jax.models.AbstractMotionModel subclass")
+    motion_params: Optional[dict] = _f(None,
+        doc="parameters of a model named by import path: a mapping of the class's field names to numbers")
+    measurement: Literal["range_bearing"] = _f("range_bearing", static=True,
+        doc="measurement model: 'range_bearing' (range and bearing to a point landmark)")
+
+
+@dataclass(frozen=True)
+class UnicycleConfig:
+    """The differential-drive motion model (model.motion: unicycle): controls (v, omega)."""
+
+    sensor_x: float = _f(0.0, doc="sensor forward of the robot's centre (m)")
+    sensor_y: float = _f(0.0, doc="sensor to the left of the robot's centre (m)")
+    sigma_v: float = _f(0.05, lo=0.0, lo_open=True, doc="speed noise (m/s) per odometry sample")
+    sigma_omega_deg: float = _f(5.0, lo=0.0, lo_open=True, doc="turn-rate noise (deg/s) per odometry sample")
+
+
+@dataclass(frozen=True)
+class RandomWalkConfig:
+    """The random-walk motion model (model.motion: random_walk): no odometry, the pose driven by noise."""
+
+    sigma_xy: float = _f(0.5, lo=0.0, lo_open=True, doc="position noise (m per square root of a second)")
+    sigma_phi_deg: float = _f(10.0, lo=0.0, lo_open=True, doc="heading noise (deg per square root of a second)")
+
+
+@dataclass(frozen=True)
 class NoiseConfig:
     """Control and measurement noise (published setting by default)."""
 
@@ -327,6 +359,10 @@ class SimConfig:
     sigma_beta_deg: float = _f(1.0, lo=0.0, static=True, doc="true bearing noise (deg)")
     sigma_v: float = _f(0.3, lo=0.0, static=True, doc="true encoder speed noise (m/s), white, per DR sample")
     sigma_alpha_deg: float = _f(2.0, lo=0.0, static=True, doc="true steering noise (deg), white, per DR sample")
+    sigma_omega_deg: float = _f(2.0, lo=0.0, static=True,
+        doc="true turn-rate noise (deg/s), white, per DR sample, of a differential-drive robot (model.motion: unicycle)")
+    omega_bias_deg: float = _f(0.5, static=True,
+        doc="constant turn-rate bias in the logged controls of a differential-drive robot (deg/s)")
     steering_bias_deg: float = _f(0.3, static=True,
         doc="constant steering bias in the logged controls (deg): dead reckoning drifts like the real "
             "vehicle's (about 40 m RMSE over the default 240 s log)")
@@ -348,7 +384,10 @@ class Config:
     name: str = _f("default", static=True, doc="names the result directory; a config file's name by default")
     seed: int = _f(0, lo=0, static=True, doc="PRNG seed of the filter (sampling, resampling)")
     data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    unicycle: UnicycleConfig = field(default_factory=UnicycleConfig)
+    random_walk: RandomWalkConfig = field(default_factory=RandomWalkConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
     map: MapConfig = field(default_factory=MapConfig)

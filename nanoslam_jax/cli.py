@@ -192,7 +192,7 @@ def _simulate(args) -> int:
 
     overrides = list(args.overrides) + ([f"sim.seed={args.seed}"] if args.seed is not None else [])
     cfg = load_config(args.config, overrides)
-    raw = simulate_to_dir(args.out, cfg.sim, cfg.vehicle)
+    raw = simulate_to_dir(args.out, cfg.sim, cfg.vehicle, cfg.unicycle if cfg.model.motion == "unicycle" else None)
     n_scans = len(set(raw.detections[:, 0].tolist()))
     print(f"wrote {args.out}: {raw.dr.shape[0]} DR samples, {raw.detections.shape[0]} detections in {n_scans} scans, "
           f"{raw.truth_landmarks.shape[0]} landmarks (seed {cfg.sim.seed})")

@@ -32,12 +32,15 @@ from ._config_schema import (
     IteratedConfig,
     MapConfig,
     MetricsConfig,
+    ModelConfig,
     NanoConfig,
     NasrukfConfig,
     NoiseConfig,
     OutputConfig,
+    RandomWalkConfig,
     SmootherConfig,
     SimConfig,
+    UnicycleConfig,
     VehicleConfig,
 )
 
@@ -45,6 +48,9 @@ __all__ = [
     "Config",
     "ConfigError",
     "DataConfig",
+    "ModelConfig",
+    "UnicycleConfig",
+    "RandomWalkConfig",
     "VehicleConfig",
     "NoiseConfig",
     "FilterConfig",
@@ -136,6 +142,10 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
         if value != value or value in (float("inf"), float("-inf")):
             raise ConfigError(f"{where}key '{key}': expected a finite number, got {value!r}")
         return value
+    if tp is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}key '{key}': expected a mapping of names to numbers, got {value!r}")
+        return {str(k): _coerce(v, float, f"{key}.{k}", where) for k, v in value.items()}
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"{where}key '{key}': expected a string, got {value!r}")
@@ -205,6 +215,16 @@ def _check_consistency(cfg: Config, where: str) -> None:
         raise ConfigError(f"{where}key 'smoother.enabled': the smoother starts from the final best particle's "
                           f"ancestral path, which a run records only with filter.estimate: path (got "
                           f"{cfg.filter.estimate!r}); set filter.estimate to path")
+    from .models import AbstractMotionModel, motion_model_class
+
+    try:
+        motion = motion_model_class(cfg.model.motion)
+        if cfg.model.motion_params and motion.from_config.__func__ is not AbstractMotionModel.from_config.__func__:
+            raise ValueError(f"key 'model.motion_params': the built-in model {cfg.model.motion!r} takes its "
+                             f"parameters from its own section; model.motion_params is for a model named by import path")
+        motion.from_config(cfg)
+    except ValueError as e:
+        raise ConfigError(f"{where}{e}") from None
     if cfg.filter.new_landmark < cfg.filter.gate:
         raise ConfigError(f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
                           f"got {cfg.filter.new_landmark}")
@@ -251,6 +271,9 @@ def config_key_info(dotted: str, where: str) -> tuple[Any, bool]:
             if dataclasses.is_dataclass(tp):
                 raise ConfigError(f"{where}: key '{dotted}' is a section; set one of its keys, e.g. {dotted}.<key>")
             return tp, bool(fields[part].metadata.get("static", False))
+        if typing.get_origin(tp) in (typing.Union, types.UnionType) and dict in typing.get_args(tp):
+            if i == len(parts) - 2:  # a parameter inside a mapping-valued key
+                return float, bool(fields[part].metadata.get("static", False))
         if not dataclasses.is_dataclass(tp):
             raise ConfigError(f"{where}: key '{'.'.join(parts[:i + 1])}' is not a section (in '{dotted}')")
         cls = tp

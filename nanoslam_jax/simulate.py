@@ -60,7 +60,7 @@ from typing import Union
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .config import SimConfig, VehicleConfig
+from .config import SimConfig, UnicycleConfig, VehicleConfig
 from .data._types import RawLog
 from .models._angles import wrap_angle_np
 
@@ -294,13 +294,20 @@ def _poses_at(
 # --------------------------------------------------------------------------- public API
 
 
-def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None) -> RawLog:
+def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
+             unicycle: UnicycleConfig | None = None) -> RawLog:
     """Simulate a Victoria Park-like log with ground truth (see the module docstring).
 
     Args:
         sim: simulator settings (:class:`~nanoslam_jax.config.SimConfig`); ``None``: defaults.
         vehicle: car constants (:class:`~nanoslam_jax.config.VehicleConfig`) of the vehicle
             model used for the truth; ``None``: defaults.
+        unicycle: given, a differential-drive robot is simulated instead of the car: the sensor
+            sits ``(unicycle.sensor_x, unicycle.sensor_y)`` from the robot's centre, which
+            follows the same path, and ``dr`` logs ``time, v, omega`` (the centre's speed and
+            turn rate, plus white noise ``sim.sigma_v`` and ``sim.sigma_omega_deg`` and a constant
+            turn-rate bias ``sim.omega_bias_deg``), the controls of
+            :class:`~nanoslam_jax.models.Unicycle`.
 
     Returns:
         A :class:`RawLog` with ``source="simulated"``:
@@ -316,6 +323,9 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None)
     """
     sim = SimConfig() if sim is None else sim
     vehicle = VehicleConfig() if vehicle is None else vehicle
+    if unicycle is not None:  # the car's model with no encoder offset moves the sensor as a unicycle does
+        vehicle = VehicleConfig(wheelbase=vehicle.wheelbase, encoder_offset=0.0,
+                                laser_a=unicycle.sensor_x, laser_b=unicycle.sensor_y)
     rng_tree, rng_prof, rng_ctrl, rng_det, rng_clut = (
         np.random.default_rng(s) for s in np.random.SeedSequence(sim.seed).spawn(5)
     )
@@ -346,6 +356,11 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None)
         sim.steering_bias_deg
     )
     dr = np.stack([dr_t, ve_log, alpha_log], axis=1)
+    if unicycle is not None:
+        omega_true = ve_true / vehicle.wheelbase * np.tan(alpha_true)
+        omega_log = (omega_true + rng_ctrl.normal(0.0, 1.0, n_dr) * math.radians(sim.sigma_omega_deg)
+                     + math.radians(sim.omega_bias_deg))
+        dr = np.stack([dr_t, ve_log, omega_log], axis=1)
 
     # ---- scan times: ~scan_rate Hz, random phase, jitter, never on a DR sample
     t_end = dr_t[-1]
@@ -406,10 +421,18 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None)
     )
 
 
+def simulate_config(cfg) -> RawLog:
+    """:func:`simulate` with the settings of a run configuration: its ``sim`` and ``vehicle``
+    sections, and a differential-drive robot (section ``unicycle``) when ``model.motion`` is
+    ``unicycle``."""
+    return simulate(cfg.sim, cfg.vehicle, cfg.unicycle if cfg.model.motion == "unicycle" else None)
+
+
 def simulate_to_dir(
     directory: Union[str, os.PathLike],
     sim: SimConfig | None = None,
     vehicle: VehicleConfig | None = None,
+    unicycle: UnicycleConfig | None = None,
 ) -> RawLog:
     """Simulate a log (:func:`simulate`) and write it as a Victoria Park-format directory.
 
@@ -420,11 +443,12 @@ def simulate_to_dir(
             :func:`nanoslam_jax.data._loader.write_victoria_park`.
         sim: simulator settings; ``None``: defaults.
         vehicle: car constants; ``None``: defaults.
+        unicycle: a differential-drive robot instead of the car (see :func:`simulate`).
 
     Returns:
         The simulated :class:`RawLog` (as returned by :func:`simulate`, not re-read).
     """
-    raw = simulate(sim, vehicle)
+    raw = simulate(sim, vehicle, unicycle)
     os.makedirs(directory, exist_ok=True)
     from .data import write_victoria_park
 

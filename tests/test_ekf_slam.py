@@ -179,10 +179,10 @@ def test_prediction_equals_dense_joint_linearisation():
     dt = np.array([0.025, 0.025, 0.013, 0.0, 0.025])
     u = np.array([[3.0, 0.1], [3.2, 0.15], [2.9, -0.2], [0.0, 0.0], [5.0, 0.3]])
     mask = np.array([True, True, True, False, False])
-    Q = np.asarray(params.Q)
+    Q = np.asarray(params.motion.noise_cov(0.0))
 
     def joint(y, ui, dti):
-        return jnp.concatenate([vehicle_step(y[:3], ui, dti, params.vehicle), y[3:]])
+        return jnp.concatenate([vehicle_step(y[:3], ui, dti, params.motion.vehicle), y[3:]])
 
     step = jax.jit(lambda y, ui, dti: (joint(y, ui, dti), *jax.jacfwd(joint, (0, 1))(y, ui, dti)))
     y, Pd = jnp.asarray(mean), P.copy()

@@ -12,6 +12,7 @@ import subprocess
 import sys
 import textwrap
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -176,7 +177,8 @@ def test_no_detections_is_dead_reckoning(sim, runs, trace_counter):
     n_traced = trace_counter["n"]
     seg = log.segments._replace(z_mask=jnp.zeros_like(jnp.asarray(log.segments.z_mask)))
     a = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
-    quiet = params._replace(sigma_v=a(1e-9), sigma_alpha=a(1e-11), init_cov=a(1e-24))
+    quiet = params._replace(motion=eqx.tree_at(lambda m: (m.sigma_v, m.sigma_alpha), params.motion, (a(1e-9), a(1e-11))),
+                            init_cov=a(1e-24))
     run = run_filter(static, quiet, seg, 5)
     assert trace_counter["n"] == n_traced  # new Params values and segment values: no retrace
     assert_all_finite(run)

@@ -135,13 +135,13 @@ def test_pose_time_update_equals_the_dense_ukf_of_pose_and_start_pose():
     dt = np.array([0.025, 0.025, 0.01, 0.0, 0.025])
     u = np.array([[3.0, 0.3], [3.5, 0.35], [3.2, -0.1], [0.0, 0.0], [4.0, 0.5]])
     mask = np.array([True, True, True, False, True])
-    Q = np.diag([float(params.sigma_v) ** 2, float(params.sigma_alpha) ** 2])
+    Q = np.diag([float(params.motion.sigma_v) ** 2, float(params.motion.sigma_alpha) ** 2])
     y, Py = np.concatenate([x, x]), np.block([[P, P], [P, P]])
     C = np.zeros((6, 6))
     C[:, :3] = np.concatenate([chol(P), chol(P)])
     for i in np.flatnonzero(mask):
         def move(p, w, i=i):
-            return jnp.concatenate([vehicle_step(p[:3], jnp.asarray(u[i]) + w, dt[i], params.vehicle), p[3:]])
+            return jnp.concatenate([vehicle_step(p[:3], jnp.asarray(u[i]) + w, dt[i], params.motion.vehicle), p[3:]])
         y, Py = dense_transform(y, Py, move, Q, angles=(2, 5), C=C)
         C = None
     xp, S, T, D = jax.jit(_nasrukf.pose_time_update)(jnp.asarray(x), jnp.asarray(chol(P)), jnp.asarray(dt), jnp.asarray(u),

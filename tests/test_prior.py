@@ -20,11 +20,11 @@ def generic_ut(x, P, u, dt, params):
     """Textbook augmented UT: 11 points over (pose, control noise), each through the full model,
     heading deviations wrapped around the centre point's. The square root is the Cholesky factor
     of the augmented covariance with the state ordered (heading, x, y, control noise)."""
-    Pa = jnp.zeros((5, 5)).at[:3, :3].set(P).at[3:, 3:].set(params.Q)
+    Pa = jnp.zeros((5, 5)).at[:3, :3].set(P).at[3:, 3:].set(params.motion.noise_cov(dt))
     order, back = np.array([2, 0, 1, 3, 4]), np.array([1, 2, 0, 3, 4])
     xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(5)
     X = jnp.concatenate([x, jnp.zeros(2)]) + (xi @ jnp.linalg.cholesky(Pa[order][:, order]).T)[:, back]
-    Y = jax.vmap(lambda a: vehicle_step(a[:3], u + a[3:], dt, params.vehicle))(X)
+    Y = jax.vmap(lambda a: vehicle_step(a[:3], u + a[3:], dt, params.motion.vehicle))(X)
     d = Y - Y[0]
     dev = d.at[:, 2].set(jnp.arctan2(jnp.sin(d[:, 2]), jnp.cos(d[:, 2])))
     delta = wm @ dev

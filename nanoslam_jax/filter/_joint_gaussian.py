@@ -23,8 +23,6 @@ from ..models import (
     inverse_range_bearing_jacobians,
     range_bearing,
     range_bearing_jacobians,
-    vehicle_jacobians,
-    vehicle_step,
     wrap_angle,
 )
 from ._params import Params
@@ -62,21 +60,21 @@ def ekf_slam_predict(
         dt: piece durations (padding: 0).
         u: piece controls ``(ve, alpha)``.
         dr_mask: which pieces are real (masked pieces change nothing).
-        params: vehicle constants and control noise ``Q``.
+        params: the motion model (``params.motion``) with its process noise.
 
     Returns:
         The joint mean and covariance at the scan time: pose mean ``f(x, u)``,
         ``P_xx = F_i P_xx F_i' + G_i Q G_i'`` composed over the pieces, ``P_xm = F P_xm`` with
         ``F`` the product of the pieces' pose Jacobians, ``P_mm`` unchanged.
     """
-    Q = params.Q
+    motion = params.motion
 
     def body(carry, inp):
         x, Pxx, F = carry
         dti, ui, mi = inp
-        Fi, Gi = vehicle_jacobians(x, ui, dti, params.vehicle)
-        xn = vehicle_step(x, ui, dti, params.vehicle)
-        Pn = sym(sandwich(Fi, Pxx) + sandwich(Gi, Q))
+        Fi, Gi = motion.jacobians(x, ui, dti)
+        xn = motion.step(x, ui, dti)
+        Pn = sym(sandwich(Fi, Pxx) + sandwich(Gi, motion.noise_cov(dti)))
         Fn = mm(Fi, F)
         return (jnp.where(mi, xn, x), jnp.where(mi, Pn, Pxx), jnp.where(mi, Fn, F)), None
 

@@ -88,7 +88,7 @@ from jaxtyping import Array, Bool, Float
 
 from .._linalg import chol3, inv2, inv3, mm, mmt, mt, mv, sandwich, sym
 from ..data import Segments
-from ..models import inverse_range_bearing, range_bearing, range_bearing_jacobians, vehicle_step, wrap_angle
+from ..models import inverse_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
 from ..quadrature import Unscented
 from ._association import nearest_neighbours
 from ._landmarks import first_true
@@ -143,15 +143,15 @@ def pose_time_update(
     rule = _rule(params)
     zero = jnp.zeros((3, 3), S.dtype)
     L = jnp.concatenate([jnp.concatenate([S, zero], 1), jnp.concatenate([S, zero], 1)], 0)
-    noise = jnp.diag(jnp.stack([params.sigma_v, params.sigma_alpha]))
+    motion = params.motion
 
     def body(i, carry):
         y, L = carry
 
         def move(p, w):
-            return jnp.concatenate([vehicle_step(p[:3], u[i] + w, dt[i], params.vehicle), p[3:]])
+            return jnp.concatenate([motion.noisy_step(p[:3], u[i], w, dt[i]), p[3:]])
 
-        yn, Ln = srukf_transform(y, L, move, noise, rule, angles=(2, 5))
+        yn, Ln = srukf_transform(y, L, move, motion.noise_sqrt(dt[i]), rule, angles=(2, 5))
         return jnp.where(dr_mask[i], yn, y), jnp.where(dr_mask[i], Ln, L)
 
     n_pieces = jnp.max(jnp.where(dr_mask, jnp.arange(1, dr_mask.shape[0] + 1), 0))

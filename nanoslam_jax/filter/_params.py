@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
-from ..models import VehicleParams
+from ..models import AbstractMotionModel, motion_model_from_config
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,8 +124,7 @@ class Params(NamedTuple):
     """Traced hyperparameters (all scalars; angles in radians).
 
     Attributes:
-        vehicle: car constants.
-        sigma_v, sigma_alpha: control noise (m/s, rad) per DR sample.
+        motion: the motion model with its parameters and process noise (``model.motion``).
         sigma_r, sigma_beta: measurement noise (m, rad).
         init_cov: near-zero pose variance at the start and after a reset.
         ut_alpha, ut_beta, ut_kappa: unscented parameters of the prior (and UFastSLAM).
@@ -145,9 +144,7 @@ class Params(NamedTuple):
         new_feature_hits: NASRUKF's ``N_new``: detections a feature needs before it updates the pose.
     """
 
-    vehicle: VehicleParams
-    sigma_v: Float[ArrayLike, ""]
-    sigma_alpha: Float[ArrayLike, ""]
+    motion: AbstractMotionModel
     sigma_r: Float[ArrayLike, ""]
     sigma_beta: Float[ArrayLike, ""]
     init_cov: Float[ArrayLike, ""]
@@ -175,10 +172,6 @@ class Params(NamedTuple):
         """Measurement noise covariance."""
         return jnp.diag(jnp.stack([jnp.square(self.sigma_r), jnp.square(self.sigma_beta)]))
 
-    @property
-    def Q(self) -> Float[Array, "2 2"]:
-        """Control noise covariance per DR sample."""
-        return jnp.diag(jnp.stack([jnp.square(self.sigma_v), jnp.square(self.sigma_alpha)]))
 
 
 #: Detection-row counts the per-row work (proposal, weight, landmark updates) may run over (then
@@ -226,7 +219,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         cfg: the run configuration.
         k_max: detections per segment of the log (from the segments' shape).
     """
-    f, n, v, nz = cfg.filter, cfg.nano, cfg.vehicle, cfg.noise
+    f, n, nz = cfg.filter, cfg.nano, cfg.noise
     static = Static(
         method=f.method, n_particles=f.n_particles, capacity=f.capacity, window=f.window, k_max=k_max,
         prior=f.prior, prior_cov=f.prior_cov, sequential=f.sequential, weight=f.weight,
@@ -255,8 +248,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         sigma_diameter=a(mp.sigma_diameter),
     )
     params = Params(
-        vehicle=VehicleParams(a(v.wheelbase), a(v.encoder_offset), a(v.laser_a), a(v.laser_b)),
-        sigma_v=a(nz.sigma_v), sigma_alpha=a(math.radians(nz.sigma_alpha_deg)),
+        motion=motion_model_from_config(cfg),
         sigma_r=a(nz.sigma_r), sigma_beta=a(math.radians(nz.sigma_beta_deg)),
         init_cov=a(f.init_cov), ut_alpha=a(f.ut_alpha), ut_beta=a(f.ut_beta), ut_kappa=a(f.ut_kappa),
         gate=a(f.gate), new_landmark=a(f.new_landmark), log_p0=a(math.log(f.p0)),

@@ -1,13 +1,14 @@
-"""Prediction of a particle's pose through the DR pieces of one segment (the prior).
+"""Prediction of a particle's pose through the log pieces of one segment (the prior).
 
-The vehicle model moves a pose by a body-frame increment that depends on the controls only
-(``x' = x (+) delta(u)``), so a rigid motion of the plane commutes with it. Both priors keep that
-symmetry: the linearised one exactly, the unscented one because its square root is the Cholesky
-factor in the order (heading, x, y), whose columns either perturb the heading (one column, the
-same in every frame) or only the position, which the model moves linearly. A segment's prior
-from an isotropic start covariance is therefore the same for every particle in the particle's
-own frame: :func:`relative_prior` computes it once per segment and :func:`compose_prior` places
-it at each particle's pose.
+The motion model comes with the hyperparameters (``params.motion``, an
+:class:`~nanoslam_jax.models.AbstractMotionModel`). A model with ``rigid = True`` moves a pose by a
+body-frame increment that depends on the controls only (``x' = x (+) delta(u)``), so a rigid motion
+of the plane commutes with it. Both priors keep that symmetry: the linearised one exactly, the
+unscented one because its square root is the Cholesky factor in the order (heading, x, y), whose
+columns either perturb the heading (one column, the same in every frame) or only the position,
+which such a model moves linearly. A segment's prior from an isotropic start covariance is then
+the same for every particle in the particle's own frame: :func:`relative_prior` computes it once
+per segment and :func:`compose_prior` places it at each particle's pose.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from jaxtyping import Array, Bool, Float
 
 from .._linalg import chol3, mm, mt, mv, sandwich, sym
 from .._trig import sincos
-from ..models import vehicle_jacobians, vehicle_move, vehicle_rates, vehicle_step, wrap_angle
+from ..models import AbstractRateModel, wrap_angle
 from ..quadrature import Unscented
 from ._params import Params
 
@@ -30,30 +31,8 @@ def _sqrt_heading_first(P: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
     return chol3(P[order][:, order])[back]
 
 
-def _ut_piece(x, P, u, dt, params: Params):
-    """Unscented transform over the augmented state (pose, control noise) for one DR piece.
-
-    The pose's square root is :func:`_sqrt_heading_first` (which makes the transform commute with
-    rigid motions; see the module docstring). The augmented covariance is block-diagonal, so each
-    sigma point of the rule (the centre and ``+-s`` along each column of the square root) perturbs
-    either the pose or the controls: the 11 points hold only 7 distinct poses and 5 distinct
-    controls. The vehicle model is split accordingly:
-    :func:`vehicle_rates` once per distinct control, then :func:`vehicle_move` per point; the
-    moments are those of the full rule.
-    """
-    xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(5)
-    s = xi[1, 0]  # the rule's points: centre, then +s e_i, then -s e_i (i = 0..4)
-    dxs = s * mt(_sqrt_heading_first(P))  # row i: s L[:, i]
-    poses = jnp.concatenate([x[None], x + dxs, x - dxs])  # centre, +pose axes, -pose axes
-    du = s * jnp.stack([params.sigma_v, params.sigma_alpha])
-    ctrl = jnp.stack([u, u.at[0].add(du[0]), u.at[1].add(du[1]), u.at[0].add(-du[0]), u.at[1].add(-du[1])])
-    rates = jax.vmap(vehicle_rates, (0, None))(ctrl, params.vehicle)
-    # The 11 points in the rule's order (centre, +pose(3), +ctrl(2), -pose(3), -ctrl(2)), moved by
-    # one vectorised call: 7 distinct poses at the nominal rates, the centre at 4 perturbed ones.
-    pts = jnp.concatenate([poses[:4], jnp.broadcast_to(x, (2, 3)), poses[4:], jnp.broadcast_to(x, (2, 3))])
-    rts = jnp.concatenate([jnp.broadcast_to(rates[0], (4, 2)), rates[1:3], jnp.broadcast_to(rates[0], (3, 2)), rates[3:]])
-    y = jax.vmap(vehicle_move, (0, 0, None, None))(pts, rts, dt, params.vehicle)
-    centre = y[0]
+def _moments(y, centre, wm, wc):
+    """Mean and covariance of moved sigma points ``y`` (heading deviations wrapped about ``centre``)."""
     dev = (y - centre).at[:, 2].set(wrap_angle(y[:, 2] - centre[2]))
     delta = mv(mt(dev), wm)
     d = dev - delta
@@ -62,10 +41,52 @@ def _ut_piece(x, P, u, dt, params: Params):
     return mean, sym(cov)
 
 
+def _ut_piece(x, P, u, dt, params: Params):
+    """Unscented transform over the augmented state (pose, process noise) for one log piece.
+
+    The pose's square root is :func:`_sqrt_heading_first` (which makes the transform commute with
+    rigid motions; see the module docstring). The augmented covariance is block-diagonal, so each
+    sigma point of the rule (the centre and ``+-s`` along each column of the square root) perturbs
+    either the pose or the noise. For a model with control noise that splits into rates and a move
+    (:class:`~nanoslam_jax.models.AbstractRateModel`), the rates are computed once per distinct
+    control and the move once per point; otherwise every point goes through
+    :meth:`~nanoslam_jax.models.AbstractMotionModel.noisy_step`. The moments are those of the full
+    rule either way.
+    """
+    motion = params.motion
+    nw = motion.noise_dim
+    xi, wm, wc = Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa).unit_points(3 + nw)
+    s = xi[1, 0]  # the rule's points: centre, then +s e_i, then -s e_i (i = 0 .. 2 + nw)
+    dxs = s * mt(_sqrt_heading_first(P))  # row i: s L[:, i]
+    poses = jnp.concatenate([x[None], x + dxs, x - dxs])  # centre, +pose axes, -pose axes
+    if isinstance(motion, AbstractRateModel) and motion.noise == "control":
+        y = _rate_points(motion, x, poses, u, dt, s)
+    else:
+        dws = s * mt(motion.noise_sqrt(dt))  # row j: s Lw[:, j]
+        zero_w = jnp.zeros((3, nw), dtype=x.dtype)
+        ws = jnp.concatenate([jnp.zeros((1, nw), x.dtype), zero_w, dws, zero_w, -dws])
+        pts = jnp.concatenate([poses[:4], jnp.broadcast_to(x, (nw, 3)), poses[4:], jnp.broadcast_to(x, (nw, 3))])
+        y = jax.vmap(motion.noisy_step, (0, None, 0, None))(pts, u, ws, dt)
+    return _moments(y, y[0], wm, wc)
+
+
+def _rate_points(motion: AbstractRateModel, x, poses, u, dt, s):
+    """The rule's points moved by a rate model, in the rule's order (centre, +pose(3), +control(c),
+    -pose(3), -control(c)): ``rates`` once per distinct control, ``move`` once per point."""
+    c = motion.control_dim
+    du = s * mt(motion.noise_sqrt(dt))  # row j: s Lw[:, j]
+    rates = jax.vmap(motion.rates)(jnp.concatenate([u[None], u + du, u - du]))
+    pts = jnp.concatenate([poses[:4], jnp.broadcast_to(x, (c, 3)), poses[4:], jnp.broadcast_to(x, (c, 3))])
+    rts = jnp.concatenate([jnp.broadcast_to(rates[0], (4, 2)), rates[1:1 + c], jnp.broadcast_to(rates[0], (3, 2)),
+                           rates[1 + c:]])
+    return jax.vmap(motion.move, (0, 0, None))(pts, rts, dt)
+
+
 def _linear_piece(x, P, u, dt, params: Params):
-    """First-order propagation with autodiff Jacobians for one DR piece."""
-    F, G = vehicle_jacobians(x, u, dt, params.vehicle)
-    return vehicle_step(x, u, dt, params.vehicle), sym(sandwich(F, P) + sandwich(G, params.Q))
+    """First-order propagation with autodiff Jacobians for one log piece."""
+    motion = params.motion
+    F, G = motion.jacobians(x, u, dt)
+    return motion.step(x, u, dt), sym(sandwich(F, P) + sandwich(G, motion.noise_cov(dt)))
 
 
 def predict(
@@ -108,7 +129,7 @@ def predict_mean(x: Float[Array, "3"], dt: Float[Array, "dr"], u: Float[Array, "
     """Noise-free propagation (dead reckoning) through a segment's pieces (padding has dt = 0)."""
 
     def body(xc, inp):
-        return vehicle_step(xc, inp[1], inp[0], params.vehicle), None
+        return params.motion.step(xc, inp[1], inp[0]), None
 
     x, _ = jax.lax.scan(body, x, (dt, u), unroll=True)
     return x

@@ -57,7 +57,7 @@ class LogData:
 def log_key(cfg: Config) -> tuple:
     """What determines the log of a configuration (its data section; and the simulator's inputs)."""
     if cfg.data.kind == "simulated":
-        return (cfg.data, cfg.sim, cfg.vehicle)
+        return (cfg.data, cfg.sim, cfg.vehicle, cfg.model.motion, cfg.unicycle)
     return (cfg.data,)
 
 

@@ -1,0 +1,335 @@
+"""Motion models: how a planar pose ``x = (px, py, phi)`` moves over one piece of the log.
+
+A motion model is an :class:`equinox.Module` deriving from :class:`AbstractMotionModel`. Its
+array fields are its traced parameters (constants and noise levels), so a model object is the
+pytree the compiled filter receives: changing a value reuses the compiled program, changing the
+model's class compiles a new one. The filter needs only
+
+- :meth:`AbstractMotionModel.step`: the noise-free motion ``x' = f(x, u, dt)``;
+- :meth:`AbstractMotionModel.noise_sqrt`: a lower square root of the process noise of one piece,
+  either on the controls (``x' = f(x, u + w, dt)``, ``noise = "control"``) or added to the pose
+  (``x' = f(x, u, dt) + w``, ``noise = "additive"``).
+
+Jacobians come from autodiff of :meth:`~AbstractMotionModel.step`
+(:meth:`~AbstractMotionModel.jacobians`). A model whose motion is a body-frame increment that
+depends on the controls only (``x' = x (+) delta(u, dt)``) sets ``rigid = True``: its prior
+commutes with rigid motions of the plane, which lets the particle filter compute a segment's
+prior once for all particles. A model that derives from :class:`AbstractRateModel` splits its
+step into ``rates(u)`` and ``move(x, rates, dt)``, which the unscented prior uses to move its
+sigma points with fewer evaluations; the results are those of :meth:`step`.
+
+Built in: :class:`Ackermann` (the Victoria Park car, encoder speed and steering),
+:class:`Unicycle` (differential drive with ``(v, omega)`` odometry and an optional sensor offset)
+and :class:`RandomWalk` (no odometry: the pose is driven by process noise alone).
+"""
+
+from __future__ import annotations
+
+import abc
+import importlib
+import math
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from .._trig import sincos
+from ._angles import wrap_angle
+from ._vehicle import VehicleParams, vehicle_move, vehicle_rates, vehicle_step
+
+if TYPE_CHECKING:
+    from ..config import Config
+
+__all__ = [
+    "AbstractMotionModel",
+    "AbstractRateModel",
+    "Ackermann",
+    "Unicycle",
+    "RandomWalk",
+    "MOTION_MODELS",
+    "motion_model_class",
+    "motion_model_from_config",
+]
+
+
+def _f(x: Any) -> Array:
+    return jnp.asarray(x, dtype=float)
+
+
+class AbstractMotionModel(eqx.Module):
+    """A planar motion model with its traced parameters.
+
+    Class attributes a model sets:
+        control_dim: length of the control vector ``u`` of each log piece (0: none is used).
+        noise: ``"control"`` (the noise ``w`` is added to the controls, ``noise_dim ==
+            control_dim``) or ``"additive"`` (``w`` is added to the pose, ``noise_dim == 3``).
+        rigid: the motion is a body-frame increment depending on ``(u, dt)`` only and the noise
+            is invariant under rotations of the plane (see the module docstring).
+    """
+
+    control_dim: ClassVar[int]
+    noise: ClassVar[Literal["control", "additive"]]
+    rigid: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def step(self, x: Float[Array, "3"], u: Float[Array, " c"], dt: Float[ArrayLike, ""]) -> Float[Array, "3"]:
+        """Move the pose over ``dt`` seconds with the controls ``u`` held constant.
+
+        Args:
+            x: pose ``(px, py, phi)``.
+            u: the piece's controls (``control_dim`` values; ignored when 0).
+            dt: duration (s); ``dt = 0`` must leave the pose unchanged (padding).
+
+        Returns:
+            The new pose, heading wrapped to (-pi, pi].
+        """
+
+    @abc.abstractmethod
+    def noise_sqrt(self, dt: Float[ArrayLike, ""]) -> Float[Array, "w w"]:
+        """Lower square root of the process-noise covariance of one piece of duration ``dt``."""
+
+    @property
+    def noise_dim(self) -> int:
+        """Length of the noise vector ``w``."""
+        return self.control_dim if self.noise == "control" else 3
+
+    def noise_cov(self, dt: Float[ArrayLike, ""]) -> Float[Array, "w w"]:
+        """Process-noise covariance of one piece (``S S'`` of :meth:`noise_sqrt`)."""
+        S = self.noise_sqrt(dt)
+        return S @ S.T
+
+    def noisy_step(
+        self, x: Float[Array, "3"], u: Float[Array, " c"], w: Float[Array, " w"], dt: Float[ArrayLike, ""]
+    ) -> Float[Array, "3"]:
+        """:meth:`step` with the noise ``w`` applied (on the controls or added to the pose)."""
+        if self.noise == "control":
+            return self.step(x, u + w, dt)
+        y = self.step(x, u, dt) + w
+        return y.at[2].set(wrap_angle(y[2]))
+
+    def jacobians(
+        self, x: Float[Array, "3"], u: Float[Array, " c"], dt: Float[ArrayLike, ""]
+    ) -> tuple[Float[Array, "3 3"], Float[Array, "3 w"]]:
+        """Jacobians of the motion with respect to the pose and the noise (autodiff)."""
+        if self.noise == "control":
+            return jax.jacfwd(self.step, argnums=(0, 1))(x, u, dt)
+        F = jax.jacfwd(self.step)(x, u, dt)
+        return F, jnp.eye(3, dtype=F.dtype)
+
+    @classmethod
+    def from_config(cls, cfg: "Config") -> "AbstractMotionModel":
+        """The model with its parameters from a run configuration.
+
+        The default reads ``model.motion_params`` (a mapping of field name to value) and passes
+        it to the constructor; built-in models read their own config sections.
+        """
+        params = dict(cfg.model.motion_params or {})
+        names = {f.name for f in _fields(cls)}
+        unknown = sorted(set(params) - names)
+        if unknown:
+            raise ValueError(f"key 'model.motion_params': {cls.__name__} has no parameter "
+                             f"{', '.join(map(repr, unknown))}; it takes {', '.join(sorted(names)) or 'none'}")
+        try:
+            return cls(**{k: _f(v) for k, v in params.items()})
+        except TypeError as e:
+            raise ValueError(f"key 'model.motion_params': cannot build {cls.__name__}: {e}") from None
+
+
+def _fields(cls) -> tuple:
+    import dataclasses
+
+    return dataclasses.fields(cls)
+
+
+class AbstractRateModel(AbstractMotionModel):
+    """A motion model whose step is ``move(x, rates(u), dt)``: body-frame speed and turn rate
+    from the controls, then the pose moved at those rates. Control noise enters through
+    ``rates`` only, which the unscented prior uses (each sigma point perturbs either the pose or
+    the controls)."""
+
+    noise: ClassVar[Literal["control", "additive"]] = "control"
+    rigid: ClassVar[bool] = True
+
+    @abc.abstractmethod
+    def rates(self, u: Float[Array, " c"]) -> Float[Array, "2"]:
+        """Forward speed and turn rate ``(v, omega)`` of the body from the controls."""
+
+    @abc.abstractmethod
+    def move(self, x: Float[Array, "3"], rates: Float[Array, "2"], dt: Float[ArrayLike, ""]) -> Float[Array, "3"]:
+        """Move the pose over ``dt`` at the given :meth:`rates` (heading wrapped)."""
+
+    def step(self, x: Float[Array, "3"], u: Float[Array, " c"], dt: Float[ArrayLike, ""]) -> Float[Array, "3"]:
+        return self.move(x, self.rates(u), dt)
+
+
+class Ackermann(AbstractRateModel):
+    """The Victoria Park car: the pose is the laser's, the controls are the rear-left wheel
+    encoder speed and the steering angle ``u = (ve, alpha)``; noise on the controls, white per
+    log sample (see the method page on the vehicle model).
+
+    Attributes:
+        wheelbase: L, distance between the axles (m).
+        encoder_offset: H, lateral offset of the rear-left wheel encoder (m).
+        laser_a: a, laser position forward of the rear axle (m).
+        laser_b: b, laser position left of the centre line (m).
+        sigma_v: encoder speed noise per log sample (m/s).
+        sigma_alpha: steering noise per log sample (rad).
+    """
+
+    control_dim: ClassVar[int] = 2
+
+    wheelbase: Float[Array, ""] = eqx.field(default=2.83, converter=_f)
+    encoder_offset: Float[Array, ""] = eqx.field(default=0.76, converter=_f)
+    laser_a: Float[Array, ""] = eqx.field(default=3.78, converter=_f)
+    laser_b: Float[Array, ""] = eqx.field(default=0.50, converter=_f)
+    sigma_v: Float[Array, ""] = eqx.field(default=2.0, converter=_f)
+    sigma_alpha: Float[Array, ""] = eqx.field(default=math.radians(6.0), converter=_f)
+
+    @property
+    def vehicle(self) -> VehicleParams:
+        """The car constants as :class:`VehicleParams`."""
+        return VehicleParams(self.wheelbase, self.encoder_offset, self.laser_a, self.laser_b)
+
+    def rates(self, u):
+        return vehicle_rates(u, self.vehicle)
+
+    def move(self, x, rates, dt):
+        return vehicle_move(x, rates, dt, self.vehicle)
+
+    def step(self, x, u, dt):
+        return vehicle_step(x, u, dt, self.vehicle)
+
+    def noise_sqrt(self, dt):
+        return jnp.diag(jnp.stack([self.sigma_v, self.sigma_alpha]))
+
+    def noise_cov(self, dt):
+        return jnp.diag(jnp.stack([jnp.square(self.sigma_v), jnp.square(self.sigma_alpha)]))
+
+    @classmethod
+    def from_config(cls, cfg: "Config") -> "Ackermann":
+        v, nz = cfg.vehicle, cfg.noise
+        return cls(v.wheelbase, v.encoder_offset, v.laser_a, v.laser_b, nz.sigma_v, math.radians(nz.sigma_alpha_deg))
+
+
+class Unicycle(AbstractRateModel):
+    """A differential-drive robot with ``(v, omega)`` odometry: forward speed (m/s) and turn rate
+    (rad/s) of the robot's centre, held over each log piece; the pose is the sensor's, mounted
+    ``(sensor_x, sensor_y)`` from the centre in the robot's frame (forward, left). Noise on the
+    controls, white per log sample.
+
+    The motion over ``dt`` is the first-order (Euler) step the Victoria Park model also uses:
+    ``p' = p + dt (v R(phi) e_x + omega R(phi) J s)``, ``phi' = phi + dt omega``, with ``s`` the
+    sensor offset and ``J`` the rotation by 90 degrees.
+
+    Attributes:
+        sensor_x: sensor forward of the robot's centre (m).
+        sensor_y: sensor to the left of the robot's centre (m).
+        sigma_v: speed noise per log sample (m/s).
+        sigma_omega: turn-rate noise per log sample (rad/s).
+    """
+
+    control_dim: ClassVar[int] = 2
+
+    sensor_x: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+    sensor_y: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+    sigma_v: Float[Array, ""] = eqx.field(default=0.05, converter=_f)
+    sigma_omega: Float[Array, ""] = eqx.field(default=math.radians(5.0), converter=_f)
+
+    def rates(self, u):
+        return jnp.asarray(u)[:2]
+
+    def move(self, x, rates, dt):
+        vc, w = rates[0], rates[1]
+        a, b = self.sensor_x, self.sensor_y
+        s, c = sincos(x[2])
+        dx = vc * c - w * (a * s + b * c)
+        dy = vc * s + w * (a * c - b * s)
+        return jnp.stack([x[0] + dt * dx, x[1] + dt * dy, wrap_angle(x[2] + dt * w)])
+
+    def noise_sqrt(self, dt):
+        return jnp.diag(jnp.stack([self.sigma_v, self.sigma_omega]))
+
+    @classmethod
+    def from_config(cls, cfg: "Config") -> "Unicycle":
+        u = cfg.unicycle
+        return cls(u.sensor_x, u.sensor_y, u.sigma_v, math.radians(u.sigma_omega_deg))
+
+
+class RandomWalk(AbstractMotionModel):
+    """No odometry: the pose stays where it is and process noise alone moves it,
+    ``x' = x + w`` with ``w ~ N(0, dt diag(s_xy^2, s_xy^2, s_phi^2))`` (a Wiener process; the
+    position noise is isotropic, so the model commutes with rigid motions of the plane).
+
+    Attributes:
+        sigma_xy: position noise per square root of a second (m / sqrt(s)).
+        sigma_phi: heading noise per square root of a second (rad / sqrt(s)).
+    """
+
+    control_dim: ClassVar[int] = 0
+    noise: ClassVar[Literal["control", "additive"]] = "additive"
+    rigid: ClassVar[bool] = True
+
+    sigma_xy: Float[Array, ""] = eqx.field(default=0.5, converter=_f)
+    sigma_phi: Float[Array, ""] = eqx.field(default=math.radians(10.0), converter=_f)
+
+    def step(self, x, u, dt):
+        x = jnp.asarray(x)
+        return x.at[2].set(wrap_angle(x[2]))
+
+    def noise_sqrt(self, dt):
+        r = jnp.sqrt(jnp.maximum(jnp.asarray(dt, dtype=float), 0.0))
+        return jnp.diag(jnp.stack([self.sigma_xy * r, self.sigma_xy * r, self.sigma_phi * r]))
+
+    @classmethod
+    def from_config(cls, cfg: "Config") -> "RandomWalk":
+        r = cfg.random_walk
+        return cls(r.sigma_xy, math.radians(r.sigma_phi_deg))
+
+
+#: The built-in motion models by their config name (``model.motion``).
+MOTION_MODELS: dict[str, type[AbstractMotionModel]] = {
+    "ackermann": Ackermann,
+    "unicycle": Unicycle,
+    "random_walk": RandomWalk,
+}
+
+
+def motion_model_class(name: str) -> type[AbstractMotionModel]:
+    """The motion model class for ``model.motion``: a built-in name or an import path
+    ``package.module:ClassName`` of a subclass of :class:`AbstractMotionModel`.
+
+    Raises:
+        ValueError: naming the key, when the name is unknown, cannot be imported or is not a
+            motion model class.
+    """
+    if name in MOTION_MODELS:
+        return MOTION_MODELS[name]
+    if ":" not in name:
+        raise ValueError(f"key 'model.motion': {name!r} is not a built-in motion model "
+                         f"({', '.join(MOTION_MODELS)}) nor an import path 'module:Class'")
+    cls = _import_object(name, "model.motion")
+    if not (isinstance(cls, type) and issubclass(cls, AbstractMotionModel)):
+        raise ValueError(f"key 'model.motion': {name!r} is not a subclass of "
+                         "nanoslam_jax.models.AbstractMotionModel")
+    return cls
+
+
+def _import_object(path: str, key: str) -> Any:
+    """``module:attr`` imported (``attr`` may be dotted)."""
+    module, _, attr = path.partition(":")
+    try:
+        obj = importlib.import_module(module)
+    except ImportError as e:
+        raise ValueError(f"key '{key}': cannot import module {module!r} of {path!r}: {e}") from None
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise ValueError(f"key '{key}': module {module!r} has no attribute {attr!r}")
+        obj = getattr(obj, part)
+    return obj
+
+
+def motion_model_from_config(cfg: "Config") -> AbstractMotionModel:
+    """The motion model named by ``model.motion`` with its parameters from the configuration."""
+    return motion_model_class(cfg.model.motion).from_config(cfg)
