@@ -15,7 +15,7 @@ import platform
 import sys
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import jax
 import numpy as np
@@ -60,9 +60,9 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         data_dir: a ``--data`` directory overriding ``data.path``.
     """
     if cfg.data.kind == "simulated":
-        from .simulate import simulate
+        from .simulate import simulate_config
 
-        raw, frame, source = simulate(cfg.sim, cfg.vehicle), "slam", f"simulated (seed {cfg.sim.seed})"
+        raw, frame, source = simulate_config(cfg), "slam", f"simulated (seed {cfg.sim.seed})"
     else:
         directory = resolve_data_dir(cfg, data_dir)
         raw = load_victoria_park(directory, cfg.data.format)
@@ -150,30 +150,111 @@ def _json_safe(d: dict) -> dict:
     return out
 
 
-def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = None, progress: Optional[bool] = None) -> dict:
-    """Run ``cfg`` and write its result directory.
+@dataclasses.dataclass(frozen=True)
+class RunResult:
+    """Everything one run produced, in memory (what :func:`nanoslam_jax.run` returns and the
+    ``run`` command writes with :meth:`write`).
+
+    Attributes:
+        config: the resolved configuration.
+        log: the log the filter ran on (host log, segments, metrics frame, map truth).
+        times: time of each segment (s), the rows of the trajectories.
+        trajectory: ``(segments, 3)`` the reported pose ``(x, y, phi)`` at each segment (the
+            smoothed path when the smoother ran).
+        mean_trajectory: ``(segments, 3)`` the filter's weighted mean pose at each segment
+            (dead reckoning: its poses).
+        best_trajectory: ``(segments, 3)`` the best particle's pose at each segment (dead
+            reckoning: its poses).
+        path_before_smoother: ``(segments, 3)`` the path the smoother started from, or None.
+        dead_reckoning: ``(segments, 3)`` the motion model alone from the origin.
+        landmarks: the reported map, one row per landmark with the columns
+            :data:`MAP_COLUMNS`, or None for dead reckoning.
+        ess: the effective sample size per segment (particle methods), or None.
+        outputs: the per-segment outputs of the filter (host arrays), or None.
+        state: the filter's final state (JAX arrays), or None.
+        metrics: errors, landmarks, timings and compile statistics (what ``metrics.json`` holds).
+    """
+
+    config: Config
+    log: LoadedLog
+    times: np.ndarray
+    trajectory: np.ndarray
+    mean_trajectory: np.ndarray
+    best_trajectory: np.ndarray
+    path_before_smoother: Optional[np.ndarray]
+    dead_reckoning: np.ndarray
+    landmarks: Optional[np.ndarray]
+    ess: Optional[np.ndarray]
+    outputs: Any
+    state: Any
+    metrics: dict
+
+    @property
+    def finite(self) -> bool:
+        """Whether the reported trajectory is finite everywhere."""
+        return bool(np.all(np.isfinite(self.trajectory)))
+
+    def write(self, out_dir: str | Path, plots: Optional[bool] = None) -> Path:
+        """Write the result directory: ``config.yaml`` (version and seed in its header),
+        ``metrics.json``, ``trajectory.csv``, ``trajectory.tum`` (TUM format: ``time x y z qx qy
+        qz qw``, read by evo and other trajectory tools), ``map.csv`` and the figures.
+
+        Args:
+            out_dir: the directory (created).
+            plots: write the figures (default: ``output.plots``; never for a non-finite run).
+
+        Returns:
+            The directory.
+        """
+        cfg = self.config
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        header = (f"# nanoslam-jax {__version__}, seed {cfg.seed}, "
+                  f"written {_dt.datetime.now().isoformat(timespec='seconds')}\n")
+        (out / "config.yaml").write_text(header + yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+        t, est = self.times, self.trajectory
+        cols, table = ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, self.mean_trajectory]
+        if cfg.filter.estimate == "path":  # x, y, phi: the ancestral path; the filter's own estimate beside it
+            cols, table = cols + ["best_x", "best_y", "best_phi"], np.c_[table, self.best_trajectory]
+        if self.path_before_smoother is not None:  # x, y, phi: the smoothed path; the path it started from beside it
+            cols, table = cols + ["path_x", "path_y", "path_phi"], np.c_[table, self.path_before_smoother]
+        _write_csv(out / "trajectory.csv", cols, table)
+        write_tum(out / "trajectory.tum", t, est)
+        if self.landmarks is not None:
+            _write_csv(out / "map.csv", MAP_COLUMNS, self.landmarks, fmt="%.9g")
+        (out / "metrics.json").write_text(json.dumps(_json_safe(self.metrics), indent=2) + "\n")
+        if (cfg.output.plots if plots is None else plots) and self.finite:
+            mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=self.log.frame)
+            _plots(out, cfg, self.log, t, est, self.landmarks, self.ess, cfg.filter.n_particles, mk,
+                   self.dead_reckoning)
+        return out
+
+
+def write_tum(path: str | Path, times: np.ndarray, poses: np.ndarray) -> None:
+    """Write planar poses ``(x, y, phi)`` in the TUM trajectory format, ``time x y z qx qy qz qw``
+    (z = 0, the heading as a rotation about the vertical axis), one pose per line."""
+    half = 0.5 * np.asarray(poses[:, 2])
+    zero = np.zeros_like(half)
+    rows = np.c_[times, poses[:, 0], poses[:, 1], zero, zero, zero, np.sin(half), np.cos(half)]
+    np.savetxt(path, rows, fmt="%.9f", delimiter=" ", header="time x y z qx qy qz qw")
+
+
+def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool] = None) -> RunResult:
+    """Run ``cfg`` in memory: load the log, run the filter (and the smoother), score it.
 
     Args:
         cfg: the run configuration.
-        out_dir: result directory (created).
         data_dir: log directory overriding ``data.path``.
         progress: show a progress indicator (default: ``output.progress``).
 
     Returns:
-        The metrics (also in ``metrics.json``).
-
-    Raises:
-        FloatingPointError: if the estimate became non-finite (the metrics are still written).
+        The :class:`RunResult`; its ``metrics["finite"]`` says whether the estimate stayed finite.
     """
     if cfg.filter.method not in AVAILABLE_METHODS:
         raise ConfigError(f"key 'filter.method': {cfg.filter.method!r} is not available yet; "
                           f"available: {', '.join(AVAILABLE_METHODS)}")
     stats0 = compile_stats()
-    log = load_log(cfg, data_dir)  # before creating anything: a bad log leaves no directory behind
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    header = f"# nanoslam-jax {__version__}, seed {cfg.seed}, written {_dt.datetime.now().isoformat(timespec='seconds')}\n"
-    (out / "config.yaml").write_text(header + yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+    log = load_log(cfg, data_dir)
     seg = log.segments
     static, params = settings_from_config(cfg, seg.k_max)
     t = np.asarray(seg.time)
@@ -183,26 +264,29 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     show = cfg.output.progress if progress is None else progress
 
     landmarks = None
+    other = unsmoothed = outputs = state = None
+    mean = best_pose = None
     mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
     t0 = time.perf_counter()
     dr_poses = np.asarray(jax.block_until_ready(dead_reckoning(params, seg)))
     dr_s = time.perf_counter() - t0
     if cfg.filter.method == "dead_reckoning":
         metrics.update(run_s=dr_s)
-        est = mean = dr_poses
+        est = mean = best_pose = dr_poses
         ess = None
     else:
-        # The baseline every result is read against: the vehicle model alone on the same log.
-        if np.all(np.isfinite(dr_poses)):
+        # The baseline every result is read against: the motion model alone on the same log.
+        if np.all(np.isfinite(dr_poses)) and len(log.raw.gps):
             dr = evaluate(t, dr_poses[:, :2], log.raw.gps, **mk)
             metrics.update({f"dr_{k}": dr[k] for k in ("rmse_fixed", "rmse_aligned", "final_error")})
         run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk,
                          progress=text_progress(cfg.name) if show else None)
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
-        est = reported_trajectory(static.estimate, o, run.state)
-        unsmoothed = est
+        est = np.asarray(reported_trajectory(static.estimate, o, run.state))
+        other = mean if static.estimate == "best" else best_pose
         if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
+            unsmoothed = est
             settings = SmootherSettings.from_config(cfg.smoother)
             final, held = smoother_map(run, settings)
             sm = smooth_run(est, final, seg, params, settings, cfg.filter.prior, held)
@@ -216,6 +300,7 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
                     f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "
                     f"{cfg.smoother.max_iter}, smoother.tol {cfg.smoother.tol:g}); the smoothed path is reported as it stands")
         ess = np.asarray(o.ess) if cfg.filter.method not in GAUSSIAN_METHODS else None
+        outputs, state = jax.tree.map(np.asarray, o), run.state
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
         metrics.update(
@@ -239,14 +324,14 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
                               "cache_dir": jax.config.jax_compilation_cache_dir or None}
     finite = bool(np.all(np.isfinite(est)))
     metrics["finite"] = finite
-    if finite:
+    if finite and len(log.raw.gps):
         metrics.update(evaluate(t, est[:, :2], log.raw.gps, **mk))
-        if cfg.filter.method != "dead_reckoning":
+        if other is not None:
             # The other per-segment estimate (for path: the filter's own, the best particle's).
-            other = evaluate(t, (mean if static.estimate == "best" else best_pose)[:, :2], log.raw.gps, **mk)
+            o2 = evaluate(t, other[:, :2], log.raw.gps, **mk)
             tag = "wmean" if static.estimate == "best" else "best"
-            metrics.update({f"rmse_fixed_{tag}": other["rmse_fixed"], f"rmse_aligned_{tag}": other["rmse_aligned"]})
-        if cfg.smoother.enabled and np.all(np.isfinite(unsmoothed)):  # the path the smoother started from
+            metrics.update({f"rmse_fixed_{tag}": o2["rmse_fixed"], f"rmse_aligned_{tag}": o2["rmse_aligned"]})
+        if unsmoothed is not None:  # the path the smoother started from
             before = evaluate(t, unsmoothed[:, :2], log.raw.gps, **mk)
             metrics.update(rmse_fixed_path=before["rmse_fixed"], rmse_aligned_path=before["rmse_aligned"])
         if "dr_rmse_fixed" in metrics:
@@ -254,22 +339,31 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     if landmarks is not None:
         metrics.update(map_summary(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, log.map_truth,
                                    cfg.metrics.map_radius, alignment=metrics if finite else None))
+    return RunResult(config=cfg, log=log, times=t, trajectory=est, mean_trajectory=mean, best_trajectory=best_pose,
+                     path_before_smoother=unsmoothed, dead_reckoning=dr_poses, landmarks=landmarks, ess=ess,
+                     outputs=outputs, state=state, metrics=metrics)
 
-    cols, table = ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, mean]
-    if cfg.filter.estimate == "path":  # x, y, phi: the ancestral path; the filter's own estimate beside it
-        cols, table = cols + ["best_x", "best_y", "best_phi"], np.c_[table, best_pose]
-    if cfg.smoother.enabled:  # x, y, phi: the smoothed path; the ancestral path it started from beside it
-        cols, table = cols + ["path_x", "path_y", "path_phi"], np.c_[table, unsmoothed]
-    _write_csv(out / "trajectory.csv", cols, table)
-    if landmarks is not None:
-        _write_csv(out / "map.csv", MAP_COLUMNS, landmarks, fmt="%.9g")
-    (out / "metrics.json").write_text(json.dumps(_json_safe(metrics), indent=2) + "\n")
 
-    if cfg.output.plots and finite:
-        _plots(out, cfg, log, t, est, landmarks, ess, static.n_particles, mk, dr_poses)
-    if not finite:
+def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = None, progress: Optional[bool] = None) -> dict:
+    """Run ``cfg`` (:func:`execute`) and write its result directory (:meth:`RunResult.write`).
+
+    Args:
+        cfg: the run configuration.
+        out_dir: result directory (created; a log that cannot be read leaves none behind).
+        data_dir: log directory overriding ``data.path``.
+        progress: show a progress indicator (default: ``output.progress``).
+
+    Returns:
+        The metrics (also in ``metrics.json``).
+
+    Raises:
+        FloatingPointError: if the estimate became non-finite (the metrics are still written).
+    """
+    result = execute(cfg, data_dir, progress)
+    out = result.write(out_dir)
+    if not result.finite:
         raise FloatingPointError(f"{cfg.name}: the estimate became non-finite; metrics written to {out / 'metrics.json'}")
-    return metrics
+    return result.metrics
 
 
 def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
