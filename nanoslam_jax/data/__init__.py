@@ -1,5 +1,13 @@
-"""Victoria Park-format logs: loading, writing and cutting into fixed-shape segments."""
+"""Victoria Park-format logs: loading (detections and raw laser scans), writing and cutting into
+fixed-shape segments."""
 
+from ._laser import (
+    LASER_FILES as LASER_FILES,
+    LaserScans as LaserScans,
+    fan_angles as fan_angles,
+    find_laser_file as find_laser_file,
+    load_laser as load_laser,
+)
 from ._loader import (
     LogFormatError as LogFormatError,
     load_victoria_park as load_victoria_park,
@@ -10,6 +18,11 @@ from ._types import RawLog as RawLog, Segments as Segments
 
 __all__ = [
     "RawLog",
+    "LaserScans",
+    "load_laser",
+    "find_laser_file",
+    "fan_angles",
+    "LASER_FILES",
     "Segments",
     "LogFormatError",
     "load_victoria_park",

@@ -1,0 +1,61 @@
+"""The front end from raw scans to features and tree detections, vectorised over all scans."""
+
+from __future__ import annotations
+
+import numpy as np
+from jaxtyping import Float
+
+from ..config import DetectorConfig
+from ..data import LaserScans
+from ._circles import CircleFit, fit_circles
+from ._clusters import find_clusters, scan_points
+from ._segments import extract_lines
+from ._trees import find_trees
+from ._types import Circles, Features
+
+__all__ = ["extract_features", "detect_trees"]
+
+
+def extract_features(scans: LaserScans, cfg: DetectorConfig | None = None) -> Features:
+    """Extract clusters, line segments, circles, corners, break points and trees from every scan.
+
+    Args:
+        scans: the raw scans (:func:`nanoslam_jax.data.load_laser`).
+        cfg: the detector settings (the ``detector`` config section; default: its defaults).
+
+    Returns:
+        The features as flat tables whose ``scan`` column indexes ``scans``.
+    """
+    cfg = DetectorConfig() if cfg is None else cfg
+    points, valid = scan_points(scans, cfg)
+    clusters = find_clusters(points, valid, scans, cfg)
+    lines, corners, breakpoints, has_line = extract_lines(points, clusters, cfg)
+    n = clusters.n
+    fitted = np.flatnonzero(n >= cfg.circle_min_points)
+    part = fit_circles(points.x, points.y, clusters.start[fitted], n[fitted])
+    fit = CircleFit(*(np.full(n.size, np.nan) for _ in range(4)))
+    for full, f in zip(fit, part):
+        full[fitted] = f
+    trees = find_trees(points, clusters, fit, has_line, scans, cfg)
+    arc = (np.isfinite(fit.radius) & ~has_line & (fit.rms <= cfg.circle_max_residual)
+           & (fit.radius <= cfg.circle_max_radius)
+           & (np.hypot(fit.cx, fit.cy) > np.minimum(points.r[clusters.start], points.r[clusters.end])))
+    k = np.flatnonzero(arc)
+    circles = Circles(clusters.scan[k], clusters.first_beam[k], clusters.last_beam[k], fit.cx[k], fit.cy[k],
+                      fit.radius[k], fit.rms[k], n[k])
+    return Features(scans.time, points, clusters, lines, circles, corners, breakpoints, trees)
+
+
+def detect_trees(scans: LaserScans, cfg: DetectorConfig | None = None) -> Float[np.ndarray, "M 4"]:
+    """Tree detections of every scan, as the rows of a Victoria Park log's detections.
+
+    Args:
+        scans: the raw scans.
+        cfg: the detector settings (default: the ``detector`` section's defaults).
+
+    Returns:
+        ``(M, 4)`` rows ``time, range, bearing, diameter``: range to the trunk's centre (m), bearing
+        of the centre in the vehicle frame (rad, 0 ahead, left positive), diameter (m); ordered by
+        time, then bearing (right to left).
+    """
+    return extract_features(scans, cfg).tree_table()

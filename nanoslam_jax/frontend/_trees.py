@@ -1,0 +1,88 @@
+"""The tree detector: clusters that are trunks, measured as the Victoria Park log reports trees.
+
+A cluster of ``n`` returns spans the angle ``w = n dphi`` (each beam covers ``dphi``). A trunk of
+radius ``R`` whose nearest surface lies at range ``r_s`` subtends ``2 asin(R / (r_s + R))``, so
+``R = r_s sin(w / 2) / (1 - sin(w / 2))``; the centre lies at range ``r_s + R`` on the bisector of
+the cluster's first and last beams. From ``tree_fit_min_points`` returns on, the least-squares circle
+replaces that estimate when it passes the residual test and agrees with the angular width.
+
+A cluster is no tree when it holds a line segment (a wall or fence), when its circle fit is flat,
+concave or rough, when it is too wide, thin, near or far, when its first and last returns differ
+in range by more than a fraction of its diameter (an oblique surface), when it reaches the edge of
+the field of view, or when a nearer return hides one of its edges (partly seen).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config import DetectorConfig
+from ..data import LaserScans
+from ._circles import CircleFit
+from ._types import EDGE_FOV, EDGE_NEARER, EDGE_NO_RETURN, Clusters, Points, Trees
+
+__all__ = ["find_trees", "width_radius"]
+
+
+def width_radius(surface_range, n_beams, dphi):
+    """Radius (m) of a trunk whose nearest surface is at ``surface_range`` and that ``n_beams`` beams
+    ``dphi`` apart hit (it subtends ``n_beams * dphi``)."""
+    s = np.sin(np.minimum(0.5 * n_beams * dphi, 0.5 * np.pi - 1e-6))
+    return surface_range * s / (1.0 - s)
+
+
+def find_trees(points: Points, clusters: Clusters, fit: CircleFit, has_line: np.ndarray,
+               scans: LaserScans, cfg: DetectorConfig) -> Trees:
+    """The clusters that are trees, with their centre range, bearing and diameter.
+
+    Args:
+        points: the returns.
+        clusters: their clusters.
+        fit: each cluster's circle fit (NaN for clusters of fewer than ``circle_min_points``).
+        has_line: which clusters hold a line segment.
+        scans: the scans (beam angles, times).
+        cfg: the detector settings.
+    """
+    n = clusters.n
+    dphi = float(np.abs(scans.angles[1] - scans.angles[0])) if scans.n_beams > 1 else 0.0
+    a0, a1 = scans.angles[clusters.first_beam], scans.angles[clusters.last_beam]
+    mid_lo = clusters.start + (n - 1) // 2
+    mid_hi = clusters.start + n // 2
+    r_s = 0.5 * (points.r[mid_lo] + points.r[mid_hi])
+    r_w = width_radius(r_s, n, dphi)
+    # angular-width estimate
+    rng, brg, rad = r_s + r_w, 0.5 * (a0 + a1), r_w
+    # circle fit where it is trustworthy
+    r_edge = np.minimum(points.r[clusters.start], points.r[clusters.end])
+    c_range = np.hypot(fit.cx, fit.cy)
+    has_fit = np.isfinite(fit.radius)
+    convex = has_fit & (c_range > r_edge)
+    smooth = has_fit & (fit.rms <= cfg.circle_max_residual)
+    ratio = cfg.tree_max_fit_ratio
+    agrees = has_fit & (fit.radius <= ratio * r_w) & (fit.radius >= r_w / ratio)
+    use_fit = (n >= cfg.tree_fit_min_points) & convex & smooth & agrees
+    rng = np.where(use_fit, c_range, rng)
+    brg = np.where(use_fit, np.arctan2(fit.cy, fit.cx), brg)
+    rad = np.where(use_fit, fit.radius, rad)
+    diameter = 2 * rad
+    # plausibility
+    x0, y0 = points.x[clusters.start], points.y[clusters.start]
+    x1, y1 = points.x[clusters.end], points.y[clusters.end]
+    chord = np.hypot(x1 - x0, y1 - y0)
+    asym = np.abs(points.r[clusters.end] - points.r[clusters.start])
+    flat = has_fit & (~convex | (fit.radius > ratio * r_w) | (fit.rms > cfg.circle_max_residual))
+    ok = (~has_line & ~flat
+          & (diameter >= cfg.tree_min_diameter) & (diameter <= cfg.tree_max_diameter)
+          & (chord <= cfg.tree_max_diameter)
+          & (r_s >= cfg.tree_min_range) & (rng <= cfg.tree_max_range)
+          & (asym <= cfg.tree_max_asymmetry * diameter))
+    margin = np.deg2rad(cfg.edge_margin_deg)
+    ok &= (a0 - 0.5 * dphi >= scans.angles[0] + margin - 1e-9) & (a1 + 0.5 * dphi <= scans.angles[-1] - margin + 1e-9)
+    ok &= (clusters.left != EDGE_FOV) & (clusters.right != EDGE_FOV)
+    if cfg.reject_occluded:
+        ok &= (clusters.left != EDGE_NEARER) & (clusters.right != EDGE_NEARER)
+    if cfg.reject_no_return_edge:
+        ok &= (clusters.left != EDGE_NO_RETURN) & (clusters.right != EDGE_NO_RETURN)
+    k = np.flatnonzero(ok)
+    return Trees(clusters.scan[k], scans.time[clusters.scan[k]], rng[k], brg[k], diameter[k],
+                 clusters.first_beam[k], clusters.last_beam[k], use_fit[k].astype(np.int64))
