@@ -196,6 +196,10 @@ class FilterConfig:
     new_landmark: float = _f(9.21, lo=0.0, lo_open=True, doc="a detection whose best d2 exceeds this starts a landmark (9.21: chi-square 99 %, 2 dof; "
             "with landmark management a spurious one is removed again)")
     sequential: bool = _f(True, static=True, doc="associate detections one after another within a scan")
+    association: Literal["nearest", "known"] = _f("nearest", static=True,
+        doc="'nearest': nearest neighbour within filter.gate, a new landmark above filter.new_landmark; 'known': "
+            "the log's landmark ids (e.g. MRCLAM's barcodes): a detection matches the landmark started by its "
+            "id and starts one when none has it; detections without an id are ignored")
     weight: Literal["product", "marginal"] = _f("product", static=True,
         doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior")
     p0: float = _f(0.05, lo=0.0, lo_open=True, doc="likelihood factor of a new landmark")

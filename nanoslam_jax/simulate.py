@@ -319,7 +319,9 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
         * ``gps``: ``(G, 3)`` ``time, x, y`` true laser positions at 5 Hz in the SLAM frame;
         * ``truth_poses``: ``(N + S, 4)`` ``time, x, y, phi`` at every DR and scan time, sorted;
         * ``truth_landmarks``: ``(n_trees, 2)`` tree positions;
-        * ``truth_diameters``: ``(n_trees,)`` tree diameters.
+        * ``truth_diameters``: ``(n_trees,)`` tree diameters;
+        * ``detection_ids``: ``(M,)`` the tree each detection is of (its row of
+          ``truth_landmarks``), -1 for clutter; ``landmark_ids``: ``0 .. n_trees - 1``.
     """
     sim = SimConfig() if sim is None else sim
     vehicle = VehicleConfig() if vehicle is None else vehicle
@@ -387,6 +389,7 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
     keep = hit & (r > 0.0) & (r < max_range) & (np.abs(beta) <= half_fov)
     si, li = np.nonzero(keep)
     rows = [np.stack([scan_t[si], r[si, li], beta[si, li], diam[si, li]], axis=1)]
+    ids = [li]
 
     # ---- clutter: Poisson per scan, uniform over the footprint sector
     n_clut = rng_clut.poisson(sim.clutter_rate, n_s) if sim.clutter_rate > 0 else np.zeros(n_s, int)
@@ -398,8 +401,10 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
         c_b = wrap_angle_np(rng_clut.uniform(-half_fov, half_fov, tot))
         c_d = rng_clut.uniform(0.1, 0.6, tot)
         rows.append(np.stack([c_t, c_r, c_b, c_d], axis=1))
+        ids.append(np.full(tot, -1))
     det = np.concatenate(rows, axis=0)
-    det = det[np.lexsort((det[:, 2], det[:, 0]))]
+    order = np.lexsort((det[:, 2], det[:, 0]))
+    det, det_ids = det[order], np.concatenate(ids)[order]
 
     # ---- ground truth streams
     gps_t = np.arange(int(math.floor(t_end * GPS_RATE + 1e-9)) + 1) / GPS_RATE
@@ -418,6 +423,8 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
         truth_landmarks=trees,
         truth_diameters=tree_diam,
         source="simulated",
+        detection_ids=det_ids,
+        landmark_ids=np.arange(trees.shape[0]),
     )
 
 

@@ -416,7 +416,7 @@ def test_a_non_finite_estimate_fails_the_run():
     from nanoslam_jax.data import Segments
 
     seg = Segments(t, np.zeros((n, 1)), np.zeros((n, 1, 2)), np.zeros((n, 1), bool), np.zeros((n, 2, 2)),
-                   np.zeros((n, 2), bool), np.zeros((n, 2)), np.ones(n, bool))
+                   np.zeros((n, 2), bool), np.zeros((n, 2)), np.ones(n, bool), np.full((n, 2), -1))
     log = _batch.LogData(seg, gps, "slam", None, "test")
     task = BatchTask("g0", Static(), 0, None, np.array([0]), 1, ((0.0, 8.0, 1.0),), True, ("c0-s0",))
     r = _score(0, out, log, task)

@@ -94,15 +94,15 @@ def _dr_pieces(dr: Float[np.ndarray, "n_dr 3"], layout: dict[str, np.ndarray], m
     return dt, u, mask
 
 
-def _detections(ranges_bearings: Float[np.ndarray, "m 3"], scan_of_det: Int[np.ndarray, "m"],
+def _detections(ranges_bearings: Float[np.ndarray, "m 4"], scan_of_det: Int[np.ndarray, "m"],
                 scan_times: Float[np.ndarray, "scans"], segment_of_scan: Int[np.ndarray, "scans"],
                 n_segments: int, k_max: Optional[int], range_rule: str
                 ) -> tuple[Float[np.ndarray, "segments k_max 2"], Bool[np.ndarray, "segments k_max"],
-                           Float[np.ndarray, "segments k_max"]]:
-    """The padded detections ``(z, z_mask, diam)`` of every segment, file order kept within a scan.
+                           Float[np.ndarray, "segments k_max"], Int[np.ndarray, "segments k_max"]]:
+    """The padded detections ``(z, z_mask, diam, z_id)`` of every segment, file order kept within a scan.
 
     Args:
-        ranges_bearings: kept detections ``(range, bearing, diameter)``.
+        ranges_bearings: kept detections ``(range, bearing, diameter, landmark id or -1)``.
         scan_of_det: index of each kept detection's scan.
         scan_times: distinct scan times (for messages).
         segment_of_scan: index of each scan's own segment.
@@ -126,11 +126,11 @@ def _detections(ranges_bearings: Float[np.ndarray, "m 3"], scan_of_det: Int[np.n
     order = np.argsort(scan_of_det, kind="stable")
     scans = scan_of_det[order]
     slot = np.arange(scans.size) - (np.cumsum(counts) - counts)[scans]
-    z = np.zeros((n_segments, k_max, 3))
+    z = np.zeros((n_segments, k_max, ranges_bearings.shape[1]))
     z_mask = np.zeros((n_segments, k_max), dtype=bool)
     z[segment_of_scan[scans], slot] = ranges_bearings[order]
     z_mask[segment_of_scan[scans], slot] = True
-    return z[..., :2], z_mask, z[..., 2]
+    return z[..., :2], z_mask, z[..., 2], np.where(z_mask, z[..., 3], -1).astype(np.int32)
 
 
 def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.0,
@@ -156,7 +156,7 @@ def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.
 
     Returns:
         :class:`Segments` of numpy arrays: ``time (S,)``, ``dt (S, D)``, ``u (S, D, 2)``,
-        ``dr_mask (S, D)``, ``z (S, K, 2)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)`` with ``D = max_dr_per_segment``
+        ``dr_mask (S, D)``, ``z (S, K, 2)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)``, ``z_id (S, K)`` (-1: unknown) with ``D = max_dr_per_segment``
         and ``K = k_max``; padding is zero with the mask False.
 
     Raises:
@@ -176,10 +176,14 @@ def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.
     layout = _segment_layout(raw.dr[:, 0], scan_times, max_dr_per_segment)
     dt, u, dr_mask = _dr_pieces(raw.dr, layout, max_dr_per_segment)
     keep = (det[:, 1] >= min_range) & (det[:, 1] < max_range)
-    z, z_mask, diam = _detections(det[keep, 1:4], scan_of_det[keep], scan_times, np.flatnonzero(layout["is_scan"]),
-                            layout["time"].size, k_max, f"{min_range} <= range < {max_range} m")
+    ids = np.full(raw.detections.shape[0], -1.0) if raw.detection_ids is None else np.asarray(raw.detection_ids, float)
+    if t_end is not None:
+        ids = ids[raw.detections[:, 0] <= t_end]
+    rows = np.c_[det[keep, 1:4], ids[keep]]
+    z, z_mask, diam, z_id = _detections(rows, scan_of_det[keep], scan_times, np.flatnonzero(layout["is_scan"]),
+                                        layout["time"].size, k_max, f"{min_range} <= range < {max_range} m")
     return Segments(time=layout["time"], dt=dt, u=u, dr_mask=dr_mask, z=z, z_mask=z_mask, diam=diam,
-                    is_scan=layout["is_scan"])
+                    is_scan=layout["is_scan"], z_id=z_id)
 
 
 def segment_summary(seg: Segments) -> dict[str, int]:

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, Optional
 
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 
 @dataclass(frozen=True)
@@ -23,6 +23,10 @@ class RawLog:
         truth_landmarks: ``(L, 2)`` true landmark positions (simulated logs only).
         truth_diameters: ``(L,)`` true tree diameters (simulated logs only).
         source: where the log came from (directory or "simulated").
+        detection_ids: ``(M,)`` the landmark each detection is of, where the log knows it (e.g.
+            barcodes), -1 where not; None: unknown for every detection.
+        landmark_ids: ``(L,)`` the id of each row of ``truth_landmarks`` (the ids of
+            ``detection_ids``); None: the row index.
     """
 
     dr: np.ndarray
@@ -32,6 +36,8 @@ class RawLog:
     truth_landmarks: Optional[np.ndarray] = None
     truth_diameters: Optional[np.ndarray] = None
     source: str = ""
+    detection_ids: Optional[np.ndarray] = None
+    landmark_ids: Optional[np.ndarray] = None
 
     @property
     def scan_times(self) -> np.ndarray:
@@ -58,6 +64,8 @@ class Segments(NamedTuple):
         is_scan: the segment ends at a laser scan (False for the extra segments that split a long
             gap between scans, and for padding): only a scan is evidence that a landmark in view
             was not detected.
+        z_id: the landmark id of each detection where the log knows it, else -1 (used by
+            ``filter.association: known``).
     """
 
     time: Float[Array, "segments"]
@@ -68,6 +76,7 @@ class Segments(NamedTuple):
     z_mask: Bool[Array, "segments k_max"]
     diam: Float[Array, "segments k_max"]
     is_scan: Bool[Array, "segments"]
+    z_id: Int[Array, "segments k_max"]
 
     @property
     def n_segments(self) -> int:

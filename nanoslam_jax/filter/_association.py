@@ -74,8 +74,10 @@ def associate(
     diam: Float[Array, "k_max"] | None = None,
     use_diameter: Bool[Array, ""] | bool = False,
     sigma_diameter: Float[Array, ""] | float = 1.0,
+    ids: Int[Array, "k_max"] | None = None,
 ) -> Association:
-    """Nearest-neighbour association with a chi-square gate and a new-landmark threshold.
+    """Nearest-neighbour association with a chi-square gate and a new-landmark threshold, or by
+    known landmark ids.
 
     Args:
         local: the particle's local map (``window`` slots). Each detection ``k`` also has a
@@ -96,6 +98,10 @@ def associate(
             a provisional landmark has the diameter of the detection that created it and variance
             ``sigma_diameter^2``). The distance is then a 3-dof chi-square; the gates apply to it.
         sigma_diameter: diameter measurement noise (m).
+        ids: known association (``filter.association: known``): each detection's landmark id
+            (-1: none). A detection then matches the landmark whose ``ident`` is its id and starts
+            one when none has it (its provisional landmark carries the id); a detection without an
+            id is not associated. The distances are not used (``d2`` is 0 for a match).
     """
     # Provisional landmarks, one per detection, initialised at the prior mean.
     prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None))(x, z, R)
@@ -107,7 +113,9 @@ def associate(
         slot_diam = jnp.concatenate([local.diam, diam])
         slot_var = jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, diam.shape)]) + var_d
         diam_term = (diam, slot_diam, 1.0 / slot_var, use_diameter)
-    return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term)
+    id_term = None if ids is None else (ids, jnp.concatenate([local.ident, ids]))
+    return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term,
+                              id_term)
 
 
 def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
@@ -144,6 +152,7 @@ def nearest_neighbours(
     new_landmark: Float[Array, ""],
     sequential: bool = True,
     diam_term: tuple | None = None,
+    id_term: tuple | None = None,
 ) -> Association:
     """The association rule of :func:`associate`, given every slot's predicted detection and
     innovation information (for filters whose innovation covariances are their own, e.g. NASRUKF's
@@ -159,6 +168,9 @@ def nearest_neighbours(
             diameter estimate and ``1 / (var_j + sigma_diameter^2)``, and whether the term
             ``(d_k - d_j)^2 slot_info_j`` is added to the distances (see :func:`associate`);
             None: no diameter term.
+        id_term: ``(z_id, slot_id)``: known association by landmark id (see :func:`associate`):
+            detection ``k`` is at distance 0 from the slots whose id is ``z_id[k] >= 0`` and at
+            infinity from every other; None: by distance.
     """
     k_max = z.shape[0]
     window = active.shape[0]
@@ -171,10 +183,18 @@ def nearest_neighbours(
     else:
         diam, slot_diam, slot_info, use_diameter = diam_term
 
-    def distances(zk, dk):
-        nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)
-        d2 = nr * (a00 * nr + a01 * nb) + nb * (a01 * nr + a11 * nb)
-        return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
+    if id_term is not None:
+        z_id, slot_id = id_term
+        z_mask = z_mask & (z_id >= 0)
+        diam = z_id  # each detection's id reaches ``distances`` in place of its diameter
+
+        def distances(zk, ik):
+            return jnp.where(slot_id == ik, 0.0, jnp.inf).astype(z.dtype)
+    else:
+        def distances(zk, dk):
+            nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)
+            d2 = nr * (a00 * nr + a01 * nb) + nb * (a01 * nr + a11 * nb)
+            return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
 
     if not sequential:
         d2 = jax.vmap(distances)(z, diam)

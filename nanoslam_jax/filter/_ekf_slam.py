@@ -110,7 +110,8 @@ def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSl
     diag = jnp.concatenate([jnp.full((3,), params.init_cov, dtype=float), jnp.ones(2 * c)])
     zero = jnp.zeros((), jnp.int32)
     # The bookkeeping of an empty map; its mean and covariance are placeholders of one element.
-    book = LandmarkMap.empty(c)._replace(mean=jnp.zeros((1, 2)), cov=jnp.zeros((1, 2, 2)))
+    book = LandmarkMap.empty(c, ident=static.association == "known")._replace(mean=jnp.zeros((1, 2)),
+                                                                              cov=jnp.zeros((1, 2, 2)))
     return EkfSlamState(mean=jnp.zeros(n), cov=jnp.diag(diag), landmarks=book, count=zero, key=key,
                         resample_count=zero, overflow=zero, scan=zero)
 
@@ -200,13 +201,23 @@ def ekf_slam_step(
     n_real = jnp.sum(z_mask).astype(jnp.int32)
     (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
     slots = jnp.arange(capacity)
-    if not static.sequential:
+    known = static.association == "known"
+    if known:  # a detection without a landmark id is not associated
+        z_mask = z_mask & (seg.z_id >= 0)
+        n_real = jnp.sum(z_mask).astype(jnp.int32)
+        (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
+    elif not static.sequential:
         pre_slot, pre_matched, pre_new = _batch_association(mean, cov, seg, z_mask, state.landmarks, params)
 
     def body(i, c: _Carry) -> _Carry:
         k = order[i]
         zk, dk = seg.z[k], seg.diam[k]
-        if static.sequential:
+        if known:  # the landmark started by this id, or a new one
+            same = c.book.active & (c.book.ident == seg.z_id[k])
+            j = jnp.argmax(same).astype(jnp.int32)
+            matched = jnp.any(same)
+            new = ~matched
+        elif static.sequential:
             d2 = association_distances(c.mean, c.cov, zk, R, c.available, _diameter_terms(c.book, dk, params))
             j = jnp.argmin(d2).astype(jnp.int32)
             best = jnp.min(d2)
@@ -235,6 +246,7 @@ def ekf_slam_step(
             born=b.born.at[fc].set(state.scan, mode="drop"),
             diam=b.diam.at[jc].set(d_new, mode="drop").at[fc].set(dk, mode="drop"),
             diam_var=b.diam_var.at[jc].set(dv_new, mode="drop").at[fc].set(var_d, mode="drop"),
+            ident=None if b.ident is None else b.ident.at[fc].set(seg.z_id[k], mode="drop"),
         )
         claimed = matched & (slots == j)
         created = add & (slots == free)

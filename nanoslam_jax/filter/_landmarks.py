@@ -197,7 +197,7 @@ def add_landmarks(
     elif free is None:
         free = free_slots(lm.active, k_max)
     target = jnp.where(is_new, free[order], capacity)
-    fields = [f for f in LandmarkMap._fields if not (contiguous and f == "misses")]
+    fields = [f for f in LandmarkMap._fields if not (contiguous and f == "misses") and getattr(lm, f) is not None]
     lm = lm._replace(**{f: getattr(lm, f).at[target].set(getattr(new, f), mode="drop") for f in fields})
     return lm, jnp.sum(is_new & (target == capacity))
 

@@ -206,6 +206,7 @@ def new_landmarks(
     scan: Int[Array, ""],
     mp: MapParams,
     manage: bool,
+    ident: Int[Array, "k"] | None = None,
 ) -> LandmarkMap:
     """The landmarks a scan starts, as they leave the scan.
 
@@ -220,6 +221,7 @@ def new_landmarks(
         manage: (static) with management a landmark starts tentative at ``log_odds_birth`` (plus
             a hit per further detection) and is confirmed if it already qualifies; without it,
             every new landmark is confirmed.
+        ident: each candidate's landmark id (known association), or None (the map keeps no ids).
     """
     k = is_new.shape[0]
     hits = is_new.astype(jnp.int32) + extra_hits
@@ -229,4 +231,5 @@ def new_landmarks(
         mean=mean, cov=cov, active=is_new, hits=hits, misses=jnp.zeros(k, jnp.int32),
         log_odds=jnp.broadcast_to(log_odds, (k,)).astype(mean.dtype), confirmed=confirmed & is_new,
         born=jnp.full(k, scan, jnp.int32), diam=diam, diam_var=diam_var,
+        ident=None if ident is None else ident.astype(jnp.int32),
     )

@@ -332,8 +332,10 @@ def nasrukf_step(
     var_d = jnp.square(mp.sigma_diameter)
     diam_term = (seg.diam, jnp.concatenate([local.landmarks.diam, seg.diam]),
                  1.0 / (jnp.concatenate([local.landmarks.diam_var, jnp.full(K, var_d)]) + var_d), mp.use_diameter)
+    known = static.association == "known"
+    id_term = (seg.z_id, jnp.concatenate([local.landmarks.ident, seg.z_id])) if known else None
     assoc = nearest_neighbours(z_hat, s_inv, in_window, seg.z, z_mask, params.gate, params.new_landmark,
-                               static.sequential, diam_term)
+                               static.sequential, diam_term, id_term)
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
     provisional = matched & ~existing
@@ -395,7 +397,7 @@ def nasrukf_step(
     new_book = new_landmarks(
         mean=ini[0][:, :2], cov=jnp.broadcast_to(jnp.eye(2), (K, 2, 2)), is_new=is_new, extra_hits=extra,
         diam=seg.diam.at[pt].set(upd_d, mode="drop"), diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
-        scan=state.scan, mp=mp, manage=static.manage)
+        scan=state.scan, mp=mp, manage=static.manage, ident=seg.z_id if known else None)
     new = NasrukfFeatures(
         mean=ini[0].at[pt].set(upd[0], mode="drop"), gain=ini[1].at[pt].set(upd[1], mode="drop"),
         sqrt=ini[2].at[pt].set(upd[2], mode="drop"), landmarks=new_book)

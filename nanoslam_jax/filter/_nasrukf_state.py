@@ -104,7 +104,7 @@ def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> N
     zero = jnp.zeros((), jnp.int32)
     features = NasrukfFeatures(
         mean=jnp.zeros((c, f)), gain=jnp.zeros((c, f, 3)), sqrt=jnp.broadcast_to(jnp.eye(f), (c, f, f)),
-        landmarks=LandmarkMap.empty(c))
+        landmarks=LandmarkMap.empty(c, ident=static.association == "known"))
     return NasrukfState(
         pose=jnp.zeros(3), pose_sqrt=jnp.sqrt(jnp.asarray(params.init_cov, float)) * jnp.eye(3), features=features,
         noise=configured_noise(static, params), noise_count=zero, count=zero, key=key, resample_count=zero,

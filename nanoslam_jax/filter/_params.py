@@ -32,6 +32,7 @@ class Static:
     prior: str = "unscented"
     prior_cov: str = "reset"
     sequential: bool = True
+    association: str = "nearest"
     weight: str = "product"
     resampler: str = "systematic"
     estimate: str = "best"
@@ -222,7 +223,8 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
     f, n, nz = cfg.filter, cfg.nano, cfg.noise
     static = Static(
         method=f.method, n_particles=f.n_particles, capacity=f.capacity, window=f.window, k_max=k_max,
-        prior=f.prior, prior_cov=f.prior_cov, sequential=f.sequential, weight=f.weight,
+        prior=f.prior, prior_cov=f.prior_cov, sequential=f.sequential, association=f.association,
+        weight=f.weight,
         resampler=f.resampler, estimate=f.estimate, manage=cfg.map.manage, occlusion=cfg.map.occlusion,
         quadrature=n.quadrature,
         gh_order=n.gh_order, hessian=n.hessian, max_iter=n.max_iter, landmark_noise=n.landmark_noise,

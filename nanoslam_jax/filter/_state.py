@@ -24,6 +24,8 @@ class LandmarkMap(NamedTuple):
         born: the scan (count of laser scans before it) in which the landmark was started.
         diam: estimated tree diameter (m).
         diam_var: variance of the diameter estimate (m^2).
+        ident: the landmark id of the detection that started each landmark (``filter.association:
+            known``), or None (no field: the ids are not kept).
     """
 
     mean: Float[Array, "*particles slots 2"]
@@ -36,10 +38,12 @@ class LandmarkMap(NamedTuple):
     born: Int[Array, "*particles slots"]
     diam: Float[Array, "*particles slots"]
     diam_var: Float[Array, "*particles slots"]
+    ident: Int[Array, "*particles slots"] | None = None
 
     @staticmethod
-    def empty(slots: int, batch: tuple[int, ...] = ()) -> "LandmarkMap":
-        """An empty map with ``slots`` slots (and optional leading batch axes)."""
+    def empty(slots: int, batch: tuple[int, ...] = (), ident: bool = False) -> "LandmarkMap":
+        """An empty map with ``slots`` slots (and optional leading batch axes); ``ident``: with
+        the ``ident`` field (all -1)."""
         shape = batch + (slots,)
         return LandmarkMap(
             mean=jnp.zeros(shape + (2,)),
@@ -52,6 +56,7 @@ class LandmarkMap(NamedTuple):
             born=jnp.zeros(shape, jnp.int32),
             diam=jnp.zeros(shape),
             diam_var=jnp.ones(shape),
+            ident=jnp.full(shape, -1, jnp.int32) if ident else None,
         )
 
 
@@ -103,7 +108,7 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         pose=jnp.zeros((n, 3)),
         pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
         log_w=jnp.full((n,), -jnp.log(n)),
-        landmarks=LandmarkMap.empty(static.capacity, (n,)),
+        landmarks=LandmarkMap.empty(static.capacity, (n,), ident=static.association == "known"),
         noise=jnp.broadcast_to(jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)]), (n, 2)),
         noise_count=jnp.zeros(n, jnp.int32),
     )

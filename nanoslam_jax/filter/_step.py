@@ -116,6 +116,7 @@ def particle_update(
     scan: Int[Array, ""] | int = 0,
     noise: Float[Array, "2"] | None = None,
     noise_count: Int[Array, ""] | None = None,
+    z_id: Int[Array, "k"] | None = None,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
@@ -146,6 +147,8 @@ def particle_update(
     in order (eq. 11 of the NASRUKF paper with ``Gx P Gx' + Gm Sigma Gm'`` as the predicted
     covariance, :func:`~._srukf.adaptive_noise_rows`) and the proposal, landmark updates and weight
     use the result.
+
+    ``z_id``: each detection's landmark id, used with ``static.association == 'known'``.
     """
     mp = params.map
     configured = jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)])
@@ -169,7 +172,8 @@ def particle_update(
     # arithmetic outweighs the compilation (no faster at 10 particles, ~40 % longer to compile).
     assoc_fn = associate_window_prefix if static.row_buckets else associate
     assoc = assoc_fn(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential,
-                     diam=diam, use_diameter=mp.use_diameter, sigma_diameter=mp.sigma_diameter)
+                     diam=diam, use_diameter=mp.use_diameter, sigma_diameter=mp.sigma_diameter,
+                     ids=z_id if static.association == "known" else None)
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
     provisional = matched & ~existing  # matched the landmark an earlier detection of this scan created
@@ -214,7 +218,7 @@ def particle_update(
         mean=new_mean.at[pt].set(upd_mean, mode="drop"), cov=new_cov.at[pt].set(upd_cov, mode="drop"),
         is_new=isn, extra_hits=jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop"),
         diam=diam.at[pt].set(upd_d, mode="drop"), diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
-        scan=scan, mp=mp, manage=static.manage)
+        scan=scan, mp=mp, manage=static.manage, ident=z_id if static.association == "known" else None)
 
     if static.manage:
         wt = jnp.where(existing, ws, W)
@@ -344,10 +348,10 @@ def _step(
     # sweep's vmap: of the batch), where the local windows are searched.
     in_use = slots_in_use(p.landmarks)
     slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0))(
+    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0, None))(
         static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
         seg.z_mask, mine(eps), valid & seg.is_scan, rel_prior, slot_bucket, seg.diam, state.scan, mine(p.noise),
-        mine(p.noise_count))
+        mine(p.noise_count), seg.z_id)
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
