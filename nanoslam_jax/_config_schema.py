@@ -61,6 +61,9 @@ class DetectorConfig:
             "continuous; neighbouring returns r, r' split when |p - p'| > min(r, r') sin(dphi) / sin(lambda - dphi) "
             "+ 3 breakpoint_sigma_r")
     breakpoint_sigma_r: float = _f(0.03, lo=0.0, doc="range noise (m) in the breakpoint threshold")
+    max_dropout_beams: int = _f(2, lo=0,
+        doc="this many no-return beams at most between two returns do not end a cluster (dropouts), "
+            "when the two returns pass the breakpoint test")
     split_distance: float = _f(0.08, lo=0.0, lo_open=True,
         doc="split-and-merge d_max: a segment is split at its point farthest from the chord when that "
             "point is farther than this (m)")
@@ -82,18 +85,24 @@ class DetectorConfig:
     circle_max_residual: float = _f(0.02, lo=0.0, lo_open=True,
         doc="a circle fit whose RMS geometric residual exceeds this (m) is rejected (not an arc)")
     circle_max_radius: float = _f(2.0, lo=0.0, lo_open=True, doc="arcs of larger radius (m) are not reported")
-    tree_min_diameter: float = _f(0.05, lo=0.0, doc="trees thinner than this (m) are rejected")
-    tree_max_diameter: float = _f(1.0, lo=0.0, lo_open=True,
+    tree_min_diameter: float = _f(0.0, lo=0.0, doc="trees thinner than this (m) are rejected")
+    tree_max_diameter: float = _f(1.5, lo=0.0, lo_open=True,
         doc="trees (and clusters spanning a chord) wider than this (m) are rejected")
     tree_min_range: float = _f(1.0, lo=0.0, doc="trees whose surface is nearer than this (m) are rejected")
     tree_max_range: float = _f(75.0, lo=0.0, lo_open=True, doc="trees whose centre is beyond this (m) are rejected")
+    tree_min_separation: float = _f(3.0, lo=0.0,
+        doc="a tree's end returns lie at least this far (m) from the nearest returns of the clusters beside it "
+            "in the scan (a trunk stands alone; foliage, hedges and fences come in pieces)")
     tree_max_asymmetry: float = _f(0.33, lo=0.0,
         doc="a tree's first and last returns differ in range by at most this fraction of its diameter "
             "(an oblique surface is not a trunk)")
-    tree_fit_min_points: int = _f(6, lo=3,
-        doc="from this many points on, a tree's diameter and centre come from its circle fit (when it passes "
-            "the residual test and agrees with the angular width); below, from its angular width")
-    tree_max_fit_ratio: float = _f(2.0, lo=1.0,
+    tree_fit_min_points: int = _f(8, lo=3,
+        doc="from this many returns on, a cluster is a tree only if its circle fit is convex (centre beyond "
+            "its middle return), smooth (tree_max_residual) and not flat (tree_max_fit_ratio), and the tree's "
+            "diameter and centre come from that fit; below, from its angular width")
+    tree_max_residual: float = _f(0.1, lo=0.0, lo_open=True,
+        doc="a cluster whose circle fit's RMS residual exceeds this (m) is rough (foliage, a bush): no tree")
+    tree_max_fit_ratio: float = _f(3.0, lo=1.0,
         doc="a tree whose circle fit's radius exceeds its angular-width radius by more than this factor is "
             "flat (a wall or fence piece) and rejected")
     edge_margin_deg: float = _f(2.5, lo=0.0,

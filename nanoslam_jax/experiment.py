@@ -52,6 +52,15 @@ class LoadedLog:
     map_truth: Optional[np.ndarray] = None
 
 
+def with_laser_detections(raw: RawLog, directory, detector) -> RawLog:
+    """``raw`` with its detections replaced by the trees the front end finds in the raw scans of
+    ``directory`` (``LASER.txt`` or ``aa3_lsr2.mat``) with the ``detector`` settings."""
+    from .data import load_laser
+    from .frontend import detect_trees
+
+    return dataclasses.replace(raw, detections=detect_trees(load_laser(directory), detector))
+
+
 def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
     """Read (or simulate) the log of ``cfg`` and cut it into segments.
 
@@ -65,7 +74,9 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         raw, frame, source = simulate_config(cfg), "slam", f"simulated (seed {cfg.sim.seed})"
     else:
         directory = resolve_data_dir(cfg, data_dir)
-        raw = load_victoria_park(directory, cfg.data.format)
+        raw = load_victoria_park(directory, cfg.data.format, detections=cfg.data.detections == "file")
+        if cfg.data.detections == "laser":
+            raw = with_laser_detections(raw, directory, cfg.detector)
         frame = "slam" if raw.truth_poses is not None else "relative"
         source = str(directory)
     d = cfg.data

@@ -249,7 +249,8 @@ def _find_file(directory: Path, candidates: list[str], format: str) -> Path:
                             f"a Victoria Park log directory holds {_EXPECTED_FILES}")
 
 
-def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "ascii", "mat"] = "auto") -> RawLog:
+def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "ascii", "mat"] = "auto",
+                       detections: bool = True) -> RawLog:
     """Load a Victoria Park-format log directory.
 
     Detection bearings are converted to the vehicle frame (file bearing minus pi/2, wrapped to
@@ -261,6 +262,8 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
         format: ``"ascii"``: ``inputs.dat``, ``measurements.dat``, ``gps.dat``; ``"mat"``:
             ``aa3_dr.mat``, ``aa3_gpsx.mat`` and ``measurements.dat`` (detections exist only as
             ASCII); ``"auto"``: per stream, the ASCII file when present, else the MATLAB one.
+        detections: read ``measurements.dat``; False: leave the detections empty (``(0, 4)``), for a
+            caller that detects the trees in the raw scans itself.
 
     Returns:
         The log; ``truth_poses`` / ``truth_landmarks`` / ``truth_diameters`` are set when
@@ -282,12 +285,15 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
     preferred = ["ascii", "mat"] if format == "auto" else [format]
     dr_path = _find_file(directory, [dr_files[f] for f in preferred], format)
     gps_path = _find_file(directory, [gps_files[f] for f in preferred], format)
-    det_path = _find_file(directory, [_MEASUREMENTS.name], format)
+    det_path = _find_file(directory, [_MEASUREMENTS.name], format) if detections else None
 
     dr = _read_mat(dr_path, _DR_MAT) if dr_path.suffix == ".mat" else _read_ascii(dr_path, _INPUTS)
     gps = _read_gps_mat(gps_path) if gps_path.suffix == ".mat" else _read_ascii(gps_path, _GPS)
-    detections = _read_ascii(det_path, _MEASUREMENTS)
-    detections[:, 2] = wrap_angle_np(detections[:, 2] - np.pi / 2)
+    if det_path is None:
+        detections = np.zeros((0, len(_MEASUREMENTS.columns)))
+    else:
+        detections = _read_ascii(det_path, _MEASUREMENTS)
+        detections[:, 2] = wrap_angle_np(detections[:, 2] - np.pi / 2)
 
     truth = {}
     for key, table in (("truth_poses", _TRUTH_POSES), ("truth_landmarks", _TRUTH_LANDMARKS),

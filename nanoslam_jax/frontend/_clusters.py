@@ -2,7 +2,8 @@
 (Borges & Aldon 2004): neighbouring returns ``p``, ``p'`` at ranges ``r``, ``r'`` and angular step
 ``dphi`` belong to one cluster when ``|p - p'| <= min(r, r') sin(dphi) / sin(lambda - dphi) + 3 sigma_r``,
 the largest gap a surface seen at incidence ``lambda`` or steeper leaves, plus the range noise.
-A no-return beam always ends a cluster."""
+Up to ``max_dropout_beams`` neighbouring no-return beams between two returns (dropouts) do not end a
+cluster when the two returns pass that test (with ``dphi`` the angle between them); more do."""
 
 from __future__ import annotations
 
@@ -54,7 +55,8 @@ def find_clusters(points: Points, valid: Bool[np.ndarray, "S B"], scans: LaserSc
         cfg: the detector settings.
     """
     n = points.r.size
-    same = (points.scan[1:] == points.scan[:-1]) & (points.beam[1:] == points.beam[:-1] + 1)
+    step = points.beam[1:] - points.beam[:-1]
+    same = (points.scan[1:] == points.scan[:-1]) & (step >= 1) & (step <= cfg.max_dropout_beams + 1)
     gap = np.hypot(np.diff(points.x), np.diff(points.y))
     dphi = np.abs(scans.angles[np.minimum(points.beam[1:], scans.n_beams - 1)] - scans.angles[points.beam[:-1]])
     joined = same & (gap <= breakpoint_threshold(points.r[:-1], points.r[1:], dphi, cfg))

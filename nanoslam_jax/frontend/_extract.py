@@ -10,7 +10,7 @@ from ..data import LaserScans
 from ._circles import CircleFit, fit_circles
 from ._clusters import find_clusters, scan_points
 from ._segments import extract_lines
-from ._trees import find_trees
+from ._trees import find_trees, middle_range
 from ._types import Circles, Features
 
 __all__ = ["extract_features", "detect_trees"]
@@ -36,10 +36,10 @@ def extract_features(scans: LaserScans, cfg: DetectorConfig | None = None) -> Fe
     fit = CircleFit(*(np.full(n.size, np.nan) for _ in range(4)))
     for full, f in zip(fit, part):
         full[fitted] = f
-    trees = find_trees(points, clusters, fit, has_line, scans, cfg)
+    trees = find_trees(points, clusters, fit, scans, cfg)
     arc = (np.isfinite(fit.radius) & ~has_line & (fit.rms <= cfg.circle_max_residual)
            & (fit.radius <= cfg.circle_max_radius)
-           & (np.hypot(fit.cx, fit.cy) > np.minimum(points.r[clusters.start], points.r[clusters.end])))
+           & (np.hypot(fit.cx, fit.cy) > middle_range(points, clusters)))
     k = np.flatnonzero(arc)
     circles = Circles(clusters.scan[k], clusters.first_beam[k], clusters.last_beam[k], fit.cx[k], fit.cy[k],
                       fit.radius[k], fit.rms[k], n[k])

@@ -6,9 +6,10 @@ radius ``R`` whose nearest surface lies at range ``r_s`` subtends ``2 asin(R / (
 the cluster's first and last beams. From ``tree_fit_min_points`` returns on, the least-squares circle
 replaces that estimate when it passes the residual test and agrees with the angular width.
 
-A cluster is no tree when it holds a line segment (a wall or fence), when its circle fit is flat,
-concave or rough, when it is too wide, thin, near or far, when its first and last returns differ
-in range by more than a fraction of its diameter (an oblique surface), when it reaches the edge of
+A cluster is no tree when it is wider than a trunk (walls, fences), when its circle fit is flat (a
+straight piece), concave or rough, when it is too wide, thin, near or far, when its first and last returns differ
+in range by more than a fraction of its diameter (an oblique surface), when another object lies within
+``tree_min_separation`` of its ends (foliage, fences, people: a trunk stands alone), when it reaches the edge of
 the field of view, or when a nearer return hides one of its edges (partly seen).
 """
 
@@ -21,7 +22,13 @@ from ..data import LaserScans
 from ._circles import CircleFit
 from ._types import EDGE_FOV, EDGE_NEARER, EDGE_NO_RETURN, Clusters, Points, Trees
 
-__all__ = ["find_trees", "width_radius"]
+__all__ = ["find_trees", "width_radius", "middle_range"]
+
+
+def middle_range(points: Points, clusters: Clusters) -> np.ndarray:
+    """Range (m) at each cluster's middle: its middle return's, or the mean of its two middle returns'."""
+    n = clusters.n
+    return 0.5 * (points.r[clusters.start + (n - 1) // 2] + points.r[clusters.start + n // 2])
 
 
 def width_radius(surface_range, n_beams, dphi):
@@ -31,36 +38,33 @@ def width_radius(surface_range, n_beams, dphi):
     return surface_range * s / (1.0 - s)
 
 
-def find_trees(points: Points, clusters: Clusters, fit: CircleFit, has_line: np.ndarray,
-               scans: LaserScans, cfg: DetectorConfig) -> Trees:
+def find_trees(points: Points, clusters: Clusters, fit: CircleFit, scans: LaserScans, cfg: DetectorConfig) -> Trees:
     """The clusters that are trees, with their centre range, bearing and diameter.
 
     Args:
         points: the returns.
         clusters: their clusters.
         fit: each cluster's circle fit (NaN for clusters of fewer than ``circle_min_points``).
-        has_line: which clusters hold a line segment.
         scans: the scans (beam angles, times).
         cfg: the detector settings.
     """
     n = clusters.n
     dphi = float(np.abs(scans.angles[1] - scans.angles[0])) if scans.n_beams > 1 else 0.0
     a0, a1 = scans.angles[clusters.first_beam], scans.angles[clusters.last_beam]
-    mid_lo = clusters.start + (n - 1) // 2
-    mid_hi = clusters.start + n // 2
-    r_s = 0.5 * (points.r[mid_lo] + points.r[mid_hi])
-    r_w = width_radius(r_s, n, dphi)
+    r_s = middle_range(points, clusters)
+    span = clusters.last_beam - clusters.first_beam + 1
+    r_w = width_radius(r_s, span, dphi)
     # angular-width estimate
     rng, brg, rad = r_s + r_w, 0.5 * (a0 + a1), r_w
     # circle fit where it is trustworthy
-    r_edge = np.minimum(points.r[clusters.start], points.r[clusters.end])
     c_range = np.hypot(fit.cx, fit.cy)
     has_fit = np.isfinite(fit.radius)
-    convex = has_fit & (c_range > r_edge)
-    smooth = has_fit & (fit.rms <= cfg.circle_max_residual)
+    convex = has_fit & (c_range > r_s)
+    smooth = has_fit & (fit.rms <= cfg.tree_max_residual)
     ratio = cfg.tree_max_fit_ratio
     agrees = has_fit & (fit.radius <= ratio * r_w) & (fit.radius >= r_w / ratio)
-    use_fit = (n >= cfg.tree_fit_min_points) & convex & smooth & agrees
+    big = n >= cfg.tree_fit_min_points
+    use_fit = big & convex & smooth & agrees
     rng = np.where(use_fit, c_range, rng)
     brg = np.where(use_fit, np.arctan2(fit.cy, fit.cx), brg)
     rad = np.where(use_fit, fit.radius, rad)
@@ -70,12 +74,13 @@ def find_trees(points: Points, clusters: Clusters, fit: CircleFit, has_line: np.
     x1, y1 = points.x[clusters.end], points.y[clusters.end]
     chord = np.hypot(x1 - x0, y1 - y0)
     asym = np.abs(points.r[clusters.end] - points.r[clusters.start])
-    flat = has_fit & (~convex | (fit.radius > ratio * r_w) | (fit.rms > cfg.circle_max_residual))
-    ok = (~has_line & ~flat
+    flat = big & has_fit & (~convex | (fit.radius > ratio * r_w) | (fit.rms > cfg.tree_max_residual))
+    ok = (~flat
           & (diameter >= cfg.tree_min_diameter) & (diameter <= cfg.tree_max_diameter)
           & (chord <= cfg.tree_max_diameter)
           & (r_s >= cfg.tree_min_range) & (rng <= cfg.tree_max_range)
           & (asym <= cfg.tree_max_asymmetry * diameter))
+    ok &= _separation(points, clusters) >= cfg.tree_min_separation
     margin = np.deg2rad(cfg.edge_margin_deg)
     ok &= (a0 - 0.5 * dphi >= scans.angles[0] + margin - 1e-9) & (a1 + 0.5 * dphi <= scans.angles[-1] - margin + 1e-9)
     ok &= (clusters.left != EDGE_FOV) & (clusters.right != EDGE_FOV)
@@ -86,3 +91,19 @@ def find_trees(points: Points, clusters: Clusters, fit: CircleFit, has_line: np.
     k = np.flatnonzero(ok)
     return Trees(clusters.scan[k], scans.time[clusters.scan[k]], rng[k], brg[k], diameter[k],
                  clusters.first_beam[k], clusters.last_beam[k], use_fit[k].astype(np.int64))
+
+
+def _separation(points: Points, clusters: Clusters) -> np.ndarray:
+    """Distance (m) from each cluster's end returns to the nearest end return of the clusters beside
+    it in its scan (infinite where there is none)."""
+    c = clusters.scan.size
+    gap = np.full(c, np.inf)
+    if c < 2:
+        return gap
+    same = clusters.scan[1:] == clusters.scan[:-1]
+    d = np.hypot(points.x[clusters.start[1:]] - points.x[clusters.end[:-1]],
+                 points.y[clusters.start[1:]] - points.y[clusters.end[:-1]])
+    d = np.where(same, d, np.inf)
+    gap[1:] = np.minimum(gap[1:], d)
+    gap[:-1] = np.minimum(gap[:-1], d)
+    return gap
