@@ -16,19 +16,13 @@ import jax
 
 #: JAX CPU devices per core for a single run's split particles. XLA:CPU already runs one device's
 #: program on more than one core, so more devices than cores only wait for each other at every
-#: scan (the particles' outputs are gathered) and share the cores: on the 2-core development
-#: machine 2 devices beat 4 (whole log at 1000 particles 55 s against 62 s; the measurements and
-#: commands are in docs/performance.md, "Several cores"). Sweeps have their own count
+#: scan (the particles' outputs are gathered) and share the cores. Sweeps have their own count
 #: (:data:`SWEEP_DEVICES_PER_CORE`).
 DEVICES_PER_CORE = 1
 
 #: JAX CPU devices per core for a sweep's batches (``run.parallel: devices``). A batch's devices
 #: carry whole runs and never wait for each other inside a scan, so more devices only share the
-#: cores more finely. After the fusion barriers (commit d8ff90d), a batch of 64 x 10 particles over
-#: 500 scans, alternated in separate processes on the 2-core development machine: 8 devices
-#: 3.96 / 4.03 / 3.69 s (best of 3 each), 4 devices 4.64 / 5.04 / 5.52 s, 2 devices 5.53 s. After
-#: ``take_if`` and ``batch_max`` (commit 8ae07ca), 4 and 8 devices were within the machine's drift
-#: (medians of 10-11 alternated processes 3.2 and 3.45 s), so the count was left as it is.
+#: cores more finely (throughput by mode: the docs' page on sweeps, "Several cores").
 SWEEP_DEVICES_PER_CORE = 4
 
 
