@@ -1,13 +1,12 @@
 """Sine, cosine and arctangent written as vectorisable arithmetic.
 
-XLA:CPU evaluates ``sin``, ``cos``, ``tan`` and ``atan2`` one element at a time (15-20 ns per
-element on the 2-core CI machine, against ~1 ns for a multiply-add or a square root), and the
-filter evaluates a few thousand of them per particle and scan: the range-bearing model at every
-quadrature point of every NANO iteration, the vehicle model at every sigma point of every
-dead-reckoning piece. The functions here are range reductions and truncated Taylor series made
-of additions, multiplications, one division and selects, which XLA fuses and vectorises: about
-20x faster on CPU, and accurate to one or two units in the last place in float64 (the tests
-compare them with NumPy over many decades of arguments).
+XLA:CPU evaluates ``sin``, ``cos``, ``tan`` and ``atan2`` one element at a time (an order of
+magnitude slower than a multiply-add or a square root), and the filter evaluates a few thousand
+of them per particle and scan: the range-bearing model at every quadrature point of every NANO
+iteration, the vehicle model at every sigma point of every dead-reckoning piece. The functions
+here are range reductions and truncated Taylor series made of additions, multiplications, one
+division and selects, which XLA fuses and vectorises, and accurate to one or two units in the
+last place in float64 (the tests compare them with NumPy over many decades of arguments).
 
 The series are exact Taylor series (no fitted constants): the reductions make the arguments
 small enough that the first omitted term is below 1e-18 relative. Derivatives are defined by
@@ -163,8 +162,8 @@ def computed_once(tree: T) -> T:
     barriers before fusion), so this relies on what its passes do: the leaves are concatenated
     into one vector behind a ``jax.lax.optimization_barrier``, which keeps the simplifier from
     forwarding the parts to their readers (slice of a concatenation); the concatenation then
-    becomes a fusion of its own, written once, and the readers slice it. Measured at 1000
-    particles: 14.2 -> 11.8 ms per mid-log scan. It changes no value (nor derivative).
+    becomes a fusion of its own, written once, and the readers slice it. It changes no value (nor
+    derivative).
     """
     leaves, treedef = jax.tree.flatten(tree)
     if len({jnp.result_type(a) for a in leaves}) > 1:
