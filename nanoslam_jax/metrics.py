@@ -1,4 +1,4 @@
-"""Evaluation against GPS and ground truth (victoria_park.md section 5), numpy on the host.
+"""Evaluation against GPS and ground truth, numpy on the host.
 
 The protocol:
 
@@ -18,12 +18,11 @@ The protocol:
 :func:`relative_gps` therefore takes the rotation already applied to its input,
 ``source_rotation_deg`` (default :data:`GPS_DAT_ROTATION_DEG` = -33, i.e. ``gps.dat``; pass 0
 for raw ``Lo/La``), and rotates by ``rotation_deg - source_rotation_deg`` (-2.4 deg for
-``gps.dat``). Checked on the real log: dead reckoning over the first 80 s lies within 4.5 m
-(RMSE 2.7 m) of the relative-GPS frame built this way, against 28 m if ``gps.dat`` were rotated
-by a further -35.4 deg.
+``gps.dat``), not by a further -35.4 deg.
 
 Rotations are counter-clockwise positive: a point ``p`` rotated by ``theta`` is ``R(theta) p`` with
-``R = [[cos, -sin], [sin, cos]]``.
+``R = [[cos, -sin], [sin, cos]]``. The protocol and the frames are described in the docs, page
+"The Victoria Park model and scoring" (``docs/method/victoria-park.md``).
 """
 
 from __future__ import annotations
@@ -251,7 +250,7 @@ def evaluate(
     frame: Literal["relative", "slam"] = "relative",
     source_rotation_deg: float = GPS_DAT_ROTATION_DEG,
 ) -> dict:
-    """Score an estimated trajectory against GPS (victoria_park.md section 5).
+    """Score an estimated trajectory against GPS (the protocol above; ``docs/method/victoria-park.md``).
 
     Args:
         est_t: ``(T,)`` estimate times (s), non-decreasing.
