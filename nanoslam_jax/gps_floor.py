@@ -1,4 +1,4 @@
-"""The floor: how much of the RMSE against GPS is the GPS's own error (victoria_park.md section 5).
+"""The floor: how much of the RMSE against GPS is the GPS's own error.
 
 An estimate that was exactly the laser's path would still score a non-zero RMSE against the GPS:
 the fixes are noisy, some jump, and the fixed frame's rotation is only known to about 2 degrees.
@@ -12,9 +12,8 @@ over short stretches. :func:`estimate_gps_floor` measures, from the GPS and the 
 - **GPS jumps**: the fixes :func:`~nanoslam_jax.metrics.jump_mask` removes, and how far they lie
   from the track of the clean fixes around them (linear in time between the nearest clean fixes
   before and after), which is where an exact path is. Every fix counts in ``rmse_fixed`` and
-  ``rmse_aligned``, so these offsets alone add ``sqrt(sum offset^2 / fixes)`` to any path's RMSE;
-  on this log one fix (t = 1223.3 s, after a 2.2 s gap and before a 4.4 s one, so no window
-  fit scores it) lies 136 m off and alone adds 2.0 m.
+  ``rmse_aligned``, so these offsets alone add ``sqrt(sum offset^2 / fixes)`` to any path's RMSE,
+  including a fix between two gaps, which no window fit below scores.
 - **Short-term GPS error**: each fix against the DR path rigidly fitted (rotation + translation)
   to the clean fixes within +-W/2 seconds of it, the fix itself left out. DR is accurate over a few
   seconds, so for small W this is the GPS's own error apart from errors slower than W (a fitted
@@ -34,6 +33,9 @@ over short stretches. :func:`estimate_gps_floor` measures, from the GPS and the 
   error of 1 and 2 degrees alone costs at the track's distances.
 
 Run on the real log by ``python experiments/gps_floor.py`` (and by every study on the real log).
+The scoring protocol is in the docs, page "The Victoria Park model and scoring"
+(``docs/method/victoria-park.md``); the floor of the Victoria Park log on the results page, "The GPS
+floor".
 """
 
 from __future__ import annotations
