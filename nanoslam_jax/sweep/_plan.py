@@ -24,12 +24,12 @@ __all__ = ["Group", "plan_groups", "make_tasks", "resolve_vectorize", "DEFAULT_M
 #: Default cap of runs per compiled call (progress and resume granularity; memory permitting).
 DEFAULT_MAX_BATCH = 64
 
-#: How a batch is computed on CPU by default. Measured on 2 cores (experiments/sweep_benchmark.py,
-#: 64 configurations of NANO, 10 particles, 500 scans, quiet machine): vmap 1.36-1.56x and lax.map
-#: 1.14-1.27x the throughput of sequential single runs (the filter step is compute-bound on CPU,
-#: so batching amortises little). lax.map reproduces single runs bit for bit; vmap agrees with them
-#: to rounding at each step, which the filter can amplify (a near-tie of weights picks another
-#: particle). On accelerators ``auto`` is ``vmap``.
+#: How a batch is computed on CPU by default: ``vmap`` gives the most runs per second, ``lax.map``
+#: fewer (the filter step is compute-bound on CPU, so batching amortises little; the docs' sweeps
+#: page, "Throughput", has the figures and ``experiments/sweep_benchmark.py`` measures them).
+#: lax.map reproduces single runs bit for bit; vmap agrees with them to rounding at each step,
+#: which the filter can amplify (a near-tie of weights picks another particle). On accelerators
+#: ``auto`` is ``vmap``.
 AUTO_VECTORIZE = "vmap"
 
 
