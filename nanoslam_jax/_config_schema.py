@@ -115,7 +115,8 @@ class DetectorConfig:
 
 @dataclass(frozen=True)
 class VehicleConfig:
-    """Car constants of the Victoria Park vehicle model (metres), see victoria_park.md section 1."""
+    """Car constants of the Victoria Park vehicle model (metres); the model is in the docs, page
+    method/victoria-park.md."""
 
     wheelbase: float = _f(2.83, lo=0.0, lo_open=True, doc="L: wheelbase")
     encoder_offset: float = _f(0.76, lo=0.0, doc="H: lateral offset of the rear-left wheel encoder")
@@ -168,11 +169,10 @@ class NoiseConfig:
             "NASRUKF paper's eq. 11: R_k = (1 - d_k) R_k-1 + d_k diag(nu nu' - predicted covariance), "
             "d_k = (1 - b) / (1 - b^(k+1))), starting from sigma_r, sigma_beta (and nasrukf.sigma_diameter); "
             "for nasrukf, nano, fastslam2, ufastslam. It credits the sensor with the residuals' variance less the "
-            "predicted one, so it is only as good as the predicted pose and landmark covariances: on the Victoria "
-            "Park log it ends at adaptive_floor in every particle (configs/victoria_park_best.yaml, also with the "
-            "control noise lowered to 0.2 m/s and 0.5 deg), where detections of mapped trees fail the gate, and "
-            "with the gate widened to 60 it grows without bound instead (docs/results.md, stage 12). A run reports "
-            "noise_sigma_*_final and noise_at_floor_* in metrics.json and warns when most particles end at the floor")
+            "predicted one, so it is only as good as the predicted pose and landmark covariances: where they "
+            "exceed the residuals' spread it falls to adaptive_floor and detections of mapped trees then fail the "
+            "gate. A run reports noise_sigma_*_final and noise_at_floor_* in metrics.json and warns when most "
+            "particles end at the floor")
     forgetting: float = _f(0.99, lo=0.0, lo_open=True,
         doc="forgetting factor b of the adaptive estimate, 0 < b < 1 (its memory is about 1 / (1 - b) detections)")
     adaptive_floor: float = _f(0.01, lo=0.0, lo_open=True, hi=1.0,
@@ -224,12 +224,12 @@ class FilterConfig:
         doc="run the proposal, the weight's likelihoods and the landmarks' updates over only 4, 8 or k_max "
             "detection rows, the fewest that hold the scan's detections, and the association over the "
             "16, 32 or all window slots that hold the particles' landmarks (the same results to rounding; "
-            "compiled three times, ~15 s more): 'auto' from "
+            "compiled three times, so compilation takes longer): 'auto' from "
             f"{ROW_BUCKETS_FROM} particles up, where the particles' arithmetic outweighs per-operation overhead")
     split_devices: Literal["auto", "always", "never"] = _f("auto", static=True,
         doc="split a single run's particles over the JAX CPU devices (one per core; `nanoslam run` sets them "
             f"up) when they divide evenly; the same results to rounding. 'auto': from {SPLIT_DEVICES_FROM} particles up "
-            "(on 2 cores measured 1.7x faster per scan at 100 particles, no faster at 10); never for "
+            "(below that the devices' exchange at every scan outweighs the split work); never for "
             "filter.method iterated or nano.init gauss_newton (optimistix's least squares cannot run split)")
 
 
@@ -238,9 +238,7 @@ class MapConfig:
     """Landmark management: tentative and confirmed landmarks, existence by negative evidence, tree
     diameters (all particle methods, EKF-SLAM and NASRUKF).
 
-    The defaults were chosen by a random search of 64 settings over seeds 0-15 of the Victoria
-    Park log with the paper's setting (``configs/sweeps/map_management_victoria_park.yaml``) and
-    checked on seeds 16-31 against management switched off (see docs/method/landmarks.md).
+    How the defaults were chosen: docs/method/landmarks.md, "Settings and how they were chosen".
 
     A detection that starts a landmark makes it *tentative*, with existence log-odds
     ``logit(birth_probability)``. Every detection associated with it adds ``log(p_detect / p_false)``;
@@ -296,7 +294,7 @@ class MapConfig:
 
 @dataclass(frozen=True)
 class NanoConfig:
-    """The NANO proposal (algorithms.md section 2)."""
+    """The NANO proposal (the docs, page method/proposals.md)."""
 
     quadrature: Literal["cubature", "unscented", "gauss_hermite"] = _f("cubature", static=True,
         doc="rule for the expectations over the proposal: cubature (6 points), unscented (7), gauss_hermite (gh_order^3)")
@@ -312,7 +310,7 @@ class NanoConfig:
     landmark_noise: bool = _f(False, static=True, doc="use R + Gm Sigma Gm' in the likelihood")
     init: Literal["prior", "gauss_newton"] = _f("prior", static=True, doc="start from the prior or the Gauss-Newton MAP")
     solver: Literal["optimistix", "while_loop"] = _f("while_loop", static=True,
-        doc="the iteration as a plain lax.while_loop (default: measured faster) or as an optimistix "
+        doc="the iteration as a plain lax.while_loop (default, the faster) or as an optimistix "
             "fixed-point solve with a KL stopping rule (same iterates)")
 
 
@@ -348,7 +346,7 @@ class NasrukfConfig:
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    """Evaluation protocol settings (victoria_park.md section 5)."""
+    """Evaluation protocol settings (the protocol: the docs, page method/victoria-park.md)."""
 
     gps_rotation_deg: float = _f(-35.4, doc="rotation of the relative-GPS frame")
     jump_speed: float = _f(8.0, lo=0.0, lo_open=True, doc="GPS fixes implying a faster jump are removed in *_clean")
@@ -406,7 +404,7 @@ class SmootherConfig:
             "unexplained along the path ...")
     map_history_below: float = _f(0.8, lo=0.0, hi=1.0, static=True,
         doc="... when the final map explains less than this fraction of the log's detections along the path (a "
-            "particle that lost the trees of its first visit; 0.87-0.90 on Victoria Park for the runs that did not)")
+            "particle that lost the trees of its first visit)")
 
 
 @dataclass(frozen=True)
