@@ -38,8 +38,9 @@ __all__ = [
     "resolve_parallel",
 ]
 
-#: The fastest local mode measured on 2 CPU cores (experiments/sweep_benchmark.py): one process,
-#: the batch split over JAX CPU devices (``SWEEP_DEVICES_PER_CORE`` per core, see ``_devices.py``).
+#: The default local mode on several cores, the fastest after compilation: one process, the batch
+#: split over JAX CPU devices (``SWEEP_DEVICES_PER_CORE`` per core, see ``_devices.py``; the modes
+#: compared: the docs' sweeps page, "Several cores", and ``experiments/sweep_benchmark.py``).
 AUTO_PARALLEL = "devices"
 
 
