@@ -183,11 +183,13 @@ class NoiseConfig:
 class FilterConfig:
     """The Rao-Blackwellised particle filter shared by all particle methods."""
 
-    method: Literal["dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam",
-                    "iterated", "ekf_slam", "nasrukf"] = _f("nano", static=True,
+    method: str = _f("nano", static=True,
         doc="the method: a particle filter with the proposal of nano, fastslam1 (the prior), fastslam2 "
             "(EKF-linearised), ufastslam (unscented) or iterated (Gauss-Newton MAP); ekf_slam (one joint "
-            "Gaussian); dead_reckoning (the vehicle model alone)")
+            "Gaussian); nasrukf; dead_reckoning (the motion model alone); or a method registered with "
+            "nanoslam_jax.methods.register (by its name, or by import path 'module:METHOD')")
+    method_params: Optional[dict] = _f(None,
+        doc="parameters of a registered method that declares them: a mapping of name to number (traced)")
     n_particles: int = _f(10, lo=1, static=True, doc="particles")
     capacity: int = _f(512, lo=1, static=True, doc="landmark slots per particle")
     window: int = _f(64, lo=1, static=True,

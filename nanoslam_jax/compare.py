@@ -47,10 +47,15 @@ import yaml
 
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
-from .filter import (GAUSSIAN_METHODS, dead_reckoning, reported_map, reported_trajectory, run_batch, run_filter,
+from .filter import (dead_reckoning, reported_map, reported_trajectory, run_batch, run_filter,
                      settings_from_config, stack_params)
 
-DETERMINISTIC = GAUSSIAN_METHODS + ("dead_reckoning",)
+def deterministic(method: str) -> bool:
+    """Whether a run of ``method`` does not depend on the seed (Gaussian methods, dead reckoning)."""
+    from .methods import get_method
+
+    return get_method(method).kind != "particle"
+
 RMSE_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
 
 
@@ -271,7 +276,7 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
     t = np.asarray(seg.time)
     static, params = settings_from_config(cfg, seg.k_max)
     res = MethodResult(m, method, rows=[])
-    seeds = [spec.first_seed] if method in DETERMINISTIC else list(range(spec.first_seed, spec.first_seed + spec.seeds))
+    seeds = [spec.first_seed] if deterministic(method) else list(range(spec.first_seed, spec.first_seed + spec.seeds))
 
     if method == "dead_reckoning":
         t0 = time.perf_counter()

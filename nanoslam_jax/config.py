@@ -206,11 +206,19 @@ def _check_consistency(cfg: Config, where: str) -> None:
                           f"({mp.max_probability}), got {mp.confirm_probability}")
     if cfg.noise.forgetting >= 1.0:
         raise ConfigError(f"{where}key 'noise.forgetting': expected a value < 1, got {cfg.noise.forgetting}")
-    if cfg.noise.adaptive and cfg.filter.method not in ADAPTIVE_NOISE_METHODS:
+    from .methods import get_method, method_names
+
+    try:
+        method = get_method(cfg.filter.method)
+        method.method_params(cfg.filter.method_params)
+    except ValueError as e:
+        raise ConfigError(f"{where}{e}") from None
+    if cfg.noise.adaptive and not method.adaptive_noise:
+        adaptive = [m for m in method_names() if get_method(m).adaptive_noise]
         raise ConfigError(f"{where}key 'noise.adaptive': the adaptive noise estimate is available for "
-                          f"filter.method {', '.join(ADAPTIVE_NOISE_METHODS)}, not {cfg.filter.method!r}; "
+                          f"filter.method {', '.join(adaptive)}, not {cfg.filter.method!r}; "
                           "set noise.adaptive to false")
-    if cfg.filter.estimate == "path" and cfg.filter.method in ("ekf_slam", "nasrukf", "dead_reckoning"):
+    if cfg.filter.estimate == "path" and method.kind != "particle":
         raise ConfigError(f"{where}key 'filter.estimate': 'path' follows the particles' ancestry; filter.method "
                           f"{cfg.filter.method!r} has no particles; use best (or mean)")
     if cfg.smoother.enabled and cfg.filter.estimate != "path":

@@ -25,9 +25,10 @@ from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_victoria_park, make_segments
-from .filter import (AVAILABLE_METHODS, GAUSSIAN_METHODS, Params, Static, adaptive_noise_summary, configured_noise,
+from .filter import (Params, Static, adaptive_noise_summary, configured_noise,
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
                      text_progress)
+from .filter._scan import is_gaussian
 from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
 from .smoother import SmootherSettings, smooth_run, smoother_map
 
@@ -261,9 +262,6 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
     Returns:
         The :class:`RunResult`; its ``metrics["finite"]`` says whether the estimate stayed finite.
     """
-    if cfg.filter.method not in AVAILABLE_METHODS:
-        raise ConfigError(f"key 'filter.method': {cfg.filter.method!r} is not available yet; "
-                          f"available: {', '.join(AVAILABLE_METHODS)}")
     stats0 = compile_stats()
     log = load_log(cfg, data_dir)
     seg = log.segments
@@ -310,7 +308,7 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
                 metrics.setdefault("warnings", []).append(
                     f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "
                     f"{cfg.smoother.max_iter}, smoother.tol {cfg.smoother.tol:g}); the smoothed path is reported as it stands")
-        ess = np.asarray(o.ess) if cfg.filter.method not in GAUSSIAN_METHODS else None
+        ess = None if is_gaussian(cfg.filter.method) else np.asarray(o.ess)
         outputs, state = jax.tree.map(np.asarray, o), run.state
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0

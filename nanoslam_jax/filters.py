@@ -35,7 +35,7 @@ from .config import Config, apply_overrides, config_from_dict, config_to_dict, l
 from .data import Segments
 from .filter._params import Params, Static, settings_from_config
 from .filter._prior import relative_prior
-from .filter._scan import GAUSSIAN_METHODS, _check_filter_method, _masked_step, initial_state
+from .filter._scan import _check_filter_method, _masked_step, initial_state, is_gaussian
 from .models import AbstractMotionModel
 
 __all__ = ["Filter", "build"]
@@ -68,7 +68,7 @@ def _init(static: Static, params: Params, key):
 @functools.partial(jax.jit, static_argnames=("static",))
 def _step(static: Static, params: Params, state, segment: Segments):
     rel = None
-    if static.method not in GAUSSIAN_METHODS and static.prior_cov == "reset":
+    if not is_gaussian(static.method) and static.prior_cov == "reset":
         rel = relative_prior(segment.dt, segment.u, segment.dr_mask, params, static.prior)
     return _masked_step(static, params, state, (segment, jnp.asarray(True), rel))
 

@@ -50,6 +50,7 @@ from ._scan import (
     dead_reckoning as dead_reckoning,
     filter_scan as filter_scan,
     initial_state as initial_state,
+    is_gaussian as is_gaussian,
     make_proposal as make_proposal,
     relative_priors as relative_priors,
     reported_map as reported_map,

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
+from ..methods import get_method
 from ..models import AbstractMotionModel, motion_model_from_config
 
 
@@ -143,6 +144,8 @@ class Params(NamedTuple):
         forgetting: forgetting factor ``b`` of the adaptive measurement-noise estimate.
         noise_floor: smallest adaptive noise variance, as a fraction of the configured one.
         new_feature_hits: NASRUKF's ``N_new``: detections a feature needs before it updates the pose.
+        method: the traced parameters of a registered method that declares them (``filter.method_params``
+            over the method's defaults), by name; empty for the built-in methods.
     """
 
     motion: AbstractMotionModel
@@ -167,6 +170,7 @@ class Params(NamedTuple):
     forgetting: Float[ArrayLike, ""]
     noise_floor: Float[ArrayLike, ""]
     new_feature_hits: Float[ArrayLike, ""]
+    method: dict = {}
 
     @property
     def R(self) -> Float[Array, "2 2"]:
@@ -188,15 +192,17 @@ def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
 
 
 def shardable(method: str, nano_init: str = "prior") -> bool:
-    """Whether a method's per-particle work may run under ``shard_map`` (split over devices).
+    """Whether a method's per-particle work may run under ``shard_map`` (split over devices), as
+    its registration says (:class:`~nanoslam_jax.methods.Method`).
 
     optimistix's least-squares solvers (method ``iterated``; NANO-SLAM with ``nano.init:
     gauss_newton``) cannot: lineax compares the residual's structure with its operator's, and
-    inside ``shard_map`` the operator's carries a sharding the residual's lacks ("pytree does not
-    match out_structure"; lineax issue #185, open). Such runs stay on one device: a single run's
-    particles are not split, nor is a sweep batch of them.
+    inside ``shard_map`` the operator's carries a sharding the residual's lacks. Such runs stay on
+    one device: a single run's particles are not split, nor is a sweep batch of them.
     """
-    return not (method == "iterated" or (method == "nano" and nano_init == "gauss_newton"))
+    from ..methods import get_method
+
+    return bool(get_method(method).shardable(Static(method=method, nano_init=nano_init)))
 
 
 def particle_devices(setting: str, particles: int, devices: int | None = None, *, split_ok: bool = True) -> int:
@@ -229,7 +235,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         quadrature=n.quadrature,
         gh_order=n.gh_order, hessian=n.hessian, max_iter=n.max_iter, landmark_noise=n.landmark_noise,
         nano_init=n.init, nano_solver=n.solver,
-        landmark_update="unscented" if f.method == "ufastslam" else "ekf",
+        landmark_update=get_method(f.method).landmark_update,
         iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
         iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
         devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(f.method, n.init)),
@@ -258,5 +264,6 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         nano_alpha=a(n.ut_alpha), nano_beta=a(n.ut_beta), nano_kappa=a(n.ut_kappa),
         max_range=a(cfg.data.max_range), window_margin=a(f.window_margin), map=map_params,
         forgetting=a(nz.forgetting), noise_floor=a(nz.adaptive_floor), new_feature_hits=a(cfg.nasrukf.new_feature_hits),
+        method={k: a(v) for k, v in get_method(f.method).method_params(f.method_params).items()},
     )
     return static, params

@@ -22,49 +22,40 @@ from jaxtyping import Array, Bool, Float, Int, Key
 
 from .._cache import compile_program
 from ..data import Segments
-from ..proposals import AbstractProposal, LinearizedProposal, NanoProposal, PriorProposal
-from ..quadrature import make_rule
+from ..methods import get_method, method_names
+from ..proposals import AbstractProposal
 from ._params import Params, Static
 from ._prior import predict_mean, relative_prior
 from ._state import FilterState, LandmarkMap, init_state
 from ._step import StepOutput, filter_step
 
 
-#: Methods that run today.
+#: The built-in methods (every registered one: :func:`nanoslam_jax.methods.method_names`).
 AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam", "nasrukf")
-#: Methods without particles: their state is Gaussian and a run does not depend on the seed.
+#: The built-in methods without particles: their state is Gaussian and a run does not depend on the seed.
 GAUSSIAN_METHODS = ("ekf_slam", "nasrukf")
 
 
+def is_gaussian(method: str) -> bool:
+    """Whether a registered method is Gaussian (no particles; a run does not depend on the seed)."""
+    return get_method(method).kind == "gaussian"
+
+
 def make_proposal(static: Static, params: Params) -> AbstractProposal:
-    """The proposal of ``static.method`` with its traced hyperparameters from ``params``."""
-    if static.method == "nano":
-        rule = make_rule(static.quadrature, alpha=params.nano_alpha, beta=params.nano_beta,
-                         kappa=params.nano_kappa, order=static.gh_order)
-        return NanoProposal(rule, params.gamma, params.step, max_iter=static.max_iter, hessian=static.hessian,
-                            landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver)
-    if static.method == "fastslam1":
-        return PriorProposal()
-    if static.method == "fastslam2":
-        return LinearizedProposal(landmark_noise=True)
-    if static.method == "ufastslam":
-        from ..proposals._ufastslam import UnscentedProposal
-
-        return UnscentedProposal(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa)
-    if static.method == "iterated":
-        from ..proposals._iterated import IteratedProposal
-
-        return IteratedProposal(solver=static.iterated_solver, max_iter=static.iterated_max_iter,
-                                tol=static.iterated_tol, landmark_noise=static.iterated_landmark_noise)
-    proposals = [m for m in AVAILABLE_METHODS if m not in GAUSSIAN_METHODS + ("dead_reckoning",)]
-    raise ValueError(f"filter.method: {static.method!r} has no particle-filter proposal; expected one of "
-                     f"{', '.join(proposals)}")
+    """The proposal of ``static.method`` (a registered particle method) with its traced
+    hyperparameters from ``params``."""
+    method = get_method(static.method)
+    if method.kind != "particle":
+        particle = [m for m in method_names() if get_method(m).kind == "particle"]
+        raise ValueError(f"filter.method: {static.method!r} has no particle-filter proposal; expected one of "
+                         f"{', '.join(particle)}")
+    return method.proposal(static, params, params.method)
 
 
 def _check_filter_method(static: Static) -> None:
     """Refuse dead reckoning, which ``run_filter`` / ``run_batch`` cannot scan, before tracing (any
     other unknown method is refused by :func:`make_proposal`)."""
-    if static.method == "dead_reckoning":
+    if get_method(static.method).kind == "dead_reckoning":
         raise ValueError("filter.method: 'dead_reckoning' is deterministic and has no filter to run: use "
                          "nanoslam_jax.filter.dead_reckoning(params, segments) (what `nanoslam run` and "
                          "`nanoslam compare` do for it)")
@@ -72,14 +63,9 @@ def _check_filter_method(static: Static) -> None:
 
 def _masked_step(static: Static, params: Params, state, inp: tuple):
     seg, valid, rel_prior = inp
-    if static.method == "ekf_slam":
-        from ._ekf_slam import ekf_slam_step
-
-        return ekf_slam_step(static, params, state, seg, valid)
-    if static.method == "nasrukf":
-        from ._nasrukf import nasrukf_step
-
-        return nasrukf_step(static, params, state, seg, valid)
+    method = get_method(static.method)
+    if method.kind == "gaussian":
+        return method.step(static, params, state, seg, valid)
     return filter_step(static, params, make_proposal(static, params), state, seg, valid, rel_prior)
 
 
@@ -90,7 +76,7 @@ def segment_priors(
     shared by all particles), or None where the particles' priors are their own (EKF-SLAM, NASRUKF,
     ``filter.prior_cov: carry``). It depends on the controls and the hyperparameters only, so
     :func:`filter_scan` computes it for all segments at once, before the scan."""
-    if static.method in GAUSSIAN_METHODS or static.prior_cov != "reset":
+    if is_gaussian(static.method) or static.prior_cov != "reset":
         return None
     return relative_priors(segments, params, static.prior)
 
@@ -106,14 +92,9 @@ def relative_priors(
 def initial_state(static: Static, params: Params, key: Key[Array, ""]):
     """The state a run starts from: a :class:`FilterState`, an ``EkfSlamState`` for EKF-SLAM or a
     ``NasrukfState`` for NASRUKF."""
-    if static.method == "ekf_slam":
-        from ._ekf_slam import init_ekf_state
-
-        return init_ekf_state(static, params, key)
-    if static.method == "nasrukf":
-        from ._nasrukf_state import init_nasrukf_state
-
-        return init_nasrukf_state(static, params, key)
+    method = get_method(static.method)
+    if method.kind == "gaussian":
+        return method.init(static, params, key)
     return init_state(static, params, key)
 
 

@@ -38,7 +38,7 @@ import re
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from ..compare import DETERMINISTIC, _int, _str_list, method_rows, read_comparison, resolve_base
+from ..compare import deterministic, _int, _str_list, method_rows, read_comparison, resolve_base
 from ..config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
 
 __all__ = ["StudyMethod", "StudyTiming", "PairedSpec", "StudySpec", "StudyPoint", "load_study", "is_study_file",
@@ -307,13 +307,13 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         first_seed=first_seed, segments=segments, timing=timing, run=tuple(run.items()), paired=paired, quick=quick,
     )
     points = expand_study(spec)  # every method's config is validated here, before anything runs
-    from ..filter import AVAILABLE_METHODS
+    from ..methods import method_names
     from ..sweep import sweep_from_dict
 
     for pt in points:
-        if pt.method not in AVAILABLE_METHODS:
-            raise ConfigError(f"{where}: method {pt.label!r}: filter.method {pt.method!r} is not available yet; "
-                              f"available: {', '.join(AVAILABLE_METHODS)}")
+        if pt.method not in method_names():
+            raise ConfigError(f"{where}: method {pt.label!r}: filter.method {pt.method!r} is not registered; "
+                              f"registered: {', '.join(method_names())}")
 
     sweep_from_dict(point_sweep_dict(spec, points[0]), source=where)  # the 'run' options, named by this file
     if len({pt.point_id for pt in points}) != len(points):
@@ -351,7 +351,7 @@ def expand_study(spec: StudySpec) -> list[StudyPoint]:
     rows = []
     for order, m in enumerate(spec.methods):
         cfg = point_config(spec, m)
-        if cfg.filter.method in DETERMINISTIC:
+        if deterministic(cfg.filter.method):
             rows.append(((0, order), StudyPoint(_safe(m.label), m.label, cfg.filter.method, None, (spec.first_seed,), cfg)))
             continue
         counts = m.particles if m.particles is not None else spec.particles  # () once --particles drops them all

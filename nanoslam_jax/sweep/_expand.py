@@ -24,7 +24,7 @@ __all__ = ["expand", "sample_random", "spec_to_dict", "spec_identity", "stored_i
 def _get(cfg: Config, key: str) -> Any:
     node: Any = cfg
     for part in key.split("."):
-        node = getattr(node, part)
+        node = node.get(part) if isinstance(node, dict) else getattr(node, part)
     return node
 
 

@@ -25,7 +25,8 @@ from .._cache import enable_compile_cache
 from .._version import __version__
 from ..config import ConfigError
 from .._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
-from ..filter import AVAILABLE_METHODS, NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS
+from ..filter import NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS
+from ..methods import method_names
 from ._batch import BatchTask, LogData, _first_line, execute_batch, load_log_data, log_key
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
 from ._expand import expand, spec_identity, spec_to_dict, stored_identity
@@ -304,9 +305,9 @@ def run_sweep(
 
     points, runs, skipped = expand(spec)
     for p in points:
-        if p.config.filter.method not in AVAILABLE_METHODS:
-            raise ConfigError(f"{spec.source}: filter.method {p.config.filter.method!r} is not available yet; "
-                              f"available: {', '.join(AVAILABLE_METHODS)}")
+        if p.config.filter.method not in method_names():
+            raise ConfigError(f"{spec.source}: filter.method {p.config.filter.method!r} is not registered; "
+                              f"registered: {', '.join(method_names())}")
     prog = Progress(len(runs), 0, stream, progress)
 
     if backend == "ray":

@@ -1,0 +1,224 @@
+"""The method registry: every SLAM method the filter runs, by its ``filter.method`` name.
+
+A :class:`Method` says how a method is built and run: for a particle method its proposal (the
+Gaussian over the pose each particle samples from; the shared Rao-Blackwellised step does the
+rest: association, landmark updates, weights, management, resampling), for a Gaussian method its
+own ``init`` and ``step``. Adding a proposal is one module that defines an
+:class:`~nanoslam_jax.proposals.AbstractProposal` and one :func:`register` call::
+
+    from nanoslam_jax.methods import Method, register
+    from my_package.proposal import MyProposal
+
+    register(Method(
+        name="mine",
+        proposal=lambda static, params, cfg: MyProposal(step=cfg["step"]),
+        defaults={"step": 0.5},
+        description="my proposal",
+    ))
+
+after which ``filter.method: mine`` runs it (``nanoslam run``, ``compare``, ``sweep`` and the
+Python API), with its parameters from ``filter.method_params`` (traced: a sweep over them
+compiles once). A config file can name a method that a module registers by import path,
+``filter.method: my_package.proposal:METHOD`` (the module is imported, ``METHOD`` must be a
+:class:`Method`, and it is registered under that name).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any, Literal, Optional
+
+if TYPE_CHECKING:
+    from .filter._params import Params, Static
+
+__all__ = ["Method", "register", "get_method", "method_names", "METHOD_KINDS"]
+
+#: What a method is: a particle filter with its own proposal, a Gaussian filter with its own state
+#: and step, or the motion model alone.
+METHOD_KINDS = ("particle", "gaussian", "dead_reckoning")
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A registered method.
+
+    Attributes:
+        name: its ``filter.method`` name.
+        kind: ``"particle"`` (built on the shared particle step, with :attr:`proposal`),
+            ``"gaussian"`` (its own :attr:`init` and :attr:`step`) or ``"dead_reckoning"``.
+        proposal: ``proposal(static, params, method_params) -> AbstractProposal`` for a particle
+            method: the proposal with its traced hyperparameters (``method_params``: the mapping
+            of :attr:`defaults` updated by ``filter.method_params``, as traced scalars).
+        init: ``init(static, params, key) -> state`` of a Gaussian method.
+        step: ``step(static, params, state, segment, valid) -> (state, StepOutput)`` of a
+            Gaussian method.
+        landmark_update: how a particle method updates its landmarks: ``"ekf"`` (linearised) or
+            ``"unscented"``.
+        shardable: ``shardable(static) -> bool``: whether its per-particle work may be split over
+            devices (``shard_map``).
+        adaptive_noise: it offers the adaptive measurement-noise estimate (``noise.adaptive``).
+        defaults: its traced parameters and their defaults (``filter.method_params`` overrides
+            them; unknown names are refused).
+        description: one line for the config reference and error messages.
+    """
+
+    name: str
+    kind: Literal["particle", "gaussian", "dead_reckoning"] = "particle"
+    proposal: Optional[Callable[..., Any]] = None
+    init: Optional[Callable[..., Any]] = None
+    step: Optional[Callable[..., Any]] = None
+    landmark_update: Literal["ekf", "unscented"] = "ekf"
+    shardable: Callable[["Static"], bool] = lambda static: True
+    adaptive_noise: bool = False
+    defaults: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self):
+        if self.kind not in METHOD_KINDS:
+            raise ValueError(f"Method {self.name!r}: kind must be one of {', '.join(METHOD_KINDS)}, got {self.kind!r}")
+        if self.kind == "particle" and self.proposal is None:
+            raise ValueError(f"Method {self.name!r}: a particle method needs a proposal")
+        if self.kind == "gaussian" and (self.init is None or self.step is None):
+            raise ValueError(f"Method {self.name!r}: a Gaussian method needs init and step")
+        if self.landmark_update not in ("ekf", "unscented"):
+            raise ValueError(f"Method {self.name!r}: landmark_update must be 'ekf' or 'unscented'")
+
+    def method_params(self, given: Optional[Mapping[str, float]]) -> dict[str, float]:
+        """:attr:`defaults` updated by ``filter.method_params`` (``given``).
+
+        Raises:
+            ValueError: naming the key, for a name the method does not take.
+        """
+        out = dict(self.defaults)
+        for k, v in (given or {}).items():
+            if k not in out:
+                takes = ", ".join(sorted(out)) or "none"
+                raise ValueError(f"key 'filter.method_params.{k}': method {self.name!r} takes no parameter {k!r} "
+                                 f"(it takes: {takes})")
+            out[k] = float(v)
+        return out
+
+
+_REGISTRY: dict[str, Method] = {}
+
+
+def register(method: Method, *, replace: bool = False) -> Method:
+    """Register ``method`` under its name (``replace``: allow redefining a name).
+
+    Returns:
+        The method (so a module can write ``METHOD = register(Method(...))``).
+    """
+    if not isinstance(method, Method):
+        raise TypeError(f"register: expected a nanoslam_jax.methods.Method, got {type(method).__name__}")
+    if method.name in _REGISTRY and not replace and _REGISTRY[method.name] is not method:
+        raise ValueError(f"a method named {method.name!r} is registered already (pass replace=True to redefine it)")
+    _REGISTRY[method.name] = method
+    return method
+
+
+def method_names() -> tuple[str, ...]:
+    """The names of the registered methods."""
+    return tuple(_REGISTRY)
+
+
+def get_method(name: str) -> Method:
+    """The method registered as ``name``; a name ``module:attr`` imports ``module`` and registers
+    its :class:`Method` ``attr`` under that name.
+
+    Raises:
+        ValueError: naming ``filter.method``, when there is no such method.
+    """
+    if name in _REGISTRY:
+        return _REGISTRY[name]
+    if ":" in name:
+        module, _, attr = name.partition(":")
+        try:
+            obj = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as e:
+            raise ValueError(f"key 'filter.method': cannot load {name!r}: {e}") from None
+        if not isinstance(obj, Method):
+            raise ValueError(f"key 'filter.method': {name!r} is not a nanoslam_jax.methods.Method")
+        return register(dataclasses.replace(obj, name=name), replace=True)
+    raise ValueError(f"key 'filter.method': {name!r} is not a registered method; expected one of "
+                     f"{', '.join(map(repr, _REGISTRY))} (or one by import path 'module:METHOD')")
+
+
+# --------------------------------------------------------------------------- built-in methods
+
+
+def _nano(static: "Static", params: "Params", mp: dict):
+    from .proposals import NanoProposal
+    from .quadrature import make_rule
+
+    rule = make_rule(static.quadrature, alpha=params.nano_alpha, beta=params.nano_beta, kappa=params.nano_kappa,
+                     order=static.gh_order)
+    return NanoProposal(rule, params.gamma, params.step, max_iter=static.max_iter, hessian=static.hessian,
+                        landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver)
+
+
+def _fastslam1(static, params, mp):
+    from .proposals import PriorProposal
+
+    return PriorProposal()
+
+
+def _fastslam2(static, params, mp):
+    from .proposals import LinearizedProposal
+
+    return LinearizedProposal(landmark_noise=True)
+
+
+def _ufastslam(static, params, mp):
+    from .proposals._ufastslam import UnscentedProposal
+
+    return UnscentedProposal(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa)
+
+
+def _iterated(static, params, mp):
+    from .proposals._iterated import IteratedProposal
+
+    return IteratedProposal(solver=static.iterated_solver, max_iter=static.iterated_max_iter, tol=static.iterated_tol,
+                            landmark_noise=static.iterated_landmark_noise)
+
+
+def _ekf_init(static, params, key):
+    from .filter._ekf_slam import init_ekf_state
+
+    return init_ekf_state(static, params, key)
+
+
+def _ekf_step(static, params, state, seg, valid):
+    from .filter._ekf_slam import ekf_slam_step
+
+    return ekf_slam_step(static, params, state, seg, valid)
+
+
+def _nasrukf_init(static, params, key):
+    from .filter._nasrukf_state import init_nasrukf_state
+
+    return init_nasrukf_state(static, params, key)
+
+
+def _nasrukf_step(static, params, state, seg, valid):
+    from .filter._nasrukf import nasrukf_step
+
+    return nasrukf_step(static, params, state, seg, valid)
+
+
+# optimistix's least-squares solvers cannot run under shard_map (lineax compares the residual's
+# structure with its operator's, whose sharding differs there): such runs stay on one device.
+register(Method("dead_reckoning", kind="dead_reckoning", description="the motion model alone"))
+register(Method("nano", proposal=_nano, adaptive_noise=True, shardable=lambda s: s.nano_init != "gauss_newton",
+                description="NANO-SLAM: the KL-optimal Gaussian proposal by natural-gradient iteration"))
+register(Method("fastslam1", proposal=_fastslam1, description="FastSLAM 1.0: the prior as proposal"))
+register(Method("fastslam2", proposal=_fastslam2, adaptive_noise=True,
+                description="FastSLAM 2.0: the linearised (EKF) proposal"))
+register(Method("ufastslam", proposal=_ufastslam, landmark_update="unscented", adaptive_noise=True,
+                description="Unscented FastSLAM: unscented proposal and landmark updates"))
+register(Method("iterated", proposal=_iterated, shardable=lambda s: False,
+                description="the iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal"))
+register(Method("ekf_slam", kind="gaussian", init=_ekf_init, step=_ekf_step, description="EKF-SLAM"))
+register(Method("nasrukf", kind="gaussian", init=_nasrukf_init, step=_nasrukf_step, adaptive_noise=True,
+                description="NASRUKF FastSLAM: adaptive square-root UKF per feature"))
