@@ -39,6 +39,7 @@ import hashlib
 import importlib.metadata
 import os
 import pickle
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Callable, Optional
@@ -246,20 +247,59 @@ def _environment_digest() -> str:
     return h.hexdigest()
 
 
-def program_key(fn: Callable, static: Any, args: tuple) -> str:
-    """The key of the traced program ``fn(static, *args)`` in the ``exported/`` cache.
+def _plugin_modules(static: Any, args: tuple) -> set[str]:
+    """The modules of the plug-ins a program traces: the classes of the model objects among the
+    arguments (equinox modules: a motion model) and the functions of the registered method."""
+    import equinox as eqx
+
+    mods = {type(x).__module__ for x in jax.tree.leaves(args, is_leaf=lambda x: isinstance(x, eqx.Module))
+            if isinstance(x, eqx.Module)}
+    name = getattr(static, "method", None)
+    if isinstance(name, str):
+        from .methods import get_method
+
+        try:
+            method = get_method(name)
+        except ValueError:
+            method = None
+        if method is not None:
+            mods |= {f.__module__ for f in (method.proposal, method.init, method.step, method.shardable)
+                     if f is not None and getattr(f, "__module__", None)}
+    return {m for m in mods if m != __package__ and not m.startswith(__package__ + ".")}
+
+
+def _plugin_digest(static: Any, args: tuple) -> Optional[str]:
+    """Hash of the source files of the plug-ins outside this package that a program traces (a
+    user's motion model or method), or None when one has no source file to hash (defined in an
+    interactive session): such a program is not kept in the traced-program cache."""
+    h = hashlib.sha256()
+    for name in sorted(_plugin_modules(static, args)):
+        module = sys.modules.get(name)
+        path = getattr(module, "__file__", None)
+        if not path or not Path(path).is_file():
+            return None
+        h.update(name.encode() + b"\0" + Path(path).read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def program_key(fn: Callable, static: Any, args: tuple) -> Optional[str]:
+    """The key of the traced program ``fn(static, *args)`` in the ``exported/`` cache, or None
+    when it must not be cached (a plug-in without a source file, :func:`_plugin_digest`).
 
     Args:
         fn: the jitted function (its module and name enter the key).
         static: its static first argument (its ``repr`` enters the key: a frozen dataclass).
         args: the traced arguments (their tree structure, shapes, dtypes and placement).
     """
+    plugins = _plugin_digest(static, args)
+    if plugins is None:
+        return None
     leaves, tree = jax.tree.flatten(args)
     config = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
     h = hashlib.sha256(_environment_digest().encode())
     for part in (f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', repr(fn))}", repr(static), str(tree),
                  repr(config), repr([(str(jax.typeof(x)), repr(getattr(x, "sharding", None))) for x in leaves]),
-                 repr(jax.devices())):
+                 repr(jax.devices()), plugins):
         h.update(part.encode() + b"\0")
     return h.hexdigest()[:40]
 
@@ -318,6 +358,8 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
     if directory is None or getattr(static, "devices", 1) > 1:
         return fn.lower(static, *args).compile()
     key = program_key(fn, static, args)
+    if key is None:
+        return fn.lower(static, *args).compile()
     path = directory / f"{key}.bin"
     if path in _COMPILED:  # this process compiled it already (as jit's own in-memory caches would)
         return _COMPILED[path]

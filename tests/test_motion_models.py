@@ -219,3 +219,33 @@ def test_stepping_the_built_filter_equals_the_batch_run(method):
         poses.append(np.asarray(out.best_pose))
     batch = run_filter(flt.static, flt.params, seg, cfg.seed)
     np.testing.assert_allclose(np.stack(poses), np.asarray(batch.outputs.best_pose), atol=1e-9)
+
+
+def test_cache_never_serves_a_program_compiled_for_another_model(tmp_path):
+    """The same model class name and parameters, its code changed between two runs sharing a
+    compilation cache: the second run traces the new code (its trajectory differs), and a third run
+    of the unchanged new code is served from the cache with the second's numbers."""
+    env = {**__import__("os").environ, "PYTHONPATH": str(tmp_path), "NANOSLAM_CACHE_DIR": str(tmp_path / "cache")}
+    source = textwrap.dedent('''
+        from typing import ClassVar
+        import equinox as eqx
+        import jax.numpy as jnp
+        from nanoslam_jax.models import Unicycle
+
+        class Robot(Unicycle):
+            def rates(self, u):
+                return jnp.asarray(u)[:2] * SCALE
+        SCALE = {scale}
+        ''')
+    args = ["--set", "model.motion=robot_model:Robot", "--set", "sim.duration=15", "--set", "filter.n_particles=3",
+            "--set", "output.plots=false", "--quiet"]
+    paths = []
+    for i, scale in enumerate((1.0, 1.05, 1.05)):
+        (tmp_path / "robot_model.py").write_text(source.format(scale=scale))
+        out = tmp_path / f"run{i}"
+        subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", "run", *args, "--out", str(out)], check=True,
+                       env=env, capture_output=True, text=True)
+        paths.append(np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1))
+    assert np.abs(paths[1] - paths[0]).max() > 1e-3  # the changed code ran
+    np.testing.assert_array_equal(paths[2], paths[1])
+    assert len(list((tmp_path / "cache" / "exported").glob("*.bin"))) >= 2
