@@ -93,6 +93,9 @@ class DetectorConfig:
     tree_min_separation: float = _f(3.0, lo=0.0,
         doc="a tree's end returns lie at least this far (m) from the nearest returns of the clusters beside it "
             "in the scan (a trunk stands alone; foliage, hedges and fences come in pieces)")
+    tree_min_clearance: float = _f(2.0, lo=0.0,
+        doc="no return of the scan outside a tree's cluster lies within this distance (m) of the trunk's surface "
+            "(0: no such test)")
     tree_max_asymmetry: float = _f(0.33, lo=0.0,
         doc="a tree's first and last returns differ in range by at most this fraction of its diameter "
             "(an oblique surface is not a trunk)")

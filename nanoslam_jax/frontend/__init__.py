@@ -4,6 +4,13 @@ line segments, circle fits, corner and break points, and tree detections (docs/f
 from ._circles import CircleFit as CircleFit, fit_circle as fit_circle, fit_circles as fit_circles
 from ._clusters import breakpoint_threshold as breakpoint_threshold
 from ._extract import detect_trees as detect_trees, extract_features as extract_features
+from ._io import (
+    FEATURE_COLUMNS as FEATURE_COLUMNS,
+    concatenate_features as concatenate_features,
+    detect_log as detect_log,
+    extract_features_chunked as extract_features_chunked,
+    write_features_csv as write_features_csv,
+)
 from ._segments import polyline_vertices as polyline_vertices, split_and_merge as split_and_merge
 from ._trees import width_radius as width_radius
 from ._types import (
@@ -21,6 +28,11 @@ from ._types import (
 __all__ = [
     "detect_trees",
     "extract_features",
+    "extract_features_chunked",
+    "concatenate_features",
+    "detect_log",
+    "write_features_csv",
+    "FEATURE_COLUMNS",
     "Features",
     "Points",
     "Clusters",

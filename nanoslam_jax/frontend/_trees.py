@@ -9,7 +9,8 @@ replaces that estimate when it passes the residual test and agrees with the angu
 A cluster is no tree when it is wider than a trunk (walls, fences), when its circle fit is flat (a
 straight piece), concave or rough, when it is too wide, thin, near or far, when its first and last returns differ
 in range by more than a fraction of its diameter (an oblique surface), when another object lies within
-``tree_min_separation`` of its ends (foliage, fences, people: a trunk stands alone), when it reaches the edge of
+``tree_min_separation`` of its ends or any other return within ``tree_min_clearance`` of its surface
+(foliage, fences, people: a trunk stands alone), when it reaches the edge of
 the field of view, or when a nearer return hides one of its edges (partly seen).
 """
 
@@ -89,6 +90,9 @@ def find_trees(points: Points, clusters: Clusters, fit: CircleFit, scans: LaserS
     if cfg.reject_no_return_edge:
         ok &= (clusters.left != EDGE_NO_RETURN) & (clusters.right != EDGE_NO_RETURN)
     k = np.flatnonzero(ok)
+    if cfg.tree_min_clearance > 0:
+        keep = _clearance(scans, clusters, k, rng, brg, rad, cfg.max_range) >= cfg.tree_min_clearance
+        k = k[keep]
     return Trees(clusters.scan[k], scans.time[clusters.scan[k]], rng[k], brg[k], diameter[k],
                  clusters.first_beam[k], clusters.last_beam[k], use_fit[k].astype(np.int64))
 
@@ -107,3 +111,21 @@ def _separation(points: Points, clusters: Clusters) -> np.ndarray:
     gap[1:] = np.minimum(gap[1:], d)
     gap[:-1] = np.minimum(gap[:-1], d)
     return gap
+
+
+def _clearance(scans: LaserScans, clusters: Clusters, k: np.ndarray, rng: np.ndarray, brg: np.ndarray,
+               rad: np.ndarray, max_range: float, block: int = 4096) -> np.ndarray:
+    """For the clusters ``k``: the distance (m) from the trunk's surface (centre ``rng``, ``brg``,
+    radius ``rad``) to the nearest return of its scan outside the cluster."""
+    out = np.empty(k.size)
+    beams = np.arange(scans.n_beams)
+    cos_a, sin_a = np.cos(scans.angles), np.sin(scans.angles)
+    for lo in range(0, k.size, block):
+        kk = k[lo:lo + block]
+        r = scans.ranges[clusters.scan[kk]]
+        cx, cy = rng[kk] * np.cos(brg[kk]), rng[kk] * np.sin(brg[kk])
+        d = np.hypot(r * cos_a - cx[:, None], r * sin_a - cy[:, None])
+        own = (beams >= clusters.first_beam[kk, None]) & (beams <= clusters.last_beam[kk, None])
+        d = np.where((r < min(max_range, scans.max_range)) & ~own, d, np.inf)
+        out[lo:lo + block] = d.min(axis=1) - rad[kk]
+    return out
