@@ -52,21 +52,27 @@ def split_and_merge(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], cluste
     vertex[ends] = True
     if n == 0:
         return vertex
-    idx = np.arange(n)
+    # splitting: only the points of segments that split in the previous round are examined again
+    active = np.flatnonzero(~vertex & (cluster[np.maximum(np.arange(n) - 1, 0)] == cluster[np.minimum(np.arange(n) + 1, n - 1)]))
     for _ in range(rounds):
+        if active.size == 0:
+            break
         vi = np.flatnonzero(vertex)
-        seg = np.cumsum(vertex) - 1
-        prev = vi[seg]
-        nxt = vi[np.minimum(seg + 1, vi.size - 1)]
-        nxt = np.where(vertex, idx, nxt)
-        dist = _chord_distance(x, y, x[prev], y[prev], x[nxt], y[nxt])
-        dist = np.where(vertex | (cluster[prev] != cluster[nxt]), 0.0, dist)
-        segmax = np.maximum.reduceat(dist, vi)
-        cand = np.flatnonzero((dist > split_distance) & (dist == segmax[seg]))
+        seg = (np.cumsum(vertex) - 1)[active]
+        a, b = vi[seg], vi[seg + 1]
+        dist = _chord_distance(x[active], y[active], x[a], y[a], x[b], y[b])
+        first = np.flatnonzero(np.concatenate([[True], seg[1:] != seg[:-1]]))
+        segmax = np.maximum.reduceat(dist, first)
+        which = np.cumsum(np.concatenate([[False], seg[1:] != seg[:-1]]))
+        cand = np.flatnonzero((dist > split_distance) & (dist == segmax[which]))
         if cand.size == 0:
             break
-        keep = np.concatenate([[True], seg[cand][1:] != seg[cand][:-1]])
-        vertex[cand[keep]] = True
+        cand = cand[np.concatenate([[True], seg[cand][1:] != seg[cand][:-1]])]
+        vertex[active[cand]] = True
+        split = np.zeros(first.size, dtype=bool)
+        split[which[cand]] = True
+        active = active[split[which] & ~vertex[active]]
+    # merging: alternate interior vertices per pass, so that no two merges overlap
     for _ in range(rounds):
         changed = False
         for parity in (0, 1):
@@ -78,21 +84,20 @@ def split_and_merge(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], cluste
             cand = interior & (np.arange(m) % 2 == parity)
             if not cand.any():
                 continue
-            seg = np.cumsum(vertex) - 1  # the segment from vertex seg to vertex seg + 1
-            nxt_cand = np.concatenate([cand[1:], [False]])
-            owner = np.where(cand[seg], seg, np.where(nxt_cand[seg], seg + 1, -1))
-            has = owner >= 0
-            o = np.where(has, owner, 1)
-            a, b = vi[np.maximum(o - 1, 0)], vi[np.minimum(o + 1, m - 1)]
-            dist = np.where(has, _chord_distance(x, y, x[a], y[a], x[b], y[b]), 0.0)
-            dmax = np.zeros(m)
-            np.maximum.at(dmax, o[has], dist[has])
-            dsum = np.bincount(o[has], weights=dist[has], minlength=m)
-            count = np.zeros(m)
-            count[1:-1] = vi[2:] - vi[:-2] + 1
-            ok = cand & (dmax <= split_distance) & (dsum <= merge_distance * np.maximum(count, 1))
+            # the points between the candidate's neighbouring vertices (first one excluded: distance 0)
+            c = np.flatnonzero(cand)
+            lo, hi = vi[c - 1] + 1, vi[c + 1]
+            cnt = hi - lo
+            pts = np.repeat(lo - np.concatenate([[0], np.cumsum(cnt)[:-1]]), cnt) + np.arange(cnt.sum())
+            o = np.repeat(c, cnt)
+            a, b = vi[o - 1], vi[o + 1]
+            dist = _chord_distance(x[pts], y[pts], x[a], y[a], x[b], y[b])
+            offs = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+            dmax = np.maximum.reduceat(dist, offs)
+            dsum = np.add.reduceat(dist, offs)
+            ok = (dmax <= split_distance) & (dsum <= merge_distance * (cnt + 1))
             if ok.any():
-                vertex[vi[ok]] = False
+                vertex[vi[c[ok]]] = False
                 changed = True
         if not changed:
             break
