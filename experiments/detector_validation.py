@@ -69,20 +69,99 @@ def detection_table(ref: np.ndarray, feats, within: float = WITHIN) -> dict:
     ours = feats.tree_table()
     # compare on the scans both have
     common = np.intersect1d(np.round(ref[:, 0] * 1000), np.round(ours[:, 0] * 1000))
-    rsel = np.isin(np.round(ref[:, 0] * 1000), common) & (ref[:, 1] < within)
-    osel = np.isin(np.round(ours[:, 0] * 1000), common) & (ours[:, 1] < within)
+    both_r = np.isin(np.round(ref[:, 0] * 1000), common)
+    both_o = np.isin(np.round(ours[:, 0] * 1000), common)
+    # match on all ranges, so that a pair straddling the 30 m limit is neither missed nor added
+    ai, aj = match(ref[both_r], ours[both_o])
+    ri, oj = np.flatnonzero(both_r)[ai], np.flatnonzero(both_o)[aj]
+    rsel = both_r & (ref[:, 1] < within)
+    osel = both_o & (ours[:, 1] < within)
+    found = np.zeros(ref.shape[0], bool)
+    found[ri] = True
+    used = np.zeros(ours.shape[0], bool)
+    used[oj] = True
+    keep = rsel[ri]
+    mi, mj = ri[keep], oj[keep]
     r, o = ref[rsel], ours[osel]
-    mi, mj = match(r, o)
-    extra = np.ones(o.shape[0], bool)
-    extra[mj] = False
-    dd = o[mj, 3] - r[mi, 3]
+    dd = ours[mj, 3] - ref[mi, 3]
+    extra_rows = np.flatnonzero(osel & ~used)
     return dict(ref=r.shape[0], ours=o.shape[0], matched=mi.size, recall=mi.size / max(r.shape[0], 1),
-                extra=int(extra.sum()), extra_rows=np.flatnonzero(osel)[extra], missed_rows=np.flatnonzero(rsel)[
-                    np.setdiff1d(np.arange(r.shape[0]), mi)],
+                extra=extra_rows.size, extra_rows=extra_rows, missed_rows=np.flatnonzero(rsel & ~found),
                 diam_bias=float(np.median(dd)), diam_mad=float(np.median(np.abs(dd - np.median(dd)))),
-                diam_abs=float(np.median(np.abs(dd))), range_bias=float(np.median(o[mj, 1] - r[mi, 1])),
-                bearing_bias_deg=float(np.rad2deg(np.median(wrap_angle_np(o[mj, 2] - r[mi, 2])))),
+                diam_abs=float(np.median(np.abs(dd))), range_bias=float(np.median(ours[mj, 1] - ref[mi, 1])),
+                bearing_bias_deg=float(np.rad2deg(np.median(wrap_angle_np(ours[mj, 2] - ref[mi, 2])))),
                 scans=common.size)
+
+
+EXTRA_KINDS = ("near a dataset detection (range or bearing off)", "wide (diameter > 1 m)",
+               "a neighbour within 3 m (the dataset drops one)", "one return (a thin pole or a stray return)",
+               "other: an isolated trunk of 2 or more returns")
+
+
+def classify_extras(ref: np.ndarray, ours: np.ndarray, rows: np.ndarray, beams: np.ndarray) -> np.ndarray:
+    """What each added detection ``ours[rows]`` is (an index into :data:`EXTRA_KINDS`): next to a
+    dataset detection of its scan (within 1.5 m, outside the match window); wider than the dataset's
+    1 m limit; beside another of our trees within 3 m (the dataset's detector drops one of two trees
+    closer than 3 m); one return (``beams``: returns per tree); or other."""
+    kind = np.where(beams[rows] == 1, 3, 4)
+    key_r = np.round(ref[:, 0] * 1000).astype(np.int64)
+    key_o = np.round(ours[:, 0] * 1000).astype(np.int64)
+    xy_r = ref[:, 1:2] * np.hstack([np.cos(ref[:, 2:3]), np.sin(ref[:, 2:3])])
+    xy_o = ours[:, 1:2] * np.hstack([np.cos(ours[:, 2:3]), np.sin(ours[:, 2:3])])
+    for n, k in enumerate(rows):
+        same_r = key_r == key_o[k]
+        same_o = (key_o == key_o[k]) & (np.arange(ours.shape[0]) != k)
+        d_ref = np.hypot(*(xy_r[same_r] - xy_o[k]).T)
+        d_our = np.hypot(*(xy_o[same_o] - xy_o[k]).T) - 0.5 * (ours[same_o, 3] + ours[k, 3])
+        if d_ref.size and d_ref.min() < 1.5:
+            kind[n] = 0
+        elif ours[k, 3] > 1.0:
+            kind[n] = 1
+        elif d_our.size and d_our.min() < 3.0:
+            kind[n] = 2
+    return kind
+
+
+def extras_figure(path: str, scans, feats, ref: np.ndarray, rows: np.ndarray, kinds: np.ndarray) -> None:
+    """One scan per kind of added detection: its returns, our trees, the dataset's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ours = feats.tree_table()
+    fig, axes = plt.subplots(2, 3, figsize=(15, 9.5))
+    for ax in axes.ravel()[len(EXTRA_KINDS):]:
+        ax.set_visible(False)
+    for ax, kind in zip(axes.ravel(), range(len(EXTRA_KINDS))):
+        pick = rows[kinds == kind]
+        if pick.size == 0:
+            ax.set_visible(False)
+            continue
+        k = pick[pick.size // 2]
+        scan = int(np.argmin(np.abs(scans.time - ours[k, 0])))
+        r = scans.ranges[scan]
+        ok = r < 75
+        ax.plot(r[ok] * np.cos(scans.angles[ok]), r[ok] * np.sin(scans.angles[ok]), ".", color="0.5", ms=3,
+                label="returns")
+        rr = ref[np.abs(ref[:, 0] - ours[k, 0]) < 5e-4]
+        ax.plot(rr[:, 1] * np.cos(rr[:, 2]), rr[:, 1] * np.sin(rr[:, 2]), "bo", mfc="none", ms=9,
+                label="measurements.dat")
+        oo = ours[np.abs(ours[:, 0] - ours[k, 0]) < 5e-4]
+        ax.plot(oo[:, 1] * np.cos(oo[:, 2]), oo[:, 1] * np.sin(oo[:, 2]), "g+", ms=9, label="ours")
+        ax.plot(ours[k, 1] * np.cos(ours[k, 2]), ours[k, 1] * np.sin(ours[k, 2]), "rs", mfc="none", ms=14,
+                label="added: " + EXTRA_KINDS[kind])
+        cx, cy = ours[k, 1] * np.cos(ours[k, 2]), ours[k, 1] * np.sin(ours[k, 2])
+        ax.set_xlim(cx - 8, cx + 8)
+        ax.set_ylim(cy - 8, cy + 8)
+        ax.set_aspect("equal")
+        ax.set_title(f"scan {scan} (t = {scans.time[scan]:.2f} s)")
+        ax.legend(fontsize=7, loc="upper left")
+        ax.set_xlabel("x ahead (m)")
+        ax.set_ylabel("y left (m)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -134,6 +213,7 @@ def main(argv=None) -> int:
                         "(default: configs/victoria_park_nano.yaml)")
     p.add_argument("--seeds", default="16-31", help="seeds of the SLAM runs, e.g. 16-31 or 0,1,2")
     p.add_argument("--out", default=None, help="directory for the detected log (default: a temporary one)")
+    p.add_argument("--figure", default=None, help="draw examples of the added detections to this image file")
     args = p.parse_args(argv)
     cfg = load_config(args.config, args.overrides)
     scans = load_laser(args.data)
@@ -148,6 +228,17 @@ def main(argv=None) -> int:
     print(f"| {res['scans']} scans | {res['ref']} | {res['ours']} | {res['matched']} | {res['recall']:.4f} | "
           f"{res['extra']} | {res['diam_bias']:+.3f} / {res['diam_mad']:.3f} / {res['diam_abs']:.3f} m | "
           f"{res['range_bias']:+.3f} m | {res['bearing_bias_deg']:+.3f} deg |")
+    ours = feats.tree_table()
+    kinds = classify_extras(ref, ours, res["extra_rows"], feats.trees.last_beam - feats.trees.first_beam + 1)
+    print("\n| added detection (within 30 m) | count | share of added |")
+    print("|---|---|---|")
+    for k, name in enumerate(EXTRA_KINDS):
+        print(f"| {name} | {int((kinds == k).sum())} | {(kinds == k).mean():.1%} |")
+    d = ours[res["extra_rows"], 3]
+    print(f"added: diameter median {np.median(d):.2f} m, range median {np.median(ours[res['extra_rows'], 1]):.1f} m")
+    if args.figure:
+        extras_figure(args.figure, scans, feats, ref, res["extra_rows"], kinds)
+        print(f"figure: {args.figure}")
     if args.slam is not None:
         import tempfile
 

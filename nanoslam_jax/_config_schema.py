@@ -86,7 +86,7 @@ class DetectorConfig:
         doc="a circle fit whose RMS geometric residual exceeds this (m) is rejected (not an arc)")
     circle_max_radius: float = _f(2.0, lo=0.0, lo_open=True, doc="arcs of larger radius (m) are not reported")
     tree_min_diameter: float = _f(0.0, lo=0.0, doc="trees thinner than this (m) are rejected")
-    tree_max_diameter: float = _f(1.5, lo=0.0, lo_open=True,
+    tree_max_diameter: float = _f(1.2, lo=0.0, lo_open=True,
         doc="trees (and clusters spanning a chord) wider than this (m) are rejected")
     tree_min_range: float = _f(1.0, lo=0.0, doc="trees whose surface is nearer than this (m) are rejected")
     tree_max_range: float = _f(75.0, lo=0.0, lo_open=True, doc="trees whose centre is beyond this (m) are rejected")
