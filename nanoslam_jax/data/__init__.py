@@ -1,5 +1,5 @@
-"""Victoria Park-format logs: loading (detections and raw laser scans), writing and cutting into
-fixed-shape segments."""
+"""Logs: Victoria Park-format (detections and raw laser scans; loading and writing) and UTIAS
+MRCLAM (loading), and cutting a log into fixed-shape segments."""
 
 from ._laser import (
     LASER_FILES as LASER_FILES,
@@ -12,6 +12,14 @@ from ._loader import (
     LogFormatError as LogFormatError,
     load_victoria_park as load_victoria_park,
     write_victoria_park as write_victoria_park,
+)
+from ._mrclam import (
+    MRCLAM_FIRST_LANDMARK as MRCLAM_FIRST_LANDMARK,
+    MRCLAM_ROBOTS as MRCLAM_ROBOTS,
+    SightingMap as SightingMap,
+    dead_reckoning_map as dead_reckoning_map,
+    load_mrclam as load_mrclam,
+    unicycle_poses as unicycle_poses,
 )
 from ._segments import make_segments as make_segments, segment_summary as segment_summary
 from ._types import RawLog as RawLog, Segments as Segments
@@ -27,6 +35,12 @@ __all__ = [
     "LogFormatError",
     "load_victoria_park",
     "write_victoria_park",
+    "load_mrclam",
+    "MRCLAM_ROBOTS",
+    "MRCLAM_FIRST_LANDMARK",
+    "unicycle_poses",
+    "dead_reckoning_map",
+    "SightingMap",
     "make_segments",
     "segment_summary",
 ]
