@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 from nanoslam_jax.config import load_config  # noqa: E402
 from nanoslam_jax.data import load_laser, load_victoria_park  # noqa: E402
-from nanoslam_jax.frontend import EDGE_NAMES, extract_features  # noqa: E402
+from nanoslam_jax.frontend import extract_features  # noqa: E402
 from nanoslam_jax.models._angles import wrap_angle_np  # noqa: E402
 
 MATCH_RANGE, MATCH_BEARING_DEG, WITHIN = 0.5, 1.5, 30.0
@@ -194,7 +194,10 @@ def slam_table(config: str, data: str, detected: str, seeds: list[int], override
     out = {}
     for name, i, j in (("rmse_fixed", 1, 5), ("rmse_aligned", 2, 6)):
         f, o = a[:, i], a[:, j]
-        q = lambda v: f"{np.median(v):.2f} [{np.percentile(v, 25):.2f}, {np.percentile(v, 75):.2f}] worst {v.max():.2f}"  # noqa: E731
+
+        def q(v):
+            return f"{np.median(v):.2f} [{np.percentile(v, 25):.2f}, {np.percentile(v, 75):.2f}] worst {v.max():.2f}"
+
         ratio = np.median(o) / np.median(f)
         out[name] = ratio
         print(f"{name}: dataset {q(f)}; ours {q(o)}; medians ours/dataset {ratio:.3f}; ours better in "

@@ -45,7 +45,8 @@ def main(argv=None) -> int:
     t_chunk, _ = timed(lambda: extract_features_chunked(scans, cfg), args.repeats)
     print(f"{scans.n_scans} scans x {scans.n_beams} beams, {os.cpu_count()} CPUs; {feats.points.r.size} returns, "
           f"{feats.clusters.scan.size} clusters, {feats.lines.scan.size} lines, {feats.circles.scan.size} circles, "
-          f"{feats.corners.scan.size} corners, {feats.breakpoints.scan.size} break points, {feats.trees.scan.size} trees")
+          f"{feats.corners.scan.size} corners, {feats.breakpoints.scan.size} break points, "
+          f"{feats.trees.scan.size} trees")
     print("| stage | best (s) | median (s) | per scan (ms) | target |")
     print("|---|---|---|---|---|")
     for name, t, target in (("read LASER.txt", t_load, ""),

@@ -185,7 +185,8 @@ def test_no_tree_on_walls_fences_or_a_half_hidden_trunk():
     near, far = (6.0, 0.0, 0.5), (12.0, 0.35, 0.5)
     r = ray_cast((0.0, 0.0), 0.0, [near, far], [WALL, FENCE])
     trees = detect_trees(scans_of(r), DetectorConfig(tree_min_clearance=0.0, tree_min_separation=0.0))
-    assert trees.shape[0] == 1 and trees[0, 1] == pytest.approx(6.0, abs=0.02) and trees[0, 3] == pytest.approx(0.5, abs=0.02)
+    assert trees.shape[0] == 1
+    assert trees[0, 1] == pytest.approx(6.0, abs=0.02) and trees[0, 3] == pytest.approx(0.5, abs=0.02)
     # the walls alone: no tree, but line segments along them with break points at their ends
     r = ray_cast((0.0, 0.0), 0.0, [], [WALL, FENCE])
     f = extract_features(scans_of(r), DetectorConfig())
@@ -299,7 +300,8 @@ def test_slam_from_laser_equals_slam_on_the_written_log(tmp_path):
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "victoria_park"
 
 
-@pytest.mark.skipif(not (REAL / "LASER.txt").is_file(), reason="the Victoria Park raw scans (../shared/data) are missing")
+@pytest.mark.skipif(not (REAL / "LASER.txt").is_file(),
+                    reason="the Victoria Park raw scans (../shared/data) are missing")
 def test_real_log_trees_match_the_datasets_detections_in_a_stretch():
     scans = load_laser(REAL).select(slice(2000, 2300))
     ours = detect_trees(scans, DetectorConfig())

@@ -102,7 +102,8 @@ def test_laserscans_checks_shapes():
         LaserScans(np.zeros(2), np.zeros((3, 5)), np.arange(5.0))
 
 
-@pytest.mark.skipif(not (REAL / "LASER.txt").is_file(), reason="the Victoria Park raw scans (../shared/data) are missing")
+@pytest.mark.skipif(not (REAL / "LASER.txt").is_file(),
+                    reason="the Victoria Park raw scans (../shared/data) are missing")
 def test_real_log():
     s = load_laser(REAL)
     assert s.ranges.shape == (7230, 361)

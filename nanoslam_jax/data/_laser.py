@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import scipy.io
@@ -22,7 +22,7 @@ from jaxtyping import Bool, Float
 
 from ._loader import _MAT_T0_MS, LogFormatError
 
-__all__ = ["LaserScans", "load_laser", "find_laser_file", "fan_angles", "LASER_FILES"]
+__all__ = ["LASER_FILES", "LaserScans", "fan_angles", "find_laser_file", "load_laser"]
 
 #: File names a log directory may hold raw scans under, in order of preference.
 LASER_FILES = ("LASER.txt", "aa3_lsr2.mat")

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Float, Int
 
-__all__ = ["CircleFit", "fit_circles", "fit_circle"]
+__all__ = ["CircleFit", "fit_circle", "fit_circles"]
 
 
 class CircleFit(NamedTuple):

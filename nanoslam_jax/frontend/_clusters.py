@@ -12,9 +12,16 @@ from jaxtyping import Bool, Float
 
 from ..config import DetectorConfig
 from ..data import LaserScans
-from ._types import EDGE_FARTHER, EDGE_FOV, EDGE_NEARER, EDGE_NO_RETURN, Clusters, Points
+from ._types import (
+    EDGE_FARTHER,
+    EDGE_FOV,
+    EDGE_NEARER,
+    EDGE_NO_RETURN,
+    Clusters,
+    Points,
+)
 
-__all__ = ["scan_points", "breakpoint_threshold", "find_clusters"]
+__all__ = ["breakpoint_threshold", "find_clusters", "scan_points"]
 
 
 def scan_points(scans: LaserScans, cfg: DetectorConfig) -> tuple[Points, Bool[np.ndarray, "S B"]]:

@@ -13,7 +13,7 @@ from ._segments import extract_lines
 from ._trees import find_trees, middle_range
 from ._types import Circles, Features
 
-__all__ = ["extract_features", "detect_trees"]
+__all__ = ["detect_trees", "extract_features"]
 
 
 def extract_features(scans: LaserScans, cfg: DetectorConfig | None = None) -> Features:

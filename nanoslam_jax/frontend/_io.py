@@ -5,17 +5,23 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable, Optional
 
 import numpy as np
 
 from ..config import DetectorConfig
-from ..data import LaserScans, RawLog, load_laser, load_victoria_park, write_victoria_park
+from ..data import (
+    LaserScans,
+    RawLog,
+    load_laser,
+    load_victoria_park,
+    write_victoria_park,
+)
 from ._extract import extract_features
 from ._types import EDGE_NAMES, Features
 
-__all__ = ["extract_features_chunked", "concatenate_features", "write_features_csv", "detect_log", "FEATURE_COLUMNS"]
+__all__ = ["FEATURE_COLUMNS", "concatenate_features", "detect_log", "extract_features_chunked", "write_features_csv"]
 
 #: Columns of ``features.csv``; a row holds one feature, the columns its kind does not use are empty.
 FEATURE_COLUMNS = ("kind", "scan", "time", "first_beam", "last_beam", "x", "y", "x_end", "y_end", "alpha", "rho",
@@ -46,7 +52,7 @@ def concatenate_features(parts: list[Features]) -> Features:
 
 
 def extract_features_chunked(scans: LaserScans, cfg: DetectorConfig | None = None, chunk: int = 1000,
-                             progress: Optional[Callable[[int, int], None]] = None) -> Features:
+                             progress: Callable[[int, int], None] | None = None) -> Features:
     """:func:`extract_features` over chunks of ``chunk`` scans (the same features: none crosses a scan),
     calling ``progress(done, total)`` after each."""
     parts = []
@@ -118,7 +124,7 @@ def write_features_csv(path: str | os.PathLike, feats: Features) -> int:
 
 
 def detect_log(data_dir: str | os.PathLike, out_dir: str | os.PathLike, cfg: DetectorConfig | None = None,
-               progress: Optional[Callable[[int, int], None]] = None, fmt: str = "auto") -> tuple[RawLog, Features]:
+               progress: Callable[[int, int], None] | None = None, fmt: str = "auto") -> tuple[RawLog, Features]:
     """Detect the trees in a log's raw scans and write a complete log.
 
     Writes ``measurements.dat`` (the trees, in the dataset's format: ``time range bearing diameter``,

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import os
-from typing import Optional
 
 import numpy as np
 
 from ..data import LaserScans
 from ._types import Features
 
-__all__ = ["plot_scan", "parse_scan_list"]
+__all__ = ["parse_scan_list", "plot_scan"]
 
 
 def parse_scan_list(text: str, n_scans: int) -> list[int]:
@@ -30,7 +29,7 @@ def parse_scan_list(text: str, n_scans: int) -> list[int]:
 
 
 def plot_scan(scans: LaserScans, feats: Features, scan: int, path: str | os.PathLike,
-              window: Optional[float] = 40.0, ax=None) -> None:
+              window: float | None = 40.0, ax=None) -> None:
     """Draw one scan: its returns coloured by cluster, line segments, circles, corners, break points
     and trees (centre and trunk), in the vehicle frame.
 
@@ -56,8 +55,8 @@ def plot_scan(scans: LaserScans, feats: Features, scan: int, path: str | os.Path
     cid = np.repeat(np.arange(C.scan.size), C.n)[sel]
     ax.scatter(P.x[sel], P.y[sel], c=cid % 10, cmap="tab10", s=6, label="returns (by cluster)")
     L = feats.lines
-    for k in np.flatnonzero(L.scan == scan):
-        ax.plot([L.x0[k], L.x1[k]], [L.y0[k], L.y1[k]], "k-", lw=2, label="line segments" if k == np.flatnonzero(L.scan == scan)[0] else None)
+    for i, k in enumerate(np.flatnonzero(L.scan == scan)):
+        ax.plot([L.x0[k], L.x1[k]], [L.y0[k], L.y1[k]], "k-", lw=2, label=None if i else "line segments")
     Ci = feats.circles
     for k in np.flatnonzero(Ci.scan == scan):
         ax.add_patch(plt.Circle((Ci.cx[k], Ci.cy[k]), Ci.radius[k], fill=False, ec="tab:purple", lw=1, ls="--"))

@@ -19,7 +19,7 @@ from jaxtyping import Bool, Float, Int
 from ..config import DetectorConfig
 from ._types import BreakPoints, Clusters, Corners, Lines, Points
 
-__all__ = ["split_and_merge", "polyline_vertices", "fit_lines", "Segments", "segments_of", "extract_lines"]
+__all__ = ["Segments", "extract_lines", "fit_lines", "polyline_vertices", "segments_of", "split_and_merge"]
 
 
 def _chord_distance(x, y, ax, ay, bx, by):
@@ -53,7 +53,8 @@ def split_and_merge(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], cluste
     if n == 0:
         return vertex
     # splitting: only the points of segments that split in the previous round are examined again
-    active = np.flatnonzero(~vertex & (cluster[np.maximum(np.arange(n) - 1, 0)] == cluster[np.minimum(np.arange(n) + 1, n - 1)]))
+    idx = np.arange(n)
+    active = np.flatnonzero(~vertex & (cluster[np.maximum(idx - 1, 0)] == cluster[np.minimum(idx + 1, n - 1)]))
     for _ in range(rounds):
         if active.size == 0:
             break

@@ -23,7 +23,7 @@ from ..data import LaserScans
 from ._circles import CircleFit
 from ._types import EDGE_FOV, EDGE_NEARER, EDGE_NO_RETURN, Clusters, Points, Trees
 
-__all__ = ["find_trees", "width_radius", "middle_range"]
+__all__ = ["find_trees", "middle_range", "width_radius"]
 
 
 def middle_range(points: Points, clusters: Clusters) -> np.ndarray:
