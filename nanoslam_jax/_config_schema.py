@@ -440,6 +440,31 @@ class SimConfig:
     steering_bias_deg: float = _f(0.3, static=True,
         doc="constant steering bias in the logged controls (deg): dead reckoning drifts like the real "
             "vehicle's (about 40 m RMSE over the default 240 s log)")
+    laser_beams: int = _f(361, lo=2, static=True,
+        doc="raw scans (nanoslam simulate --laser): beams per scan, evenly spread over laser_fov_deg")
+    laser_fov_deg: float = _f(180.0, lo=1.0, hi=360.0, static=True,
+        doc="raw scans: field of view (deg), symmetric about straight ahead (Victoria Park's SICK: 180 at 0.5 deg)")
+    laser_max_range: float = _f(80.0, lo=1.0, static=True,
+        doc="raw scans: surfaces at or beyond this range (m) give no return, written as 81.91 as in the real log")
+    laser_range_noise: float = _f(0.02, lo=0.0, static=True, doc="raw scans: range noise (m, one sigma) of a return")
+    laser_dropout: float = _f(0.005, lo=0.0, hi=1.0, static=True,
+        doc="raw scans: probability that a beam which hits a surface returns nothing")
+    laser_spurious: float = _f(0.001, lo=0.0, hi=1.0, static=True,
+        doc="raw scans: probability that a beam reports a spurious range, uniform between 0.5 m and its true "
+            "range (or laser_max_range for a beam with no surface)")
+    laser_walls: int = _f(4, lo=0, static=True, doc="raw scans: solid walls (straight segments 8 to 40 m long) in the park")
+    laser_fences: int = _f(4, lo=0, static=True,
+        doc="raw scans: wire fences (straight segments 8 to 40 m long) in the park; a beam crossing one returns "
+            "from it with probability laser_fence_return, else passes through")
+    laser_fence_return: float = _f(0.7, lo=0.0, hi=1.0, static=True,
+        doc="raw scans: probability that a beam crossing a fence returns from it")
+    laser_bushes: int = _f(60, lo=0, static=True,
+        doc="raw scans: bushes (irregular star-shaped outlines of 20 vertices, mean radius 0.5 to 2 m, each "
+            "vertex's radius varied by up to laser_bush_roughness) in the park")
+    laser_bush_roughness: float = _f(0.35, lo=0.0, hi=0.9, static=True,
+        doc="raw scans: the largest relative variation of a bush outline's radius between its vertices")
+    laser_clearance: float = _f(1.0, lo=0.0, static=True,
+        doc="raw scans: walls, fences and bushes keep at least this gap (m) to every trunk, and 3 m to the path")
 
 
 @dataclass(frozen=True)
