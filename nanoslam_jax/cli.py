@@ -2,7 +2,7 @@
 
     nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
     nanoslam config [CONFIG] [--set key=value ...]
-    nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--set sim.key=value ...]
+    nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--laser] [--set sim.key=value ...]
     nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
                      [--quick] [--resume] [--methods LABEL ...] [--particles N ...]
                      [--parallel MODE]   (study files)
@@ -65,6 +65,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--config", help="YAML config whose sim and vehicle sections are used")
     s.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config key, e.g. --set sim.n_trees=200 (repeatable)")
+    s.add_argument("--laser", action="store_true",
+                   help="also ray-cast raw scans (sim.laser_* keys: walls, fences, bushes, noise) and write LASER.txt, "
+                        "laser_truth.csv (which trees each scan hit, with how many beams) and laser_world.csv")
 
     d = sub.add_parser("detect", help="detect trees (and lines, circles, corners, break points) in a log's raw "
                                       "laser scans and write a complete log",
@@ -206,10 +209,20 @@ def _simulate(args) -> int:
 
     overrides = list(args.overrides) + ([f"sim.seed={args.seed}"] if args.seed is not None else [])
     cfg = load_config(args.config, overrides)
-    raw = simulate_to_dir(args.out, cfg.sim, cfg.vehicle, cfg.unicycle if cfg.model.motion == "unicycle" else None)
+    unicycle = cfg.unicycle if cfg.model.motion == "unicycle" else None
+    if args.laser:
+        from .simulate_laser import simulate_laser_to_dir
+
+        log = simulate_laser_to_dir(args.out, cfg.sim, cfg.vehicle, unicycle)
+        raw = log.raw
+    else:
+        raw = simulate_to_dir(args.out, cfg.sim, cfg.vehicle, unicycle)
     n_scans = len(set(raw.detections[:, 0].tolist()))
     print(f"wrote {args.out}: {raw.dr.shape[0]} DR samples, {raw.detections.shape[0]} detections in {n_scans} scans, "
           f"{raw.truth_landmarks.shape[0]} landmarks (seed {cfg.sim.seed})")
+    if args.laser:
+        print(f"LASER.txt: {log.scans.n_scans} scans of {log.scans.n_beams} beams; laser_truth.csv: "
+              f"{int((log.truth[:, 2] >= 3).sum())} trees hit by 3 or more beams over all scans")
     return 0
 
 
