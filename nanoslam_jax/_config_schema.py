@@ -33,11 +33,17 @@ class DataConfig:
     """Where the log comes from and how it is cut into fixed-shape segments."""
 
     kind: Literal["victoria_park", "simulated"] = _f("victoria_park", static=True,
-        doc="'victoria_park': read a Victoria Park-format directory; 'simulated': simulate one (see sim).")
+        doc="'victoria_park': read a log directory (Victoria Park-format, or another data.format); 'simulated': "
+            "simulate one (see sim).")
     path: Optional[str] = _f(None, static=True,
-        doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park")
-    format: Literal["auto", "ascii", "mat"] = _f("auto", static=True,
-        doc="'ascii': inputs.dat/measurements.dat/gps.dat; 'mat': aa3_dr.mat/aa3_gpsx.mat (+ measurements.dat); 'auto': ascii when present")
+        doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park "
+            "(format mrclam: ../shared/data/utias_mrclam/MRCLAM_Dataset1)")
+    format: Literal["auto", "ascii", "mat", "mrclam"] = _f("auto", static=True,
+        doc="'ascii': inputs.dat/measurements.dat/gps.dat; 'mat': aa3_dr.mat/aa3_gpsx.mat (+ measurements.dat); "
+            "'auto': ascii when present; 'mrclam': a UTIAS MRCLAM dataset directory (Barcodes.dat, "
+            "Landmark_Groundtruth.dat, RobotN_Odometry.dat, RobotN_Measurement.dat): robot data.robot's (v, omega) "
+            "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids")
+    robot: int = _f(1, lo=1, hi=5, static=True, doc="data.format mrclam: which robot's log (1-5)")
     min_range: float = _f(0.0, lo=0.0, static=True, doc="detections with range below this are dropped (m)")
     max_range: float = _f(30.0, lo=0.0, lo_open=True, static=True, doc="detections with range >= this are dropped (m)")
     k_max: Optional[int] = _f(None, lo=1, static=True, doc="detections per segment; null: the most in any kept scan")

@@ -70,7 +70,9 @@ __all__ = [
     "apply_overrides",
     "resolve_data_dir",
     "DEFAULT_DATA_DIR",
+    "DEFAULT_MRCLAM_DIR",
     "DATASET_HELP",
+    "MRCLAM_HELP",
     "type_name",
     "ROW_BUCKETS_FROM",
     "SPLIT_DEVICES_FROM",
@@ -194,6 +196,14 @@ def _check_consistency(cfg: Config, where: str) -> None:
     d = cfg.data
     if d.min_range >= d.max_range:
         raise ConfigError(f"{where}key 'data.min_range': expected a value < data.max_range ({d.max_range}), got {d.min_range}")
+    if d.kind == "victoria_park" and d.format == "mrclam":
+        if d.detections == "laser":
+            raise ConfigError(f"{where}key 'data.detections': an MRCLAM log has no laser scans, only its sightings; "
+                              "expected 'file' with data.format mrclam, got 'laser'")
+        if cfg.model.motion == "ackermann":
+            raise ConfigError(f"{where}key 'model.motion': an MRCLAM log's odometry is (v, omega) of a differential-drive "
+                              "robot, not the car's (speed, steering); expected unicycle (or random_walk, or your own "
+                              "model) with data.format mrclam, got 'ackermann'")
     mp = cfg.map
     if mp.manage and mp.p_false >= mp.p_detect:
         raise ConfigError(f"{where}key 'map.p_false': expected a value < map.p_detect ({mp.p_detect}), got {mp.p_false}")
@@ -418,6 +428,8 @@ def load_config(path: str | os.PathLike | None = None, overrides: list[str] | tu
 # --------------------------------------------------------------------------- data directory
 
 DEFAULT_DATA_DIR = Path("..") / "shared" / "data" / "victoria_park"
+#: The default directory of ``data.format: mrclam`` (UTIAS MRCLAM dataset 1).
+DEFAULT_MRCLAM_DIR = Path("..") / "shared" / "data" / "utias_mrclam" / "MRCLAM_Dataset1"
 
 DATASET_HELP = (
     "The Victoria Park log (Guivant & Nebot, ACFR, University of Sydney) is not shipped with "
@@ -429,12 +441,25 @@ DATASET_HELP = (
 )
 
 
+MRCLAM_HELP = (
+    "The UTIAS MRCLAM dataset (Leung, Halpern, Barfoot and Liu, IJRR 2011) is not shipped with "
+    "nanoslam-jax. Obtain dataset 1 (Barcodes.dat, Landmark_Groundtruth.dat, RobotN_Odometry.dat and "
+    "RobotN_Measurement.dat for N = 1..5), put the files in one directory and pass it with --data DIR, "
+    "data.path in the config, or the NANOSLAM_DATA environment variable."
+)
+
+
 def resolve_data_dir(cfg: Config, cli_data: str | None = None) -> Path:
-    """The log directory: ``--data``, then ``data.path``, then ``$NANOSLAM_DATA``, then the default.
+    """The log directory: ``--data``, then ``data.path``, then ``$NANOSLAM_DATA``, then the default
+    (:data:`DEFAULT_DATA_DIR`; :data:`DEFAULT_MRCLAM_DIR` for ``data.format: mrclam``), relative to
+    the working directory or to the project.
 
     Raises:
         FileNotFoundError: with instructions for obtaining the dataset when no directory exists.
     """
+    mrclam = cfg.data.format == "mrclam"
+    help_text, default = (MRCLAM_HELP, DEFAULT_MRCLAM_DIR) if mrclam else (DATASET_HELP, DEFAULT_DATA_DIR)
+    what = "MRCLAM dataset" if mrclam else "Victoria Park log"
     candidates = [
         ("--data", cli_data),
         ("data.path", cfg.data.path),
@@ -444,10 +469,10 @@ def resolve_data_dir(cfg: Config, cli_data: str | None = None) -> Path:
         if value:
             p = Path(value).expanduser()
             if not p.is_dir():
-                raise FileNotFoundError(f"{p} (from {origin}): log directory not found. {DATASET_HELP}")
+                raise FileNotFoundError(f"{p} (from {origin}): log directory not found. {help_text}")
             return p
     for base in (Path.cwd(), Path(__file__).resolve().parents[1]):
-        p = (base / DEFAULT_DATA_DIR).resolve()
+        p = (base / default).resolve()
         if p.is_dir():
             return p
-    raise FileNotFoundError(f"no Victoria Park log directory given and {DEFAULT_DATA_DIR} does not exist. {DATASET_HELP}")
+    raise FileNotFoundError(f"no {what} directory given and {default} does not exist. {help_text}")

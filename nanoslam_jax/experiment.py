@@ -24,7 +24,7 @@ import yaml
 from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, ConfigError, config_to_dict, resolve_data_dir
-from .data import RawLog, Segments, load_victoria_park, make_segments
+from .data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
 from .filter import (Params, Static, adaptive_noise_summary, configured_noise,
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
                      text_progress)
@@ -75,7 +75,10 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         raw, frame, source = simulate_config(cfg), "slam", f"simulated (seed {cfg.sim.seed})"
     else:
         directory = resolve_data_dir(cfg, data_dir)
-        raw = load_victoria_park(directory, cfg.data.format, detections=cfg.data.detections == "file")
+        if cfg.data.format == "mrclam":
+            raw = load_mrclam(directory, cfg.data.robot)
+        else:
+            raw = load_victoria_park(directory, cfg.data.format, detections=cfg.data.detections == "file")
         if cfg.data.detections == "laser":
             raw = with_laser_detections(raw, directory, cfg.detector)
         frame = "slam" if raw.truth_poses is not None else "relative"
@@ -379,12 +382,19 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
     from .plotting import plot_series, plot_trajectory
 
     gps = log.raw.gps
-    ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" else gps[:, 1:3]
+    ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" and len(gps) else gps[:, 1:3]
     label = "GPS (relative frame)" if log.frame == "relative" else "truth"
     confirmed = None if landmarks is None else landmarks[:, MAP_COLUMNS.index("confirmed")] > 0
+    # True landmarks in another frame than the path (a surveyed map, e.g. MRCLAM's) are not drawn.
+    true_landmarks = log.raw.truth_landmarks if log.frame == "slam" else None
     plot_trajectory(out / "trajectory.png", ref, [(cfg.filter.method, est[:, :2])],
-                    None if landmarks is None else landmarks[:, :2], log.raw.truth_landmarks,
+                    None if landmarks is None else landmarks[:, :2], true_landmarks,
                     title=f"{cfg.name}: {cfg.filter.method}", reference_label=label, confirmed=confirmed)
+    if not len(gps):  # no GPS (e.g. MRCLAM): no error over time
+        if ess is not None:
+            plot_series(out / "ess.png", [("ESS", t, ess)], "effective sample size", f"{cfg.name}: ESS",
+                        hline=cfg.filter.resample_threshold * n_particles)
+        return
     te, err = error_over_time(t, est[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"])
     series = [(cfg.filter.method, te, err)]
     if cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):
