@@ -28,7 +28,7 @@ diameter. Beam angles follow :class:`nanoslam_jax.data.LaserScans` (vehicle fram
 from __future__ import annotations
 
 import os
-from typing import NamedTuple, Optional, Union
+from typing import NamedTuple
 
 import numpy as np
 from jaxtyping import Float, Int
@@ -41,14 +41,14 @@ from .models._angles import wrap_angle_np
 from .simulate import PATH_CLEARANCE, simulate
 
 __all__ = [
-    "LaserWorld",
-    "LaserLog",
-    "NO_RETURN",
-    "TRUTH_COLUMNS",
+    "KIND_BUSH",
+    "KIND_FENCE",
     "KIND_TREE",
     "KIND_WALL",
-    "KIND_FENCE",
-    "KIND_BUSH",
+    "NO_RETURN",
+    "TRUTH_COLUMNS",
+    "LaserLog",
+    "LaserWorld",
     "build_world",
     "ray_cast",
     "simulate_laser",
@@ -243,7 +243,7 @@ def _segment_t(ox, oy, dx, dy, seg):
 
 
 def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, "B"], world: LaserWorld,
-             max_range: float, fence_return: Optional[Float[np.ndarray, "S B"]] = None,
+             max_range: float, fence_return: Float[np.ndarray, "S B"] | None = None,
              ) -> tuple[Float[np.ndarray, "S B"], Int[np.ndarray, "S B"], Int[np.ndarray, "S B"],
                         Int[np.ndarray, "S T"]]:
     """Noise-free ranges of a fan of beams cast from each pose into ``world`` (the nearest surface wins).
@@ -270,7 +270,7 @@ def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, "B"], wo
     span = np.zeros((n_s, n_t), dtype=np.int64)
     lines = world.segment_kind != KIND_BUSH
     line_seg, line_kind, line_obj = world.segments[lines], world.segment_kind[lines], world.segment_object[lines]
-    bush_seg = world.segments[~lines].reshape(-1, BUSH_VERTICES, 4) if (~lines).any() else np.zeros((0, BUSH_VERTICES, 4))
+    bush_seg = world.segments[~lines].reshape(-1, BUSH_VERTICES, 4)
     for a in range(0, n_s, _CHUNK):
         p = poses[a:a + _CHUNK]
         c = p.shape[0]
@@ -281,11 +281,11 @@ def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, "B"], wo
         bk = np.full((c, n_b), KIND_NONE, dtype=np.int64)
         bo = np.full((c, n_b), -1, dtype=np.int64)
 
-        def offer(t, k, o, sl=slice(None)):
-            better = t < best[sl]
-            best[sl] = np.where(better, t, best[sl])
-            bk[sl] = np.where(better, k, bk[sl])
-            bo[sl] = np.where(better, o, bo[sl])
+        def offer(t, k, o, best=best, bk=bk, bo=bo):
+            better = t < best
+            best[:] = np.where(better, t, best)
+            bk[:] = np.where(better, k, bk)
+            bo[:] = np.where(better, o, bo)
 
         # trunks near the chunk's poses
         if n_t:
@@ -388,7 +388,7 @@ def simulate_laser(sim: SimConfig | None = None, vehicle: VehicleConfig | None =
     return LaserLog(raw=raw, scans=scans, truth=truth, world=world, kind=kind, object_id=obj)
 
 
-def write_laser(path: Union[str, os.PathLike], scans: LaserScans) -> None:
+def write_laser(path: str | os.PathLike, scans: LaserScans) -> None:
     """Write scans as ``LASER.txt``: one scan per line, the time (s) then the ranges (m, mm resolution)
     at file bearings increasing from the right (``0 .. fov``, straight ahead at ``fov / 2``); no return
     as :data:`NO_RETURN`."""
@@ -396,7 +396,7 @@ def write_laser(path: Union[str, os.PathLike], scans: LaserScans) -> None:
     np.savetxt(path, np.concatenate([scans.time[:, None], r], axis=1), fmt=["%.6f"] + ["%.3f"] * r.shape[1])
 
 
-def simulate_laser_to_dir(directory: Union[str, os.PathLike], sim: SimConfig | None = None,
+def simulate_laser_to_dir(directory: str | os.PathLike, sim: SimConfig | None = None,
                           vehicle: VehicleConfig | None = None, unicycle: UnicycleConfig | None = None) -> LaserLog:
     """Simulate a log with raw scans (:func:`simulate_laser`) and write it as a log directory.
 
@@ -420,9 +420,9 @@ def simulate_laser_to_dir(directory: Union[str, os.PathLike], sim: SimConfig | N
     w = log.world
     with open(os.path.join(directory, "laser_world.csv"), "w") as f:
         f.write("kind,id,x0,y0,x1,y1\n")
-        for i, ((x, y), r) in enumerate(zip(w.trees, w.tree_radius)):
-            f.write(f"tree,{i},{x:.6f},{y:.6f},{2 * r:.6f},0\n")
-        for seg, k, o in zip(w.segments, w.segment_kind, w.segment_object):
-            f.write(f"{_KIND_NAMES[int(k)]},{int(o)}," + ",".join(f"{v:.6f}" for v in seg) + "\n")
+        f.writelines(f"tree,{i},{x:.6f},{y:.6f},{2 * r:.6f},0\n"
+                     for i, ((x, y), r) in enumerate(zip(w.trees, w.tree_radius)))
+        f.writelines(f"{_KIND_NAMES[int(k)]},{int(o)}," + ",".join(f"{v:.6f}" for v in seg) + "\n"
+                     for seg, k, o in zip(w.segments, w.segment_kind, w.segment_object))
     return log
 
