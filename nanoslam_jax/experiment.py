@@ -82,7 +82,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         if cfg.data.detections == "laser":
             raw = with_laser_detections(raw, directory, cfg.detector)
         frame = "slam" if raw.truth_poses is not None else "relative"
-        source = str(directory)
+        source = raw.source or str(directory)
     d = cfg.data
     segments = make_segments(raw, min_range=d.min_range, max_range=d.max_range, k_max=d.k_max,
                              max_dr_per_segment=d.max_dr_per_segment, t_end=d.t_end)

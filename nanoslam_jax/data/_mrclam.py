@@ -66,15 +66,15 @@ def _read(directory: Path, table: _Table, allow_empty: bool = False
 
 
 def _integer_column(data: np.ndarray, column: int, table: _Table, path: Path, lines: np.ndarray,
-                    lo: int = 0) -> Int[np.ndarray, " n"]:
+                    lo: int = 0, note: str = "") -> Int[np.ndarray, " n"]:
     """Column ``column`` of ``data`` as integers; raises naming the line of the first value that is
-    not a whole number >= ``lo``."""
+    not a whole number >= ``lo`` (``note``: why, for the message)."""
     values = data[:, column]
     bad = np.flatnonzero((values != np.round(values)) | (values < lo))
     if bad.size:
         i = bad[0]
-        raise LogFormatError(f"{path} line {lines[i]}: expected a whole number >= {lo} in column "
-                             f"'{table.columns[column]}', got {values[i]!r}")
+        raise LogFormatError(f"{path} line {lines[i]}: expected a whole number >= {lo}{note} in column "
+                             f"'{table.columns[column]}', got {float(values[i]):g}")
     return values.astype(np.int64)
 
 
@@ -101,7 +101,8 @@ def _barcode_subjects(directory: Path) -> dict[int, int]:
 def _surveyed_landmarks(directory: Path) -> tuple[Float[np.ndarray, "l 2"], Int[np.ndarray, " l"]]:
     """``Landmark_Groundtruth.dat`` as ``(xy, landmark ids)``, in file order."""
     data, lines, path = _read(directory, _LANDMARKS)
-    subjects = _integer_column(data, 0, _LANDMARKS, path, lines, lo=MRCLAM_FIRST_LANDMARK)
+    subjects = _integer_column(data, 0, _LANDMARKS, path, lines, lo=MRCLAM_FIRST_LANDMARK,
+                               note=" (a landmark; subjects 1-5 are the robots)")
     _unique_column(subjects, _LANDMARKS, 0, path, lines)
     return data[:, 1:3].copy(), subjects - MRCLAM_FIRST_LANDMARK
 
