@@ -1,12 +1,13 @@
 """Validation of the raw laser front end on the Victoria Park log (docs/frontend.md).
 
     .venv/bin/python experiments/detector_validation.py [--data DIR] [--config CONFIG] [--set detector.key=value ...]
-        [--slam] [--seeds 16-31] [--slam-configs configs/victoria_park_nano.yaml ...] [--figure PATH]
+        [--slam [CONFIG ...]] [--seeds 16-31] [--control] [--figure PATH]
 
 Prints (1) how many of the dataset's own detections (measurements.dat) within 30 m ours find (a
 match lies within 0.5 m in range and 1.5 deg in bearing; one-to-one per scan, nearest first), the
 detections we add and what they are, and the diameter agreement; (2) with --slam, SLAM from our
-detections against the same runs on measurements.dat, paired over the seeds.
+detections against the same runs on measurements.dat, paired over the seeds (with --control, also on
+measurements.dat with 1 mm of range noise: how far the medians move from a change that cannot matter).
 """
 
 from __future__ import annotations
@@ -173,36 +174,51 @@ def parse_seeds(text: str) -> list[int]:
     return out
 
 
-def slam_table(config: str, data: str, detected: str, seeds: list[int], overrides: list[str]) -> dict:
-    """Run ``config`` on the dataset's detections (``data``) and on ours (``detected``, a directory
-    ``nanoslam detect`` wrote) for every seed; print one row per seed and the paired summary."""
+def control_log(data: str, out: str, sigma: float = 0.001, seed: int = 0) -> str:
+    """Write ``data``'s log with ``sigma`` (m) of Gaussian noise added to every detection's range: a
+    change no detector could matter by, to show how far SLAM's medians move from it alone."""
+    import shutil
+
+    from nanoslam_jax.data import RawLog, write_victoria_park
+
+    raw = load_victoria_park(data)
+    det = raw.detections.copy()
+    det[:, 1] += np.random.default_rng(seed).normal(0.0, sigma, det.shape[0])
+    write_victoria_park(out, RawLog(dr=raw.dr, detections=det, gps=raw.gps))
+    for name in ("inputs.dat", "gps.dat"):
+        shutil.copyfile(Path(data) / name, Path(out) / name)
+    return out
+
+
+def slam_table(config: str, logs: dict, seeds: list[int], overrides: list[str]) -> dict:
+    """Run ``config`` for every seed on each log of ``logs`` (label -> directory; the first is the
+    reference); print each run and a paired summary table against the first."""
     from nanoslam_jax.experiment import execute
 
-    rows = []
-    for seed in seeds:
-        row = [seed]
-        for directory in (data, detected):
+    res = {}
+    for label, directory in logs.items():
+        rows = []
+        for seed in seeds:
             cfg = load_config(config, [f"seed={seed}", "output.plots=false"] + overrides)
             t = time.perf_counter()
             m = execute(cfg, directory, progress=False).metrics
-            row += [m["rmse_fixed"], m["rmse_aligned"], m.get("n_confirmed", m.get("n_landmarks", 0)),
-                    time.perf_counter() - t]
-        rows.append(row)
-        print(f"| {seed} | {row[1]:.2f} | {row[5]:.2f} | {row[2]:.2f} | {row[6]:.2f} | {row[3]} | {row[7]} | "
-              f"{row[4]:.0f} / {row[8]:.0f} s |", flush=True)
-    a = np.asarray(rows, dtype=float)
-    out = {}
-    for name, i, j in (("rmse_fixed", 1, 5), ("rmse_aligned", 2, 6)):
-        f, o = a[:, i], a[:, j]
+            rows.append([seed, m["rmse_fixed"], m["rmse_aligned"], m.get("n_confirmed", m.get("n_landmarks", 0))])
+            print(f"  {label}, seed {seed}: rmse_fixed {m['rmse_fixed']:.2f}, rmse_aligned {m['rmse_aligned']:.2f}, "
+                  f"{rows[-1][3]} trees, {time.perf_counter() - t:.0f} s", flush=True)
+        res[label] = np.asarray(rows, dtype=float)
 
-        def q(v):
-            return f"{np.median(v):.2f} [{np.percentile(v, 25):.2f}, {np.percentile(v, 75):.2f}] worst {v.max():.2f}"
+    def q(v):
+        return f"{np.median(v):.2f} [{np.percentile(v, 25):.2f}, {np.percentile(v, 75):.2f}], worst {v.max():.2f}"
 
-        ratio = np.median(o) / np.median(f)
-        out[name] = ratio
-        print(f"{name}: dataset {q(f)}; ours {q(o)}; medians ours/dataset {ratio:.3f}; ours better in "
-              f"{int((o < f).sum())} of {len(f)} seeds; median paired ratio {np.median(o / f):.3f}")
-    return out
+    base = next(iter(res.values()))
+    print("| detections | rmse_fixed median [IQR], worst (m) | rmse_aligned median [IQR], worst (m) | medians / "
+          "the first's (fixed, aligned) | better than the first (seeds, fixed) | confirmed trees (median) |")
+    print("|---|---|---|---|---|---|")
+    for label, a in res.items():
+        print(f"| {label} | {q(a[:, 1])} | {q(a[:, 2])} | {np.median(a[:, 1]) / np.median(base[:, 1]):.3f}, "
+              f"{np.median(a[:, 2]) / np.median(base[:, 2]):.3f} | {int((a[:, 1] < base[:, 1]).sum())} of "
+              f"{len(a)} | {np.median(a[:, 3]):.0f} |")
+    return res
 
 
 def main(argv=None) -> int:
@@ -216,6 +232,8 @@ def main(argv=None) -> int:
                         "(default: configs/victoria_park_nano.yaml)")
     p.add_argument("--seeds", default="16-31", help="seeds of the SLAM runs, e.g. 16-31 or 0,1,2")
     p.add_argument("--out", default=None, help="directory for the detected log (default: a temporary one)")
+    p.add_argument("--control", action="store_true",
+                   help="with --slam: also run on measurements.dat with 1 mm of noise added to the ranges")
     p.add_argument("--figure", default=None, help="draw examples of the added detections to this image file")
     args = p.parse_args(argv)
     cfg = load_config(args.config, args.overrides)
@@ -250,12 +268,13 @@ def main(argv=None) -> int:
         detected = args.out or tempfile.mkdtemp(prefix="detected-")
         detect_log(args.data, detected, cfg.detector)
         slam_overrides = [o for o in args.overrides if not o.startswith("detector.")]
+        logs = {"measurements.dat": args.data, "ours (nanoslam detect)": detected}
+        if args.control:
+            logs["control: measurements.dat, ranges + N(0, 1 mm)"] = control_log(
+                args.data, tempfile.mkdtemp(prefix="control-"))
         for config in args.slam or ["configs/victoria_park_nano.yaml"]:
-            print(f"\nSLAM, {config}, seeds {args.seeds}: measurements.dat against ours ({detected})")
-            print("| seed | rmse_fixed dataset | ours | rmse_aligned dataset | ours | trees mapped dataset | ours | "
-                  "run time |")
-            print("|---|---|---|---|---|---|---|---|")
-            slam_table(config, args.data, detected, parse_seeds(args.seeds), slam_overrides)
+            print(f"\nSLAM, {config}, seeds {args.seeds}")
+            slam_table(config, logs, parse_seeds(args.seeds), slam_overrides)
     return 0
 
 
