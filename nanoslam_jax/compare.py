@@ -389,7 +389,8 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
     configs = {m.label: method_config(spec, m) for m in spec.methods}
     logs: dict[str, Any] = {}
     first = next(iter(configs.values()))
-    key_of = lambda c: json.dumps([config_to_dict(c)["data"], config_to_dict(c)["sim"], config_to_dict(c)["vehicle"]], sort_keys=True)  # noqa: E731
+    key_of = lambda c: json.dumps([config_to_dict(c)[k] for k in ("data", "sim", "vehicle", "detector")],  # noqa: E731
+                                  sort_keys=True)
     logs[key_of(first)] = load_log(first, data_dir)  # a bad log fails before anything is written
     out.mkdir(parents=True, exist_ok=True)
     (out / "configs").mkdir(exist_ok=True)

@@ -56,9 +56,10 @@ class LogData:
 
 def log_key(cfg: Config) -> tuple:
     """What determines the log of a configuration (its data section; and the simulator's inputs)."""
+    laser = (cfg.detector,) if cfg.data.detections == "laser" else ()  # the detections come from the detector
     if cfg.data.kind == "simulated":
-        return (cfg.data, cfg.sim, cfg.vehicle, cfg.model.motion, cfg.unicycle)
-    return (cfg.data,)
+        return (cfg.data, cfg.sim, cfg.vehicle, cfg.model.motion, cfg.unicycle) + laser
+    return (cfg.data,) + laser
 
 
 def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optional[int] = None) -> LogData:
