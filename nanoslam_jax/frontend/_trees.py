@@ -1,17 +1,18 @@
 """The tree detector: clusters that are trunks, measured as the Victoria Park log reports trees.
 
-A cluster of ``n`` returns spans the angle ``w = n dphi`` (each beam covers ``dphi``). A trunk of
-radius ``R`` whose nearest surface lies at range ``r_s`` subtends ``2 asin(R / (r_s + R))``, so
-``R = r_s sin(w / 2) / (1 - sin(w / 2))``; the centre lies at range ``r_s + R`` on the bisector of
-the cluster's first and last beams. From ``tree_fit_min_points`` returns on, the least-squares circle
-replaces that estimate when it passes the residual test and agrees with the angular width.
+A cluster whose first and last beams are ``n - 1`` beam steps apart spans the angle ``w = n dphi``
+(each beam covers ``dphi``; bridged dropouts count). A trunk of radius ``R`` whose nearest surface
+lies at range ``r_s`` subtends ``2 asin(R / (r_s + R))``, so ``R = r_s sin(w / 2) / (1 - sin(w / 2))``;
+the centre lies at range ``r_s + R`` on the bisector of the cluster's first and last beams; ``r_s`` is
+the range at the cluster's middle. From ``tree_fit_min_points`` returns on, the least-squares circle
+replaces that estimate when it is convex, passes the residual test and agrees with the angular width.
 
-A cluster is no tree when it is wider than a trunk (walls, fences), when its circle fit is flat (a
-straight piece), concave or rough, when it is too wide, thin, near or far, when its first and last returns differ
-in range by more than a fraction of its diameter (an oblique surface), when another object lies within
-``tree_min_separation`` of its ends or any other return within ``tree_min_clearance`` of its surface
-(foliage, fences, people: a trunk stands alone), when it reaches the edge of
-the field of view, or when a nearer return hides one of its edges (partly seen).
+A cluster is no tree when its circle fit is flat (a straight piece of a wall or fence), concave or
+rough; when it is too wide (walls, fences), thin, near or far; when its first and last returns
+differ in range by more than a fraction of its diameter (an oblique surface); when another cluster
+ends within ``tree_min_separation`` of its ends or any other return lies within
+``tree_min_clearance`` of its surface (foliage, fences, people: a trunk stands alone); when it
+reaches the edge of the field of view; or when a nearer return hides one of its edges (partly seen).
 """
 
 from __future__ import annotations
