@@ -11,7 +11,8 @@ seed and pooled:
 
 * recall: the share of trees hit by 3 or more beams with the centre within 30 m that a detection
   matches (within 0.5 m in range and 1.5 deg in bearing of the centre; one-to-one per scan, nearest
-  first, against every tree the scan hit);
+  first, against every tree the scan hit); and the same over those of them wholly inside the field of
+  view (the edge of the fan does not cut their outline);
 * precision: the share of detections within 30 m that match a tree;
 * the median absolute diameter error of the matched detections;
 * what the false detections lie on (the object the beam at their bearing returned from) and why the
@@ -80,12 +81,15 @@ def evaluate(log, det: np.ndarray) -> dict:
     rows = np.flatnonzero(seen)
     ri, dj = match(ref, det)
     target = (truth[:, 2] >= MIN_BEAMS) & (truth[:, 4] <= WITHIN)
+    half_width = np.arcsin(np.minimum(truth[:, 6] / 2 / truth[:, 4], 1.0))
+    in_view = np.abs(truth[:, 5]) + half_width <= log.scans.angles[-1]
     found = np.zeros(truth.shape[0], bool)
     found[rows[ri]] = True
     used = np.zeros(det.shape[0], bool)
     used[dj] = True
     near = det[:, 1] <= WITHIN
     dd = np.abs(det[dj, 3] - ref[ri, 3])[near[dj]]
+    dd_range = ref[ri, 1][near[dj]]
 
     scans = log.scans
     s_of = np.searchsorted(scans.time, det[:, 0])
@@ -112,7 +116,8 @@ def evaluate(log, det: np.ndarray) -> dict:
     few = truth[missed, 2] <= 5
     miss_kind = np.select([occl, edge, crowded, few], [0, 1, 2, 3], 4)
     return {"targets": int(target.sum()), "found": int((target & found).sum()), "dets": int(near.sum()),
-            "true": int((near & used).sum()), "diam": dd,
+            "whole": int((target & in_view).sum()), "whole_found": int((target & in_view & found).sum()),
+            "true": int((near & used).sum()), "diam": dd, "diam_range": dd_range,
             "false_kind": np.bincount(false_kind, minlength=len(FALSE_KINDS)),
             "miss_kind": np.bincount(miss_kind, minlength=len(MISS_KINDS))}
 
@@ -138,9 +143,9 @@ def main(argv=None) -> int:
           f"fences, {s.laser_bushes} bushes, range noise {s.laser_range_noise * 100:g} cm, dropouts "
           f"{s.laser_dropout * 100:g} %, spurious {s.laser_spurious * 100:g} %; targets: trees hit by >= {MIN_BEAMS} "
           f"beams within {WITHIN:g} m\n")
-    print("| seed | scans | targets | recall | precision | diam. err. (cm) | naive recall | naive precision "
-          "| naive diam. err. (cm) | sim (s) | detect (s) |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| seed | scans | targets | recall | recall in view | precision | diam. err. (cm) | naive recall "
+          "| naive precision | naive diam. err. (cm) | sim (s) | detect (s) |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     pooled = {"ours": [], "naive": []}
     for seed in parse_seeds(args.seeds):
         t0 = time.perf_counter()
@@ -152,18 +157,28 @@ def main(argv=None) -> int:
         pooled["ours"].append(ours)
         pooled["naive"].append(naive)
         print(f"| {seed} | {log.scans.n_scans} | {ours['targets']} | {ours['found'] / ours['targets']:.3f} | "
+              f"{ours['whole_found'] / ours['whole']:.3f} | "
               f"{ours['true'] / max(ours['dets'], 1):.3f} | {np.median(ours['diam']) * 100:.1f} | "
               f"{naive['found'] / naive['targets']:.3f} | {naive['true'] / max(naive['dets'], 1):.3f} | "
               f"{np.median(naive['diam']) * 100:.1f} | {t1 - t0:.1f} | {t2 - t1:.1f} |", flush=True)
     print()
-    print("| detector | targets | recall | precision | diam. err. median (cm) | diam. err. p90 (cm) |")
-    print("|---|---:|---:|---:|---:|---:|")
+    print("| detector | targets | recall | recall in view | precision | diam. err. median (cm) "
+          "| diam. err. p90 (cm) |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
     for name, runs in pooled.items():
         tg, fd = sum(r["targets"] for r in runs), sum(r["found"] for r in runs)
         dt, tr = sum(r["dets"] for r in runs), sum(r["true"] for r in runs)
         dd = np.concatenate([r["diam"] for r in runs])
-        print(f"| {name} | {tg} | {fd / tg:.3f} | {tr / max(dt, 1):.3f} | {np.median(dd) * 100:.1f} | "
+        wh, wf = sum(r["whole"] for r in runs), sum(r["whole_found"] for r in runs)
+        print(f"| {name} | {tg} | {fd / tg:.3f} | {wf / wh:.3f} | {tr / max(dt, 1):.3f} | {np.median(dd) * 100:.1f} | "
               f"{np.percentile(dd, 90) * 100:.1f} |")
+    print("\n| detector | median diameter error (cm), centre at 0-10 m | 10-20 m | 20-30 m |")
+    print("|---|---:|---:|---:|")
+    for name, runs in pooled.items():
+        dd = np.concatenate([r["diam"] for r in runs])
+        rr = np.concatenate([r["diam_range"] for r in runs])
+        cells = [np.median(dd[(rr >= lo) & (rr < lo + 10)]) * 100 for lo in (0, 10, 20)]
+        print(f"| {name} | " + " | ".join(f"{c:.1f}" for c in cells) + " |")
     for name, runs in pooled.items():
         fk = sum(r["false_kind"] for r in runs)
         mk = sum(r["miss_kind"] for r in runs)
