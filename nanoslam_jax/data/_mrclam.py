@@ -133,8 +133,7 @@ def load_mrclam(directory: str | os.PathLike, robot: int = 1, *,
         directory: the dataset directory (the folder holding ``Barcodes.dat`` and the robots' files).
         robot: which robot's log, 1-5.
         unknown_barcodes: what to do with a measurement of a barcode that ``Barcodes.dat`` does not
-            list (a misread barcode; dataset 1 has three, all barcode 43): ``"drop"`` it, or raise
-            an ``"error"`` naming the line.
+            list (a misread barcode): ``"drop"`` it, or raise an ``"error"`` naming the line.
 
     Returns:
         The log, its ``source`` the directory and the robot.
