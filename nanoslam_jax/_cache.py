@@ -24,6 +24,8 @@ Two layers, both in that directory:
   (float64, device count, ...), the static settings, and the shapes, dtypes and placement of
   the arguments. Any edit of the package, any upgrade and any other static setting therefore
   traces afresh; the XLA layer then still loads the executable when the module is unchanged.
+  An entry is data only: JAX's serialised module and a JSON header with the output tree; reading
+  it imports, unpickles and calls nothing, and an entry that does not load or match is a miss.
 
 :class:`CompileStats` counts, with JAX's monitoring events (not wall clock around our calls), the
 time spent tracing, lowering and compiling or loading programs and the persistent cache's hits
@@ -37,8 +39,8 @@ import functools
 import gc
 import hashlib
 import importlib.metadata
+import json
 import os
-import pickle
 import sys
 import tempfile
 from pathlib import Path
@@ -170,7 +172,7 @@ def compile_stats() -> CompileStats:
 # --------------------------------------------------------------------------- traced programs
 
 #: Bumped when the layout of the ``exported/`` entries changes.
-_EXPORT_FORMAT = "nanoslam-export-1"
+_EXPORT_FORMAT = "nanoslam-export-2"
 #: Programs :func:`compile_program` compiled in this process, by entry path (the key).
 _COMPILED: dict[Path, Callable] = {}
 
@@ -310,22 +312,152 @@ def _exported_dir() -> Optional[Path]:
     return Path(cache) / "exported" if cache else None
 
 
-def _read_exported(path: Path):
+# An entry of ``exported/`` is ``_MAGIC``, the length of its header (8 bytes, big-endian), the header
+# (JSON: format, key, input tree, output tree, the program's SHA-256) and the program as
+# ``jax.export`` serialises it. Reading one parses JSON and JAX's serialised module; nothing in it
+# is imported, unpickled or called.
+_MAGIC = b"nanoslam-jax exported program\n"
+
+
+class _Unkeepable(Exception):
+    """An output tree with a node that :func:`_describe_tree` cannot write down as plain data."""
+
+
+def _subtrees(tree: jax.tree_util.PyTreeDef, path: tuple = ()):
+    """Every subtree of ``tree`` that is not a leaf, with its path of child indices, outermost first."""
+    if tree.node_data() is None:
+        return
+    yield path, tree
+    for i, child in enumerate(tree.children()):
+        yield from _subtrees(child, path + (i,))
+
+
+def _namedtuple_class(name: str) -> type:
+    """The NamedTuple class ``module:qualname`` of a module this process has already imported,
+    found in the module's and classes' own namespaces: nothing is imported or run."""
+    module_name, _, qualname = name.partition(":")
+    module = sys.modules.get(module_name)
+    if module is None or not qualname:
+        raise ValueError(f"{name}: no such module in this process")
+    obj: Any = module
+    for part in qualname.split("."):
+        obj = vars(obj).get(part)
+        if obj is None:
+            raise ValueError(f"{name}: not found")
+    if not (isinstance(obj, type) and issubclass(obj, tuple)
+            and any(isinstance(vars(c).get("_fields"), tuple) for c in obj.__mro__)):
+        raise ValueError(f"{name}: not a NamedTuple")
+    return obj
+
+
+def _describe_tree(tree: jax.tree_util.PyTreeDef, inputs: dict) -> Any:
+    """``tree`` as plain data (JSON): ``"*"`` for a leaf, ``{"input": path}`` for a subtree equal to
+    the input tree's subtree at ``path`` (the filter state a program returns), and otherwise
+    ``{"node": kind, "children": [...]}`` for tuples, lists, None, dicts with string keys
+    (``"keys"``) and NamedTuples (``"class": "module:qualname"``).
+
+    Raises:
+        _Unkeepable: for any other node (an equinox module or custom pytree not among the inputs).
+    """
+    node = tree.node_data()
+    if node is None:
+        return "*"
+    if tree in inputs:
+        return {"input": list(inputs[tree])}
+    kind, aux = node
+    children = [_describe_tree(c, inputs) for c in tree.children()]
+    if kind in (tuple, list, type(None)) and aux is None:
+        return {"node": kind.__name__, "children": children}
+    if kind is dict and all(isinstance(k, str) for k in aux):
+        return {"node": "dict", "keys": list(aux), "children": children}
+    if issubclass(kind, tuple) and hasattr(kind, "_fields") and aux is None:
+        name = f"{kind.__module__}:{kind.__qualname__}"
+        try:
+            found = _namedtuple_class(name)
+        except ValueError:
+            found = None
+        if found is kind:
+            return {"node": "namedtuple", "class": name, "children": children}
+    raise _Unkeepable(f"{kind.__module__}.{kind.__qualname__}")
+
+
+_BUILTIN_NODES = {"tuple": tuple, "list": list, "NoneType": type(None)}
+
+
+def _rebuild_tree(desc: Any, in_tree: jax.tree_util.PyTreeDef) -> jax.tree_util.PyTreeDef:
+    """The tree :func:`_describe_tree` wrote down; ValueError (or a TypeError, KeyError, ...) for
+    anything else."""
+    if desc == "*":
+        return jax.tree.structure(0)
+    if not isinstance(desc, dict):
+        raise TypeError("not a tree description")
+    if "input" in desc:
+        sub = in_tree
+        for i in desc["input"]:
+            sub = sub.children()[int(i)]
+        return sub
+    kind = desc["node"]
+    children = [_rebuild_tree(c, in_tree) for c in desc["children"]]
+    if kind in _BUILTIN_NODES:
+        node = (_BUILTIN_NODES[kind], None)
+    elif kind == "dict":
+        keys = desc["keys"]
+        if not all(isinstance(k, str) for k in keys) or keys != sorted(keys) or len(keys) != len(children):
+            raise ValueError("bad dict keys")
+        node = (dict, keys)
+    elif kind == "namedtuple":
+        cls = _namedtuple_class(desc["class"])
+        if len(cls._fields) != len(children):
+            raise ValueError(f"{desc['class']}: {len(children)} children for {len(cls._fields)} fields")
+        node = (cls, None)
+    else:
+        raise ValueError(f"unknown node {kind!r}")
+    return jax.tree_util.PyTreeDef.from_node_data_and_children(jax.tree_util.default_registry, node, children)
+
+
+def _read_exported(path: Path, key: str, in_tree: jax.tree_util.PyTreeDef, leaves: list):
+    """The program and output tree kept at ``path``, or None when there is none or it does not hold
+    exactly what ``key`` names for these arguments (a damaged, foreign or planted file): the caller
+    then traces afresh and overwrites it."""
     try:
-        exported, out_tree = pickle.loads(path.read_bytes())
-        return jax.export.deserialize(exported), out_tree
-    except FileNotFoundError:
+        data = path.read_bytes()
+    except OSError:
         return None
-    except Exception:  # a damaged or foreign entry: trace afresh and overwrite it
+    try:
+        if not data.startswith(_MAGIC):
+            return None
+        start = len(_MAGIC) + 8
+        size = int.from_bytes(data[len(_MAGIC):start], "big")
+        header = json.loads(data[start:start + size].decode("utf-8"))
+        blob = data[start + size:]
+        if (header.get("format") != _EXPORT_FORMAT or header.get("key") != key
+                or header.get("in_tree") != str(in_tree)
+                or header.get("sha256") != hashlib.sha256(blob).hexdigest()):
+            return None
+        out_tree = _rebuild_tree(header["out_tree"], in_tree)
+        exported = jax.export.deserialize(bytearray(blob))
+        avals = [(tuple(a.shape), str(a.dtype)) for a in exported.in_avals]
+        if (avals != [(tuple(jax.typeof(x).shape), str(jax.typeof(x).dtype)) for x in leaves]
+                or len(exported.out_avals) != out_tree.num_leaves):
+            return None
+        return exported, out_tree
+    except Exception:  # anything unreadable is a miss
         return None
 
 
-def _write_exported(path: Path, exported, out_tree) -> None:
+def _write_exported(path: Path, key: str, in_tree, exported, out_tree) -> None:
+    """Keep the program at ``path`` (atomically, readable by all), or raise :class:`_Unkeepable`
+    when its output tree cannot be written down as plain data."""
+    blob = bytes(exported.serialize())
+    header = json.dumps({
+        "format": _EXPORT_FORMAT, "key": key, "in_tree": str(in_tree),
+        "out_tree": _describe_tree(out_tree, {t: p for p, t in reversed(list(_subtrees(in_tree)))}),
+        "sha256": hashlib.sha256(blob).hexdigest()}).encode("utf-8")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            pickle.dump((bytes(exported.serialize()), out_tree), f)
+            f.write(_MAGIC + len(header).to_bytes(8, "big") + header + blob)
         os.chmod(tmp, 0o644)  # as JAX's own entries: a shared cache directory stays readable
         os.replace(tmp, path)  # atomic: concurrent runs never read half an entry
     except BaseException:
@@ -341,9 +473,12 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
     ``fn.lower(static, *args).compile()``. Otherwise the lowered program is exported
     (:mod:`jax.export`) to ``exported/`` under :func:`program_key`, or read from there, and
     compiled (the XLA layer of the cache then loads the executable). The result is the same
-    program: outputs are identical bit for bit (``tests/test_cache.py``). The key covers the
-    package's files as they are on disk: a script that swaps code in at run time (as
-    ``experiments/micro/ab_step.py --a-rev`` does) must not enable the cache.
+    program: outputs are identical bit for bit (``tests/test_cache.py``). An entry is data only
+    (JAX's serialised module and a JSON header); one that does not load or does not match the key
+    and the arguments is traced afresh and overwritten. A program whose output holds a node other
+    than tuples, lists, dicts, None, NamedTuples and subtrees of its inputs is compiled but not
+    kept. The key covers the package's files as they are on disk: a script that swaps code in at
+    run time must not enable the cache.
 
     Args:
         fn: a ``jax.jit`` function whose first argument is static.
@@ -364,8 +499,15 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
     if path in _COMPILED:  # this process compiled it already (as jit's own in-memory caches would)
         return _COMPILED[path]
     leaves, in_tree = jax.tree.flatten(args)
-    loaded = _read_exported(path)
-    if loaded is None:
+    compiled = None
+    loaded = _read_exported(path, key, in_tree, leaves)
+    if loaded is not None:
+        exported, out_tree = loaded
+        try:
+            compiled = jax.jit(exported.call).lower(*leaves).compile()
+        except Exception:  # a program this JAX cannot run: a miss like any other
+            compiled = None
+    if compiled is None:
         box = {}
 
         def flat(*flat_args):
@@ -383,13 +525,12 @@ def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
             compiled_direct = fn.lower(static, *args).compile()
             _COMPILED[path] = compiled_direct
             return compiled_direct
+        out_tree = box["tree"]
         try:
-            _write_exported(path, exported, box["tree"])
-        except (ImportError, OSError):  # no serializer, or an unwritable directory: the run goes on uncached
+            _write_exported(path, key, in_tree, exported, out_tree)
+        except (_Unkeepable, ImportError, OSError):  # a tree not kept as data, no serializer, unwritable
             pass
-        loaded = exported, box["tree"]
-    exported, out_tree = loaded
-    compiled = jax.jit(exported.call).lower(*leaves).compile()
+        compiled = jax.jit(exported.call).lower(*leaves).compile()
 
     def call(*call_args):
         return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(call_args)))

@@ -6,14 +6,16 @@ in ``metrics.json``), not wall-clock times. Each run is a fresh ``nanoslam`` pro
 ``NANOSLAM_CACHE_DIR`` pointing at a test directory.
 """
 
+import functools
 import json
 import os
+import pickle
 import subprocess
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
-import functools
-
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -80,6 +82,27 @@ def test_cached_run_gives_identical_outputs(runs):
         assert (root / "first" / name).read_bytes() == (root / "second" / name).read_bytes(), name
     keys = ["rmse_fixed", "rmse_aligned", "n_landmarks", "resample_count"]
     assert {k: runs["first"][k] for k in keys} == {k: runs["second"][k] for k in keys}
+
+
+def test_a_run_never_executes_a_pickle_planted_in_the_cache(runs, tmp_path):
+    """Every traced-program entry of a warm cache replaced by a pickle that would create a file
+    when unpickled: a fresh run executes none of them, traces afresh, gives the uncached run's
+    outputs and puts real entries back."""
+    import shutil
+
+    cache = tmp_path / "jax"
+    shutil.copytree(runs["cache"], cache)
+    marker = tmp_path / "executed"
+    entries = sorted((cache / "exported").glob("*.bin"))
+    assert entries
+    for entry in entries:
+        entry.write_bytes(pickle.dumps(_Planted(marker)))
+    _run(tmp_path / "planted", cache)
+    assert not marker.exists(), "a file of the cache directory was unpickled"
+    for name in ("trajectory.csv", "map.csv"):
+        assert (tmp_path / "planted" / name).read_bytes() == (runs["root"] / "bypass" / name).read_bytes(), name
+    for entry in entries:  # traced afresh and written again
+        assert entry.read_bytes().startswith(_cache._MAGIC)
 
 
 def test_no_cache_bypasses_the_cache(runs):
@@ -214,15 +237,178 @@ def test_program_key_changes_with_static_shapes_dtypes_sources_and_versions(monk
     _cache._environment_digest.cache_clear()
 
 
-def test_a_damaged_entry_is_traced_again(toy_cache):
-    x, y = jnp.arange(3.0), (jnp.ones(3),)
-    compile_program(_toy, 1.0, x, y)
+class _Planted:
+    """Unpickling this creates the file ``marker`` (``open(marker, "w")``): the proof that a file
+    of the cache directory was unpickled."""
+
+    def __init__(self, marker: Path):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return open, (self.marker, "w")
+
+
+def _header(entry: Path) -> dict:
+    data = entry.read_bytes()
+    assert data.startswith(_cache._MAGIC)
+    start = len(_cache._MAGIC) + 8
+    return json.loads(data[start:start + int.from_bytes(data[len(_cache._MAGIC):start], "big")])
+
+
+def _count_exports(monkeypatch) -> list:
+    calls, real = [], jax.export.export
+
+    def counting(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(jax.export, "export", counting)
+    return calls
+
+
+def test_a_planted_pickle_is_never_executed(toy_cache, tmp_path_factory, monkeypatch):
+    """A pickle planted under the very name the entry of this program has (and its pickle in the
+    layout an older version read) is not unpickled: the run traces afresh, gives the uncached
+    program's outputs and overwrites the file with a real entry."""
+    marker = tmp_path_factory.mktemp("planted") / "executed"
+    x, y = jnp.arange(4.0), (jnp.ones(4) * 2,)
+    direct = _toy.lower(3.0, x, y).compile()(x, y)
+    entry = toy_cache / f"{program_key(_toy, 3.0, (x, y))}.bin"
+    for payload in (pickle.dumps(_Planted(marker)), pickle.dumps((b"\0" * 64, _Planted(marker)))):
+        pickle.loads(payload)  # the payload does what it says, when it is unpickled
+        assert marker.exists()
+        marker.unlink()
+        entry.write_bytes(payload)
+        monkeypatch.setattr(_cache, "_COMPILED", {})  # as in a fresh process
+        exports = _count_exports(monkeypatch)
+        out = compile_program(_toy, 3.0, x, y)(x, y)
+        assert not marker.exists(), "a file of the cache directory was unpickled"
+        assert exports == [1]
+        assert jax.tree.structure(out) == jax.tree.structure(direct)
+        for a, b in zip(jax.tree.leaves(out), jax.tree.leaves(direct)):
+            np.testing.assert_array_equal(a, b)
+        assert _header(entry)["key"] == entry.stem
+
+
+def _truncate(entry: Path, other: Path) -> None:
+    entry.write_bytes(entry.read_bytes()[:-100])
+
+
+def _flip_a_program_byte(entry: Path, other: Path) -> None:
+    data = bytearray(entry.read_bytes())
+    data[-200] ^= 0xFF
+    entry.write_bytes(bytes(data))
+
+
+def _another_programs_entry(entry: Path, other: Path) -> None:
+    entry.write_bytes(other.read_bytes())  # a valid entry, of another program, under this one's name
+
+
+def _rewrite_header(change):
+    def damage(entry: Path, other: Path) -> None:
+        data = entry.read_bytes()
+        start = len(_cache._MAGIC) + 8
+        size = int.from_bytes(data[len(_cache._MAGIC):start], "big")
+        header = json.loads(data[start:start + size])
+        change(header)
+        raw = json.dumps(header).encode()
+        entry.write_bytes(_cache._MAGIC + len(raw).to_bytes(8, "big") + raw + data[start + size:])
+    return damage
+
+
+def _claim_a_function(h):  # an output node naming a callable that is no NamedTuple
+    h["out_tree"]["children"][1]["class"] = "os:system"
+
+
+def _claim_an_unimported_module(h):  # an output node naming a module this process has not imported
+    h["out_tree"]["children"][1]["class"] = "nanoslam_test_not_a_module:Out"
+
+
+def _claim_other_inputs(h):
+    h["in_tree"] = h["in_tree"].replace("*", "*, *", 1)
+
+
+@pytest.mark.parametrize("damage", [
+    lambda e, o: e.write_bytes(b"not a program"), lambda e, o: e.write_bytes(b""), _truncate,
+    _flip_a_program_byte, _another_programs_entry, _rewrite_header(_claim_a_function),
+    _rewrite_header(_claim_an_unimported_module), _rewrite_header(_claim_other_inputs),
+], ids=["garbage", "empty", "truncated", "flipped-byte", "other-program", "function", "unimported", "inputs"])
+def test_a_damaged_entry_is_a_miss_traced_again_and_overwritten(toy_cache, monkeypatch, damage):
+    x, y = jnp.arange(3.0), (jnp.ones(3) * 2,)
+    model = _Model(gain=jnp.float64(0.5), name="m")
+    expected = _step_fn.lower(2, model, _State(x, y[0]), x).compile()(model, _State(x, y[0]), x)
+    compile_program(_step_fn, 2, model, _State(x, y[0]), x)
+    compile_program(_step_fn, 3, model, _State(x, y[0]), x)
+    entry = toy_cache / f"{program_key(_step_fn, 2, (model, _State(x, y[0]), x))}.bin"
+    (other,) = {p for p in toy_cache.glob("*.bin")} - {entry}
+    damage(entry, other)
+    monkeypatch.setattr(_cache, "_COMPILED", {})  # as in a fresh process
+    exports = _count_exports(monkeypatch)
+    out = compile_program(_step_fn, 2, model, _State(x, y[0]), x)(model, _State(x, y[0]), x)
+    assert exports == [1], "the damaged entry was not traced again"
+    assert jax.tree.structure(out) == jax.tree.structure(expected)
+    for a, b in zip(jax.tree.leaves(out), jax.tree.leaves(expected)):
+        np.testing.assert_array_equal(a, b)
+    # Overwritten with a good entry: the next fresh process reads it without tracing.
+    monkeypatch.setattr(_cache, "_COMPILED", {})
+    compile_program(_step_fn, 2, model, _State(x, y[0]), x)
+    assert exports == [1]
+
+
+class _State(NamedTuple):
+    pose: jax.Array
+    weight: jax.Array
+
+
+class _Record(NamedTuple):
+    total: jax.Array
+    parts: dict
+    missing: None
+
+
+class _Model(eqx.Module):
+    gain: jax.Array
+    name: str = eqx.field(static=True)
+
+
+@functools.partial(jax.jit, static_argnames=("k",))
+def _step_fn(k: int, model: _Model, state: _State, u):
+    new = _State(state.pose + model.gain * u * k, state.weight * 0.5)
+    return (model, state, new), _Record(jnp.sum(new.pose), {"b": new.weight, "a": [u, (u * 2,)]}, None)
+
+
+def test_outputs_of_namedtuples_dicts_and_input_subtrees_are_kept(toy_cache, monkeypatch):
+    """The output tree is kept as plain data: builtin containers, NamedTuples of imported modules
+    and subtrees equal to the inputs' (here an equinox module with a static field), rebuilt exactly."""
+    x = jnp.arange(3.0)
+    args = (_Model(gain=jnp.float64(0.5), name="m"), _State(x, x + 1), x)
+    expected = _step_fn.lower(2, *args).compile()(*args)
+    compile_program(_step_fn, 2, *args)
     (entry,) = toy_cache.glob("*.bin")
-    entry.write_bytes(b"not a program")
-    _cache._COMPILED.pop(entry)  # as in a fresh process
-    out = compile_program(_toy, 1.0, x, y)(x, y)
-    np.testing.assert_array_equal(out["prod"], x)
-    assert entry.read_bytes() != b"not a program"
+    assert _header(entry)["out_tree"]["children"][0]["children"][0] == {"input": [0]}
+    monkeypatch.setattr(_cache, "_COMPILED", {})
+    monkeypatch.setattr(jax.export, "export", lambda *a, **k: pytest.fail("traced again"))
+    out = compile_program(_step_fn, 2, *args)(*args)
+    assert jax.tree.structure(out) == jax.tree.structure(expected)
+    assert isinstance(out[1], _Record) and out[0][0].name == "m"
+    for a, b in zip(jax.tree.leaves(out), jax.tree.leaves(expected)):
+        np.testing.assert_array_equal(a, b)
+
+
+@jax.jit
+def _new_model(_, x):
+    return _Model(gain=jnp.sum(x), name="made")
+
+
+def test_an_output_not_described_as_data_is_compiled_but_not_kept(toy_cache, monkeypatch):
+    x = jnp.arange(3.0)
+    first = compile_program(_new_model, None, x)
+    assert not list(toy_cache.iterdir()), "an equinox module made by the program was kept"
+    assert first(x).gain == 3.0 and first(x).name == "made"
+    monkeypatch.setattr(_cache, "_COMPILED", {})
+    exports = _count_exports(monkeypatch)
+    assert compile_program(_new_model, None, x)(x).gain == 3.0
+    assert exports == [1]
 
 
 def test_without_a_cache_directory_nothing_is_written(monkeypatch):
@@ -268,7 +454,8 @@ def test_release_programs_unmaps_compiled_filter_programs(monkeypatch):
     before = _cache.memory_maps()[0]
     runs = {}
     for method in ("fastslam1", "fastslam2"):
-        cfg = load_config(None, [f"filter.method={method}", "filter.capacity=64", "filter.window=16", "sim.duration=10"])
+        cfg = load_config(None, [f"filter.method={method}", "filter.capacity=64", "filter.window=16",
+                                 "sim.duration=10"])
         log = load_log(cfg)
         static, params = settings_from_config(cfg, log.segments.k_max)
         runs[method] = (static, params, log.segments,
