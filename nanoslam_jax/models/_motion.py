@@ -26,6 +26,7 @@ and :class:`RandomWalk` (no odometry: the pose is driven by process noise alone)
 from __future__ import annotations
 
 import abc
+import dataclasses
 import importlib
 import math
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
@@ -35,7 +36,6 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .._trig import sincos
 from ._angles import wrap_angle
 from ._vehicle import VehicleParams, vehicle_move, vehicle_rates, vehicle_step
 
@@ -126,7 +126,7 @@ class AbstractMotionModel(eqx.Module):
         it to the constructor; built-in models read their own config sections.
         """
         params = dict(cfg.model.motion_params or {})
-        names = {f.name for f in _fields(cls)}
+        names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(params) - names)
         if unknown:
             raise ValueError(f"key 'model.motion_params': {cls.__name__} has no parameter "
@@ -135,12 +135,6 @@ class AbstractMotionModel(eqx.Module):
             return cls(**{k: _f(v) for k, v in params.items()})
         except TypeError as e:
             raise ValueError(f"key 'model.motion_params': cannot build {cls.__name__}: {e}") from None
-
-
-def _fields(cls) -> tuple:
-    import dataclasses
-
-    return dataclasses.fields(cls)
 
 
 class AbstractRateModel(AbstractMotionModel):
@@ -241,12 +235,8 @@ class Unicycle(AbstractRateModel):
         return jnp.asarray(u)[:2]
 
     def move(self, x, rates, dt):
-        vc, w = rates[0], rates[1]
-        a, b = self.sensor_x, self.sensor_y
-        s, c = sincos(x[2])
-        dx = vc * c - w * (a * s + b * c)
-        dy = vc * s + w * (a * c - b * s)
-        return jnp.stack([x[0] + dt * dx, x[1] + dt * dy, wrap_angle(x[2] + dt * w)])
+        # the car's move at given rates is that of a body with its sensor offset by (a, b)
+        return vehicle_move(x, rates, dt, VehicleParams(laser_a=self.sensor_x, laser_b=self.sensor_y))
 
     def noise_sqrt(self, dt):
         return jnp.diag(jnp.stack([self.sigma_v, self.sigma_omega]))
