@@ -131,15 +131,15 @@ def test_invalid_study_files_name_the_file_and_key(tmp_path, change, fragment):
     assert str(path) in str(e.value) and fragment in str(e.value)
 
 
-def test_a_method_not_available_yet_is_named(tmp_path, monkeypatch):
-    """A study naming a method the filter does not offer (here: NANO-SLAM taken out of the list)
+def test_a_method_not_registered_is_named(tmp_path, monkeypatch):
+    """A study naming a method the registry does not hold (here: NANO-SLAM taken out of it)
     stops before anything runs, naming the entry and the method."""
-    import nanoslam_jax.filter as filter_package
+    import nanoslam_jax.methods as methods
 
-    monkeypatch.setattr(filter_package, "AVAILABLE_METHODS", tuple(m for m in filter_package.AVAILABLE_METHODS if m != "nano"))
-    raw = {"base": str(ROOT / "configs" / "victoria_park_nano.yaml"), "particles": {10: 2},
+    monkeypatch.delitem(methods._REGISTRY, "nano")
+    raw = {"base": str(ROOT / "configs" / "victoria_park_fastslam1.yaml"), "particles": {10: 2},
            "methods": [{"label": "New", "set": ["filter.method=nano"]}]}
-    with pytest.raises(ConfigError, match="'New'.*nano.*not available yet"):
+    with pytest.raises(ConfigError, match="'New'.*filter.method.*'nano' is not a registered method"):
         load_study(_write(tmp_path / "new.yaml", raw))
 
 

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._angles import wrap_angle
@@ -55,7 +56,11 @@ __all__ = [
 
 
 def _f(x: Any) -> Array:
-    return jnp.asarray(x, dtype=float)
+    # Plain numbers stay NumPy so that building a model (config validation, for one) does not
+    # start JAX's backend before a sweep has set up its devices.
+    if isinstance(x, jax.Array):
+        return jnp.asarray(x, dtype=float)
+    return np.asarray(x, dtype=np.float64)
 
 
 class AbstractMotionModel(eqx.Module):
