@@ -121,6 +121,15 @@ class DetectorConfig:
         doc="clusters reaching within this angle (deg) of the field of view's edges are partly seen: no tree")
     reject_occluded: bool = _f(True, static=True,
         doc="a cluster whose neighbouring beam on either side returned nearer (occluded at an edge) is no tree")
+    tree_min_returns: int = _f(1, static=True, lo=1,
+        doc="a tree has at least this many returns (2: a single return, which may be a stray one, is never a "
+            "tree; the Victoria Park log's own detector reports thin trunks seen by one beam)")
+    tree_range_noise: float = _f(0.02, static=True, lo=0.0, lo_open=True,
+        doc="range noise (m) with which the trunk profile fit weighs where a tree's edges lie between its edge "
+            "beams and the beams beside them (smaller: trust the ranges more)")
+    tree_max_profile_residual: float = _f(0.2, static=True, lo=0.0, lo_open=True,
+        doc="a cluster of 3 or more returns whose ranges depart from the near side of a trunk as wide as the "
+            "cluster by more than this RMS (m) is no tree (bush fragments, oblique wall pieces)")
     reject_no_return_edge: bool = _f(False, static=True,
         doc="a cluster next to a no-return beam is no tree (off: a trunk against open sky is a tree)")
 

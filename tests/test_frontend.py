@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import DetectorConfig, load_config
+from nanoslam_jax.config import ConfigError, DetectorConfig, load_config
 from nanoslam_jax.data import LaserScans, fan_angles, load_laser, load_victoria_park
 from nanoslam_jax.frontend import (
     breakpoint_threshold,
@@ -15,6 +15,7 @@ from nanoslam_jax.frontend import (
     extract_features,
     fit_circle,
     polyline_vertices,
+    width_radius,
 )
 
 BEAMS = 361
@@ -218,6 +219,53 @@ def test_trees_at_the_edge_of_the_field_of_view_are_partly_seen():
     trees = [(0.3, 6.0, 0.4), (10.0, 0.0, 0.4)]  # the first straddles the +90 deg edge
     got = detect_trees(scans_of(ray_cast((0.0, 0.0), 0.0, trees)), DetectorConfig())
     assert got.shape[0] == 1 and got[0, 2] == pytest.approx(0.0, abs=1e-3)
+
+
+def test_a_single_stray_return_is_no_tree_when_two_returns_are_required():
+    thin = (12.0 * np.cos(0.1), 12.0 * np.sin(0.1), 0.15)  # hit by two beams
+    r = ray_cast((0.0, 0.0), 0.0, [thin])
+    assert (r < 80).sum() == 2
+    stray = int(np.argmin(np.abs(ANGLES + 0.5)))  # a lone return in open space, 12 m at -29 deg
+    r[stray] = 12.0
+    got = detect_trees(scans_of(r), DetectorConfig(tree_min_returns=2))
+    assert got.shape[0] == 1 and got[0, 2] == pytest.approx(0.1, abs=np.deg2rad(0.25))
+    # by default (as the Victoria Park log's detector) a lone return is a thin trunk
+    assert detect_trees(scans_of(r), DetectorConfig()).shape[0] == 2
+
+
+def test_trunk_diameter_is_measured_below_the_beam_spacing():
+    # one trunk per scan at 41 positions of its edges between beams (4 or 5 beams hit it)
+    rng_, d = 10.0, 0.4
+    b = np.deg2rad(np.linspace(-30.0, 30.0, 41) + 0.5 * np.linspace(0.0, 1.0, 41))
+    rows = [ray_cast((0.0, 0.0), 0.0, [(rng_ * np.cos(x), rng_ * np.sin(x), d)]) for x in b]
+    got = detect_trees(scans_of(rows), DetectorConfig(tree_range_noise=0.002))
+    assert got.shape[0] == b.size
+    # the angular width alone is off by up to half a beam's width (8.7 cm at 10 m) at each edge
+    n = np.array([(r < 80).sum() for r in rows])
+    width = 2 * width_radius(np.array([r.min() for r in rows]), n, np.deg2rad(0.5))
+    assert np.abs(width - d).max() > 0.04
+    assert np.abs(got[:, 3] - d).max() < 0.02
+    assert np.abs(got[:, 1] - rng_).max() < 0.02
+    assert np.abs(got[:, 2] - b).max() < np.deg2rad(0.05)
+
+
+def test_ranges_no_trunk_as_wide_explains_are_no_tree():
+    # a concave piece 1 m wide at 15 m (a bush's notch: its middle 0.8 m farther than its ends),
+    # seen by 7 beams, too few for the circle fit's tests; a trunk as wide beside it is a tree
+    notch = [((15.0, -0.5), (15.8, 0.0)), ((15.8, 0.0), (15.0, 0.5))]
+    trunk = (15.0 * np.cos(0.6), 15.0 * np.sin(0.6), 1.0)
+    r = ray_cast((0.0, 0.0), 0.0, [trunk], notch)
+    got = detect_trees(scans_of(r), DetectorConfig())
+    assert got.shape[0] == 1 and got[0, 2] == pytest.approx(0.6, abs=np.deg2rad(0.1))
+    assert got[0, 3] == pytest.approx(1.0, abs=0.05)
+    assert detect_trees(scans_of(r), DetectorConfig(tree_max_profile_residual=10.0)).shape[0] == 2
+
+
+@pytest.mark.parametrize("key, value", [("tree_min_returns", "0"), ("tree_range_noise", "0"),
+                                        ("tree_max_profile_residual", "-0.1")])
+def test_tree_keys_are_validated(key, value):
+    with pytest.raises(ConfigError, match=f"detector.{key}"):
+        load_config(None, [f"detector.{key}={value}"])
 
 
 # --------------------------------------------------------------------------- detect and data.detections: laser

@@ -48,7 +48,8 @@ def breakpoint_threshold(r0: Float[np.ndarray, "..."], r1: Float[np.ndarray, "..
                          cfg: DetectorConfig) -> Float[np.ndarray, "..."]:
     """The adaptive breakpoint distance between returns at ranges ``r0``, ``r1`` an angle ``dphi`` apart (m)."""
     lam = np.deg2rad(cfg.breakpoint_lambda_deg)
-    return np.minimum(r0, r1) * np.sin(dphi) / np.sin(np.maximum(lam - dphi, 1e-9)) + 3.0 * cfg.breakpoint_sigma_r
+    return np.asarray(np.minimum(r0, r1) * np.sin(dphi) / np.sin(np.maximum(lam - dphi, 1e-9))
+                      + 3.0 * cfg.breakpoint_sigma_r)
 
 
 def find_clusters(points: Points, valid: Bool[np.ndarray, "S B"], scans: LaserScans,

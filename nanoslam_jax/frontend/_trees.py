@@ -6,9 +6,14 @@ lies at range ``r_s`` subtends ``2 asin(R / (r_s + R))``, so ``R = r_s sin(w / 2
 the centre lies at range ``r_s + R`` on the bisector of the cluster's first and last beams; ``r_s`` is
 the range at the cluster's middle. From ``tree_fit_min_points`` returns on, the least-squares circle
 replaces that estimate when it is convex, passes the residual test and agrees with the angular width.
+These estimates serve the plausibility tests; a cluster that passes them is measured by the trunk
+profile fit (:mod:`._profile`: its edges placed between its edge beams and the beams beside them by
+how well a trunk that wide explains its ranges), which resolves the diameter below the beam spacing.
 
-A cluster is no tree when its circle fit is flat (a straight piece of a wall or fence), concave or
-rough; when it is too wide (walls, fences), thin, near or far; when its first and last returns
+A cluster is no tree when it has fewer than ``tree_min_returns`` returns; when its circle fit is flat
+(a straight piece of a wall or fence), concave or rough; when its ranges do not follow the near side
+of a trunk as wide as the cluster (``tree_max_profile_residual``: bush fragments, oblique wall pieces);
+when it is too wide (walls, fences), thin, near or far; when its first and last returns
 differ in range by more than a fraction of its diameter (an oblique surface); when another cluster
 ends within ``tree_min_separation`` of its ends or any other return lies within
 ``tree_min_clearance`` of its surface (foliage, fences, people: a trunk stands alone); when it
@@ -22,6 +27,7 @@ import numpy as np
 from ..config import DetectorConfig
 from ..data import LaserScans
 from ._circles import CircleFit
+from ._profile import fit_trunk_profiles
 from ._types import EDGE_FOV, EDGE_NEARER, EDGE_NO_RETURN, Clusters, Points, Trees
 
 __all__ = ["find_trees", "middle_range", "width_radius"]
@@ -90,10 +96,18 @@ def find_trees(points: Points, clusters: Clusters, fit: CircleFit, scans: LaserS
         ok &= (clusters.left != EDGE_NEARER) & (clusters.right != EDGE_NEARER)
     if cfg.reject_no_return_edge:
         ok &= (clusters.left != EDGE_NO_RETURN) & (clusters.right != EDGE_NO_RETURN)
+    ok &= n >= cfg.tree_min_returns
     k = np.flatnonzero(ok)
     if cfg.tree_min_clearance > 0:
         keep = _clearance(scans, clusters, k, rng, brg, rad, cfg.max_range) >= cfg.tree_min_clearance
         k = k[keep]
+    # the trunk's measure: from the ranges of its beams and the beams beside it that missed it
+    prof = fit_trunk_profiles(points.r, scans.angles[points.beam], clusters.start[k], n[k], a0[k], a1[k], dphi,
+                              cfg.tree_range_noise)
+    rng[k], brg[k], rad[k] = prof.range, prof.bearing, prof.radius
+    diameter = 2 * rad
+    round_ = (n[k] < 3) | (prof.rms <= cfg.tree_max_profile_residual)
+    k = k[round_ & (diameter[k] >= cfg.tree_min_diameter) & (diameter[k] <= cfg.tree_max_diameter)]
     return Trees(clusters.scan[k], scans.time[clusters.scan[k]], rng[k], brg[k], diameter[k],
                  clusters.first_beam[k], clusters.last_beam[k], use_fit[k].astype(np.int64))
 

@@ -151,11 +151,12 @@ class Trees(NamedTuple):
     Attributes:
         scan: scan index.
         time: scan time (s).
-        range: range to the trunk's centre (m): surface range plus radius.
+        range: range to the trunk's centre (m).
         bearing: bearing of the centre in the vehicle frame (rad, 0 ahead, left positive).
         diameter: trunk diameter (m).
         first_beam, last_beam: the cluster's beams.
-        fitted: 1 when centre and diameter come from the circle fit, 0 from the angular width.
+        fitted: 1 when the cluster's least-squares circle passed its tests (``tree_fit_min_points``
+            returns or more, convex, smooth, not flat), 0 when only the angular width vouched for it.
     """
 
     scan: Int[np.ndarray, "M"]
