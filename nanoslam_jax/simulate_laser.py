@@ -31,11 +31,12 @@ import os
 from typing import NamedTuple
 
 import numpy as np
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 from scipy.spatial import cKDTree
 
 from .config import SimConfig, UnicycleConfig, VehicleConfig
 from .data import LaserScans, fan_angles, write_victoria_park
+from .data._laser import NO_RETURN, write_laser
 from .data._types import RawLog
 from .models._angles import wrap_angle_np
 from .simulate import PATH_CLEARANCE, simulate
@@ -56,8 +57,6 @@ __all__ = [
     "write_laser",
 ]
 
-#: The range written for a beam without a return (m), as in the Victoria Park log.
-NO_RETURN = 81.91
 #: Columns of ``laser_truth.csv`` (and of :attr:`LaserLog.truth`).
 TRUTH_COLUMNS = ("time", "tree_id", "beams_hit", "beams_span", "range_to_centre", "bearing", "diameter")
 #: Object kinds of the world (``LaserWorld.segment_kind`` and :func:`ray_cast`'s ``kind``).
@@ -243,7 +242,7 @@ def _segment_t(ox, oy, dx, dy, seg):
 
 
 def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, "B"], world: LaserWorld,
-             max_range: float, fence_return: Float[np.ndarray, "S B"] | None = None,
+             max_range: float, fence_return: Bool[np.ndarray, "S B"] | None = None,
              ) -> tuple[Float[np.ndarray, "S B"], Int[np.ndarray, "S B"], Int[np.ndarray, "S B"],
                         Int[np.ndarray, "S T"]]:
     """Noise-free ranges of a fan of beams cast from each pose into ``world`` (the nearest surface wins).
@@ -386,14 +385,6 @@ def simulate_laser(sim: SimConfig | None = None, vehicle: VehicleConfig | None =
                      axis=1).astype(np.float64)
     scans = LaserScans(time=scan_t, ranges=meas, angles=angles, max_range=sim.laser_max_range, source="simulated")
     return LaserLog(raw=raw, scans=scans, truth=truth, world=world, kind=kind, object_id=obj)
-
-
-def write_laser(path: str | os.PathLike, scans: LaserScans) -> None:
-    """Write scans as ``LASER.txt``: one scan per line, the time (s) then the ranges (m, mm resolution)
-    at file bearings increasing from the right (``0 .. fov``, straight ahead at ``fov / 2``); no return
-    as :data:`NO_RETURN`."""
-    r = np.where(scans.ranges >= scans.max_range, NO_RETURN, scans.ranges)
-    np.savetxt(path, np.concatenate([scans.time[:, None], r], axis=1), fmt=["%.6f"] + ["%.3f"] * r.shape[1])
 
 
 def simulate_laser_to_dir(directory: str | os.PathLike, sim: SimConfig | None = None,

@@ -7,6 +7,7 @@ import pytest
 import scipy.io
 
 from nanoslam_jax.data import LaserScans, LogFormatError, load_laser
+from nanoslam_jax.data._laser import NO_RETURN, write_laser
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "victoria_park"
 
@@ -36,6 +37,17 @@ def test_reads_a_flat_stream_and_a_per_line_file(tmp_path, per_line):
     np.testing.assert_allclose(s.angles[[0, 180, 360]], [-np.pi / 2, 0.0, np.pi / 2], atol=1e-12)
     np.testing.assert_allclose(np.diff(s.angles), np.deg2rad(0.5))
     assert (~s.valid).sum() == (r >= 80).sum() == 3 * 52
+
+
+def test_write_laser_reads_back(tmp_path):
+    t, r = _scans()
+    r[0, 5] = 95.0  # beyond the scanner's range: written as no return
+    write_laser(tmp_path / "LASER.txt", LaserScans(t, r, np.deg2rad(np.linspace(-90.0, 90.0, 361))))
+    s = load_laser(tmp_path / "LASER.txt")
+    np.testing.assert_allclose(s.time, t, atol=1e-6)
+    expected = np.where(r >= 80.0, NO_RETURN, r)
+    np.testing.assert_allclose(s.ranges, expected, atol=5e-4)
+    assert not s.valid[0, 5]
 
 
 def test_reads_a_mat_file_in_cm_and_ms(tmp_path):

@@ -22,7 +22,7 @@ from jaxtyping import Bool, Float
 
 from ._loader import _MAT_T0_MS, LogFormatError
 
-__all__ = ["LASER_FILES", "LaserScans", "fan_angles", "find_laser_file", "load_laser"]
+__all__ = ["LASER_FILES", "NO_RETURN", "LaserScans", "fan_angles", "find_laser_file", "load_laser", "write_laser"]
 
 #: File names a log directory may hold raw scans under, in order of preference.
 LASER_FILES = ("LASER.txt", "aa3_lsr2.mat")
@@ -30,6 +30,8 @@ LASER_FILES = ("LASER.txt", "aa3_lsr2.mat")
 VICTORIA_PARK_BEAMS = 361
 #: Ranges at or above this (m) are no returns (the SICK of the Victoria Park log).
 VICTORIA_PARK_MAX_RANGE = 80.0
+#: The range the Victoria Park log writes for a beam without a return (m).
+NO_RETURN = 81.91
 
 
 @dataclass(frozen=True)
@@ -224,3 +226,16 @@ def load_laser(path: str | os.PathLike, n_beams: int = VICTORIA_PARK_BEAMS, fov_
         raise LogFormatError(f"{path}{where} (scan {s + 1}, beam {b}): expected a range >= 0, got {ranges[s, b]!r}")
     return LaserScans(time=time, ranges=ranges, angles=fan_angles(ranges.shape[1], fov_deg),
                       max_range=float(max_range), source=str(path))
+
+
+def write_laser(path: str | os.PathLike, scans: LaserScans) -> None:
+    """Write scans as ``LASER.txt``: one scan per line, the time (s) then the ranges (m, mm resolution)
+    at file bearings increasing from the right (``0 .. fov``, straight ahead at ``fov / 2``); no return
+    as :data:`NO_RETURN`. :func:`load_laser` reads it back.
+
+    Args:
+        path: the file to write.
+        scans: the scans (ranges at or beyond ``scans.max_range`` are written as no return).
+    """
+    r = np.where(scans.ranges >= scans.max_range, NO_RETURN, scans.ranges)
+    np.savetxt(path, np.concatenate([scans.time[:, None], r], axis=1), fmt=["%.6f"] + ["%.3f"] * r.shape[1])
