@@ -242,7 +242,7 @@ def _evaluate(cfg: Config, log, est: np.ndarray) -> dict:
     from .metrics import evaluate
 
     t = np.asarray(log.segments.time)
-    if not np.all(np.isfinite(est)):
+    if not np.all(np.isfinite(est)) or not len(log.raw.gps):
         return {k: math.nan for k in RMSE_KEYS}
     m = evaluate(t, est[:, :2], log.raw.gps, rotation_deg=cfg.metrics.gps_rotation_deg,
                  jump_speed=cfg.metrics.jump_speed, frame=log.frame)
@@ -392,6 +392,10 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
     key_of = lambda c: json.dumps([config_to_dict(c)[k] for k in ("data", "sim", "vehicle", "detector")],  # noqa: E731
                                   sort_keys=True)
     logs[key_of(first)] = load_log(first, data_dir)  # a bad log fails before anything is written
+    if not len(logs[key_of(first)].raw.gps):
+        raise ConfigError(f"{spec.source}: compare scores the trajectories against GPS, and the log "
+                          f"{logs[key_of(first)].source} has none; score its map with `nanoslam sweep` "
+                          f"(metric: survey_rmse) or `nanoslam run`")
     out.mkdir(parents=True, exist_ok=True)
     (out / "configs").mkdir(exist_ok=True)
     resolved = {"name": spec.name, "base": spec.base, "seeds": spec.seeds, "first_seed": spec.first_seed,

@@ -29,7 +29,8 @@ from .filter import (Params, Static, adaptive_noise_summary, configured_noise,
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
                      text_progress)
 from .filter._scan import is_gaussian
-from .metrics import error_over_time, evaluate, map_summary, observable_landmarks, relative_gps
+from .metrics import (error_over_time, evaluate, map_alignment_metrics, map_summary, observable_landmarks,
+                      relative_gps, survey_summary)
 from .smoother import SmootherSettings, smooth_run, smoother_map
 
 
@@ -44,6 +45,8 @@ class LoadedLog:
         source: where it came from.
         map_truth: the true landmarks a map is judged against (those observable from the true
             path, :func:`~nanoslam_jax.metrics.observable_landmarks`), or None without ground truth.
+        survey: the surveyed landmarks of a real log without a true path (MRCLAM's), in a frame of
+            their own, or None.
     """
 
     raw: RawLog
@@ -51,6 +54,20 @@ class LoadedLog:
     frame: str
     source: str
     map_truth: Optional[np.ndarray] = None
+    survey: Optional["Survey"] = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Survey:
+    """Surveyed landmark positions a map is scored against after a rigid alignment.
+
+    Attributes:
+        xy: ``(S, 2)`` the surveyed positions (m).
+        ids: ``(S,)`` their landmark ids (those of the detections' ids).
+    """
+
+    xy: np.ndarray
+    ids: np.ndarray
 
 
 def with_laser_detections(raw: RawLog, directory, detector) -> RawLog:
@@ -91,23 +108,57 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         t = np.asarray(segments.time)[np.asarray(segments.z_mask).any(axis=1)]
         seen = observable_landmarks(raw.truth_landmarks, raw.truth_poses, t, d.max_range, cfg.map.fov_deg, d.min_range)
         map_truth = np.asarray(raw.truth_landmarks)[seen]
-    return LoadedLog(raw, segments, frame, source, map_truth)
+    survey = None
+    if raw.truth_landmarks is not None and raw.truth_poses is None:
+        xy = np.asarray(raw.truth_landmarks, dtype=float)
+        ids = np.arange(xy.shape[0]) if raw.landmark_ids is None else np.asarray(raw.landmark_ids, dtype=np.int64)
+        survey = Survey(xy, ids)
+    return LoadedLog(raw, segments, frame, source, map_truth, survey)
 
 
-#: Columns of ``map.csv``.
+def sighting_map(poses: np.ndarray, segments: Segments) -> tuple[np.ndarray, np.ndarray]:
+    """Every detection of known id projected from the pose of its segment and averaged per id:
+    the map that a path alone gives (from the dead-reckoned path, the baseline a SLAM map is read
+    against).
+
+    Args:
+        poses: ``(segments, 3)`` the pose ``(x, y, phi)`` of the sensor at each segment.
+        segments: the log's segments (range-bearing detections with ``z_id``).
+
+    Returns:
+        ``(ids, xy)``: the ids seen, increasing, and ``(K, 2)`` the mean position of each.
+    """
+    z = np.asarray(segments.z, dtype=float)
+    ids = np.asarray(segments.z_id)
+    use = np.asarray(segments.z_mask) & (ids >= 0)
+    p = np.broadcast_to(np.asarray(poses, dtype=float)[:, None, :], z.shape[:2] + (3,))[use]
+    heading = p[:, 2] + z[use][:, 1]
+    points = p[:, :2] + z[use][:, :1] * np.column_stack([np.cos(heading), np.sin(heading)])
+    seen, which, counts = np.unique(ids[use], return_inverse=True, return_counts=True)
+    xy = np.column_stack([np.bincount(which, points[:, k], seen.size) for k in range(2)]) / counts[:, None]
+    return seen, xy
+
+
+#: Columns of ``map.csv`` (and, with ``filter.association: known``, :data:`MAP_ID_COLUMN` last).
 MAP_COLUMNS = ["x", "y", "cov_xx", "cov_xy", "cov_yy", "hits", "misses", "existence", "confirmed", "diameter",
                "diameter_sd"]
+#: The last column of ``map.csv`` when landmarks carry the id of the detection that started them.
+MAP_ID_COLUMN = "id"
 
 
 def map_table(lm) -> np.ndarray:
     """The rows of ``map.csv`` (:data:`MAP_COLUMNS`) of a reported map's active landmarks (host arrays):
-    ``existence`` is the existence probability, ``confirmed`` 1 or 0 (0: tentative)."""
+    ``existence`` is the existence probability, ``confirmed`` 1 or 0 (0: tentative); a map whose
+    landmarks carry ids (known association) has their id as a last column."""
     act = np.asarray(lm.active)
     cov = np.asarray(lm.cov)[act]
     existence = 1.0 / (1.0 + np.exp(-np.asarray(lm.log_odds, float)[act]))
-    return np.c_[np.asarray(lm.mean)[act], cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1], np.asarray(lm.hits)[act],
-                 np.asarray(lm.misses)[act], existence, np.asarray(lm.confirmed)[act],
-                 np.asarray(lm.diam)[act], np.sqrt(np.asarray(lm.diam_var)[act])]
+    table = np.c_[np.asarray(lm.mean)[act], cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1], np.asarray(lm.hits)[act],
+                  np.asarray(lm.misses)[act], existence, np.asarray(lm.confirmed)[act],
+                  np.asarray(lm.diam)[act], np.sqrt(np.asarray(lm.diam_var)[act])]
+    if getattr(lm, "ident", None) is not None:
+        table = np.c_[table, np.asarray(lm.ident)[act]]
+    return table
 
 
 def default_out_dir(cfg: Config, root: str | Path = "results") -> Path:
@@ -236,7 +287,8 @@ class RunResult:
         _write_csv(out / "trajectory.csv", cols, table)
         write_tum(out / "trajectory.tum", t, est)
         if self.landmarks is not None:
-            _write_csv(out / "map.csv", MAP_COLUMNS, self.landmarks, fmt="%.9g")
+            cols = MAP_COLUMNS + [MAP_ID_COLUMN] * (self.landmarks.shape[1] > len(MAP_COLUMNS))
+            _write_csv(out / "map.csv", cols, self.landmarks, fmt="%.9g")
         (out / "metrics.json").write_text(json.dumps(_json_safe(self.metrics), indent=2) + "\n")
         if (cfg.output.plots if plots is None else plots) and self.finite:
             mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=self.log.frame)
@@ -349,8 +401,20 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
         if "dr_rmse_fixed" in metrics:
             metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
     if landmarks is not None:
-        metrics.update(map_summary(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, log.map_truth,
+        confirmed = landmarks[:, MAP_COLUMNS.index("confirmed")] > 0
+        metrics.update(map_summary(landmarks[:, :2], confirmed, log.map_truth,
                                    cfg.metrics.map_radius, alignment=metrics if finite else None))
+        if log.survey is not None:
+            ids = landmarks[:, len(MAP_COLUMNS)] if landmarks.shape[1] > len(MAP_COLUMNS) else None
+            metrics.update(survey_summary(landmarks[:, :2], confirmed, log.survey.xy, cfg.metrics.map_radius,
+                                          ids, log.survey.ids))
+    if log.survey is not None and np.all(np.isfinite(dr_poses)) and (np.asarray(seg.z_id) >= 0).any():
+        # The baseline: every sighting of known id projected from the dead-reckoned path.
+        dr_ids, dr_xy = sighting_map(dr_poses, seg)
+        dr_map = map_alignment_metrics(dr_xy, log.survey.xy, dr_ids, log.survey.ids, cfg.metrics.map_radius)
+        metrics.update(dr_survey_rmse=dr_map["rmse"], dr_survey_found=dr_map["n_found"])
+        if np.isfinite(metrics.get("survey_rmse", np.nan)):
+            metrics["survey_dr_over_slam"] = dr_map["rmse"] / max(metrics["survey_rmse"], 1e-12)
     return RunResult(config=cfg, log=log, times=t, trajectory=est, mean_trajectory=mean, best_trajectory=best_pose,
                      path_before_smoother=unsmoothed, dead_reckoning=dr_poses, landmarks=landmarks, ess=ess,
                      outputs=outputs, state=state, metrics=metrics)

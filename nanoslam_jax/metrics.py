@@ -45,6 +45,7 @@ __all__ = [
     "observable_landmarks",
     "map_quality",
     "map_summary",
+    "survey_summary",
     "map_alignment_metrics",
     "MIN_SCANS_OBSERVABLE",
 ]
@@ -434,6 +435,40 @@ def map_summary(
             quality = map_quality(moved, map_truth, radius)
             out.update({f"map_{k}_aligned": quality[k] for k in
                         ("n_found", "found_fraction", "n_spurious", "spurious_fraction", "rmse_matched")})
+    return out
+
+
+def survey_summary(
+    xy: np.ndarray, confirmed: np.ndarray, true_xy: np.ndarray, radius: float,
+    ids: np.ndarray | None = None, true_ids: np.ndarray | None = None,
+) -> dict:
+    """A map against surveyed landmarks in a frame of their own (a real log's survey, e.g. MRCLAM's):
+    :func:`map_alignment_metrics` over the confirmed landmarks.
+
+    Args:
+        xy: ``(L, 2)`` the map's active landmarks.
+        confirmed: ``(L,)`` which of them are confirmed (only those are scored).
+        true_xy: ``(S, 2)`` the surveyed positions.
+        radius: match radius (m): an aligned landmark within it of a surveyed one matches it.
+        ids: ``(L,)`` the landmark id each estimate carries (known association), or None.
+        true_ids: ``(S,)`` the ids of the surveyed landmarks (default: the row index).
+
+    Returns:
+        ``survey_rmse``, ``survey_found``, ``survey_spurious`` (pairs found by position: the
+        estimates matched one-to-one to surveyed landmarks after the best rigid alignment; RMSE over
+        the matched pairs) and ``survey_landmarks`` (surveyed ones); with ``ids`` also
+        ``survey_rmse_by_id``, ``survey_found_by_id``, ``survey_spurious_by_id`` (each estimate
+        paired with the surveyed landmark of its id, however far).
+    """
+    conf = np.asarray(confirmed, bool)
+    est = np.asarray(xy, dtype=float).reshape(-1, 2)[conf]
+    geo = map_alignment_metrics(est, true_xy, match_radius=radius)
+    out = {"survey_rmse": geo["rmse"], "survey_found": geo["n_found"], "survey_spurious": geo["n_spurious"],
+           "survey_landmarks": geo["n_true"]}
+    if ids is not None:
+        by_id = map_alignment_metrics(est, true_xy, np.asarray(ids).reshape(-1)[conf], true_ids, match_radius=radius)
+        out.update(survey_rmse_by_id=by_id["rmse"], survey_found_by_id=by_id["n_found"],
+                   survey_spurious_by_id=by_id["n_spurious"])
     return out
 
 

@@ -23,7 +23,7 @@ from ..config import Config
 from ..data import Segments
 from ..filter import (Params, Static, adaptive_noise_summary, ancestral_path, configured_noise, filter_scan,
                       noise_estimates, reported_map)
-from ..metrics import evaluate, map_summary
+from ..metrics import evaluate, map_summary, survey_summary
 from ._spec import METRIC_KEYS
 
 
@@ -41,6 +41,7 @@ class LogData:
         map_truth: the true trees a map is judged against (the observable ones of a simulated log;
             ``None`` without ground truth).
         source: where the log came from.
+        survey: a real log's surveyed landmarks (:class:`~nanoslam_jax.experiment.Survey`), or None.
     """
 
     segments: Segments
@@ -48,6 +49,7 @@ class LogData:
     frame: str
     map_truth: Optional[np.ndarray]
     source: str
+    survey: Any = None
 
     @property
     def time(self) -> np.ndarray:
@@ -76,7 +78,7 @@ def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optiona
     seg = log.segments
     n = seg.time.shape[0] if segments is None else min(segments, seg.time.shape[0])
     seg = type(seg)(*(np.asarray(a)[:n] for a in seg))
-    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source)
+    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source, log.survey)
 
 
 # --------------------------------------------------------------------------- the compiled program
@@ -93,6 +95,7 @@ class BatchOutput(NamedTuple):
         overflow: new landmarks dropped for lack of capacity.
         resample_count: resampling steps.
         map_mean, map_active, map_confirmed: the reported map (for the map metrics).
+        map_ident: its landmarks' ids (known association), or None.
         path_pose: ``(segments, 3)`` the final best particle's ancestral path (``filter.estimate:
             path``; else None), followed back inside the program so that the particles' poses never
             leave it.
@@ -116,6 +119,7 @@ class BatchOutput(NamedTuple):
     map_confirmed: Any
     path_pose: Any = None
     noise: Any = None
+    map_ident: Any = None
 
 
 def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
@@ -138,6 +142,7 @@ def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOu
         map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
         path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate == "path" else None,
         noise=noise_estimates(state) if static.adaptive_noise else None,
+        map_ident=lm.ident,
     )
 
 
@@ -316,8 +321,9 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     rot, jump, radius = task.metrics_opts[i]
     alignment = None
     if finite.all():
-        alignment = evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump, frame=log.frame)
-        m.update({k: v for k, v in alignment.items() if k in METRIC_KEYS})
+        if len(log.gps):  # a log without GPS (MRCLAM) is scored by its map alone
+            alignment = evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump, frame=log.frame)
+            m.update({k: v for k, v in alignment.items() if k in METRIC_KEYS})
     else:
         j = int(np.argmin(finite))
         reasons.append(f"non-finite estimate from segment {j} (t = {t[j]:.2f} s)")
@@ -326,6 +332,10 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     act = np.asarray(out.map_active[i])
     m.update(map_summary(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act], log.map_truth,
                          radius, alignment))
+    if log.survey is not None:
+        ids = None if out.map_ident is None else np.asarray(out.map_ident[i])[act]
+        m.update(survey_summary(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act],
+                                log.survey.xy, radius, ids, log.survey.ids))
     m.update(
         landmark_overflow=overflow,
         window_overflow_max=int(np.max(out.window_overflow[i], initial=0)), resample_count=int(out.resample_count[i]),

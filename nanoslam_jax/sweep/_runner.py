@@ -31,7 +31,7 @@ from ._batch import BatchTask, LogData, _first_line, execute_batch, load_log_dat
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
 from ._expand import expand, spec_identity, spec_to_dict, stored_identity
 from ._plan import Group, logs_by_id, make_tasks, plan_groups, resolve_vectorize
-from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, ConfigPoint, SweepSpec
+from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, SURVEY_METRIC_KEYS, ConfigPoint, SweepSpec
 
 __all__ = [
     "SweepResult",
@@ -337,6 +337,7 @@ def run_sweep(
     groups = plan_groups(spec, runs, logs, batch=batch, split=split, devices=devices)
     metric_keys = list(METRIC_KEYS) + (list(MAP_METRIC_KEYS) if any(l.map_truth is not None
                                                                        for _, l in logs.values()) else [])
+    metric_keys += list(SURVEY_METRIC_KEYS) if any(l.survey is not None for _, l in logs.values()) else []
     if any(g.static.adaptive_noise for g in groups):  # where the adaptive noise estimates ended
         metric_keys += list(NOISE_SUMMARY_KEYS)
         if any(g.static.adaptive_noise and g.static.method == "nasrukf" and g.static.nasrukf_feature == "arc"

@@ -38,6 +38,7 @@ __all__ = [
     "sweep_from_dict",
     "config_key_info",
     "METRIC_KEYS",
+    "SURVEY_METRIC_KEYS",
 ]
 
 #: Metrics every run records (lower is better for the errors; see :func:`nanoslam_jax.metrics.evaluate`).
@@ -51,6 +52,10 @@ METRIC_KEYS = (
 MAP_METRIC_KEYS = ("map_n_true", "map_n_found", "map_found_fraction", "map_n_spurious", "map_spurious_fraction",
                    "map_rmse_matched", "map_median_est_to_true", "map_found_fraction_aligned",
                    "map_spurious_fraction_aligned", "map_rmse_matched_aligned")
+#: Extra metrics of real logs with surveyed landmarks (MRCLAM): the map after a rigid alignment
+#: (:func:`nanoslam_jax.metrics.survey_summary`; the ``_by_id`` ones with known association).
+SURVEY_METRIC_KEYS = ("survey_rmse", "survey_found", "survey_spurious", "survey_landmarks", "survey_rmse_by_id",
+                      "survey_found_by_id", "survey_spurious_by_id")
 
 _TOP_KEYS = ("name", "base", "set", "segments", "seeds", "grid", "random", "shapes", "metric", "goal", "run", "ray",
              "plots")
@@ -418,8 +423,9 @@ def sweep_from_dict(raw: Any, *, source: str = "<sweep>", path: Optional[Path] =
             seen[k] = section
 
     metric = top.get("metric", "rmse_aligned")
-    if metric not in METRIC_KEYS + MAP_METRIC_KEYS:
-        raise ConfigError(f"{where}: key 'metric': expected one of {', '.join(METRIC_KEYS + MAP_METRIC_KEYS)}, got {metric!r}")
+    if metric not in METRIC_KEYS + MAP_METRIC_KEYS + SURVEY_METRIC_KEYS:
+        raise ConfigError(f"{where}: key 'metric': expected one of "
+                          f"{', '.join(METRIC_KEYS + MAP_METRIC_KEYS + SURVEY_METRIC_KEYS)}, got {metric!r}")
     goal = top.get("goal", "min")
     if goal not in ("min", "max"):
         raise ConfigError(f"{where}: key 'goal': expected 'min' (lower is better) or 'max', got {goal!r}")
