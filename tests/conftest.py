@@ -1,9 +1,36 @@
-"""Shared test fixtures."""
+"""Shared test fixtures, the shape checks of the test session and the markers set by fixture.
+
+With ``NANOSLAM_TYPECHECK=1`` every function and pytree class of the modules in ``TYPECHECKED``
+is imported through jaxtyping's import hook with beartype: a call whose arguments or result do
+not match the jaxtyping annotations (dtype, shape, shape names shared between arguments) fails
+the test with a ``jaxtyping.TypeCheckError``.
+"""
 
 import os
 from pathlib import Path
 
 import pytest
+
+TYPECHECKED = ("nanoslam_jax.models", "nanoslam_jax.quadrature")
+
+if os.environ.get("NANOSLAM_TYPECHECK", "0") == "1":
+    import warnings
+
+    from beartype.roar import BeartypeDecorHintPep585DeprecationWarning
+    from jaxtyping import install_import_hook
+
+    # before any test module imports the package; ints pass for floats (PEP 484's numeric tower)
+    install_import_hook(TYPECHECKED, "beartype.beartype(conf=beartype.BeartypeConf(is_pep484_tower=True))")
+    warnings.filterwarnings("ignore", category=BeartypeDecorHintPep585DeprecationWarning)  # typing.Callable
+
+DATA_FIXTURES = ("vp_dir", "mrclam_dir")
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test that uses a real-dataset fixture is marked ``data``."""
+    for item in items:
+        if any(name in DATA_FIXTURES for name in getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.data)
 
 
 @pytest.fixture(scope="session", autouse=True)

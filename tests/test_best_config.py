@@ -29,6 +29,7 @@ def test_best_config_differs_from_the_paper_setting_only_in_the_tuned_keys():
         assert needed in text, needed
 
 
+@pytest.mark.slow
 def test_best_config_runs_on_a_simulated_log_and_beats_dead_reckoning(tmp_path, capsys):
     """`nanoslam run configs/victoria_park_best.yaml` on the simulator's log (120 s of the embedded
     default's drifting odometry) instead of the real one, whose sensor noise (0.3 m, 1 deg) is

@@ -84,6 +84,7 @@ def test_cached_run_gives_identical_outputs(runs):
     assert {k: runs["first"][k] for k in keys} == {k: runs["second"][k] for k in keys}
 
 
+@pytest.mark.slow
 def test_a_run_never_executes_a_pickle_planted_in_the_cache(runs, tmp_path):
     """Every traced-program entry of a warm cache replaced by a pickle that would create a file
     when unpickled: a fresh run executes none of them, traces afresh, gives the uncached run's
@@ -124,6 +125,7 @@ def test_cache_directory_default_and_override(monkeypatch, tmp_path):
     assert default_cache_dir() == tmp_path / "elsewhere"
 
 
+@pytest.mark.slow
 def test_unwritable_cache_directory_is_a_clear_error(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
@@ -144,6 +146,7 @@ def test_every_computing_command_takes_no_cache(argv):
     assert _parser().parse_args(argv).no_cache is False
 
 
+@pytest.mark.slow
 def test_sweep_no_cache_turns_the_sweep_files_cache_off(tmp_path, monkeypatch):
     import argparse
 
@@ -441,6 +444,7 @@ def test_programs_with_lapack_custom_calls_are_kept_too(toy_cache, monkeypatch):
 # --------------------------------------------------------------------------- compiled code in memory
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(_cache.memory_maps() is None, reason="needs /proc/self/maps (Linux)")
 def test_release_programs_unmaps_compiled_filter_programs(monkeypatch):
     """Compiled filter programs hold hundreds of memory regions each (counted in /proc/self/maps,

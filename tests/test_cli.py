@@ -97,6 +97,7 @@ def _check_result_dir(d: Path, cfg, *, filter_run: bool):
 # --------------------------------------------------------------------------- entry points
 
 
+@pytest.mark.slow
 def test_console_script_help():
     exe = Path(sys.executable).with_name("nanoslam")
     exe = str(exe) if exe.exists() else shutil.which("nanoslam")
@@ -212,6 +213,7 @@ def test_simulate_set_overrides_reach_the_simulator(tmp_path, capsys):
     assert raw.dr[-1, 0] - raw.dr[0, 0] <= 31.0
 
 
+@pytest.mark.slow
 def test_dead_reckoning_on_a_simulated_directory(sim_dir, tmp_path, capsys):
     out = tmp_path / "dr_sim"
     rc, stdout, err = _call(capsys, ["run", DR_CONFIG, "--data", sim_dir, "--out", out, "--quiet"])
@@ -262,6 +264,7 @@ def default_run(tmp_path_factory):
     return cwd, buf.getvalue()
 
 
+@pytest.mark.slow
 def test_default_run_writes_results_config_name_timestamp(default_run):
     cwd, stdout = default_run
     entries = list((cwd / "results").iterdir())
@@ -275,6 +278,7 @@ def test_default_run_writes_results_config_name_timestamp(default_run):
     assert "rmse_fixed" in summary
 
 
+@pytest.mark.slow
 def test_default_run_reports_error_against_ground_truth(default_run):
     cwd, _ = default_run
     (d,) = list((cwd / "results").iterdir())
@@ -300,6 +304,7 @@ def test_default_run_reports_error_against_ground_truth(default_run):
         "x,y,cov_xx,cov_xy,cov_yy,hits,misses,existence,confirmed,diameter,diameter_sd")
 
 
+@pytest.mark.slow
 def test_set_overrides_reach_the_run(default_run):
     cwd, _ = default_run
     (d,) = list((cwd / "results").iterdir())
@@ -310,6 +315,7 @@ def test_set_overrides_reach_the_run(default_run):
     assert _metrics(d)["n_particles"] == 3
 
 
+@pytest.mark.slow
 def test_the_embedded_default_beats_dead_reckoning_and_maps_the_trees(tmp_path, capsys):
     """What a new user's first command runs (``nanoslam run``, the whole embedded default): the
     output states the filter's error and dead reckoning's on the same log, SLAM is at least 5x
@@ -353,6 +359,7 @@ def dr_real(vp_dir, tmp_path_factory):
     return out, buf.getvalue()
 
 
+@pytest.mark.slow
 def test_dead_reckoning_result_directory(dr_real, vp_dir):
     out, stdout = dr_real
     assert stdout.strip().splitlines()[-1] == str(out)
@@ -366,6 +373,7 @@ def test_dead_reckoning_result_directory(dr_real, vp_dir):
     np.testing.assert_allclose(traj[0, 1:4], 0.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_dead_reckoning_metrics_match_the_trajectory(dr_real, vp_dir):
     out, _ = dr_real
     m, traj = _metrics(out), _trajectory(out)
@@ -376,6 +384,7 @@ def test_dead_reckoning_metrics_match_the_trajectory(dr_real, vp_dir):
     assert e["n_fixes"] == m["n_fixes"]
 
 
+@pytest.mark.slow
 def test_dead_reckoning_stays_near_gps_for_80_seconds(dr_real, vp_dir):
     out, _ = dr_real
     traj = _trajectory(out)
@@ -389,6 +398,7 @@ def test_dead_reckoning_stays_near_gps_for_80_seconds(dr_real, vp_dir):
     assert e["max_error"] < 6.0
 
 
+@pytest.mark.slow
 def test_dead_reckoning_drifts_to_order_150_m_over_the_run(dr_real):
     out, _ = dr_real
     m = _metrics(out)
@@ -397,6 +407,7 @@ def test_dead_reckoning_drifts_to_order_150_m_over_the_run(dr_real):
     assert m["max_error"] > m["rmse_fixed"]
 
 
+@pytest.mark.slow
 def test_nasrukf_run_writes_the_result_directory(tmp_path, capsys):
     """``nanoslam run --set filter.method=nasrukf`` on a simulated log: the same result directory,
     metrics and figures as the particle methods, without the ESS figure (no particles)."""

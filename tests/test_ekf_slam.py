@@ -215,6 +215,7 @@ def sim_run(sim):
     return run_filter(static, params, log.segments, 0, chunk=CHUNK)
 
 
+@pytest.mark.slow
 def test_tracks_truth_and_maps_trees(sim, sim_run):
     """Simulated log of the embedded default, first 60 s (282 scans, 250 trees, 0.2 clutter
     detections per scan, a 0.3 deg steering bias), capacity 256.
@@ -244,6 +245,7 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
     np.testing.assert_array_equal(np.asarray(lm.cov), np.asarray(landmark_blocks(st.cov, static.capacity)))
 
 
+@pytest.mark.slow
 def test_capacity_does_not_change_results(sim, sim_run):
     """Capacity 32 vs 256 on the scans before the map outgrows 32 slots: identical poses and
     landmarks (the inactive slots take no part)."""
@@ -291,6 +293,7 @@ def test_step_output_matches_particle_filter_dtypes(sim, sim_run):
     assert int(sim_run.state.resample_count) == 0
 
 
+@pytest.mark.slow
 def test_victoria_park_first_300_s(vp_dir):
     """The real log's first 300 s with the paper's setting (configs/victoria_park_ekf_slam.yaml,
     capacity 512): nothing non-finite, the map grows, detections associate, the pose stays near

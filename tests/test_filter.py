@@ -90,6 +90,7 @@ def truth_at(log, t):
     return np.stack([np.interp(t, tp[:, 0], tp[:, 1]), np.interp(t, tp[:, 0], tp[:, 2])], axis=1)
 
 
+@pytest.mark.slow
 def test_tracks_truth_and_maps_trees(sim, runs):
     """NANO, 10 particles, the embedded default's simulated log cut at 120 s (564 scans, 250
     trees, odometry with a 0.3 deg steering bias: noise-free dead reckoning ends 23.6 m RMSE off).
@@ -133,6 +134,7 @@ def test_tracks_truth_and_maps_trees(sim, runs):
     assert np.mean(rmses) < 2.0 and max(rmses) < 2.5, rmses
 
 
+@pytest.mark.slow
 def test_same_seed_bit_identical_different_seed_differs(sim, runs):
     _, log, static, params = sim
     a = runs(0)
@@ -148,6 +150,7 @@ def test_same_seed_bit_identical_different_seed_differs(sim, runs):
     assert not np.array_equal(np.asarray(a.state.particles.pose), np.asarray(c.state.particles.pose))
 
 
+@pytest.mark.slow
 def test_new_params_do_not_retrace(sim, runs, trace_counter):
     """run_filter with other hyperparameter values (same static settings) reuses the traced program."""
     cfg, log, static, params = sim
@@ -166,6 +169,7 @@ def test_new_params_do_not_retrace(sim, runs, trace_counter):
     assert_all_finite(second)
 
 
+@pytest.mark.slow
 def test_no_detections_is_dead_reckoning(sim, runs, trace_counter):
     """No detections, tiny control noise and init_cov: every particle follows dead reckoning.
 
@@ -201,6 +205,7 @@ def test_no_detections_is_dead_reckoning(sim, runs, trace_counter):
     assert np.ptp(np.unwrap(dr[:, 2])) > np.pi
 
 
+@pytest.mark.slow
 def test_recorded_landmark_counts_are_the_reported_maps(sim, runs):
     """The landmark counts a step records (counted over the slot bucket's prefix plus ``k_max``
     slots, not the whole capacity) equal the reported particle's whole map at the end of a run
@@ -437,6 +442,7 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets,
         np.testing.assert_array_equal(lm.born[:2], [0, 0])
 
 
+@pytest.mark.slow
 def test_particles_split_over_devices_give_the_same_run():
     """A run whose particles are split over two JAX CPU devices (``shard_map``;
     ``filter.split_devices``: each device keeps its share of the maps) computes the same run,

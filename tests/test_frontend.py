@@ -348,6 +348,8 @@ def test_slam_from_laser_equals_slam_on_the_written_log(tmp_path):
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "victoria_park"
 
 
+@pytest.mark.slow
+@pytest.mark.data
 @pytest.mark.skipif(not (REAL / "LASER.txt").is_file(),
                     reason="the Victoria Park raw scans (../shared/data) are missing")
 def test_real_log_trees_match_the_datasets_detections_in_a_stretch():

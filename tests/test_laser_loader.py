@@ -114,6 +114,8 @@ def test_laserscans_checks_shapes():
         LaserScans(np.zeros(2), np.zeros((3, 5)), np.arange(5.0))
 
 
+@pytest.mark.slow
+@pytest.mark.data
 @pytest.mark.skipif(not (REAL / "LASER.txt").is_file(),
                     reason="the Victoria Park raw scans (../shared/data) are missing")
 def test_real_log():

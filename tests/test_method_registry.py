@@ -50,6 +50,7 @@ def test_toy_with_scale_one_is_fastslam1_and_the_scale_matters():
     assert not np.allclose(wide.trajectory, fs1.trajectory)
 
 
+@pytest.mark.slow
 def test_registered_method_runs_through_a_sweep(tmp_path):
     """A sweep over the toy's traced parameter: one program, the scale-1 row equals a single run."""
     spec = sweep_from_dict({

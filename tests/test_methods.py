@@ -140,6 +140,7 @@ def _grid_posterior(x0, P0, lm, z, R, n=61, width=6.0):
     return centre, cov
 
 
+@pytest.mark.slow
 def test_nano_beats_fastslam2_on_strongly_nonlinear_cases():
     """Close landmarks (1.5-3 m), a 10 deg prior heading sigma and precise detections: the posterior
     is far from the prior's linearisation. NANO's mean is within a few hundredths of a posterior
@@ -172,6 +173,7 @@ def sim_log():
     return load_log(load_config(None, SIM))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method,extra,bound", [
     ("fastslam1", [], 1.0),
     ("fastslam2", [], 1.0),
@@ -223,6 +225,7 @@ def _adaptive_run(extra=()):
     return cfg, log, static, params, run_filter(static, params, log.segments, 0, chunk=1000)
 
 
+@pytest.mark.slow
 def test_adaptive_noise_estimate_of_the_particles_converges_to_the_true_noise():
     """``noise.adaptive`` in the particle filter (FastSLAM 2.0, 4 particles): each particle
     re-estimates R from its residuals at the prior. The simulator's detections carry sigma_r 0.3 m,
@@ -244,6 +247,7 @@ def test_adaptive_noise_estimate_of_the_particles_converges_to_the_true_noise():
     assert report["noise_at_floor_range"] == report["noise_at_floor_bearing"] == 0.0 and warnings == []
 
 
+@pytest.mark.slow
 def test_adaptive_noise_held_at_its_floor_is_reported_and_warned(tmp_path, capsys):
     """With ``noise.adaptive_floor`` 0.5 the floor (sqrt(0.5) x 1.0 m, x 3 deg: 0.71 m, 2.1 deg)
     lies above the simulator's true noise (0.3 m, 1 deg), which the estimate converges to when free
@@ -278,6 +282,7 @@ def _write_compare(tmp_path, methods, extra=""):
     return p
 
 
+@pytest.mark.slow
 def test_compare_end_to_end(tmp_path, capsys):
     """``nanoslam compare`` writes the table (Markdown, CSV), the per-seed rows and Figures 3-5; the
     vmapped seeds equal single runs of the same seeds."""

@@ -135,6 +135,7 @@ def test_model_written_in_a_test_module_equals_the_builtin_car():
     np.testing.assert_allclose(np.asarray(b.outputs.best_pose), np.asarray(a.outputs.best_pose), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_model_named_by_import_path_runs_through_the_cli(tmp_path):
     """A model in a file outside the package, named in YAML by import path with its parameters,
     runs through ``nanoslam run`` and gives the built-in car's numbers."""
@@ -221,6 +222,7 @@ def test_stepping_the_built_filter_equals_the_batch_run(method):
     np.testing.assert_allclose(np.stack(poses), np.asarray(batch.outputs.best_pose), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_cache_never_serves_a_program_compiled_for_another_model(tmp_path):
     """The same model class name and parameters, its code changed between two runs sharing a
     compilation cache: the second run traces the new code (its trajectory differs), and a third run

@@ -211,6 +211,7 @@ def sim_run(sim):
     return run_filter(static, params, log.segments, 0, chunk=CHUNK)
 
 
+@pytest.mark.slow
 def test_tracks_truth_and_maps_trees(sim, sim_run):
     """Simulated log of the embedded default, first 60 s (282 scans, 250 trees, 0.2 clutter
     detections per scan, a 0.3 deg steering bias), fixed noise, capacity 256.
@@ -254,6 +255,7 @@ def test_deterministic_and_seed_free(sim, sim_run):
     np.testing.assert_array_equal(np.asarray(other.outputs.best_pose), np.asarray(sim_run.outputs.best_pose)[:CHUNK])
 
 
+@pytest.mark.slow
 def test_adaptive_noise_estimate_converges_to_the_true_noise():
     """The simulator's detections carry sigma_r 0.3 m, sigma_beta 1 deg; the filter starts from
     1.0 m and 3 deg (control noise at its true value, no clutter, wide gates so that the gate does
@@ -304,6 +306,7 @@ def mmt_rows(gain, S):
     return np.einsum("ci,ij,cj->c", g, P, g)
 
 
+@pytest.mark.slow
 def test_sweep_over_nasrukf_hyperparameters_equals_single_runs(tmp_path):
     """``nanoslam sweep`` runs NASRUKF like the particle methods: traced keys (N_new, the gate) vary
     in one vmapped program, and each row equals the same configuration run alone; with adaptive
@@ -335,6 +338,7 @@ def test_sweep_over_nasrukf_hyperparameters_equals_single_runs(tmp_path):
         np.testing.assert_allclose(float(row[k]), v, rtol=1e-9, atol=1e-12, err_msg=k)
 
 
+@pytest.mark.slow
 def test_victoria_park_first_300_s(vp_dir):
     """The real log's first 300 s with configs/victoria_park_nasrukf.yaml: nothing non-finite, and
     far nearer GPS than dead reckoning, which drifts to 105.5 m RMSE (25.9 m after the best rigid

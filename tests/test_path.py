@@ -92,6 +92,7 @@ def test_batched_paths_equal_each_members_path():
         np.testing.assert_array_equal(paths[i], carried_forward(poses[i], ancestors[i], final[i]))
 
 
+@pytest.mark.slow
 def test_path_is_scored_and_written(sim_runs, tmp_path):
     """``nanoslam run`` scores the path and reports the filter's own estimate beside it."""
     from nanoslam_jax.experiment import run_experiment
@@ -118,6 +119,7 @@ def test_reported_trajectory_needs_the_recorded_poses(sim_runs):
     np.testing.assert_array_equal(reported_trajectory("mean", plain.outputs), np.asarray(plain.outputs.mean_pose))
 
 
+@pytest.mark.slow
 def test_sweep_member_follows_the_path_inside_its_program(sim_runs):
     """A sweep's batch program follows the path back itself (the particles' poses never leave it)
     and scores the same path as a single run."""

@@ -171,6 +171,7 @@ def test_sweeps_refuse_the_smoother():
         sweep_from_dict({"seeds": 1, "shapes": {"smoother.floor_xy": [0.1, 0.2]}})
 
 
+@pytest.mark.slow
 def test_run_with_the_smoother_on_a_simulated_log(tmp_path):
     """``nanoslam run`` with the smoother: trajectory.csv holds the smoothed path with the
     ancestral path beside it, metrics.json the smoother's account, and on a simulated log (whose
@@ -189,6 +190,7 @@ def test_run_with_the_smoother_on_a_simulated_log(tmp_path):
     assert "warnings" not in m
 
 
+@pytest.mark.slow
 def test_a_smoother_that_does_not_converge_is_warned_about(tmp_path, capsys):
     from nanoslam_jax.cli import main
 

@@ -292,6 +292,7 @@ def quick_study(tmp_path_factory):
     return out, argv, proc
 
 
+@pytest.mark.slow
 def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
     out, _, proc = quick_study
     raw = yaml.safe_load(STUDY.read_text())
@@ -329,6 +330,7 @@ def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
     assert "NANO-SLAM against the others" in proc.stdout and "s/log" in proc.stdout
 
 
+@pytest.mark.slow
 def test_a_resumed_study_reuses_every_point(quick_study):
     out, argv, _ = quick_study
     before = {p: (out / p).read_bytes() for p in ("runs.csv", "timing.csv")}

@@ -249,6 +249,7 @@ def test_groups_and_batches():
 # --------------------------------------------------------------------------- running
 
 
+@pytest.mark.slow
 def test_sweep_compiles_once_per_shape_and_writes_its_results(main_sweep, trace_counter):
     out, res = main_sweep
     assert res.n_runs == 12 and res.n_new == 12 and len(res.groups) == 1 and res.groups[0].batch == 4
@@ -286,6 +287,7 @@ def test_sweep_compiles_once_per_shape_and_writes_its_results(main_sweep, trace_
     assert nanoslam_jax.__version__ in (out / "version.json").read_text()
 
 
+@pytest.mark.slow
 def test_vmapped_runs_equal_the_same_runs_alone(main_sweep):
     """The batch program's members equal run_filter of the same configuration and seed: to rounding
     with vmap (here exactly, or within 1e-12), bit for bit with lax.map (vectorize: map)."""
@@ -327,6 +329,7 @@ def test_sweep_identity_ignores_the_name_and_sees_every_setting():
     assert stored_identity(old) == ident and stored_identity(None) == {}
 
 
+@pytest.mark.slow
 def test_resume_skips_finished_runs_and_reproduces_the_rows(main_sweep, tmp_path, trace_counter):
     out_full, _ = main_sweep
     out = tmp_path / "sweep"
@@ -358,6 +361,7 @@ def test_resume_skips_finished_runs_and_reproduces_the_rows(main_sweep, tmp_path
     assert text.endswith("\n") and text.count("\n") == 13  # header + 12 complete rows
 
 
+@pytest.mark.slow
 def test_failed_runs_are_recorded_and_the_sweep_goes_on(tmp_path, trace_counter, monkeypatch):
     traces = trace_counter["n"]
     # gate 0.01, new_landmark 0.02: (nearly) every detection starts a landmark, which overflows the
@@ -426,6 +430,7 @@ def test_a_non_finite_estimate_fails_the_run():
     assert r["status"] == "ok" and r["rmse_fixed"] == pytest.approx(0.0, abs=1e-12)
 
 
+@pytest.mark.slow
 def test_cli_end_to_end(main_sweep, tmp_path, capsys):
     """The command line, with lax.map batches (vectorize: map): the sweep's numbers equal the
     vmapped sweep's to rounding, and `nanoslam run best.yaml` reproduces its row exactly."""
@@ -472,6 +477,7 @@ def test_cli_end_to_end(main_sweep, tmp_path, capsys):
 # --------------------------------------------------------------------------- other executors
 
 
+@pytest.mark.slow
 def test_worker_processes_write_the_same_results(main_sweep, tmp_path):
     out = tmp_path / "proc"
     res = run_sweep(spec_of(SMALL), out, progress=False, parallel="processes", workers=2)
@@ -479,6 +485,7 @@ def test_worker_processes_write_the_same_results(main_sweep, tmp_path):
     assert rows_by_id(out / "results.csv") == grid_rows_of_main(main_sweep)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # Ray starts its processes from the driver
 def test_ray_backend_writes_the_same_results(main_sweep, tmp_path):
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'nanoslam-jax[ray]')")
@@ -493,6 +500,7 @@ def test_ray_backend_writes_the_same_results(main_sweep, tmp_path):
     assert rows_by_id(out / "results.csv") == grid_rows_of_main(main_sweep)
 
 
+@pytest.mark.slow
 def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
     """``run.parallel: devices`` splits each batch over JAX devices with ``shard_map``. optimistix's
     least squares (method ``iterated``) fails to compile under ``shard_map`` (lineax issue #185,
@@ -550,6 +558,7 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
     assert all(math.isfinite(float(row["rmse_aligned"])) for row in devices)
 
 
+@pytest.mark.slow
 def test_adaptive_noise_sweep_records_where_the_estimates_ended(main_sweep, tmp_path):
     """A sweep with ``noise.adaptive`` records ``noise_sigma_*_final`` and ``noise_at_floor_*``
     (a sweep without it has no such columns). The filter starts from 1.0 m and 4 deg against the

@@ -348,6 +348,7 @@ SHARED = ["filter.method=ufastslam", "filter.n_particles=10", "data.k_max=14", "
 CHUNK = 141
 
 
+@pytest.mark.slow
 def test_filter_tracks_simulated_truth():
     """UFastSLAM, 10 particles, the embedded default's simulated log cut at 60 s (282 scans; noise-
     free dead reckoning drifts to 5.18 m RMSE), seeds 0-3.
