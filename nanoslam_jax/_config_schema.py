@@ -155,8 +155,13 @@ class ModelConfig:
             "random_walk), or an import path 'module:Class' of a nanoslam_jax.models.AbstractMotionModel subclass")
     motion_params: Optional[dict] = _f(None,
         doc="parameters of a model named by import path: a mapping of the class's field names to numbers")
-    measurement: Literal["range_bearing"] = _f("range_bearing", static=True,
-        doc="measurement model: 'range_bearing' (range and bearing to a point landmark)")
+    measurement: str = _f("range_bearing", static=True,
+        doc="measurement model: 'range_bearing' (range and bearing to a point landmark; noise from section "
+            "noise, footprint from data.min_range, data.max_range, map.fov_deg and the map.view_margin keys), or "
+            "an import path 'module:Class' of a nanoslam_jax.models.AbstractMeasurementModel subclass")
+    measurement_params: Optional[dict] = _f(None,
+        doc="parameters of a measurement model named by import path: a mapping of the class's field names to "
+            "numbers")
 
 
 @dataclass(frozen=True)

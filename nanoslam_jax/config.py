@@ -235,7 +235,13 @@ def _check_consistency(cfg: Config, where: str) -> None:
         raise ConfigError(f"{where}key 'smoother.enabled': the smoother starts from the final best particle's "
                           f"ancestral path, which a run records only with filter.estimate: path (got "
                           f"{cfg.filter.estimate!r}); set filter.estimate to path")
-    from .models import AbstractMotionModel, motion_model_class
+    from .models import (
+        AbstractMeasurementModel,
+        AbstractMotionModel,
+        check_measurement_model,
+        measurement_model_class,
+        motion_model_class,
+    )
 
     try:
         motion = motion_model_class(cfg.model.motion)
@@ -243,6 +249,14 @@ def _check_consistency(cfg: Config, where: str) -> None:
             raise ValueError(f"key 'model.motion_params': the built-in model {cfg.model.motion!r} takes its "
                              f"parameters from its own section; model.motion_params is for a model named by import path")
         motion.from_config(cfg)
+        measurement = measurement_model_class(cfg.model.measurement)
+        if (cfg.model.measurement_params
+                and measurement.from_config.__func__ is not AbstractMeasurementModel.from_config.__func__):
+            raise ValueError(f"key 'model.measurement_params': the built-in model {cfg.model.measurement!r} takes "
+                             "its parameters from its own sections; model.measurement_params is for a model named "
+                             "by import path")
+        measurement.from_config(cfg)
+        check_measurement_model(measurement, cfg.filter.method, cfg.smoother.enabled)
     except ValueError as e:
         raise ConfigError(f"{where}{e}") from None
     if cfg.filter.new_landmark < cfg.filter.gate:

@@ -31,12 +31,12 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Key
 
-from .config import Config, apply_overrides, config_from_dict, config_to_dict, load_config
+from .config import Config, ConfigError, apply_overrides, config_from_dict, config_to_dict, load_config
 from .data import Segments
 from .filter._params import Params, Static, settings_from_config
 from .filter._prior import relative_prior
 from .filter._scan import _check_filter_method, _masked_step, initial_state, is_gaussian
-from .models import AbstractMotionModel
+from .models import AbstractMeasurementModel, AbstractMotionModel, check_measurement_model
 
 __all__ = ["Filter", "build"]
 
@@ -46,7 +46,8 @@ class Filter(NamedTuple):
 
     Attributes:
         static: the settings that fix shapes and program structure.
-        params: the traced hyperparameters, the motion model among them (``params.motion``).
+        params: the traced hyperparameters, the motion and measurement models among them
+            (``params.motion``, ``params.measurement``).
         init: ``init(key) -> state``: the state a run starts from (a particle filter's, EKF-SLAM's
             or NASRUKF's), jit-compiled.
         step: ``step(state, segment) -> (state, output)``: one segment of the log (a row of
@@ -68,7 +69,7 @@ def _init(static: Static, params: Params, key):
 @functools.partial(jax.jit, static_argnames=("static",))
 def _step(static: Static, params: Params, state, segment: Segments):
     rel = None
-    if not is_gaussian(static.method) and static.prior_cov == "reset":
+    if not is_gaussian(static.method) and static.prior_cov == "reset" and params.motion.rigid:
         rel = relative_prior(segment.dt, segment.u, segment.dr_mask, params, static.prior)
     return _masked_step(static, params, state, (segment, jnp.asarray(True), rel))
 
@@ -79,6 +80,7 @@ def build(
     k_max: int,
     method: Optional[str] = None,
     motion: Optional[AbstractMotionModel] = None,
+    measurement: Optional[AbstractMeasurementModel] = None,
     n_particles: Optional[int] = None,
     capacity: Optional[int] = None,
     overrides: Sequence[str] = (),
@@ -92,6 +94,9 @@ def build(
         method: ``filter.method`` (e.g. ``"nano"``, ``"fastslam2"``, ``"ekf_slam"``).
         motion: a motion model object (an :class:`~nanoslam_jax.models.AbstractMotionModel`
             with its parameters) instead of the one ``model.motion`` names.
+        measurement: a measurement model object (an
+            :class:`~nanoslam_jax.models.AbstractMeasurementModel` with its parameters) instead of
+            the one ``model.measurement`` names.
         n_particles: ``filter.n_particles``.
         capacity: ``filter.capacity`` (landmark slots per particle).
         overrides: other ``key=value`` settings, as ``--set`` takes them.
@@ -115,6 +120,15 @@ def build(
         if not isinstance(motion, AbstractMotionModel):
             raise TypeError(f"motion: expected a nanoslam_jax.models.AbstractMotionModel, got {type(motion).__name__}")
         params = params._replace(motion=motion)
+    if measurement is not None:
+        if not isinstance(measurement, AbstractMeasurementModel):
+            raise TypeError(f"measurement: expected a nanoslam_jax.models.AbstractMeasurementModel, got "
+                            f"{type(measurement).__name__}")
+        try:
+            check_measurement_model(measurement, static.method, cfg.smoother.enabled)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+        params = params._replace(measurement=measurement)
     _check_filter_method(static)
     static = dataclasses.replace(static, devices=1)
     return Filter(static=static, params=params, init=functools.partial(_init, static, params),

@@ -20,7 +20,9 @@ after which ``filter.method: mine`` runs it (``nanoslam run``, ``compare``, ``sw
 Python API), with its parameters from ``filter.method_params`` (traced: a sweep over them
 compiles once). A config file can name a method that a module registers by import path,
 ``filter.method: my_package.proposal:METHOD`` (the module is imported, ``METHOD`` must be a
-:class:`Method`, and it is registered under that name).
+:class:`Method`, and it is registered under that name). A proposal that evaluates the detections
+takes the run's measurement model from ``params.measurement`` (an
+:class:`~nanoslam_jax.models.AbstractMeasurementModel`), as the built-in ones do.
 """
 
 from __future__ import annotations
@@ -155,7 +157,8 @@ def _nano(static: "Static", params: "Params", mp: dict):
     rule = make_rule(static.quadrature, alpha=params.nano_alpha, beta=params.nano_beta, kappa=params.nano_kappa,
                      order=static.gh_order)
     return NanoProposal(rule, params.gamma, params.step, max_iter=static.max_iter, hessian=static.hessian,
-                        landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver)
+                        landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver,
+                        measurement=params.measurement)
 
 
 def _fastslam1(static, params, mp):
@@ -167,20 +170,21 @@ def _fastslam1(static, params, mp):
 def _fastslam2(static, params, mp):
     from .proposals import LinearizedProposal
 
-    return LinearizedProposal(landmark_noise=True)
+    return LinearizedProposal(landmark_noise=True, measurement=params.measurement)
 
 
 def _ufastslam(static, params, mp):
     from .proposals._ufastslam import UnscentedProposal
 
-    return UnscentedProposal(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa)
+    return UnscentedProposal(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa,
+                             measurement=params.measurement)
 
 
 def _iterated(static, params, mp):
     from .proposals._iterated import IteratedProposal
 
     return IteratedProposal(solver=static.iterated_solver, max_iter=static.iterated_max_iter, tol=static.iterated_tol,
-                            landmark_noise=static.iterated_landmark_noise)
+                            landmark_noise=static.iterated_landmark_noise, measurement=params.measurement)
 
 
 def _ekf_init(static, params, key):

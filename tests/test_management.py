@@ -154,7 +154,7 @@ def test_occlusion_on_a_hand_built_scene():
     # detection's atan((0.15 + 0.3) / 6) = 4.3 deg covers D's 0.5 deg difference; nothing covers C.
     for occlusion, expect in ((True, [True, False, True, False]), (False, [True, True, True, True])):
         out = manage_window(local, jnp.zeros(3), jnp.zeros(4, bool), jnp.asarray(z), jnp.asarray(z_mask),
-                            jnp.full(K, 0.3), jnp.asarray(True), 0, params.max_range, mp, occlusion)
+                            jnp.full(K, 0.3), jnp.asarray(True), 0, params.measurement, mp, occlusion)
         np.testing.assert_array_equal(np.asarray(out.misses), np.asarray(expect, int), err_msg=str(occlusion))
         np.testing.assert_allclose(out.log_odds, np.where(expect, 3.0 + math.log(0.2 / 0.8), 3.0), rtol=1e-12)
     # The rule itself: a nearer occluder at the same bearing hides; a farther one does not.
@@ -194,7 +194,7 @@ def test_management_over_the_window_prefix_equals_the_whole_window():
 
     def full(local, seen, z, z_mask):
         return manage_window(local, jnp.zeros(3), seen, z, z_mask, jnp.full(K, 0.3), jnp.asarray(True), 0,
-                             params.max_range, mp, True)
+                             params.measurement, mp, True)
 
     def prefix(local, seen, z, z_mask):
         manage = lambda loc, sn: full(loc, sn, z, z_mask)  # noqa: E731

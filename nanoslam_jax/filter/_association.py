@@ -8,9 +8,15 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import sandwich
+from .._linalg import inv2, quad_form, sandwich, sym
 from .._trig import computed_once
-from ..models import range_bearing, range_bearing_jacobian_components, range_bearing_jacobians, wrap_angle
+from ..models import (
+    AbstractMeasurementModel,
+    RangeBearing,
+    is_range_bearing,
+    range_bearing_jacobian_components,
+    wrap_angle,
+)
 from ._landmarks import init_landmark, window_prefixes
 from ._state import LandmarkMap
 
@@ -31,25 +37,34 @@ class Association(NamedTuple):
 
 
 def predicted_measurements(
-    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots 2"], cov: Float[Array, "slots 2 2"], R: Float[Array, "2 2"]
+    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots 2"], cov: Float[Array, "slots 2 2"], R: Float[Array, "2 2"],
+    model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "slots 2"], Float[Array, "slots 2 2"]]:
-    """Predicted detection and innovation covariance ``Gx P Gx' + Gm Sigma Gm' + R`` of each slot."""
-    z_hat = jax.vmap(range_bearing, (None, 0))(x, mean)
-    Gx, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x, mean)
+    """Predicted detection and innovation covariance ``Gx P Gx' + Gm Sigma Gm' + R`` of each slot
+    (``model``: the measurement model, default range-bearing)."""
+    model = RangeBearing() if model is None else model
+    z_hat = jax.vmap(model.h, (None, 0))(x, mean)
+    Gx, Gm = jax.vmap(model.jacobians, (None, 0))(x, mean)
     S = sandwich(Gx, P) + sandwich(Gm, cov) + R
     return z_hat, S
 
 
 def innovation_information(
-    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots 2"], cov: Float[Array, "slots 2 2"], R: Float[Array, "2 2"]
-) -> tuple[tuple[Float[Array, "slots"], Float[Array, "slots"]], tuple[Float[Array, "slots"], Float[Array, "slots"], Float[Array, "slots"]]]:
-    """:func:`predicted_measurements` and the inverse of ``S``, one array per component.
+    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots 2"], cov: Float[Array, "slots 2 2"], R: Float[Array, "2 2"],
+    model: AbstractMeasurementModel | None = None,
+):
+    """:func:`predicted_measurements` and the inverse of ``S``.
 
     Returns:
-        ``(r, beta)`` predicted for each slot and ``(a00, a01, a11)``, the entries of ``S^-1``
-        (symmetric). Kept apart because on XLA:CPU the stacked per-slot 2x2 algebra costs ~10 % of
-        a whole 1000-particle filter step more (this is evaluated for every slot of the window).
+        For a range-bearing ``model`` (the default), one array per component: ``(r, beta)``
+        predicted for each slot and ``(a00, a01, a11)``, the entries of ``S^-1`` (symmetric).
+        Kept apart because on XLA:CPU the stacked per-slot 2x2 algebra costs ~10 % of a whole
+        1000-particle filter step more (this is evaluated for every slot of the window). For any
+        other model: ``z_hat`` ``(slots, d)`` and ``S^-1`` ``(slots, d, d)`` (autodiff Jacobians).
     """
+    if model is not None and not is_range_bearing(model):
+        z_hat, S = predicted_measurements(x, P, mean, cov, R, model)
+        return z_hat, inv2(sym(S))
     (zr, zb), J = range_bearing_jacobian_components(x[0], x[1], x[2], mean[:, 0], mean[:, 1])
 
     def s(a, b):  # (Gx P Gx' + Gm cov Gm' + R)[a, b]
@@ -75,6 +90,7 @@ def associate(
     use_diameter: Bool[Array, ""] | bool = False,
     sigma_diameter: Float[Array, ""] | float = 1.0,
     ids: Int[Array, "k_max"] | None = None,
+    model: AbstractMeasurementModel | None = None,
 ) -> Association:
     """Nearest-neighbour association with a chi-square gate and a new-landmark threshold, or by
     known landmark ids.
@@ -102,11 +118,12 @@ def associate(
             (-1: none). A detection then matches the landmark whose ``ident`` is its id and starts
             one when none has it (its provisional landmark carries the id); a detection without an
             id is not associated. The distances are not used (``d2`` is 0 for a match).
+        model: the measurement model (default range-bearing).
     """
     # Provisional landmarks, one per detection, initialised at the prior mean.
-    prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None))(x, z, R)
+    prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None, None))(x, z, R, model)
     mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
-    z_hat, s_inv = innovation_information(x, P, mean, cov, R)
+    z_hat, s_inv = innovation_information(x, P, mean, cov, R, model)
     diam_term = None
     if diam is not None:
         var_d = jnp.square(sigma_diameter)
@@ -115,7 +132,7 @@ def associate(
         diam_term = (diam, slot_diam, 1.0 / slot_var, use_diameter)
     id_term = None if ids is None else (ids, jnp.concatenate([local.ident, ids]))
     return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term,
-                              id_term)
+                              id_term, model)
 
 
 def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
@@ -143,8 +160,8 @@ def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
 
 
 def nearest_neighbours(
-    z_hat: tuple[Float[Array, "slots"], Float[Array, "slots"]],
-    s_inv: tuple[Float[Array, "slots"], Float[Array, "slots"], Float[Array, "slots"]],
+    z_hat: tuple[Float[Array, "slots"], Float[Array, "slots"]] | Float[Array, "slots d"],
+    s_inv: tuple[Float[Array, "slots"], Float[Array, "slots"], Float[Array, "slots"]] | Float[Array, "slots d d"],
     active: Bool[Array, "window"],
     z: Float[Array, "k_max 2"],
     z_mask: Bool[Array, "k_max"],
@@ -153,6 +170,7 @@ def nearest_neighbours(
     sequential: bool = True,
     diam_term: tuple | None = None,
     id_term: tuple | None = None,
+    model: AbstractMeasurementModel | None = None,
 ) -> Association:
     """The association rule of :func:`associate`, given every slot's predicted detection and
     innovation information (for filters whose innovation covariances are their own, e.g. NASRUKF's
@@ -160,8 +178,10 @@ def nearest_neighbours(
 
     Args:
         z_hat: predicted range and bearing of each slot: the ``window`` slots of the local map,
-            then one provisional landmark per detection (``slots = window + k_max``).
-        s_inv: the entries ``(a00, a01, a11)`` of each slot's inverse innovation covariance.
+            then one provisional landmark per detection (``slots = window + k_max``); for a
+            generic ``model``, its predicted detections ``(slots, d)``.
+        s_inv: the entries ``(a00, a01, a11)`` of each slot's inverse innovation covariance; for
+            a generic ``model``, the inverses ``(slots, d, d)``.
         active: which of the ``window`` local slots hold a landmark.
         z, z_mask, gate, new_landmark, sequential: as for :func:`associate`.
         diam_term: ``(diam, slot_diam, slot_info, use)``: each detection's diameter, each slot's
@@ -171,12 +191,17 @@ def nearest_neighbours(
         id_term: ``(z_id, slot_id)``: known association by landmark id (see :func:`associate`):
             detection ``k`` is at distance 0 from the slots whose id is ``z_id[k] >= 0`` and at
             infinity from every other; None: by distance.
+        model: the measurement model of a generic ``(z_hat, s_inv)`` (arrays from
+            :func:`innovation_information`: its ``innovation`` gives the residuals); unused
+            for the range-bearing components.
     """
     k_max = z.shape[0]
     window = active.shape[0]
     # Components kept apart: stacking each detection's innovations (range, bearing) into one array
     # per loop step cost ~12 % of the association on CPU.
-    (zr, zb), (a00, a01, a11) = z_hat, s_inv
+    components = isinstance(z_hat, tuple)
+    if components:
+        (zr, zb), (a00, a01, a11) = z_hat, s_inv
     active = jnp.concatenate([active, jnp.zeros(k_max, bool)])
     if diam_term is None:
         diam, slot_diam, slot_info, use_diameter = jnp.zeros(k_max, z.dtype), 0.0, 0.0, False
@@ -190,6 +215,11 @@ def nearest_neighbours(
 
         def distances(zk, ik):
             return jnp.where(slot_id == ik, 0.0, jnp.inf).astype(z.dtype)
+    elif not components:
+        def distances(zk, dk):
+            nu = jax.vmap(model.innovation, (None, 0))(zk, z_hat)
+            d2 = quad_form(nu, s_inv)
+            return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
     else:
         def distances(zk, dk):
             nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)

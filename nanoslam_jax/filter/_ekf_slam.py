@@ -143,7 +143,8 @@ def _batch_association(
     """Non-sequential association with the existing landmarks (the closest claimant wins)."""
     k_max = z_mask.shape[0]
     terms = jax.vmap(_diameter_terms, (None, 0, None))(book, seg.diam, params)
-    d2 = jax.vmap(association_distances, (None, None, 0, None, None, 0))(mean, cov, seg.z, params.R, book.active, terms)
+    d2 = jax.vmap(association_distances, (None, None, 0, None, None, 0, None))(
+        mean, cov, seg.z, params.R, book.active, terms, params.measurement)
     j = jnp.argmin(d2, axis=1)
     best = jnp.min(d2, axis=1)
     matched = z_mask & (best < params.gate)
@@ -190,7 +191,7 @@ def ekf_slam_step(
         pose mean, ``ess = 1``).
     """
     capacity = static.capacity
-    R, mp = params.R, params.map
+    R, mp, model = params.R, params.map, params.measurement
     var_d = jnp.square(mp.sigma_diameter)
     valid = jnp.asarray(valid)
     # A padding segment has no real DR piece (dr_mask False): the prediction is then exact identity.
@@ -218,7 +219,7 @@ def ekf_slam_step(
             matched = jnp.any(same)
             new = ~matched
         elif static.sequential:
-            d2 = association_distances(c.mean, c.cov, zk, R, c.available, _diameter_terms(c.book, dk, params))
+            d2 = association_distances(c.mean, c.cov, zk, R, c.available, _diameter_terms(c.book, dk, params), model)
             j = jnp.argmin(d2).astype(jnp.int32)
             best = jnp.min(d2)
             matched = best < params.gate
@@ -230,8 +231,8 @@ def ekf_slam_step(
         add = new & room
         # No conditionals around the big buffers (they would copy P): masked operations whose
         # covariance work is skipped (update: zero tiles; augment: dropped scatters).
-        mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R, size=3 + 2 * c.count, apply=matched)
-        mean, cov = ekf_slam_augment(mean, cov, zk, free, R, apply=add)
+        mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R, size=3 + 2 * c.count, apply=matched, model=model)
+        mean, cov = ekf_slam_augment(mean, cov, zk, free, R, apply=add, model=model)
         # Bookkeeping of the one slot that changes (scatters to ``capacity`` are dropped).
         b = c.book
         jc = jnp.where(matched, j, capacity)
@@ -274,7 +275,7 @@ def ekf_slam_step(
         radius = params.max_range + params.window_margin
         local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius)
         local = manage_window(local, mean[:3], c.seen.at[idx].get(mode="fill", fill_value=False), seg.z, z_mask,
-                              seg.diam, valid & seg.is_scan, state.scan, params.max_range, mp, static.occlusion)
+                              seg.diam, valid & seg.is_scan, state.scan, params.measurement, mp, static.occlusion)
         managed = drop_stale(scatter_window(full, local, idx), state.scan, mp)
         remove = old & ~managed.active
         created = book.active & ~old

@@ -17,15 +17,13 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol2, inv2, mm, mmt, mt, quad_form, sandwich, sym
-from ..models import (
-    innovation,
-    inverse_range_bearing,
-    inverse_range_bearing_jacobians,
-    range_bearing,
-    range_bearing_jacobians,
-    wrap_angle,
-)
+from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 from ._params import Params
+
+
+def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
+    """``model``, or the range-bearing model where none is given."""
+    return RangeBearing() if model is None else model
 
 
 def landmark_means(mean: Float[Array, "n"]) -> Float[Array, "capacity 2"]:
@@ -89,7 +87,7 @@ def ekf_slam_predict(
 
 def slot_innovations(
     mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
-    usable: Bool[Array, "capacity"],
+    usable: Bool[Array, "capacity"], model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "capacity 2"], Float[Array, "capacity 2 2"]]:
     """Innovation and innovation covariance of detection ``z`` against every landmark slot.
 
@@ -103,28 +101,32 @@ def slot_innovations(
         z: the detection ``(r, beta)``.
         R: measurement noise covariance.
         usable: slots to evaluate at their mean.
+        model: the measurement model (default range-bearing).
     """
+    model = _model(model)
     capacity = usable.shape[0]
     x = mean[:3]
     lm = jnp.where(usable[:, None], landmark_means(mean), x[:2] + jnp.array([1.0, 0.0]))
-    z_hat = jax.vmap(range_bearing, (None, 0))(x, lm)
-    Gx, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x, lm)
+    z_hat = jax.vmap(model.h, (None, 0))(x, lm)
+    Gx, Gm = jax.vmap(model.jacobians, (None, 0))(x, lm)
     Pxx = cov[:3, :3]
     Pxl = jnp.transpose(cov[:3, 3:].reshape(3, capacity, 2), (1, 0, 2))  # (C, 3, 2)
     Pll = landmark_blocks(cov, capacity)
     C = mmt(mm(Gx, Pxl), Gm)
     S = sandwich(Gx, Pxx[None]) + C + mt(C) + sandwich(Gm, Pll) + R
-    nu = jax.vmap(innovation, (None, 0))(z, z_hat)
+    nu = jax.vmap(model.innovation, (None, 0))(z, z_hat)
     return nu, S
 
 
 def association_distances(
     mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
     available: Bool[Array, "capacity"], diam_term: Float[Array, "capacity"] | float = 0.0,
+    model: AbstractMeasurementModel | None = None,
 ) -> Float[Array, "capacity"]:
     """Squared Mahalanobis distance of ``z`` to every available landmark (inf elsewhere), plus
-    ``diam_term`` (the tree-diameter term of each slot, or 0)."""
-    nu, S = slot_innovations(mean, cov, z, R, available)
+    ``diam_term`` (the tree-diameter term of each slot, or 0); ``model``: the measurement model
+    (default range-bearing)."""
+    nu, S = slot_innovations(mean, cov, z, R, available, model)
     return jnp.where(available, quad_form(nu, inv2(S)) + diam_term, jnp.inf)
 
 
@@ -173,6 +175,7 @@ def rank2_downdate(
 def ekf_slam_update(
     mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
     R: Float[Array, "2 2"], size: Int[Array, ""] | int | None = None, apply: Bool[Array, ""] | bool = True,
+    model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
     """EKF update of the joint state with detection ``z`` of landmark ``slot``.
 
@@ -189,18 +192,20 @@ def ekf_slam_update(
         size: leading rows/columns of ``P`` that can be non-zero in ``W`` (``3 + 2 count``
             with the active slots a prefix; default: all). Only that part of ``P`` is touched.
         apply: when False the state is returned unchanged (no covariance work is done).
+        model: the measurement model (default range-bearing).
 
     Returns:
         The updated joint mean (heading wrapped) and covariance.
     """
+    model = _model(model)
     n = mean.shape[0]
     apply = jnp.asarray(apply)
     row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
     z0 = jnp.zeros((), jnp.int32)
     x = mean[:3]
     m = jax.lax.dynamic_slice(mean, (row,), (2,))
-    Gx, Gm = range_bearing_jacobians(x, m)
-    nu = innovation(z, range_bearing(x, m))
+    Gx, Gm = model.jacobians(x, m)
+    nu = model.innovation(z, model.h(x, m))
     W = Gx @ cov[:3, :] + Gm @ jax.lax.dynamic_slice(cov, (row, z0), (2, n))
     S = sym(mmt(W[:, :3], Gx) + mmt(jax.lax.dynamic_slice(W, (z0, row), (2, 2)), Gm) + R)
     L = chol2(S)
@@ -218,7 +223,7 @@ def ekf_slam_update(
 
 def ekf_slam_augment(
     mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
-    R: Float[Array, "2 2"], apply: Bool[Array, ""] | bool = True,
+    R: Float[Array, "2 2"], apply: Bool[Array, ""] | bool = True, model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
     """Add a landmark from detection ``z`` in (free) slot ``slot``, with full cross-covariances.
 
@@ -233,13 +238,15 @@ def ekf_slam_augment(
         slot: the slot that receives the landmark (``< capacity``).
         R: measurement noise covariance.
         apply: when False nothing is written.
+        model: the measurement model (default range-bearing): ``h^-1`` is its ``landmark_from``.
     """
+    model = _model(model)
     n = mean.shape[0]
     apply = jnp.asarray(apply)
     row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
     x = mean[:3]
-    m = inverse_range_bearing(x, z)
-    Gx, Gz = inverse_range_bearing_jacobians(x, z)
+    m = model.landmark_from(x, z)
+    Gx, Gz = model.inverse_jacobians(x, z)
     cross = Gx @ cov[:3, :]  # (2, n)
     Pmm = sym(mmt(cross[:, :3], Gx) + sandwich(Gz, R))
     # Scatters with out-of-range indices when not applying: no write, and no read of the old

@@ -21,9 +21,14 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from .._batching import batch_max
 from .._linalg import chol2, det2, gaussian_logpdf, inv2, mm, mmt, mt, mv, sandwich, sym
 from .._trig import computed_once
-from ..models import innovation, inverse_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
+from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 from ..quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
 from ._state import LandmarkMap
+
+
+def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
+    """``model``, or the range-bearing model where none is given."""
+    return RangeBearing() if model is None else model
 
 
 def prefix_count(mask: Bool[Array, "n"], block: int = 32) -> Int[Array, "n"]:
@@ -203,34 +208,40 @@ def add_landmarks(
 
 
 def init_landmark(
-    x: Float[Array, "3"], z: Float[Array, "2"], R: Float[Array, "2 2"]
+    x: Float[Array, "3"], z: Float[Array, "2"], R: Float[Array, "2 2"], model: AbstractMeasurementModel | None = None
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
-    """New landmark from pose ``x`` and detection ``z`` (eq. 16): ``g^-1(x, z)``, ``Gm^-1 R Gm^-T``."""
-    m = computed_once(inverse_range_bearing(x, z))
-    _, Gm = range_bearing_jacobians(x, m)
+    """New landmark from pose ``x`` and detection ``z`` (eq. 16): ``g^-1(x, z)``, ``Gm^-1 R Gm^-T``
+    (``g`` the measurement model, default range-bearing)."""
+    model = _model(model)
+    m = computed_once(model.landmark_from(x, z))
+    _, Gm = model.jacobians(x, m)
     Gi = inv2(Gm)
     return m, sym(sandwich(Gi, R))
 
 
 def ekf_update_loglik(
-    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"]
+    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"],
+    model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form), and the
-    detection's log-likelihood ``log N(z; g(x, mean), Gm cov Gm' + R)`` from the same quantities."""
-    z_hat = computed_once(range_bearing(x, mean))
-    _, Gm = range_bearing_jacobians(x, mean)
+    detection's log-likelihood ``log N(z; g(x, mean), Gm cov Gm' + R)`` from the same quantities
+    (``g`` the measurement model, default range-bearing)."""
+    model = _model(model)
+    z_hat = computed_once(model.h(x, mean))
+    _, Gm = model.jacobians(x, mean)
     S = sandwich(Gm, cov) + R
     K = mm(mm(cov, mt(Gm)), inv2(S))
     IKG = jnp.eye(2) - mm(K, Gm)
-    nu = innovation(z, z_hat)
+    nu = model.innovation(z, z_hat)
     return mean + mv(K, nu), sym(sandwich(IKG, cov) + sandwich(K, R)), gaussian_logpdf(nu, S)
 
 
 def ekf_update(
-    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"]
+    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"],
+    model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""
-    return ekf_update_loglik(x, z, mean, cov, R)[:2]
+    return ekf_update_loglik(x, z, mean, cov, R, model)[:2]
 
 
 def _unscented_landmark_points(
@@ -251,7 +262,8 @@ def ukf_update_loglik(
     beta: Float[ArrayLike, ""],
     kappa: Float[ArrayLike, ""],
     *,
-    h: Callable[[Float[Array, "3"], Float[Array, "2"]], Float[Array, "2"]] = range_bearing,
+    model: AbstractMeasurementModel | None = None,
+    h: Callable[[Float[Array, "3"], Float[Array, "2"]], Float[Array, "2"]] | None = None,
     z_angle_index: int | None = 1,
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
     """Unscented (UKF) update of one landmark at pose ``x`` with detection ``z`` (UFastSLAM).
@@ -268,26 +280,32 @@ def ukf_update_loglik(
         cov: the landmark covariance (2, 2).
         R: measurement noise covariance (2, 2).
         alpha, beta, kappa: unscented parameters (scalars; may be traced).
-        h: measurement function ``h(pose, landmark) -> z_hat`` (the range-bearing model).
-        z_angle_index: static index of the angle component of a detection (deviations and the
-            innovation wrapped), or None.
+        model: the measurement model (default range-bearing): its ``h`` and its angular
+            components (deviations and the innovation wrapped).
+        h: a measurement function ``h(pose, landmark) -> z_hat`` instead of the model's, with
+            ``z_angle_index``: the static index of the angle component of a detection, or None.
 
     Returns:
         The updated mean and covariance and the detection's log-likelihood
         ``log N(nu; 0, S)``, as :func:`ekf_update_loglik`.
     """
+    if h is None:
+        model = _model(model)
+        h, angles = model.h, model.angles
+    else:
+        angles = () if z_angle_index is None else (z_angle_index,)
     M, wm, wc = _unscented_landmark_points(mean, cov, alpha, beta, kappa)
     Z = jax.vmap(h, (None, 0))(x, M)
     dZ = Z - Z[0]
-    if z_angle_index is not None:
-        dZ = dZ.at[:, z_angle_index].set(wrap_angle(dZ[:, z_angle_index]))
+    for i in angles:
+        dZ = dZ.at[:, i].set(wrap_angle(dZ[:, i]))
     dz_mean, Pzz = sigma_point_stats(dZ, wm, wc)
     Pmz = sigma_point_cross_cov(M, mean, dZ, dz_mean, wc)
     S = sym(Pzz + R)
     K = mm(Pmz, inv2(S))
     nu = z - (Z[0] + dz_mean)
-    if z_angle_index is not None:
-        nu = nu.at[z_angle_index].set(wrap_angle(nu[z_angle_index]))
+    for i in angles:
+        nu = nu.at[i].set(wrap_angle(nu[i]))
     new_cov = sym(cov - mmt(mm(K, S), K))
     pd = (new_cov[0, 0] > 0) & (det2(new_cov) > 0)
     return mean + mv(K, nu), jnp.where(pd, new_cov, cov), gaussian_logpdf(nu, S)
@@ -300,6 +318,7 @@ def ukf_init_landmark(
     alpha: Float[ArrayLike, ""],
     beta: Float[ArrayLike, ""],
     kappa: Float[ArrayLike, ""],
+    model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
     """New landmark by the unscented transform of the inverse model over ``z ~ N(z, R)`` (UFastSLAM).
 
@@ -311,7 +330,8 @@ def ukf_init_landmark(
         z: the detection ``(range, bearing)`` (2,).
         R: measurement noise covariance (2, 2).
         alpha, beta, kappa: unscented parameters (scalars; may be traced).
+        model: the measurement model (default range-bearing), whose inverse is used.
     """
     Zs, wm, wc = _unscented_landmark_points(z, R, alpha, beta, kappa)
-    M = jax.vmap(inverse_range_bearing, (None, 0))(x, Zs)
+    M = jax.vmap(_model(model).landmark_from, (None, 0))(x, Zs)
     return sigma_point_stats(M, wm, wc)

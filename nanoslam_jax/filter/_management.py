@@ -35,7 +35,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._trig import atan2, computed_once
-from ..models import range_bearing
+from ..models import AbstractMeasurementModel, RangeBearing, is_range_bearing, range_bearing
 from ._landmarks import window_prefixes
 from ._params import MapParams
 from ._state import LandmarkMap
@@ -59,20 +59,15 @@ def diameter_update(
     return diam + gain * (measured - diam), (1.0 - gain) * var
 
 
-def in_view(
-    z_pred: Float[Array, "n 2"], max_range: Float[Array, ""], mp: MapParams
-) -> Bool[Array, "n"]:
-    """Which predicted detections ``(r, beta)`` lie inside the sensor footprint shrunk by the margins.
+def in_view(z_pred: Float[Array, "n 2"], model: RangeBearing) -> Bool[Array, "n"]:
+    """Which predicted detections ``(r, beta)`` lie inside a range-bearing sensor's footprint
+    shrunk by the margins (:meth:`~nanoslam_jax.models.RangeBearing.visible` of the landmarks).
 
     Args:
         z_pred: predicted range and bearing of each landmark from the particle's pose.
-        max_range: the sensor's range (m).
-        mp: management hyperparameters (``min_range``, ``half_fov``, ``view_margin``,
-            ``view_margin_angle``).
+        model: the range-bearing model (its footprint and margins).
     """
-    r, b = z_pred[:, 0], z_pred[:, 1]
-    return ((r > mp.min_range + mp.view_margin) & (r < max_range - mp.view_margin)
-            & (jnp.abs(b) < mp.half_fov - mp.view_margin_angle))
+    return model.in_view(z_pred[:, 0], z_pred[:, 1])
 
 
 def occluded(
@@ -118,7 +113,7 @@ def manage_window(
     diam: Float[Array, "k"],
     observed: Bool[Array, ""],
     scan: Int[Array, ""],
-    max_range: Float[Array, ""],
+    model: AbstractMeasurementModel,
     mp: MapParams,
     occlusion: bool,
 ) -> LandmarkMap:
@@ -133,17 +128,22 @@ def manage_window(
         observed: the segment is a laser scan (False for padding and for the segments that split
             a long gap between scans: no misses are counted).
         scan: the current scan (the clock of ``born``).
-        max_range: the sensor's range (m).
+        model: the measurement model: a landmark counts a miss where it is
+            :meth:`~nanoslam_jax.models.AbstractMeasurementModel.visible`.
         mp: management hyperparameters.
         occlusion: (static) landmarks hidden behind a nearer detection or confirmed landmark
-            count no miss.
+            count no miss (range-bearing models only).
 
     Returns:
         The local map with updated ``log_odds``, ``misses``, ``confirmed`` and ``active``.
     """
-    z_pred = jax.vmap(range_bearing, (None, 0))(pose, local.mean)
-    missed = observed & local.active & ~seen & in_view(z_pred, max_range, mp)
-    if occlusion:
+    if is_range_bearing(model):
+        z_pred = jax.vmap(range_bearing, (None, 0))(pose, local.mean)
+        visible = in_view(z_pred, model)
+    else:
+        visible = jax.vmap(model.visible, (None, 0))(pose, local.mean)
+    missed = observed & local.active & ~seen & visible
+    if occlusion and is_range_bearing(model):
         occ_z = jnp.concatenate([z, z_pred])
         occ_radius = jnp.concatenate([0.5 * diam, 0.5 * local.diam])
         occ_mask = jnp.concatenate([z_mask, local.active & local.confirmed])

@@ -86,7 +86,7 @@ from jaxtyping import Array, Bool, Float
 
 from .._linalg import chol3, inv2, inv3, mm, mmt, mt, mv, sandwich, sym
 from ..data import Segments
-from ..models import inverse_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
+from ..models import inverse_range_bearing, is_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
 from ..quadrature import Unscented
 from ._association import nearest_neighbours
 from ._landmarks import first_true
@@ -296,6 +296,9 @@ def nasrukf_step(
         The new state and the segment's :class:`StepOutput` (``best_pose = mean_pose`` = the fused
         pose, ``ess = 1``).
     """
+    if not is_range_bearing(params.measurement):
+        raise ValueError(f"model.measurement: NASRUKF runs range-bearing models only, not "
+                         f"{type(params.measurement).__name__}")
     valid = jnp.asarray(valid)
     capacity, K = static.capacity, seg.z.shape[0]
     W = min(static.window, capacity)
@@ -383,7 +386,7 @@ def nasrukf_step(
         win = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), book)
         win = win._replace(active=in_window & win.active)
         seen = jnp.zeros(W, bool).at[jnp.where(existing, ws, W)].set(True, mode="drop")
-        win = manage_window(win, x_g, seen, seg.z, z_mask, seg.diam, valid & seg.is_scan, state.scan, params.max_range, mp,
+        win = manage_window(win, x_g, seen, seg.z, z_mask, seg.diam, valid & seg.is_scan, state.scan, params.measurement, mp,
                             static.occlusion)
         book = drop_stale(jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), book, win), state.scan, mp)
         feats = feats._replace(landmarks=book)  # its mean and cov are not used

@@ -16,7 +16,14 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
 from ..methods import get_method
-from ..models import AbstractMotionModel, motion_model_from_config
+from ..models import (
+    AbstractMeasurementModel,
+    AbstractMotionModel,
+    RangeBearing,
+    is_range_bearing,
+    measurement_model_from_config,
+    motion_model_from_config,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,10 +92,6 @@ class MapParams(NamedTuple):
         tentative_scans: a tentative landmark older than this (scans) is dropped.
         log_odds_remove: a landmark below this is removed.
         log_odds_max: the log-odds are clamped at this.
-        min_range: the sensor's minimum range (m).
-        half_fov: half the field of view (rad).
-        view_margin: range margin (m) of the miss rule.
-        view_margin_angle: bearing margin (rad) of the miss rule.
         occlusion_width: half-width (m) added to an occluder's radius.
         use_tentative: tentative landmarks shape the proposal and weight (a traced boolean).
         use_diameter: the diameter term enters the association distance (a traced boolean).
@@ -103,10 +106,6 @@ class MapParams(NamedTuple):
     tentative_scans: Float[ArrayLike, ""]
     log_odds_remove: Float[ArrayLike, ""]
     log_odds_max: Float[ArrayLike, ""]
-    min_range: Float[ArrayLike, ""]
-    half_fov: Float[ArrayLike, ""]
-    view_margin: Float[ArrayLike, ""]
-    view_margin_angle: Float[ArrayLike, ""]
     occlusion_width: Float[ArrayLike, ""]
     use_tentative: Bool[ArrayLike, ""]
     use_diameter: Bool[ArrayLike, ""]
@@ -127,7 +126,7 @@ class Params(NamedTuple):
 
     Attributes:
         motion: the motion model with its parameters and process noise (``model.motion``).
-        sigma_r, sigma_beta: measurement noise (m, rad).
+        measurement: the measurement model with its noise and field of view (``model.measurement``).
         init_cov: near-zero pose variance at the start and after a reset.
         ut_alpha, ut_beta, ut_kappa: unscented parameters of the prior (and UFastSLAM).
         gate: chi-square association gate on d2.
@@ -149,8 +148,7 @@ class Params(NamedTuple):
     """
 
     motion: AbstractMotionModel
-    sigma_r: Float[ArrayLike, ""]
-    sigma_beta: Float[ArrayLike, ""]
+    measurement: AbstractMeasurementModel
     init_cov: Float[ArrayLike, ""]
     ut_alpha: Float[ArrayLike, ""]
     ut_beta: Float[ArrayLike, ""]
@@ -173,9 +171,25 @@ class Params(NamedTuple):
     method: dict = {}
 
     @property
-    def R(self) -> Float[Array, "2 2"]:
-        """Measurement noise covariance."""
-        return jnp.diag(jnp.stack([jnp.square(self.sigma_r), jnp.square(self.sigma_beta)]))
+    def R(self) -> Float[Array, "d d"]:
+        """Measurement noise covariance (the measurement model's)."""
+        return self.measurement.noise_cov()
+
+    @property
+    def sigma_r(self) -> Float[ArrayLike, ""]:
+        """Range noise (m) of a range-bearing measurement model."""
+        return self._range_bearing().sigma_r
+
+    @property
+    def sigma_beta(self) -> Float[ArrayLike, ""]:
+        """Bearing noise (rad) of a range-bearing measurement model."""
+        return self._range_bearing().sigma_beta
+
+    def _range_bearing(self) -> RangeBearing:
+        if not is_range_bearing(self.measurement):
+            raise AttributeError(f"the measurement model {type(self.measurement).__name__} is not range-bearing: "
+                                 "it has no sigma_r or sigma_beta")
+        return self.measurement
 
 
 
@@ -250,14 +264,12 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         log_odds_birth=a(_logit(mp.birth_probability)), log_odds_confirm=a(_logit(mp.confirm_probability)),
         confirm_hits=a(mp.confirm_hits), tentative_scans=a(mp.tentative_scans),
         log_odds_remove=a(_logit(mp.remove_probability)), log_odds_max=a(_logit(mp.max_probability)),
-        min_range=a(cfg.data.min_range), half_fov=a(math.radians(mp.fov_deg) / 2), view_margin=a(mp.view_margin),
-        view_margin_angle=a(math.radians(mp.view_margin_deg)), occlusion_width=a(mp.occlusion_width),
+        occlusion_width=a(mp.occlusion_width),
         use_tentative=jnp.asarray(mp.use_tentative), use_diameter=jnp.asarray(mp.use_diameter),
         sigma_diameter=a(mp.sigma_diameter),
     )
     params = Params(
-        motion=motion_model_from_config(cfg),
-        sigma_r=a(nz.sigma_r), sigma_beta=a(math.radians(nz.sigma_beta_deg)),
+        motion=motion_model_from_config(cfg), measurement=measurement_model_from_config(cfg),
         init_cov=a(f.init_cov), ut_alpha=a(f.ut_alpha), ut_beta=a(f.ut_beta), ut_kappa=a(f.ut_kappa),
         gate=a(f.gate), new_landmark=a(f.new_landmark), log_p0=a(math.log(f.p0)),
         resample_threshold=a(f.resample_threshold), gamma=a(n.gamma), step=a(n.step),

@@ -12,7 +12,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol3, gaussian_logpdf, mv
 from .._trig import computed_once
-from ..models import innovation, wrap_angle
+from ..models import wrap_angle
 from ..proposals import AbstractProposal, Detections, ProposalResult
 from ._association import predicted_measurements
 from ._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
@@ -60,24 +60,28 @@ def row_work(
     x_s = computed_once(x_s.at[2].set(wrap_angle(x_s[2])))
     # Weight of the associations with existing landmarks (eq. 17, or the marginal at the prior).
     xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
-    z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R)
-    ll = gaussian_logpdf(jax.vmap(innovation)(det.z, z_hat), S)
+    model = params.measurement
+    z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R, model)
+    ll = gaussian_logpdf(jax.vmap(model.innovation)(det.z, z_hat), S)
     # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM).
     unscented = static.landmark_update == "unscented"
     ut = (params.ut_alpha, params.ut_beta, params.ut_kappa)
     if unscented:
-        new_mean, new_cov = jax.vmap(ukf_init_landmark, (None, 0, None, None, None, None))(x_s, det.z, R, *ut)
+        new_mean, new_cov = jax.vmap(ukf_init_landmark, (None, 0, None, None, None, None, None))(
+            x_s, det.z, R, *ut, model)
     else:
-        new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None))(x_s, det.z, R)
+        new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None, None))(x_s, det.z, R, model)
     # EKF (UFastSLAM: unscented) updates at the sampled pose; each landmark is matched at most once
     # per scan. A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
     cur_mean = jnp.where(existing[:, None], det.mean, new_mean[ps])
     cur_cov = jnp.where(existing[:, None, None], det.cov, new_cov[ps])
     if unscented:
-        upd_mean, upd_cov, llp = jax.vmap(ukf_update_loglik, (None, 0, 0, 0, None, None, None, None))(
+        ukf = lambda *a: ukf_update_loglik(*a, model=model)  # noqa: E731
+        upd_mean, upd_cov, llp = jax.vmap(ukf, (None, 0, 0, 0, None, None, None, None))(
             x_s, det.z, cur_mean, cur_cov, R, *ut)
     else:
-        upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None))(x_s, det.z, cur_mean, cur_cov, R)
+        upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None, None))(
+            x_s, det.z, cur_mean, cur_cov, R, model)
     # Both computed before the masked sums (a reduction fusion does not vectorise its operand).
     ll, llp = computed_once((ll, llp))
     return RowResults(prop, x_s, ll, llp, new_mean, new_cov, upd_mean, upd_cov)

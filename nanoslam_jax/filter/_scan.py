@@ -12,7 +12,7 @@ import dataclasses
 import functools
 import sys
 import time
-from typing import Callable, NamedTuple, Optional
+from typing import Any, Callable, NamedTuple, Optional
 
 import jax
 import jax.extend
@@ -74,9 +74,10 @@ def segment_priors(
 ) -> Optional[tuple[Float[Array, "segments 3"], Float[Array, "segments 3 3"]]]:
     """Every segment's :func:`relative_prior` (the prior in the frame of the segment's start pose,
     shared by all particles), or None where the particles' priors are their own (EKF-SLAM, NASRUKF,
-    ``filter.prior_cov: carry``). It depends on the controls and the hyperparameters only, so
-    :func:`filter_scan` computes it for all segments at once, before the scan."""
-    if is_gaussian(static.method) or static.prior_cov != "reset":
+    ``filter.prior_cov: carry``, a motion model that is not ``rigid``). It depends on the controls
+    and the hyperparameters only, so :func:`filter_scan` computes it for all segments at once,
+    before the scan."""
+    if is_gaussian(static.method) or static.prior_cov != "reset" or not params.motion.rigid:
         return None
     return relative_priors(segments, params, static.prior)
 
@@ -110,9 +111,9 @@ def reported_map(state) -> LandmarkMap:
 
 
 def filter_scan(
-    static: Static, params: Params, segments: Segments, key: Key[Array, ""], state: Optional[FilterState] = None,
+    static: Static, params: Params, segments: Segments, key: Key[Array, ""], state: Optional[Any] = None,
     valid: Optional[Bool[Array, "segments"]] = None, skip_padding: bool = False,
-) -> tuple[FilterState, StepOutput]:
+) -> tuple[Any, StepOutput]:
     """Run the filter over all segments in one ``lax.scan``.
 
     Args:
@@ -163,23 +164,23 @@ def _scan_prefix(f, init, xs, length: Int[Array, ""]):
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
-def _chunk(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
+def _chunk(static: Static, params: Params, state: Any, segments: Segments, valid) -> tuple[Any, StepOutput]:
     return filter_scan(static, params, segments, state.key, state, valid, skip_padding=True)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
-def _init(static: Static, params: Params, key) -> FilterState:
+def _init(static: Static, params: Params, key) -> Any:
     return initial_state(static, params, key)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
-def _chunk_batch(static: Static, params: Params, state: FilterState, segments: Segments, valid) -> tuple[FilterState, StepOutput]:
+def _chunk_batch(static: Static, params: Params, state: Any, segments: Segments, valid) -> tuple[Any, StepOutput]:
     run = lambda p, s: filter_scan(static, p, segments, s.key, s, valid, skip_padding=True)  # noqa: E731
     return jax.vmap(run)(params, state)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
-def _init_batch(static: Static, params: Params, keys) -> FilterState:
+def _init_batch(static: Static, params: Params, keys) -> Any:
     return jax.vmap(lambda p, k: initial_state(static, p, k))(params, keys)
 
 
@@ -215,7 +216,7 @@ class FilterRun(NamedTuple):
             methods without particles).
     """
 
-    state: FilterState
+    state: Any
     outputs: StepOutput
     compile_s: float
     run_s: float
@@ -224,7 +225,7 @@ class FilterRun(NamedTuple):
     history: MapHistory | None = None
 
 
-def _best_map(state: FilterState) -> tuple[Float[Array, "slots 2"], Bool[Array, "slots"]]:
+def _best_map(state: Any) -> tuple[Float[Array, "slots 2"], Bool[Array, "slots"]]:
     lm = reported_map(state)  # the fields not returned are not computed under jit
     return lm.mean, lm.active & lm.confirmed
 
@@ -240,7 +241,7 @@ def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
     return Segments(*(pad(np.asarray(a)) for a in segments)), valid
 
 
-def _drive(chunk_fn, static: Static, params: Params, state: FilterState, segments: Segments, chunk: int,
+def _drive(chunk_fn, static: Static, params: Params, state: Any, segments: Segments, chunk: int,
            progress, time_axis: int, timed: bool = False) -> FilterRun:
     """Compile ``chunk_fn`` once for ``chunk`` segments and call it over the padded log."""
     n = segments.time.shape[0]

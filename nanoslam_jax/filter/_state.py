@@ -109,7 +109,7 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
         log_w=jnp.full((n,), -jnp.log(n)),
         landmarks=LandmarkMap.empty(static.capacity, (n,), ident=static.association == "known"),
-        noise=jnp.broadcast_to(jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)]), (n, 2)),
+        noise=jnp.broadcast_to(jnp.diagonal(params.R), (n, params.measurement.measurement_dim)),
         noise_count=jnp.zeros(n, jnp.int32),
     )
     zero = jnp.zeros((), jnp.int32)

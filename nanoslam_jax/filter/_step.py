@@ -15,7 +15,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._batching import batch_max, take_if
 from .._trig import computed_once
 from ..data import Segments
-from ..models import circular_mean, innovation
+from ..models import circular_mean
 from ..proposals import AbstractProposal, Detections
 from ._association import associate, associate_window_prefix, predicted_measurements
 from ._landmarks import (
@@ -151,10 +151,12 @@ def particle_update(
     ``z_id``: each detection's landmark id, used with ``static.association == 'known'``.
     """
     mp = params.map
-    configured = jnp.stack([jnp.square(params.sigma_r), jnp.square(params.sigma_beta)])
+    model = params.measurement
+    R_configured = params.R
+    configured = jnp.diagonal(R_configured)
     noise = configured if noise is None else noise
     noise_count = jnp.zeros((), jnp.int32) if noise_count is None else noise_count
-    R = jnp.diag(noise) if static.adaptive_noise else params.R
+    R = jnp.diag(noise) if static.adaptive_noise else R_configured
     W, K = static.window_size - static.k_max, static.k_max
     diam = jnp.zeros(K, z.dtype) if diam is None else diam
     if rel_prior is not None:
@@ -173,7 +175,7 @@ def particle_update(
     assoc_fn = associate_window_prefix if static.row_buckets else associate
     assoc = assoc_fn(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential,
                      diam=diam, use_diameter=mp.use_diameter, sigma_diameter=mp.sigma_diameter,
-                     ids=z_id if static.association == "known" else None)
+                     ids=z_id if static.association == "known" else None, model=model)
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
     provisional = matched & ~existing  # matched the landmark an earlier detection of this scan created
@@ -185,9 +187,9 @@ def particle_update(
     # Rows that match no used landmark are masked out everywhere they are used.
     det = Detections(z, local.mean[ws], local.cov[ws], used)
     if static.adaptive_noise:
-        z_prior, S_prior = predicted_measurements(x0, P0, local.mean[ws], local.cov[ws], R)
+        z_prior, S_prior = predicted_measurements(x0, P0, local.mean[ws], local.cov[ws], R, model)
         _, noise, noise_count = adaptive_noise_rows(
-            noise, noise_count, jax.vmap(innovation)(z, z_prior), jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
+            noise, noise_count, jax.vmap(model.innovation)(z, z_prior), jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
             existing, params.forgetting, params.noise_floor * configured)
         R = jnp.diag(noise)
 
@@ -225,7 +227,7 @@ def particle_update(
         local = update_slots(local, wt, upd_mean, upd_cov, upd_d, upd_dv)
         seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
         manage = lambda loc, sn: manage_window(loc, x_s, sn, z, z_mask, diam, valid, scan,  # noqa: E731
-                                               params.max_range, mp, static.occlusion)
+                                               params.measurement, mp, static.occlusion)
         local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
         # The matched rows' estimates go straight to their slots (k rows); of the window only the
         # fields management changes are written back (scattering every field of all W slots
@@ -309,8 +311,8 @@ def filter_step(
     the particles' small outputs are gathered in one collective per step, and the maps cross
     devices only when the particles are resampled.
     """
-    if static.prior_cov != "reset":
-        rel_prior = None
+    if static.prior_cov != "reset" or not params.motion.rigid:
+        rel_prior = None  # a model that is not rigid: every particle's prior is predicted from its own pose
     elif rel_prior is None:
         rel_prior = relative_prior(seg.dt, seg.u, seg.dr_mask, params, static.prior)
     if static.devices == 1:

@@ -11,6 +11,15 @@ from ._motion import (
     motion_model_class as motion_model_class,
     motion_model_from_config as motion_model_from_config,
 )
+from ._measurement import (
+    MEASUREMENT_MODELS as MEASUREMENT_MODELS,
+    AbstractMeasurementModel as AbstractMeasurementModel,
+    RangeBearing as RangeBearing,
+    check_measurement_model as check_measurement_model,
+    is_range_bearing as is_range_bearing,
+    measurement_model_class as measurement_model_class,
+    measurement_model_from_config as measurement_model_from_config,
+)
 from ._range_bearing import (
     innovation as innovation,
     inverse_range_bearing as inverse_range_bearing,
@@ -38,6 +47,13 @@ __all__ = [
     "MOTION_MODELS",
     "motion_model_class",
     "motion_model_from_config",
+    "AbstractMeasurementModel",
+    "RangeBearing",
+    "MEASUREMENT_MODELS",
+    "is_range_bearing",
+    "check_measurement_model",
+    "measurement_model_class",
+    "measurement_model_from_config",
     "VehicleParams",
     "vehicle_step",
     "vehicle_move",

@@ -55,7 +55,7 @@ __all__ = [
 ]
 
 
-def _f(x: Any) -> Array:
+def _f(x: Any) -> Array | np.ndarray:
     # Plain numbers stay NumPy so that building a model (config validation, for one) does not
     # start JAX's backend before a sweep has set up its devices.
     if isinstance(x, jax.Array):

@@ -13,8 +13,8 @@ from ._angles import wrap_angle
 
 
 def range_bearing_components(
-    px: Float[ArrayLike, "*shape"], py: Float[ArrayLike, "*shape"], phi: Float[ArrayLike, "*shape"],
-    mx: Float[ArrayLike, "*shape"], my: Float[ArrayLike, "*shape"],
+    px: Float[ArrayLike, "*#shape"], py: Float[ArrayLike, "*#shape"], phi: Float[ArrayLike, "*#shape"],
+    mx: Float[ArrayLike, "*#shape"], my: Float[ArrayLike, "*#shape"],
 ) -> tuple[Float[Array, "*shape"], Float[Array, "*shape"]]:
     """:func:`range_bearing` on separate coordinate arrays (any broadcastable shapes): ``(r, beta)``.
 
@@ -62,8 +62,8 @@ def inverse_range_bearing_jacobians(
 
 
 def range_bearing_jacobian_components(
-    px: Float[ArrayLike, "*shape"], py: Float[ArrayLike, "*shape"], phi: Float[ArrayLike, "*shape"],
-    mx: Float[ArrayLike, "*shape"], my: Float[ArrayLike, "*shape"],
+    px: Float[ArrayLike, "*#shape"], py: Float[ArrayLike, "*#shape"], phi: Float[ArrayLike, "*#shape"],
+    mx: Float[ArrayLike, "*#shape"], my: Float[ArrayLike, "*#shape"],
 ) -> tuple[tuple[Float[Array, "*shape"], Float[Array, "*shape"]], tuple[tuple[Float[Array, "*shape"], ...], ...]]:
     """:func:`range_bearing_components` and its Jacobian entry by entry (autodiff, one ``jvp`` per input).
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import inv2, sandwich
-from ..models import innovation, range_bearing, range_bearing_jacobians, wrap_angle
+from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 
 
 class Detections(NamedTuple):
@@ -50,7 +50,12 @@ RESULT_CODES = ("successful", "max_steps_reached", "nonfinite")
 
 
 class AbstractProposal(eqx.Module):
-    """A method's proposal: a Gaussian over the pose given the prior and associated detections."""
+    """A method's proposal: a Gaussian over the pose given the prior and associated detections.
+
+    A proposal that evaluates the detections holds the measurement model it was built with (the
+    built-in ones: a ``measurement`` field, set from ``params.measurement`` by their methods'
+    registrations).
+    """
 
     @abc.abstractmethod
     def __call__(
@@ -70,19 +75,30 @@ def wrap_pose(x: Float[Array, "3"]) -> Float[Array, "3"]:
     return x.at[2].set(wrap_angle(x[2]))
 
 
-def range_bearing_residuals(det: Detections):
-    """``x -> z_k - g(x, m_k)`` (bearing wrapped) for all rows of ``det``."""
+def measurement_residuals(det: Detections, model: AbstractMeasurementModel | None = None):
+    """``x -> z_k - g(x, m_k)`` (angular components wrapped) for all rows of ``det``, ``g`` the
+    measurement model (default range-bearing)."""
+    model = RangeBearing() if model is None else model
 
     def residual(x):
-        z_hat = jax.vmap(range_bearing, (None, 0))(x, det.mean)
-        return jax.vmap(innovation)(det.z, z_hat)
+        z_hat = jax.vmap(model.h, (None, 0))(x, det.mean)
+        return jax.vmap(model.innovation)(det.z, z_hat)
 
     return residual
 
 
-def noise_information(x0: Float[Array, "3"], det: Detections, R: Float[Array, "2 2"], landmark_noise: bool) -> Float[Array, "k 2 2"]:
-    """Inverse noise of each detection: ``R^-1``, or ``(R + Gm Sigma Gm')^-1`` at the prior mean."""
+#: :func:`measurement_residuals` of the range-bearing model.
+range_bearing_residuals = measurement_residuals
+
+
+def noise_information(
+    x0: Float[Array, "3"], det: Detections, R: Float[Array, "2 2"], landmark_noise: bool,
+    model: AbstractMeasurementModel | None = None,
+) -> Float[Array, "k 2 2"]:
+    """Inverse noise of each detection: ``R^-1``, or ``(R + Gm Sigma Gm')^-1`` at the prior mean
+    (``Gm`` of the measurement model, default range-bearing)."""
     if not landmark_noise:
-        return jnp.broadcast_to(inv2(R), det.cov.shape)
-    _, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x0, det.mean)
+        return jnp.broadcast_to(inv2(R), det.z.shape[:1] + R.shape)
+    model = RangeBearing() if model is None else model
+    _, Gm = jax.vmap(model.jacobians, (None, 0))(x0, det.mean)
     return inv2(sandwich(Gm, det.cov) + R)

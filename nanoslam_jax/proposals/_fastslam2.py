@@ -8,7 +8,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from .._linalg import inv3, mm, mt, mv, sym, tsum
-from ._base import AbstractProposal, Detections, ProposalResult, noise_information, range_bearing_residuals, wrap_pose
+from ..models import AbstractMeasurementModel, RangeBearing
+from ._base import AbstractProposal, Detections, ProposalResult, measurement_residuals, noise_information, wrap_pose
 from ._natural_gradient import Gaussian
 
 
@@ -40,12 +41,15 @@ class LinearizedProposal(AbstractProposal):
 
     Attributes:
         landmark_noise: ``W = (R + Gm Sigma Gm')^-1`` (the published form) instead of ``R^-1``.
+        measurement: the measurement model (default range-bearing).
     """
 
     landmark_noise: bool = eqx.field(static=True, default=True)
+    measurement: AbstractMeasurementModel = eqx.field(default_factory=RangeBearing)
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
-        W = noise_information(x0, det, R, self.landmark_noise)
-        q = linearized_gaussian(Gaussian(x0, sym(inv3(P0)), P0), range_bearing_residuals(det), W, det.mask)
+        W = noise_information(x0, det, R, self.landmark_noise, self.measurement)
+        q = linearized_gaussian(Gaussian(x0, sym(inv3(P0)), P0), measurement_residuals(det, self.measurement), W,
+                                det.mask)
         zero = jnp.zeros((), jnp.int32)
         return ProposalResult(q.mean, q.cov, zero, zero)

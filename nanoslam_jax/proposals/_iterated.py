@@ -12,13 +12,14 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from .._linalg import chol2, chol3, inv3, sym
+from ..models import AbstractMeasurementModel, RangeBearing
 from ._base import (
     AbstractProposal,
     Detections,
     ProposalResult,
+    measurement_residuals,
     noise_information,
     pose_difference,
-    range_bearing_residuals,
     wrap_pose,
 )
 from ._natural_gradient import Gaussian
@@ -93,16 +94,18 @@ class IteratedProposal(AbstractProposal):
         max_iter: solver step cap.
         tol: solver tolerance.
         landmark_noise: weigh residuals with ``(R + Gm Sigma Gm')^-1`` (as FastSLAM 2.0) instead of ``R^-1``.
+        measurement: the measurement model (default range-bearing).
     """
 
     solver: str = eqx.field(static=True, default="gauss_newton")
     max_iter: int = eqx.field(static=True, default=10)
     tol: float = eqx.field(static=True, default=1e-8)
     landmark_noise: bool = eqx.field(static=True, default=True)
+    measurement: AbstractMeasurementModel = eqx.field(default_factory=RangeBearing)
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         prior = Gaussian(x0, sym(inv3(P0)), P0)
-        weights = noise_information(x0, det, R, self.landmark_noise)
-        q, steps, code = map_estimate(prior, range_bearing_residuals(det), weights, det.mask,
+        weights = noise_information(x0, det, R, self.landmark_noise, self.measurement)
+        q, steps, code = map_estimate(prior, measurement_residuals(det, self.measurement), weights, det.mask,
                                       solver=self.solver, max_iter=self.max_iter, tol=self.tol)
         return ProposalResult(q.mean, q.cov, steps, code)

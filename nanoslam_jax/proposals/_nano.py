@@ -6,14 +6,15 @@ import equinox as eqx
 from jaxtyping import Array, Float
 
 from .._linalg import inv3, sym
+from ..models import AbstractMeasurementModel, RangeBearing
 from ..quadrature import QuadratureRule
 from ._base import (
     AbstractProposal,
     Detections,
     ProposalResult,
+    measurement_residuals,
     noise_information,
     pose_difference,
-    range_bearing_residuals,
     wrap_pose,
 )
 from ._iterated import gauss_newton_map
@@ -33,6 +34,7 @@ class NanoProposal(AbstractProposal):
         init: ``'prior'`` or ``'gauss_newton'`` (start from the Gauss-Newton MAP and its
             Laplace precision).
         solver: ``'optimistix'`` or ``'while_loop'``.
+        measurement: the measurement model (default range-bearing).
     """
 
     rule: QuadratureRule
@@ -43,11 +45,12 @@ class NanoProposal(AbstractProposal):
     landmark_noise: bool = eqx.field(static=True, default=False)
     init: str = eqx.field(static=True, default="prior")
     solver: str = eqx.field(static=True, default="while_loop")
+    measurement: AbstractMeasurementModel = eqx.field(default_factory=RangeBearing)
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         prior = Gaussian(x0, sym(inv3(P0)), P0)
-        residual = range_bearing_residuals(det)
-        weights = noise_information(x0, det, R, self.landmark_noise)
+        residual = measurement_residuals(det, self.measurement)
+        weights = noise_information(x0, det, R, self.landmark_noise, self.measurement)
         start = None
         if self.init == "gauss_newton":
             start = gauss_newton_map(prior, residual, weights, det.mask, max_iter=self.max_iter)

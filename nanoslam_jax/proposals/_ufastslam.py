@@ -18,11 +18,18 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._linalg import chol2, chol3, det2, det3, inv2, mm, mmt, mv, sym
-from ..models import range_bearing, wrap_angle
+from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 from ..quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
 from ._base import AbstractProposal, Detections, ProposalResult
 
 __all__ = ["UnscentedProposal", "unscented_sequential_update", "unscented_measurement_update"]
+
+
+def _indices(index: int | tuple[int, ...] | None) -> tuple[int, ...]:
+    """A static index, tuple of indices or None as a tuple."""
+    if index is None:
+        return ()
+    return (index,) if isinstance(index, int) else tuple(index)
 
 
 def _is_pd3(P: Float[Array, "3 3"]) -> Bool[Array, ""]:
@@ -46,7 +53,7 @@ def unscented_measurement_update(
     R: Float[Array, "2 2"],
     rule: Unscented,
     *,
-    z_angle_index: int | None = 1,
+    z_angle_index: int | tuple[int, ...] | None = 1,
     x_angle_index: int | None = 2,
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"], Float[Array, "2"], Float[Array, "2 2"]]:
     """One unscented Kalman update of the pose with one detection of an uncertain landmark.
@@ -66,7 +73,8 @@ def unscented_measurement_update(
         m_cov: the landmark covariance (2, 2).
         R: measurement noise covariance (2, 2).
         rule: the unscented rule (``alpha, beta, kappa``; may be traced).
-        z_angle_index: static index of the angle component of ``z`` (wrapped), or None.
+        z_angle_index: static index (or tuple of indices) of the angle components of ``z``
+            (wrapped), or None.
         x_angle_index: static index of the angle component of ``x`` (wrapped), or None.
 
     Returns:
@@ -79,16 +87,17 @@ def unscented_measurement_update(
     X = centre + mmt(xi, _block_chol(P, m_cov))  # (11, 5): X_i = centre + L xi_i
     Z = jax.vmap(h)(X[:, :3], X[:, 3:])
     dZ = Z - Z[0]
-    if z_angle_index is not None:
-        dZ = dZ.at[:, z_angle_index].set(wrap_angle(dZ[:, z_angle_index]))
+    angles = _indices(z_angle_index)
+    for i in angles:
+        dZ = dZ.at[:, i].set(wrap_angle(dZ[:, i]))
     dz_mean, Pzz = sigma_point_stats(dZ, wm, wc)
     z_hat = Z[0] + dz_mean
     Pxz = sigma_point_cross_cov(X[:, :3], x, dZ, dz_mean, wc)
     S = sym(Pzz + R)
     K = mm(Pxz, inv2(S))
     nu = z - z_hat
-    if z_angle_index is not None:
-        nu = nu.at[z_angle_index].set(wrap_angle(nu[z_angle_index]))
+    for i in angles:
+        nu = nu.at[i].set(wrap_angle(nu[i]))
     x_new = x + mv(K, nu)
     if x_angle_index is not None:
         x_new = x_new.at[x_angle_index].set(wrap_angle(x_new[x_angle_index]))
@@ -110,7 +119,7 @@ def unscented_sequential_update(
     beta: Float[ArrayLike, ""],
     kappa: Float[ArrayLike, ""],
     *,
-    z_angle_index: int | None = 1,
+    z_angle_index: int | tuple[int, ...] | None = 1,
     x_angle_index: int | None = 2,
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
     """UFastSLAM's proposal: unscented updates of the pose by the detections, one after another.
@@ -130,7 +139,8 @@ def unscented_sequential_update(
         mask: which rows are real associations (k,).
         R: measurement noise covariance (2, 2).
         alpha, beta, kappa: unscented parameters (scalars; may be traced).
-        z_angle_index: static index of the angle component of a detection, or None.
+        z_angle_index: static index (or tuple of indices) of the angle components of a
+            detection, or None.
         x_angle_index: static index of the heading in the pose, or None.
 
     Returns:
@@ -151,7 +161,7 @@ def unscented_sequential_update(
 
 
 class UnscentedProposal(AbstractProposal):
-    """UFastSLAM's proposal (Kim, Sakthivel & Chung 2008) on the range-bearing model.
+    """UFastSLAM's proposal (Kim, Sakthivel & Chung 2008) on a measurement model (range-bearing by default).
 
     The associated detections update the prior one after another, each by an unscented update
     over ``[pose; landmark]`` (:func:`unscented_sequential_update`). The published settings
@@ -161,24 +171,28 @@ class UnscentedProposal(AbstractProposal):
         alpha: unscented spread (traced scalar).
         beta: unscented prior-knowledge term (traced scalar).
         kappa: unscented secondary scaling (traced scalar).
+        measurement: the measurement model (its ``h`` and angular components).
     """
 
     alpha: Float[Array, ""]
     beta: Float[Array, ""]
     kappa: Float[Array, ""]
+    measurement: AbstractMeasurementModel
 
     def __init__(self, alpha: Float[ArrayLike, ""] = 0.9, beta: Float[ArrayLike, ""] = 2.0,
-                 kappa: Float[ArrayLike, ""] = 0.0):
-        """Args: the unscented parameters (scalars, may be traced)."""
+                 kappa: Float[ArrayLike, ""] = 0.0, measurement: AbstractMeasurementModel | None = None):
+        """Args: the unscented parameters (scalars, may be traced) and the measurement model
+        (default range-bearing)."""
         self.alpha = jnp.asarray(alpha, dtype=float)
         self.beta = jnp.asarray(beta, dtype=float)
         self.kappa = jnp.asarray(kappa, dtype=float)
+        self.measurement = RangeBearing() if measurement is None else measurement
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         """Args: the prior mean ``x0`` and covariance ``P0``, the associated detections, the noise ``R``."""
         x, P = unscented_sequential_update(
-            x0, P0, range_bearing, det.z, det.mean, det.cov, det.mask, R,
-            self.alpha, self.beta, self.kappa,
+            x0, P0, self.measurement.h, det.z, det.mean, det.cov, det.mask, R,
+            self.alpha, self.beta, self.kappa, z_angle_index=self.measurement.angles,
         )
         ok = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(P))
         x = jnp.where(ok, x, x0)
