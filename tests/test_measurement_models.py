@@ -104,6 +104,7 @@ def _plain_like(rb: RangeBearing) -> PlainRangeBearing:
     return PlainRangeBearing(**{f.name: getattr(rb, f.name) for f in dataclasses.fields(RangeBearing)})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["ekf_slam", "fastslam2"])
 def test_model_written_in_a_test_module_equals_the_builtin_range_bearing(method):
     """The same run (to rounding) from the generic path with a model written here as from the
@@ -209,6 +210,7 @@ def _linear_params(method, n_particles, seg, extra=()):
     return static, params._replace(motion=Drift(Q_XY, Q_PHI), measurement=Offset(SIGMA))
 
 
+@pytest.mark.slow
 def test_ekf_slam_with_linear_models_equals_the_kalman_filter():
     seg = _linear_log()
     static, params = _linear_params("ekf_slam", 1, seg)
@@ -226,6 +228,7 @@ def test_ekf_slam_with_linear_models_equals_the_kalman_filter():
         np.testing.assert_allclose(cov[3 + 2 * s:5 + 2 * s, 3 + 2 * s:5 + 2 * s], C, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_particle_method_with_linear_models_approaches_the_kalman_filter():
     """FastSLAM 2.0 (Rao-Blackwellised, known association) with one detection per scan and the
     weight at the prior (with linear-Gaussian models: the optimal proposal and its exact weight):
@@ -267,11 +270,10 @@ def test_autodiff_jacobians_match_finite_differences(model):
         Gx, Gm = model.jacobians(x, m)
         Ix, Iz = model.inverse_jacobians(x, z)
         np.testing.assert_allclose(model.landmark_from(x, z), m, atol=1e-9)
-        h, g = model.h, model.landmark_from
-        np.testing.assert_allclose(Gx, _central_difference(lambda a, m=m: h(a, m), x), atol=1e-7)
-        np.testing.assert_allclose(Gm, _central_difference(lambda a, x=x: h(x, a), m), atol=1e-7)
-        np.testing.assert_allclose(Ix, _central_difference(lambda a, z=z: g(a, z), x), atol=1e-7)
-        np.testing.assert_allclose(Iz, _central_difference(lambda a, x=x: g(x, a), z), atol=1e-7)
+        np.testing.assert_allclose(Gx, _central_difference(lambda a, m=m: model.h(a, m), x), atol=1e-7)
+        np.testing.assert_allclose(Gm, _central_difference(lambda a, x=x: model.h(x, a), m), atol=1e-7)
+        np.testing.assert_allclose(Ix, _central_difference(lambda a, z=z: model.landmark_from(a, z), x), atol=1e-7)
+        np.testing.assert_allclose(Iz, _central_difference(lambda a, x=x: model.landmark_from(x, a), z), atol=1e-7)
 
 
 # ---------------------------------------------------------------------------------------------
