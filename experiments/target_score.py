@@ -54,8 +54,7 @@ def main() -> None:
         raise SystemExit(f"{path}: expected a sweep's summary.csv with the columns {sorted(need)} "
                          f"(written by nanoslam sweep since the summary has min/max)")
     fixed_cols = {"config_id", "group", "n_runs", "n_ok", "n_failed", "reasons"}
-    swept = [k for k in rows[0] if k not in fixed_cols and not k.rsplit("_", 1)[-1] in
-             ("median", "q1", "q3", "min", "max")]
+    swept = [k for k in rows[0] if k not in fixed_cols and k.rsplit("_", 1)[-1] not in ("median", "q1", "q3", "min", "max")]
     scored = sorted(((score(r, args.aligned, args.fixed, args.worst), r) for r in rows),
                     key=lambda t: (t[0]["score"], t[1]["config_id"]))
     head = ["config", *swept, "aligned median / worst [m]", "fixed median / worst [m]", "score", "limited by"]

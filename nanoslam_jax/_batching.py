@@ -34,7 +34,7 @@ def _take(indices, tree):
 
 
 @custom_vmap
-def take_if(flag: Bool[Array, ""], indices: Int[Array, "n"], tree: Any) -> Any:
+def take_if(flag: Bool[Array, ""], indices: Int[Array, " n"], tree: Any) -> Any:
     """``tree`` indexed by ``indices`` along the leading axis of every leaf if ``flag``, else
     ``tree`` (``lax.cond``).
 

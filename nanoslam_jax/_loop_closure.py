@@ -56,7 +56,7 @@ class LoopClosureSettings(NamedTuple):
     hypotheses: int = 200
 
 
-def co_observed(seg: Int[np.ndarray, "n"], lid: Int[np.ndarray, "n"], n_landmarks: int) -> sp.csr_matrix:
+def co_observed(seg: Int[np.ndarray, " n"], lid: Int[np.ndarray, " n"], n_landmarks: int) -> sp.csr_matrix:
     """Which landmarks were detected in the same scan (a boolean sparse matrix, landmarks x
     landmarks), from the association: the segment and the landmark of each associated detection."""
     if len(seg) == 0:
@@ -157,10 +157,10 @@ def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndar
 
 def find_duplicates(
     landmarks: Float[np.ndarray, "landmarks 2"],
-    first_seen: Float[np.ndarray, "landmarks"],
+    first_seen: Float[np.ndarray, " landmarks"],
     together: sp.spmatrix,
     settings: LoopClosureSettings = LoopClosureSettings(),
-) -> tuple[Int[np.ndarray, "landmarks"], Int[np.ndarray, "landmarks"]]:
+) -> tuple[Int[np.ndarray, " landmarks"], Int[np.ndarray, " landmarks"]]:
     """Landmarks mapped twice, each mapped to its original.
 
     Args:

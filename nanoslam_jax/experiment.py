@@ -23,7 +23,7 @@ import yaml
 
 from ._cache import compile_stats
 from ._version import __version__
-from .config import Config, ConfigError, config_to_dict, resolve_data_dir
+from .config import Config, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
 from .filter import (Params, Static, adaptive_noise_summary, configured_noise,
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,

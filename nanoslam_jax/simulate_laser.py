@@ -87,12 +87,12 @@ class LaserWorld(NamedTuple):
     """
 
     trees: Float[np.ndarray, "T 2"]
-    tree_radius: Float[np.ndarray, "T"]
+    tree_radius: Float[np.ndarray, " T"]
     segments: Float[np.ndarray, "N 4"]
-    segment_kind: Int[np.ndarray, "N"]
-    segment_object: Int[np.ndarray, "N"]
+    segment_kind: Int[np.ndarray, " N"]
+    segment_object: Int[np.ndarray, " N"]
     bush_centres: Float[np.ndarray, "K 2"]
-    bush_radius: Float[np.ndarray, "K"]
+    bush_radius: Float[np.ndarray, " K"]
 
 
 class LaserLog(NamedTuple):
@@ -241,7 +241,7 @@ def _segment_t(ox, oy, dx, dy, seg):
     return np.where((denom != 0.0) & (t > 0.0) & (s >= 0.0) & (s <= 1.0), t, np.inf)
 
 
-def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, "B"], world: LaserWorld,
+def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, " B"], world: LaserWorld,
              max_range: float, fence_return: Bool[np.ndarray, "S B"] | None = None,
              ) -> tuple[Float[np.ndarray, "S B"], Int[np.ndarray, "S B"], Int[np.ndarray, "S B"],
                         Int[np.ndarray, "S T"]]:

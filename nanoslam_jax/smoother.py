@@ -180,7 +180,7 @@ def associate_path(
     sigma_r: float,
     sigma_beta: float,
     gate: float,
-) -> tuple[Int[np.ndarray, "n"], Int[np.ndarray, "n"], Int[np.ndarray, "n"]]:
+) -> tuple[Int[np.ndarray, " n"], Int[np.ndarray, " n"], Int[np.ndarray, " n"]]:
     """Each detection's nearest landmark seen from ``path`` within the chi-square ``gate`` (on the
     measurement noise alone). Returns the segment, the detection's index in it and the landmark of
     every associated detection."""
@@ -215,7 +215,7 @@ def smooth_path(
     sigma_beta: float,
     gate: float,
     settings: SmootherSettings = SmootherSettings(),
-    time_s: Float[np.ndarray, "segments"] | None = None,
+    time_s: Float[np.ndarray, " segments"] | None = None,
     held: Float[np.ndarray, "held 2"] | None = None,
 ) -> Smoothed:
     """Smooth a path and its map by Levenberg-Marquardt over odometry and detection factors.

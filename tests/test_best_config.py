@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from nanoslam_jax.cli import main
 from nanoslam_jax.config import config_to_dict, load_config
 

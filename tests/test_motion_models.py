@@ -21,7 +21,7 @@ from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.data import make_segments
 from nanoslam_jax.filter import predict, run_filter, settings_from_config
 from nanoslam_jax.filter._prior import _ut_piece
-from nanoslam_jax.models import AbstractMotionModel, AbstractRateModel, Ackermann, RandomWalk, Unicycle
+from nanoslam_jax.models import AbstractMotionModel, AbstractRateModel, Ackermann, Unicycle
 from nanoslam_jax.simulate import simulate, simulate_config
 
 

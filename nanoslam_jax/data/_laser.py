@@ -47,9 +47,9 @@ class LaserScans:
         source: the file the scans came from ("" when built in memory).
     """
 
-    time: Float[np.ndarray, "S"]
+    time: Float[np.ndarray, " S"]
     ranges: Float[np.ndarray, "S B"]
-    angles: Float[np.ndarray, "B"]
+    angles: Float[np.ndarray, " B"]
     max_range: float = VICTORIA_PARK_MAX_RANGE
     source: str = ""
 
@@ -89,7 +89,7 @@ class LaserScans:
         return LaserScans(self.time[index], self.ranges[index], self.angles, self.max_range, self.source)
 
 
-def fan_angles(n_beams: int, fov_deg: float = 180.0) -> Float[np.ndarray, "B"]:
+def fan_angles(n_beams: int, fov_deg: float = 180.0) -> Float[np.ndarray, " B"]:
     """Beam bearings (vehicle frame, rad) of a scanner sweeping ``fov_deg`` symmetrically about
     straight ahead in ``n_beams`` equal steps, from right (negative) to left."""
     return np.deg2rad(np.linspace(-fov_deg / 2, fov_deg / 2, n_beams))

@@ -36,7 +36,7 @@ def _check_inputs(raw: RawLog, min_range: float, max_range: float, k_max: Option
         raise ValueError(f"log {raw.source!r}: dead-reckoning times must be strictly increasing")
 
 
-def _segment_layout(t: Float[np.ndarray, "n_dr"], scan_times: Float[np.ndarray, "scans"],
+def _segment_layout(t: Float[np.ndarray, " n_dr"], scan_times: Float[np.ndarray, " scans"],
                     max_pieces: int) -> dict[str, np.ndarray]:
     """Where each output segment starts and ends and which DR samples it integrates.
 
@@ -94,8 +94,8 @@ def _dr_pieces(dr: Float[np.ndarray, "n_dr 3"], layout: dict[str, np.ndarray], m
     return dt, u, mask
 
 
-def _detections(ranges_bearings: Float[np.ndarray, "m 4"], scan_of_det: Int[np.ndarray, "m"],
-                scan_times: Float[np.ndarray, "scans"], segment_of_scan: Int[np.ndarray, "scans"],
+def _detections(ranges_bearings: Float[np.ndarray, "m 4"], scan_of_det: Int[np.ndarray, " m"],
+                scan_times: Float[np.ndarray, " scans"], segment_of_scan: Int[np.ndarray, " scans"],
                 n_segments: int, k_max: Optional[int], range_rule: str
                 ) -> tuple[Float[np.ndarray, "segments k_max 2"], Bool[np.ndarray, "segments k_max"],
                            Float[np.ndarray, "segments k_max"], Int[np.ndarray, "segments k_max"]]:

@@ -68,14 +68,14 @@ class Segments(NamedTuple):
             ``filter.association: known``).
     """
 
-    time: Float[Array, "segments"]
+    time: Float[Array, " segments"]
     dt: Float[Array, "segments dr"]
     u: Float[Array, "segments dr 2"]
     dr_mask: Bool[Array, "segments dr"]
     z: Float[Array, "segments k_max 2"]
     z_mask: Bool[Array, "segments k_max"]
     diam: Float[Array, "segments k_max"]
-    is_scan: Bool[Array, "segments"]
+    is_scan: Bool[Array, " segments"]
     z_id: Int[Array, "segments k_max"]
 
     @property

@@ -31,9 +31,9 @@ class Association(NamedTuple):
         d2: best squared Mahalanobis distance of each detection (inf if no candidate).
     """
 
-    slot: Int[Array, "k_max"]
-    is_new: Bool[Array, "k_max"]
-    d2: Float[Array, "k_max"]
+    slot: Int[Array, " k_max"]
+    is_new: Bool[Array, " k_max"]
+    d2: Float[Array, " k_max"]
 
 
 def predicted_measurements(
@@ -81,15 +81,15 @@ def associate(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
     z: Float[Array, "k_max 2"],
-    z_mask: Bool[Array, "k_max"],
+    z_mask: Bool[Array, " k_max"],
     R: Float[Array, "2 2"],
     gate: Float[Array, ""],
     new_landmark: Float[Array, ""],
     sequential: bool = True,
-    diam: Float[Array, "k_max"] | None = None,
+    diam: Float[Array, " k_max"] | None = None,
     use_diameter: Bool[Array, ""] | bool = False,
     sigma_diameter: Float[Array, ""] | float = 1.0,
-    ids: Int[Array, "k_max"] | None = None,
+    ids: Int[Array, " k_max"] | None = None,
     model: AbstractMeasurementModel | None = None,
 ) -> Association:
     """Nearest-neighbour association with a chi-square gate and a new-landmark threshold, or by
@@ -160,11 +160,11 @@ def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
 
 
 def nearest_neighbours(
-    z_hat: tuple[Float[Array, "slots"], Float[Array, "slots"]] | Float[Array, "slots d"],
-    s_inv: tuple[Float[Array, "slots"], Float[Array, "slots"], Float[Array, "slots"]] | Float[Array, "slots d d"],
-    active: Bool[Array, "window"],
+    z_hat: tuple[Float[Array, " slots"], Float[Array, " slots"]] | Float[Array, "slots d"],
+    s_inv: tuple[Float[Array, " slots"], Float[Array, " slots"], Float[Array, " slots"]] | Float[Array, "slots d d"],
+    active: Bool[Array, " window"],
     z: Float[Array, "k_max 2"],
-    z_mask: Bool[Array, "k_max"],
+    z_mask: Bool[Array, " k_max"],
     gate: Float[Array, ""],
     new_landmark: Float[Array, ""],
     sequential: bool = True,

@@ -82,7 +82,7 @@ class EkfSlamState(NamedTuple):
         scan: laser scans processed so far (the clock of ``born``).
     """
 
-    mean: Float[Array, "n"]
+    mean: Float[Array, " n"]
     cov: Float[Array, "n n"]
     landmarks: LandmarkMap
     count: Int[Array, ""]
@@ -117,18 +117,18 @@ def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSl
 
 
 class _Carry(NamedTuple):
-    mean: Float[Array, "n"]
+    mean: Float[Array, " n"]
     cov: Float[Array, "n n"]
-    available: Bool[Array, "capacity"]
+    available: Bool[Array, " capacity"]
     book: LandmarkMap
-    seen: Bool[Array, "capacity"]
+    seen: Bool[Array, " capacity"]
     count: Int[Array, ""]
     n_associated: Int[Array, ""]
     n_new: Int[Array, ""]
     overflow: Int[Array, ""]
 
 
-def _diameter_terms(book: LandmarkMap, d: Float[Array, ""], params: Params) -> Float[Array, "capacity"]:
+def _diameter_terms(book: LandmarkMap, d: Float[Array, ""], params: Params) -> Float[Array, " capacity"]:
     """The association's diameter term of a detection of diameter ``d`` against every slot (0 when
     ``map.use_diameter`` is off)."""
     mp = params.map
@@ -137,9 +137,9 @@ def _diameter_terms(book: LandmarkMap, d: Float[Array, ""], params: Params) -> F
 
 
 def _batch_association(
-    mean: Float[Array, "n"], cov: Float[Array, "n n"], seg: Segments, z_mask: Bool[Array, "k"],
+    mean: Float[Array, " n"], cov: Float[Array, "n n"], seg: Segments, z_mask: Bool[Array, " k"],
     book: LandmarkMap, params: Params,
-) -> tuple[Int[Array, "k"], Bool[Array, "k"], Bool[Array, "k"]]:
+) -> tuple[Int[Array, " k"], Bool[Array, " k"], Bool[Array, " k"]]:
     """Non-sequential association with the existing landmarks (the closest claimant wins)."""
     k_max = z_mask.shape[0]
     terms = jax.vmap(_diameter_terms, (None, 0, None))(book, seg.diam, params)
@@ -154,12 +154,12 @@ def _batch_association(
     return j, matched, z_mask & (best > params.new_landmark)
 
 
-def _high_water(active: Bool[Array, "capacity"]) -> Int[Array, ""]:
+def _high_water(active: Bool[Array, " capacity"]) -> Int[Array, ""]:
     """One past the highest active slot (0 for an empty map)."""
     return jnp.max(jnp.where(active, jnp.arange(1, active.shape[0] + 1, dtype=jnp.int32), 0), initial=0)
 
 
-def _remove(mean, cov, book: LandmarkMap, remove: Bool[Array, "capacity"]):
+def _remove(mean, cov, book: LandmarkMap, remove: Bool[Array, " capacity"]):
     """Marginalise every landmark in ``remove`` out of the joint Gaussian (a loop over them only)."""
     capacity = remove.shape[0]
     n_remove = jnp.sum(remove).astype(jnp.int32)

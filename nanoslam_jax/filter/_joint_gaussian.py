@@ -26,7 +26,7 @@ def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
     return RangeBearing() if model is None else model
 
 
-def landmark_means(mean: Float[Array, "n"]) -> Float[Array, "capacity 2"]:
+def landmark_means(mean: Float[Array, " n"]) -> Float[Array, "capacity 2"]:
     """The landmark part of the joint mean as ``(capacity, 2)`` positions."""
     return mean[3:].reshape(-1, 2)
 
@@ -44,13 +44,13 @@ def landmark_blocks(cov: Float[Array, "n n"], capacity: int) -> Float[Array, "ca
 
 
 def ekf_slam_predict(
-    mean: Float[Array, "n"],
+    mean: Float[Array, " n"],
     cov: Float[Array, "n n"],
-    dt: Float[Array, "dr"],
+    dt: Float[Array, " dr"],
     u: Float[Array, "dr 2"],
-    dr_mask: Bool[Array, "dr"],
+    dr_mask: Bool[Array, " dr"],
     params: Params,
-) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Linearised joint prediction through a segment's DR pieces; only the pose rows change.
 
     Args:
@@ -86,8 +86,8 @@ def ekf_slam_predict(
 
 
 def slot_innovations(
-    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
-    usable: Bool[Array, "capacity"], model: AbstractMeasurementModel | None = None,
+    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
+    usable: Bool[Array, " capacity"], model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "capacity 2"], Float[Array, "capacity 2 2"]]:
     """Innovation and innovation covariance of detection ``z`` against every landmark slot.
 
@@ -119,10 +119,10 @@ def slot_innovations(
 
 
 def association_distances(
-    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
-    available: Bool[Array, "capacity"], diam_term: Float[Array, "capacity"] | float = 0.0,
+    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
+    available: Bool[Array, " capacity"], diam_term: Float[Array, " capacity"] | float = 0.0,
     model: AbstractMeasurementModel | None = None,
-) -> Float[Array, "capacity"]:
+) -> Float[Array, " capacity"]:
     """Squared Mahalanobis distance of ``z`` to every available landmark (inf elsewhere), plus
     ``diam_term`` (the tree-diameter term of each slot, or 0); ``model``: the measurement model
     (default range-bearing)."""
@@ -135,7 +135,7 @@ BLOCK = 128
 
 
 def rank2_downdate(
-    cov: Float[Array, "n n"], v0: Float[Array, "n"], v1: Float[Array, "n"], size: Int[Array, ""] | int | None = None,
+    cov: Float[Array, "n n"], v0: Float[Array, " n"], v1: Float[Array, " n"], size: Int[Array, ""] | int | None = None,
     block: int = BLOCK,
 ) -> Float[Array, "n n"]:
     """``cov - (v0 v0' + v1 v1')`` on the leading ``size x size`` part of ``cov``.
@@ -173,10 +173,10 @@ def rank2_downdate(
 
 
 def ekf_slam_update(
-    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
+    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
     R: Float[Array, "2 2"], size: Int[Array, ""] | int | None = None, apply: Bool[Array, ""] | bool = True,
     model: AbstractMeasurementModel | None = None,
-) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """EKF update of the joint state with detection ``z`` of landmark ``slot``.
 
     ``W = H P`` (2 x n) is formed from the pose rows and the landmark's two rows of ``P``;
@@ -222,9 +222,9 @@ def ekf_slam_update(
 
 
 def ekf_slam_augment(
-    mean: Float[Array, "n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
+    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
     R: Float[Array, "2 2"], apply: Bool[Array, ""] | bool = True, model: AbstractMeasurementModel | None = None,
-) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Add a landmark from detection ``z`` in (free) slot ``slot``, with full cross-covariances.
 
     With ``m = h^-1(x, z)`` and its Jacobians ``Gx`` (pose) and ``Gz`` (detection) by autodiff:
@@ -262,8 +262,8 @@ def ekf_slam_augment(
 
 
 def ekf_slam_marginalise(
-    mean: Float[Array, "n"], cov: Float[Array, "n n"], slot: Int[Array, ""] | int, apply: Bool[Array, ""] | bool = True,
-) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+    mean: Float[Array, " n"], cov: Float[Array, "n n"], slot: Int[Array, ""] | int, apply: Bool[Array, ""] | bool = True,
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Remove landmark ``slot`` from the joint Gaussian (marginalise it out) and free its slot.
 
     The marginal of a Gaussian over the other variables is the same Gaussian with the landmark's

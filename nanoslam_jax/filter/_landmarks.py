@@ -31,7 +31,7 @@ def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
     return RangeBearing() if model is None else model
 
 
-def prefix_count(mask: Bool[Array, "n"], block: int = 32) -> Int[Array, "n"]:
+def prefix_count(mask: Bool[Array, " n"], block: int = 32) -> Int[Array, " n"]:
     """Inclusive running count of ``mask`` (``cumsum``), as two small matrix products.
 
     XLA:CPU lowers ``cumsum`` to a windowed reduction costing ~8x more than a blocked product with
@@ -44,7 +44,7 @@ def prefix_count(mask: Bool[Array, "n"], block: int = 32) -> Int[Array, "n"]:
     return (within + offsets[:, None]).reshape(-1)[:n].astype(jnp.int32)
 
 
-def first_true(mask: Bool[Array, "n"], size: int) -> tuple[Int[Array, "size"], Int[Array, ""]]:
+def first_true(mask: Bool[Array, " n"], size: int) -> tuple[Int[Array, " size"], Int[Array, ""]]:
     """Indices of the first ``size`` True entries of ``mask`` in order (``n`` where there are fewer)
     and the number of True entries: ``jnp.nonzero(mask, size=size, fill_value=n)`` at a third of
     its cost on CPU, O(n) unlike a top-k (a sort)."""
@@ -57,7 +57,7 @@ def first_true(mask: Bool[Array, "n"], size: int) -> tuple[Int[Array, "size"], I
 
 def gather_window(
     lm: LandmarkMap, position: Float[Array, "2"], window: int, radius: Float[Array, ""], slots: int | None = None
-) -> tuple[LandmarkMap, Int[Array, "window"], Int[Array, ""]]:
+) -> tuple[LandmarkMap, Int[Array, " window"], Int[Array, ""]]:
     """The local map of one particle.
 
     Args:
@@ -114,7 +114,7 @@ MANAGED_FIELDS = ("log_odds", "misses", "confirmed", "active")
 
 
 def scatter_window(
-    lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, "window"], fields: tuple[str, ...] | None = None
+    lm: LandmarkMap, local: LandmarkMap, idx: Int[Array, " window"], fields: tuple[str, ...] | None = None
 ) -> LandmarkMap:
     """Write the fields of a local map back to their slots (``idx``; ``capacity`` is dropped).
 
@@ -131,11 +131,11 @@ def scatter_window(
 
 def update_slots(
     lm: LandmarkMap,
-    slots: Int[Array, "k"],
+    slots: Int[Array, " k"],
     mean: Float[Array, "k 2"],
     cov: Float[Array, "k 2 2"],
-    diam: Float[Array, "k"] | None = None,
-    diam_var: Float[Array, "k"] | None = None,
+    diam: Float[Array, " k"] | None = None,
+    diam_var: Float[Array, " k"] | None = None,
 ) -> LandmarkMap:
     """Set the mean and covariance (and the diameter estimate) of the landmarks in ``slots`` and
     count a hit for each.
@@ -155,7 +155,7 @@ def update_slots(
     return lm
 
 
-def free_slots(active: Bool[Array, "capacity"], k: int, slots: int | None = None) -> Int[Array, "k"]:
+def free_slots(active: Bool[Array, " capacity"], k: int, slots: int | None = None) -> Int[Array, " k"]:
     """The first ``k`` free slots of a map in order (``capacity`` where there are fewer).
 
     Args:
@@ -172,8 +172,8 @@ def free_slots(active: Bool[Array, "capacity"], k: int, slots: int | None = None
 
 
 def add_landmarks(
-    lm: LandmarkMap, new: LandmarkMap, is_new: Bool[Array, "k"], contiguous: bool = False,
-    free: Int[Array, "k"] | None = None,
+    lm: LandmarkMap, new: LandmarkMap, is_new: Bool[Array, " k"], contiguous: bool = False,
+    free: Int[Array, " k"] | None = None,
 ) -> tuple[LandmarkMap, Int[Array, ""]]:
     """Place new landmarks in free slots, in order.
 

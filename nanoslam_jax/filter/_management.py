@@ -59,7 +59,7 @@ def diameter_update(
     return diam + gain * (measured - diam), (1.0 - gain) * var
 
 
-def in_view(z_pred: Float[Array, "n 2"], model: RangeBearing) -> Bool[Array, "n"]:
+def in_view(z_pred: Float[Array, "n 2"], model: RangeBearing) -> Bool[Array, " n"]:
     """Which predicted detections ``(r, beta)`` lie inside a range-bearing sensor's footprint
     shrunk by the margins (:meth:`~nanoslam_jax.models.RangeBearing.visible` of the landmarks).
 
@@ -73,10 +73,10 @@ def in_view(z_pred: Float[Array, "n 2"], model: RangeBearing) -> Bool[Array, "n"
 def occluded(
     z_pred: Float[Array, "n 2"],
     occluder_z: Float[Array, "o 2"],
-    occluder_radius: Float[Array, "o"],
-    occluder_mask: Bool[Array, "o"],
+    occluder_radius: Float[Array, " o"],
+    occluder_mask: Bool[Array, " o"],
     width: Float[Array, ""],
-) -> Bool[Array, "n"]:
+) -> Bool[Array, " n"]:
     """Which landmarks are hidden behind a nearer object at a similar bearing.
 
     Landmark ``j`` (predicted at ``(r_j, beta_j)``) is hidden when some occluder ``i`` (at
@@ -107,10 +107,10 @@ def occluded(
 def manage_window(
     local: LandmarkMap,
     pose: Float[Array, "3"],
-    seen: Bool[Array, "window"],
+    seen: Bool[Array, " window"],
     z: Float[Array, "k 2"],
-    z_mask: Bool[Array, "k"],
-    diam: Float[Array, "k"],
+    z_mask: Bool[Array, " k"],
+    diam: Float[Array, " k"],
     observed: Bool[Array, ""],
     scan: Int[Array, ""],
     model: AbstractMeasurementModel,
@@ -156,8 +156,8 @@ def manage_window(
                           active=local.active & keep)
 
 
-def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, "window"], n_local: Int[Array, ""],
-                         manage: Callable[[LandmarkMap, Bool[Array, "b"]], LandmarkMap]) -> LandmarkMap:
+def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, " window"], n_local: Int[Array, ""],
+                         manage: Callable[[LandmarkMap, Bool[Array, " b"]], LandmarkMap]) -> LandmarkMap:
     """:func:`manage_window` (as ``manage(local, seen)``) over the smallest prefix of the window
     that holds its ``n_local`` landmarks: 16, 32 or all slots (``lax.switch``).
 
@@ -199,14 +199,14 @@ def drop_stale(lm: LandmarkMap, scan: Int[Array, ""], mp: MapParams) -> Landmark
 def new_landmarks(
     mean: Float[Array, "k 2"],
     cov: Float[Array, "k 2 2"],
-    is_new: Bool[Array, "k"],
-    extra_hits: Int[Array, "k"],
-    diam: Float[Array, "k"],
-    diam_var: Float[Array, "k"],
+    is_new: Bool[Array, " k"],
+    extra_hits: Int[Array, " k"],
+    diam: Float[Array, " k"],
+    diam_var: Float[Array, " k"],
     scan: Int[Array, ""],
     mp: MapParams,
     manage: bool,
-    ident: Int[Array, "k"] | None = None,
+    ident: Int[Array, " k"] | None = None,
 ) -> LandmarkMap:
     """The landmarks a scan starts, as they leave the scan.
 

@@ -117,9 +117,9 @@ def _minus(a: Float[Array, "3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
 def pose_time_update(
     x: Float[Array, "3"],
     S: Float[Array, "3 3"],
-    dt: Float[Array, "dr"],
+    dt: Float[Array, " dr"],
     u: Float[Array, "dr 2"],
-    dr_mask: Bool[Array, "dr"],
+    dr_mask: Bool[Array, " dr"],
     params: Params,
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"], Float[Array, "3 3"], Float[Array, "3 3"]]:
     """The pose's SR-UKF time update through a segment's DR pieces, with its start pose carried.
@@ -174,8 +174,8 @@ def joint_sqrt(S: Float[Array, "3 3"], gain: Float[Array, "f 3"], sqrt: Float[Ar
 
 
 def to_conditional(
-    x: Float[Array, "3"], m: Float[Array, "f"], L: Float[Array, "n n"], x_global: Float[Array, "3"]
-) -> tuple[Float[Array, "f"], Float[Array, "f 3"], Float[Array, "f f"]]:
+    x: Float[Array, "3"], m: Float[Array, " f"], L: Float[Array, "n n"], x_global: Float[Array, "3"]
+) -> tuple[Float[Array, " f"], Float[Array, "f 3"], Float[Array, "f f"]]:
     """A joint state ``N((x, m), L L')`` fed back to the global pose (the feature's conditional kept).
 
     Returns:
@@ -186,7 +186,7 @@ def to_conditional(
     return m + gain @ _minus(x_global, x), gain, L[3:, 3:]
 
 
-def measure(y: Float[Array, "n"]) -> Float[Array, "mz"]:
+def measure(y: Float[Array, " n"]) -> Float[Array, " mz"]:
     """A joint state's predicted detection: range and bearing of the centre (and the diameter,
     twice the radius, for arcs)."""
     zb = range_bearing(y[:3], y[3:5])
@@ -194,8 +194,8 @@ def measure(y: Float[Array, "n"]) -> Float[Array, "mz"]:
 
 
 def init_feature(
-    x: Float[Array, "3"], S: Float[Array, "3 3"], z: Float[Array, "mz"], noise: Float[Array, "mz"], params: Params
-) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+    x: Float[Array, "3"], S: Float[Array, "3 3"], z: Float[Array, " mz"], noise: Float[Array, " mz"], params: Params
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """A new feature's joint state: the SR unscented transform of (pose, detection) through
     ``(x, m) = (x, g^-1(x, z))`` (and the radius as half the diameter for arcs).
 
@@ -217,7 +217,7 @@ def init_feature(
 def association_information(
     x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots f"], gain: Float[Array, "slots f 3"],
     sqrt: Float[Array, "slots f f"], R: Float[Array, "2 2"],
-) -> tuple[tuple[Float[Array, "slots"], Float[Array, "slots"]], tuple[Float[Array, "slots"], ...]]:
+) -> tuple[tuple[Float[Array, " slots"], Float[Array, " slots"]], tuple[Float[Array, " slots"], ...]]:
     """Predicted range and bearing of each slot's centre and the entries of its inverse innovation
     covariance ``J P J' + Gm C Gm' + R``, ``J = Gx + Gm gain`` (joint state linearised, autodiff)."""
     c = mean[:, :2]
@@ -240,7 +240,7 @@ def fuse_poses(
     S0: Float[Array, "3 3"],
     xs: Float[Array, "k 3"],
     Ls: Float[Array, "k 3 3"],
-    use: Bool[Array, "k"],
+    use: Bool[Array, " k"],
     shared_prior: bool = True,
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
     """The global pose from per-feature pose estimates, information-weighted (eq. 4-5).

@@ -64,7 +64,7 @@ class NasrukfState(NamedTuple):
     pose: Float[Array, "3"]
     pose_sqrt: Float[Array, "3 3"]
     features: NasrukfFeatures
-    noise: Float[Array, "mz"]
+    noise: Float[Array, " mz"]
     noise_count: Int[Array, ""]
     count: Int[Array, ""]
     key: Key[Array, ""]
@@ -86,7 +86,7 @@ def feature_dim(static: Static) -> int:
     return 3 if static.nasrukf_feature == "arc" else 2
 
 
-def configured_noise(static: Static, params: Params) -> Float[Array, "mz"]:
+def configured_noise(static: Static, params: Params) -> Float[Array, " mz"]:
     """The configured measurement-noise variances (range, bearing, and diameter for arcs)."""
     sig = [params.sigma_r, params.sigma_beta] + ([params.map.sigma_diameter] if static.nasrukf_feature == "arc" else [])
     return jnp.square(jnp.stack([jnp.asarray(s, float) for s in sig]))

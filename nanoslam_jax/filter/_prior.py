@@ -92,9 +92,9 @@ def _linear_piece(x, P, u, dt, params: Params):
 def predict(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
-    dt: Float[Array, "dr"],
+    dt: Float[Array, " dr"],
     u: Float[Array, "dr 2"],
-    dr_mask: Bool[Array, "dr"],
+    dr_mask: Bool[Array, " dr"],
     params: Params,
     kind: str = "unscented",
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
@@ -125,7 +125,7 @@ def predict(
     return jax.lax.fori_loop(0, n_pieces, body, (x, P))
 
 
-def predict_mean(x: Float[Array, "3"], dt: Float[Array, "dr"], u: Float[Array, "dr 2"], params: Params) -> Float[Array, "3"]:
+def predict_mean(x: Float[Array, "3"], dt: Float[Array, " dr"], u: Float[Array, "dr 2"], params: Params) -> Float[Array, "3"]:
     """Noise-free propagation (dead reckoning) through a segment's pieces (padding has dt = 0)."""
 
     def body(xc, inp):
@@ -136,9 +136,9 @@ def predict_mean(x: Float[Array, "3"], dt: Float[Array, "dr"], u: Float[Array, "
 
 
 def relative_prior(
-    dt: Float[Array, "dr"],
+    dt: Float[Array, " dr"],
     u: Float[Array, "dr 2"],
-    dr_mask: Bool[Array, "dr"],
+    dr_mask: Bool[Array, " dr"],
     params: Params,
     kind: str = "unscented",
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:

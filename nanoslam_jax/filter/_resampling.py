@@ -11,12 +11,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, Key
 
 
-def normalise(log_w: Float[Array, "n"]) -> Float[Array, "n"]:
+def normalise(log_w: Float[Array, " n"]) -> Float[Array, " n"]:
     """Log-weights shifted so that ``logsumexp = 0`` (never exponentiating unnormalised values)."""
     return log_w - jax.scipy.special.logsumexp(log_w)
 
 
-def effective_sample_size(log_w: Float[Array, "n"]) -> Float[Array, ""]:
+def effective_sample_size(log_w: Float[Array, " n"]) -> Float[Array, ""]:
     """``1 / sum w^2`` of normalised log-weights, computed in log space."""
     lw = normalise(log_w)
     return jnp.exp(-jax.scipy.special.logsumexp(2.0 * lw))
@@ -28,25 +28,25 @@ def _inverse_cdf(log_w, u):
     return jnp.searchsorted(cdf, u, side="right").astype(jnp.int32)
 
 
-def systematic(key: Key[Array, ""], log_w: Float[Array, "n"]) -> Int[Array, "n"]:
+def systematic(key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]:
     """One uniform offset, ``N`` evenly spaced positions."""
     n = log_w.shape[0]
     return _inverse_cdf(log_w, (jnp.arange(n) + jax.random.uniform(key, dtype=log_w.dtype)) / n)
 
 
-def stratified(key: Key[Array, ""], log_w: Float[Array, "n"]) -> Int[Array, "n"]:
+def stratified(key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]:
     """One uniform per stratum ``[i/N, (i+1)/N)``."""
     n = log_w.shape[0]
     return _inverse_cdf(log_w, (jnp.arange(n) + jax.random.uniform(key, (n,), dtype=log_w.dtype)) / n)
 
 
-def multinomial(key: Key[Array, ""], log_w: Float[Array, "n"]) -> Int[Array, "n"]:
+def multinomial(key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]:
     """``N`` independent draws."""
     n = log_w.shape[0]
     return jax.random.categorical(key, normalise(log_w), shape=(n,)).astype(jnp.int32)
 
 
-def residual(key: Key[Array, ""], log_w: Float[Array, "n"]) -> Int[Array, "n"]:
+def residual(key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]:
     """``floor(N w_i)`` deterministic copies, the rest multinomial on the residual weights."""
     n = log_w.shape[0]
     nw = n * jnp.exp(normalise(log_w))
@@ -64,7 +64,7 @@ def residual(key: Key[Array, ""], log_w: Float[Array, "n"]) -> Int[Array, "n"]:
 RESAMPLERS = {"systematic": systematic, "stratified": stratified, "multinomial": multinomial, "residual": residual}
 
 
-def resample(kind: str, key: Key[Array, ""], log_w: Float[Array, "n"]) -> Int[Array, "n"]:
+def resample(kind: str, key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]:
     """Ancestor indices by the named scheme (``systematic``, ``stratified``, ``multinomial``, ``residual``)."""
     try:
         return RESAMPLERS[kind](key, log_w)

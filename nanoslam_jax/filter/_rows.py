@@ -35,8 +35,8 @@ class RowResults(NamedTuple):
 
     proposal: ProposalResult
     pose: Float[Array, "3"]
-    ll: Float[Array, "k"]
-    llp: Float[Array, "k"]
+    ll: Float[Array, " k"]
+    llp: Float[Array, " k"]
     new_mean: Float[Array, "k 2"]
     new_cov: Float[Array, "k 2 2"]
     upd_mean: Float[Array, "k 2"]
@@ -45,7 +45,7 @@ class RowResults(NamedTuple):
 
 def row_work(
     static: Static, params: Params, proposal: AbstractProposal, x0: Float[Array, "3"], P0: Float[Array, "3 3"],
-    R: Float[Array, "2 2"], det: Detections, existing: Bool[Array, "k"], ps: Int[Array, "k"], eps: Float[Array, "3"],
+    R: Float[Array, "2 2"], det: Detections, existing: Bool[Array, " k"], ps: Int[Array, " k"], eps: Float[Array, "3"],
 ) -> RowResults:
     """The proposal, the sampled pose and each row's likelihoods, landmark start and landmark update.
 
@@ -89,8 +89,8 @@ def row_work(
 
 def rows_over_buckets(
     static: Static, params: Params, proposal: AbstractProposal, x0: Float[Array, "3"], P0: Float[Array, "3 3"],
-    R: Float[Array, "2 2"], det: Detections, existing: Bool[Array, "k"], ps: Int[Array, "k"], eps: Float[Array, "3"],
-    z_mask: Bool[Array, "k"],
+    R: Float[Array, "2 2"], det: Detections, existing: Bool[Array, " k"], ps: Int[Array, " k"], eps: Float[Array, "3"],
+    z_mask: Bool[Array, " k"],
 ) -> RowResults:
     """:func:`row_work` over the first ``b`` detection rows only, ``b`` the smallest of
     ``static.row_buckets`` (then ``k_max``) that holds the scan's last real detection; the rows

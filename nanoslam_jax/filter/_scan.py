@@ -112,7 +112,7 @@ def reported_map(state) -> LandmarkMap:
 
 def filter_scan(
     static: Static, params: Params, segments: Segments, key: Key[Array, ""], state: Optional[Any] = None,
-    valid: Optional[Bool[Array, "segments"]] = None, skip_padding: bool = False,
+    valid: Optional[Bool[Array, " segments"]] = None, skip_padding: bool = False,
 ) -> tuple[Any, StepOutput]:
     """Run the filter over all segments in one ``lax.scan``.
 
@@ -225,7 +225,7 @@ class FilterRun(NamedTuple):
     history: MapHistory | None = None
 
 
-def _best_map(state: Any) -> tuple[Float[Array, "slots 2"], Bool[Array, "slots"]]:
+def _best_map(state: Any) -> tuple[Float[Array, "slots 2"], Bool[Array, " slots"]]:
     lm = reported_map(state)  # the fields not returned are not computed under jit
     return lm.mean, lm.active & lm.confirmed
 

@@ -51,7 +51,7 @@ def _wrap_at(d: Float[Array, "... n"], angles: Sequence[int]) -> Float[Array, ".
     return d
 
 
-def chol_rank_one(L: Float[Array, "n n"], v: Float[Array, "n"], weight: Float[ArrayLike, ""]) -> Float[Array, "n n"]:
+def chol_rank_one(L: Float[Array, "n n"], v: Float[Array, " n"], weight: Float[ArrayLike, ""]) -> Float[Array, "n n"]:
     """The lower Cholesky factor of ``L L' + weight v v'`` (``cholupdate``), by rotations.
 
     For ``weight > 0`` each column pair ``(L[:, k], v)`` is turned by a Givens rotation that
@@ -116,13 +116,13 @@ def block_diag(A: Float[Array, "n n"], B: Float[Array, "k k"]) -> Float[Array, "
     return jnp.concatenate([top, bottom], axis=0)
 
 
-def sigma_offsets(L: Float[Array, "n n"], rule: Unscented) -> tuple[Float[Array, "m n"], Float[Array, "m"], Float[Array, "m"]]:
+def sigma_offsets(L: Float[Array, "n n"], rule: Unscented) -> tuple[Float[Array, "m n"], Float[Array, " m"], Float[Array, " m"]]:
     """The sigma points' offsets from the mean (eq. 8: ``0, +gamma L[:, i], -gamma L[:, i]``) and weights."""
     xi, wm, wc = rule.unit_points(L.shape[-1])
     return xi @ L.T, wm, wc
 
 
-def _stats(Y: Float[Array, "m d"], wm: Float[Array, "m"], angles: Sequence[int]):
+def _stats(Y: Float[Array, "m d"], wm: Float[Array, " m"], angles: Sequence[int]):
     """Weighted mean of transformed points (angles relative to the centre point) and the
     deviations from it."""
     dev = _wrap_at(Y - Y[0], angles)
@@ -130,7 +130,7 @@ def _stats(Y: Float[Array, "m d"], wm: Float[Array, "m"], angles: Sequence[int])
     return _wrap_at(Y[0] + shift, angles), dev - shift
 
 
-def _sqrt_from_deviations(D: Float[Array, "m d"], wc: Float[Array, "m"], extra: Float[Array, "d q"] | None = None):
+def _sqrt_from_deviations(D: Float[Array, "m d"], wc: Float[Array, " m"], extra: Float[Array, "d q"] | None = None):
     """``qr{[sqrt(wc_1) D_1:m, extra]}`` then ``cholupdate{., D_0, wc_0}`` (eq. 9 and 12): the square
     root of ``sum_i wc_i D_i D_i' + extra extra'`` (the weights of points ``1..m-1`` are equal)."""
     M = jnp.sqrt(wc[1]) * D[1:].T
@@ -140,13 +140,13 @@ def _sqrt_from_deviations(D: Float[Array, "m d"], wc: Float[Array, "m"], extra: 
 
 
 def srukf_transform(
-    x: Float[Array, "n"],
+    x: Float[Array, " n"],
     L: Float[Array, "n n"],
-    f: Callable[[Float[Array, "n"], Float[Array, "q"]], Float[Array, "d"]],
+    f: Callable[[Float[Array, " n"], Float[Array, " q"]], Float[Array, " d"]],
     noise_sqrt: Float[Array, "q q"],
     rule: Unscented,
     angles: Sequence[int] = (),
-) -> tuple[Float[Array, "d"], Float[Array, "d d"]]:
+) -> tuple[Float[Array, " d"], Float[Array, "d d"]]:
     """Square-root unscented transform of ``y = f(x, w)``, ``x ~ N(x, L L')``, ``w ~ N(0, noise_sqrt noise_sqrt')``.
 
     The sigma points are those of the augmented state ``(x, w)`` (eq. 8 with the noise appended,
@@ -182,20 +182,20 @@ class SigmaMeasurement(NamedTuple):
     """
 
     dx: Float[Array, "m n"]
-    z_hat: Float[Array, "mz"]
+    z_hat: Float[Array, " mz"]
     dz: Float[Array, "m mz"]
-    wm: Float[Array, "m"]
-    wc: Float[Array, "m"]
+    wm: Float[Array, " m"]
+    wc: Float[Array, " m"]
 
-    def variance(self) -> Float[Array, "mz"]:
+    def variance(self) -> Float[Array, " mz"]:
         """Diagonal of the predicted measurement covariance without the noise, ``sum_i wc_i dz_i^2``."""
         return self.wc @ jnp.square(self.dz)
 
 
 def predict_measurement(
-    x: Float[Array, "n"],
+    x: Float[Array, " n"],
     L: Float[Array, "n n"],
-    h: Callable[[Float[Array, "n"]], Float[Array, "mz"]],
+    h: Callable[[Float[Array, " n"]], Float[Array, " mz"]],
     rule: Unscented,
     z_angles: Sequence[int] = (),
 ) -> SigmaMeasurement:
@@ -213,14 +213,14 @@ def predict_measurement(
 
 
 def measurement_update(
-    x: Float[Array, "n"],
+    x: Float[Array, " n"],
     L: Float[Array, "n n"],
     pred: SigmaMeasurement,
-    z: Float[Array, "mz"],
+    z: Float[Array, " mz"],
     noise_sqrt: Float[Array, "mz mz"],
     x_angles: Sequence[int] = (),
     z_angles: Sequence[int] = (),
-) -> tuple[Float[Array, "n"], Float[Array, "n n"], Float[Array, "mz"], Float[Array, "mz mz"]]:
+) -> tuple[Float[Array, " n"], Float[Array, "n n"], Float[Array, " mz"], Float[Array, "mz mz"]]:
     """The square-root measurement update (eq. 12).
 
     ``Sz = qr{[sqrt(wc_1) dz_1:2n, sqrt(R)]}`` then ``cholupdate{Sz, dz_0, wc_0}``;
@@ -254,13 +254,13 @@ def forgetting_weight(b: Float[ArrayLike, ""], k: Int[ArrayLike, ""]) -> Float[A
 
 
 def adaptive_noise_update(
-    variance: Float[Array, "mz"],
+    variance: Float[Array, " mz"],
     k: Int[ArrayLike, ""],
-    nu: Float[Array, "mz"],
-    predicted: Float[Array, "mz"],
+    nu: Float[Array, " mz"],
+    predicted: Float[Array, " mz"],
     b: Float[ArrayLike, ""],
-    floor: Float[Array, "mz"],
-) -> Float[Array, "mz"]:
+    floor: Float[Array, " mz"],
+) -> Float[Array, " mz"]:
     """The measurement-noise variances after the ``k``-th residual (eq. 11).
 
     Eq. 11 forms ``R** = (1 - d) R + d |nu| |nu|'`` and ``R* = R** - d sum_i wc_i dz_i dz_i'`` by
@@ -283,14 +283,14 @@ def adaptive_noise_update(
 
 
 def adaptive_noise_rows(
-    variance: Float[Array, "mz"],
+    variance: Float[Array, " mz"],
     k: Int[Array, ""],
     nu: Float[Array, "rows mz"],
     predicted: Float[Array, "rows mz"],
-    use: Bool[Array, "rows"],
+    use: Bool[Array, " rows"],
     b: Float[ArrayLike, ""],
-    floor: Float[Array, "mz"],
-) -> tuple[Float[Array, "rows mz"], Float[Array, "mz"], Int[Array, ""]]:
+    floor: Float[Array, " mz"],
+) -> tuple[Float[Array, "rows mz"], Float[Array, " mz"], Int[Array, ""]]:
     """:func:`adaptive_noise_update` over a scan's detections in order (rows not ``use``d skipped).
 
     Returns:

@@ -75,10 +75,10 @@ class Particles(NamedTuple):
 
     pose: Float[Array, "particles 3"]
     pose_cov: Float[Array, "particles 3 3"]
-    log_w: Float[Array, "particles"]
+    log_w: Float[Array, " particles"]
     landmarks: LandmarkMap
     noise: Float[Array, "particles 2"]
-    noise_count: Int[Array, "particles"]
+    noise_count: Int[Array, " particles"]
 
 
 class FilterState(NamedTuple):

@@ -75,7 +75,7 @@ class StepOutput(NamedTuple):
     overflow: Int[Array, ""]
     weight_reset: Bool[Array, ""]
     poses: Optional[Float[Array, "particles 3"]] = None
-    ancestors: Optional[Int[Array, "particles"]] = None
+    ancestors: Optional[Int[Array, " particles"]] = None
 
 
 class _ParticleOut(NamedTuple):
@@ -103,20 +103,20 @@ def particle_update(
     pose: Float[Array, "3"],
     pose_cov: Float[Array, "3 3"],
     lm: LandmarkMap,
-    dt: Float[Array, "dr"],
+    dt: Float[Array, " dr"],
     u: Float[Array, "dr 2"],
-    dr_mask: Bool[Array, "dr"],
+    dr_mask: Bool[Array, " dr"],
     z: Float[Array, "k 2"],
-    z_mask: Bool[Array, "k"],
+    z_mask: Bool[Array, " k"],
     eps: Float[Array, "3"],
     valid: Bool[Array, ""] = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
     slot_bucket: Int[Array, ""] | None = None,
-    diam: Float[Array, "k"] | None = None,
+    diam: Float[Array, " k"] | None = None,
     scan: Int[Array, ""] | int = 0,
     noise: Float[Array, "2"] | None = None,
     noise_count: Int[Array, ""] | None = None,
-    z_id: Int[Array, "k"] | None = None,
+    z_id: Int[Array, " k"] | None = None,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
@@ -286,7 +286,7 @@ def _gather_small(fields: dict, skip: str, axis_name: str) -> dict:
     return out
 
 
-def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, "n"]) -> Float[Array, "3"]:
+def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, " n"]) -> Float[Array, "3"]:
     """Weighted mean pose with a circular mean for the heading."""
     w = jnp.exp(normalise(log_w))
     return jnp.concatenate([w @ pose[:, :2], circular_mean(pose[:, 2], w)[None]])

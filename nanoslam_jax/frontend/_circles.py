@@ -21,10 +21,10 @@ class CircleFit(NamedTuple):
         rms: RMS geometric residual ``|p - c| - R``.
     """
 
-    cx: Float[np.ndarray, "G"]
-    cy: Float[np.ndarray, "G"]
-    radius: Float[np.ndarray, "G"]
-    rms: Float[np.ndarray, "G"]
+    cx: Float[np.ndarray, " G"]
+    cy: Float[np.ndarray, " G"]
+    radius: Float[np.ndarray, " G"]
+    rms: Float[np.ndarray, " G"]
 
 
 def _group_sum(values: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -33,8 +33,8 @@ def _group_sum(values: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np
     return cs[starts + counts] - cs[starts]
 
 
-def fit_circles(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], starts: Int[np.ndarray, "G"],
-                counts: Int[np.ndarray, "G"], iterations: int = 4) -> CircleFit:
+def fit_circles(x: Float[np.ndarray, " N"], y: Float[np.ndarray, " N"], starts: Int[np.ndarray, " G"],
+                counts: Int[np.ndarray, " G"], iterations: int = 4) -> CircleFit:
     """Fit one circle to each contiguous group of points.
 
     Args:
@@ -83,7 +83,7 @@ def fit_circles(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], starts: In
     return CircleFit((uc + mx) * nan, (vc + my) * nan, rad * nan, rms * nan)
 
 
-def fit_circle(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], iterations: int = 4) -> CircleFit:
+def fit_circle(x: Float[np.ndarray, " N"], y: Float[np.ndarray, " N"], iterations: int = 4) -> CircleFit:
     """One circle through the points ``x``, ``y`` (fields are 0-d arrays)."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     fit = fit_circles(x, y, np.array([0]), np.array([x.size]), iterations)

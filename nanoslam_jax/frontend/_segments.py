@@ -30,9 +30,9 @@ def _chord_distance(x, y, ax, ay, bx, by):
     return np.where(length > 0, across, np.hypot(x - ax, y - ay))
 
 
-def split_and_merge(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], cluster: Int[np.ndarray, "N"],
-                    starts: Int[np.ndarray, "C"], ends: Int[np.ndarray, "C"], split_distance: float,
-                    merge_distance: float, rounds: int = 24) -> Bool[np.ndarray, "N"]:
+def split_and_merge(x: Float[np.ndarray, " N"], y: Float[np.ndarray, " N"], cluster: Int[np.ndarray, " N"],
+                    starts: Int[np.ndarray, " C"], ends: Int[np.ndarray, " C"], split_distance: float,
+                    merge_distance: float, rounds: int = 24) -> Bool[np.ndarray, " N"]:
     """The vertices of every cluster's polyline after split-and-merge.
 
     Args:
@@ -105,7 +105,7 @@ def split_and_merge(x: Float[np.ndarray, "N"], y: Float[np.ndarray, "N"], cluste
     return vertex
 
 
-def polyline_vertices(x, y, split_distance: float, merge_distance: float, rounds: int = 24) -> Int[np.ndarray, "V"]:
+def polyline_vertices(x, y, split_distance: float, merge_distance: float, rounds: int = 24) -> Int[np.ndarray, " V"]:
     """The vertex indices of one polyline (all points one cluster) after split-and-merge."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     v = split_and_merge(x, y, np.zeros(x.size, dtype=np.int64), np.array([0]), np.array([x.size - 1]),
@@ -116,12 +116,12 @@ def polyline_vertices(x, y, split_distance: float, merge_distance: float, rounds
 class Segments(NamedTuple):
     """Segments between consecutive vertices of one cluster (inclusive point ranges)."""
 
-    start: Int[np.ndarray, "G"]
-    end: Int[np.ndarray, "G"]
-    cluster: Int[np.ndarray, "G"]
+    start: Int[np.ndarray, " G"]
+    end: Int[np.ndarray, " G"]
+    cluster: Int[np.ndarray, " G"]
 
 
-def segments_of(vertex: Bool[np.ndarray, "N"], cluster: Int[np.ndarray, "N"]) -> Segments:
+def segments_of(vertex: Bool[np.ndarray, " N"], cluster: Int[np.ndarray, " N"]) -> Segments:
     """The segments a vertex mask cuts the clusters into."""
     vi = np.flatnonzero(vertex)
     same = cluster[vi[1:]] == cluster[vi[:-1]]
@@ -168,7 +168,7 @@ def _project(x, y, alpha, rho):
 
 
 def extract_lines(points: Points, clusters: Clusters, cfg: DetectorConfig
-                  ) -> tuple[Lines, Corners, BreakPoints, Bool[np.ndarray, "C"]]:
+                  ) -> tuple[Lines, Corners, BreakPoints, Bool[np.ndarray, " C"]]:
     """Line segments, corners and break points of all clusters.
 
     Args:

@@ -24,11 +24,11 @@ class Points(NamedTuple):
         y: leftward coordinate (m).
     """
 
-    scan: Int[np.ndarray, "N"]
-    beam: Int[np.ndarray, "N"]
-    r: Float[np.ndarray, "N"]
-    x: Float[np.ndarray, "N"]
-    y: Float[np.ndarray, "N"]
+    scan: Int[np.ndarray, " N"]
+    beam: Int[np.ndarray, " N"]
+    r: Float[np.ndarray, " N"]
+    x: Float[np.ndarray, " N"]
+    y: Float[np.ndarray, " N"]
 
 
 class Clusters(NamedTuple):
@@ -44,16 +44,16 @@ class Clusters(NamedTuple):
         right: ... and beyond the last beam.
     """
 
-    scan: Int[np.ndarray, "C"]
-    start: Int[np.ndarray, "C"]
-    end: Int[np.ndarray, "C"]
-    first_beam: Int[np.ndarray, "C"]
-    last_beam: Int[np.ndarray, "C"]
-    left: Int[np.ndarray, "C"]
-    right: Int[np.ndarray, "C"]
+    scan: Int[np.ndarray, " C"]
+    start: Int[np.ndarray, " C"]
+    end: Int[np.ndarray, " C"]
+    first_beam: Int[np.ndarray, " C"]
+    last_beam: Int[np.ndarray, " C"]
+    left: Int[np.ndarray, " C"]
+    right: Int[np.ndarray, " C"]
 
     @property
-    def n(self) -> Int[np.ndarray, "C"]:
+    def n(self) -> Int[np.ndarray, " C"]:
         """Returns per cluster."""
         return self.end - self.start + 1
 
@@ -73,18 +73,18 @@ class Lines(NamedTuple):
         n: its returns.
     """
 
-    scan: Int[np.ndarray, "L"]
-    first_beam: Int[np.ndarray, "L"]
-    last_beam: Int[np.ndarray, "L"]
-    x0: Float[np.ndarray, "L"]
-    y0: Float[np.ndarray, "L"]
-    x1: Float[np.ndarray, "L"]
-    y1: Float[np.ndarray, "L"]
-    alpha: Float[np.ndarray, "L"]
-    rho: Float[np.ndarray, "L"]
-    length: Float[np.ndarray, "L"]
-    rms: Float[np.ndarray, "L"]
-    n: Int[np.ndarray, "L"]
+    scan: Int[np.ndarray, " L"]
+    first_beam: Int[np.ndarray, " L"]
+    last_beam: Int[np.ndarray, " L"]
+    x0: Float[np.ndarray, " L"]
+    y0: Float[np.ndarray, " L"]
+    x1: Float[np.ndarray, " L"]
+    y1: Float[np.ndarray, " L"]
+    alpha: Float[np.ndarray, " L"]
+    rho: Float[np.ndarray, " L"]
+    length: Float[np.ndarray, " L"]
+    rms: Float[np.ndarray, " L"]
+    n: Int[np.ndarray, " L"]
 
 
 class Circles(NamedTuple):
@@ -99,14 +99,14 @@ class Circles(NamedTuple):
         n: returns fitted.
     """
 
-    scan: Int[np.ndarray, "K"]
-    first_beam: Int[np.ndarray, "K"]
-    last_beam: Int[np.ndarray, "K"]
-    cx: Float[np.ndarray, "K"]
-    cy: Float[np.ndarray, "K"]
-    radius: Float[np.ndarray, "K"]
-    rms: Float[np.ndarray, "K"]
-    n: Int[np.ndarray, "K"]
+    scan: Int[np.ndarray, " K"]
+    first_beam: Int[np.ndarray, " K"]
+    last_beam: Int[np.ndarray, " K"]
+    cx: Float[np.ndarray, " K"]
+    cy: Float[np.ndarray, " K"]
+    radius: Float[np.ndarray, " K"]
+    rms: Float[np.ndarray, " K"]
+    n: Int[np.ndarray, " K"]
 
 
 class Corners(NamedTuple):
@@ -119,11 +119,11 @@ class Corners(NamedTuple):
         angle: angle between the lines' directions (rad, in (0, pi/2]).
     """
 
-    scan: Int[np.ndarray, "Q"]
-    beam: Int[np.ndarray, "Q"]
-    x: Float[np.ndarray, "Q"]
-    y: Float[np.ndarray, "Q"]
-    angle: Float[np.ndarray, "Q"]
+    scan: Int[np.ndarray, " Q"]
+    beam: Int[np.ndarray, " Q"]
+    x: Float[np.ndarray, " Q"]
+    y: Float[np.ndarray, " Q"]
+    angle: Float[np.ndarray, " Q"]
 
 
 class BreakPoints(NamedTuple):
@@ -138,11 +138,11 @@ class BreakPoints(NamedTuple):
             the scan ends.
     """
 
-    scan: Int[np.ndarray, "P"]
-    beam: Int[np.ndarray, "P"]
-    x: Float[np.ndarray, "P"]
-    y: Float[np.ndarray, "P"]
-    beyond: Int[np.ndarray, "P"]
+    scan: Int[np.ndarray, " P"]
+    beam: Int[np.ndarray, " P"]
+    x: Float[np.ndarray, " P"]
+    y: Float[np.ndarray, " P"]
+    beyond: Int[np.ndarray, " P"]
 
 
 class Trees(NamedTuple):
@@ -159,14 +159,14 @@ class Trees(NamedTuple):
             returns or more, convex, smooth, not flat), 0 when only the angular width vouched for it.
     """
 
-    scan: Int[np.ndarray, "M"]
-    time: Float[np.ndarray, "M"]
-    range: Float[np.ndarray, "M"]
-    bearing: Float[np.ndarray, "M"]
-    diameter: Float[np.ndarray, "M"]
-    first_beam: Int[np.ndarray, "M"]
-    last_beam: Int[np.ndarray, "M"]
-    fitted: Int[np.ndarray, "M"]
+    scan: Int[np.ndarray, " M"]
+    time: Float[np.ndarray, " M"]
+    range: Float[np.ndarray, " M"]
+    bearing: Float[np.ndarray, " M"]
+    diameter: Float[np.ndarray, " M"]
+    first_beam: Int[np.ndarray, " M"]
+    last_beam: Int[np.ndarray, " M"]
+    fitted: Int[np.ndarray, " M"]
 
 
 class Features(NamedTuple):
@@ -183,7 +183,7 @@ class Features(NamedTuple):
         trees: tree detections.
     """
 
-    time: Float[np.ndarray, "S"]
+    time: Float[np.ndarray, " S"]
     points: Points
     clusters: Clusters
     lines: Lines

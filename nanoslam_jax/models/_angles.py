@@ -25,7 +25,7 @@ def wrap_angle_np(a: Float[ArrayLike, "*shape"]) -> Float[np.ndarray, "*shape"]:
     return np.where(w <= -np.pi, w + 2.0 * np.pi, w)
 
 
-def circular_mean(angles: Float[ArrayLike, "n"], weights: Float[ArrayLike, "n"]) -> Float[Array, ""]:
+def circular_mean(angles: Float[ArrayLike, " n"], weights: Float[ArrayLike, " n"]) -> Float[Array, ""]:
     """Weighted circular mean of angles (weights need not be normalised)."""
     angles, weights = jnp.asarray(angles), jnp.asarray(weights)
     return jnp.arctan2(jnp.sum(weights * jnp.sin(angles)), jnp.sum(weights * jnp.cos(angles)))

@@ -27,7 +27,7 @@ class Detections(NamedTuple):
     z: Float[Array, "k 2"]
     mean: Float[Array, "k 2"]
     cov: Float[Array, "k 2 2"]
-    mask: Bool[Array, "k"]
+    mask: Bool[Array, " k"]
 
 
 class ProposalResult(NamedTuple):

@@ -14,7 +14,7 @@ from ._natural_gradient import Gaussian
 
 
 def linearized_gaussian(
-    prior: Gaussian, residual, weights: Float[Array, "k d d"], mask: Bool[Array, "k"], project=wrap_pose,
+    prior: Gaussian, residual, weights: Float[Array, "k d d"], mask: Bool[Array, " k"], project=wrap_pose,
 ) -> Gaussian:
     """One EKF (Gauss-Newton) update of the prior with residuals linearised at the prior mean.
 

@@ -31,7 +31,7 @@ from ..quadrature import QuadratureRule
 class Gaussian(NamedTuple):
     """``N(mean, inv(precision))`` with its covariance kept alongside."""
 
-    mean: Float[Array, "n"]
+    mean: Float[Array, " n"]
     precision: Float[Array, "n n"]
     cov: Float[Array, "n n"]
 
@@ -63,9 +63,9 @@ def expected_grad_hess(
     q: Gaussian,
     residual: Callable[[Array], Array],
     weights: Float[Array, "k d d"],
-    mask: Bool[Array, "k"],
+    mask: Bool[Array, " k"],
     hessian: str = "gauss_newton",
-) -> tuple[Float[Array, "n"], Float[Array, "n n"]]:
+) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """``E_q[grad l]`` and ``E_q[Hess l]`` by quadrature.
 
     Args:
@@ -177,7 +177,7 @@ def natural_gradient_gaussian(
     prior: Gaussian,
     residual: Callable[[Array], Array],
     weights: Float[Array, "k d d"],
-    mask: Bool[Array, "k"],
+    mask: Bool[Array, " k"],
     rule: QuadratureRule,
     *,
     gamma: Float[Array, ""] | float = 1e-4,

@@ -113,7 +113,7 @@ def unscented_sequential_update(
     z: Float[Array, "k 2"],
     m_mean: Float[Array, "k 2"],
     m_cov: Float[Array, "k 2 2"],
-    mask: Bool[Array, "k"],
+    mask: Bool[Array, " k"],
     R: Float[Array, "2 2"],
     alpha: Float[ArrayLike, ""],
     beta: Float[ArrayLike, ""],
