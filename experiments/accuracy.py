@@ -6,7 +6,7 @@
     python experiments/accuracy.py configs/victoria_park_best.yaml --seeds 32 --first-seed 100 --without-fix 1223.3
 
 Reports, per seed and summarised (median, interquartile range, min, max): ``rmse_fixed``,
-``rmse_aligned`` and their ``*_clean`` variants (victoria_park.md section 5), and the landmarks
+``rmse_aligned`` and their ``*_clean`` variants (docs/method/victoria-park.md, "Scoring against GPS"), and the landmarks
 (all, and confirmed) in the best particle's map. With ``filter.estimate: path`` also the filter's
 own estimate of the same runs (``rmse_*_best``), a paired comparison of the two. With
 ``--without-fix T`` (repeatable) also the two RMSEs with the GPS fix nearest each time T left out

@@ -1,7 +1,7 @@
 """A Victoria Park-like simulated log with ground truth (``data.kind = simulated``).
 
 The simulator builds a :class:`~nanoslam_jax.data._types.RawLog` in exactly the conventions of
-the real log (victoria_park.md sections 1-4), so every part of the pipeline can be run and
+the real log (docs/method/victoria-park.md), so every part of the pipeline can be run and
 checked against a known truth:
 
 * **Trees.** ``sim.n_trees`` trees are scattered uniformly over a square park of side
@@ -30,7 +30,7 @@ checked against a known truth:
 * **Time.** DR samples at ``k / sim.dr_rate`` for ``k = 0 .. floor(duration * dr_rate)`` (first
   at t = 0). Scans at about ``sim.scan_rate`` Hz (random phase, +-5 % jitter), nudged so that no
   scan coincides with a DR sample. The pose at a scan time integrates the remaining fraction of
-  the DR interval, as in victoria_park.md section 3.
+  the DR interval, as in docs/method/victoria-park.md, "Time and segments".
 * **Detections.** For every tree the true ``(r, beta)`` from the laser pose at the scan time is
   perturbed by ``N(0, sigma_r)``, ``N(0, sigma_beta)``; the tree is detected with probability
   ``sim.p_detect`` and reported when the *measured* range is in ``(0, max_range)`` and the

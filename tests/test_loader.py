@@ -44,7 +44,7 @@ def real(vp_dir):
 
 
 def test_real_log_counts(real):
-    """Counts of victoria_park.md section 3 and the data README."""
+    """Counts of the real log as its data README gives them."""
     assert real.dr.shape == (61945, 3)
     assert real.dr[0, 0] == pytest.approx(0.973)
     assert real.dr[-1, 0] == pytest.approx(1549.573)

@@ -39,7 +39,7 @@ def landmark_at(x, r, beta):
 
 
 def vehicle_jacobians_by_hand(x, u, dt, p):
-    """d f / d x (3x3) and d f / d u (3x2) of vehicle_step, derived from victoria_park.md section 1.
+    """d f / d x (3x3) and d f / d u (3x2) of vehicle_step, derived from the vehicle model (docs/method/victoria-park.md).
 
     With D = 1 - tan(alpha) H / L, vc = ve / D, w = vc tan(alpha) / L:
       dvc/dve = 1/D,            dvc/dalpha = ve H sec^2(alpha) / (L D^2)

@@ -143,7 +143,7 @@ def real(vp_dir):
 
 
 def test_real_log_published_counts(real):
-    """victoria_park.md section 2: with r < 30 m, 37,398 detections in 7,174 scans, at most 14."""
+    """The real log with r < 30 m, 37,398 detections in 7,174 scans, at most 14."""
     seg = make_segments(real, max_range=30.0)
     summary = segment_summary(seg)
     assert summary["n_detections"] == 37398

@@ -1,4 +1,4 @@
-"""The particle weight of one scan against hand-computed closed forms (algorithms.md 1.5).
+"""The particle weight of one scan against hand-computed closed forms (docs/method/filter.md).
 
 One particle, one scan, two detections of mapped landmarks and one of a new landmark. The
 expected log-weight increment is computed here with numpy and hand-written Jacobians:

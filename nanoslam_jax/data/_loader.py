@@ -1,4 +1,4 @@
-"""Reading and writing Victoria Park-format logs (victoria_park.md sections 2-3).
+"""Reading and writing Victoria Park-format logs (docs/data.md; conventions in docs/method/victoria-park.md).
 
 A log directory holds the ASCII files ``inputs.dat`` (``time speed steering``),
 ``measurements.dat`` (``time range bearing diameter``, bearing in ``[0, pi]`` with ``pi/2``

@@ -1,4 +1,4 @@
-"""Cutting a log into fixed-shape segments, one per laser scan (victoria_park.md section 3).
+"""Cutting a log into fixed-shape segments, one per laser scan (docs/method/victoria-park.md, "Time and segments").
 
 The SLAM frame starts at the first DR sample time ``t0`` with pose ``(0, 0, 0)``. DR sample
 ``i`` holds its controls over ``[t_i, t_{i+1})`` (the last one until the end of the log). The

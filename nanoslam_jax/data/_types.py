@@ -46,7 +46,7 @@ class RawLog:
 
 
 class Segments(NamedTuple):
-    """One segment per laser scan, padded to fixed shapes (victoria_park.md section 3).
+    """One segment per laser scan, padded to fixed shapes (docs/method/victoria-park.md, "Time and segments").
 
     Segment ``t`` moves the pose from the previous segment's time to ``time[t]`` through the
     held DR samples (``dt`` = the part of each sample's interval inside the segment; padding

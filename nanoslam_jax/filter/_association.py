@@ -1,4 +1,4 @@
-"""Data association of a scan's detections with a particle's local map (algorithms.md 1.2)."""
+"""Data association of a scan's detections with a particle's local map (docs/method/filter.md)."""
 
 from __future__ import annotations
 

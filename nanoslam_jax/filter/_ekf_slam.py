@@ -1,4 +1,4 @@
-"""EKF-SLAM: one joint Gaussian over the pose and all landmarks (algorithms.md section 3).
+"""EKF-SLAM: one joint Gaussian over the pose and all landmarks (docs/method/ekf-slam.md).
 
 The state is a fixed-capacity joint Gaussian ``N(mean, cov)`` over
 ``(px, py, phi, m_0x, m_0y, ..., m_{C-1}x, m_{C-1}y)``, ``n = 3 + 2 C``, with an ``active`` mask

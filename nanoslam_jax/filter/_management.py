@@ -1,5 +1,5 @@
 """Landmark management: tentative and confirmed landmarks, existence by negative evidence, tree
-diameters (the ``map`` config section; algorithms.md section 1, "Landmarks").
+diameters (the ``map`` config section; docs/method/landmarks.md).
 
 Each landmark carries an existence log-odds ``l``. The sensor model is the binary one of
 occupancy mapping: a landmark inside the sensor's footprint is detected with probability

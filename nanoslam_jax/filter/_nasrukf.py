@@ -1,4 +1,4 @@
-"""NASRUKF FastSLAM (papers/nasrukf_fastslam_paper.txt, sections 3-4; algorithms.md section 3).
+"""NASRUKF FastSLAM (docs/method/nasrukf.md).
 
 The paper replaces the particle filter over the pose and the per-particle landmark EKFs by ``N``
 joint states, one per map feature, each holding the vehicle pose and that feature and each

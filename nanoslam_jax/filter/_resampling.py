@@ -1,4 +1,4 @@
-"""Resampling schemes over normalised log-weights (algorithms.md 1.6).
+"""Resampling schemes over normalised log-weights (docs/method/filter.md).
 
 Each returns ``N`` ancestor indices. All are unbiased: the expected number of copies of
 particle ``i`` is ``N w_i``.

@@ -1,6 +1,6 @@
 """Square-root unscented Kalman filter primitives and the adaptive measurement-noise estimator.
 
-These are the building blocks of NASRUKF FastSLAM (papers/nasrukf_fastslam_paper.txt, eq. 8-13):
+These are the building blocks of NASRUKF FastSLAM (docs/method/nasrukf.md; the NASRUKF paper's eq. 8-13):
 
 - :func:`chol_rank_one` / :func:`chol_rank_update`: the ``cholupdate`` of eq. 9, 11 and 12, a
   rank-one update (``L L' + w v v'``, ``w > 0``) or downdate (``w < 0``) of a lower Cholesky factor

@@ -1,4 +1,4 @@
-"""The range-bearing measurement model and its inverse (victoria_park.md section 2).
+"""The range-bearing measurement model and its inverse (docs/method/victoria-park.md, "Measurement model").
 
 Bearings are relative to the vehicle's forward axis and wrapped to (-pi, pi]. Jacobians come
 from autodiff (:func:`range_bearing_jacobians`); the filter never uses hand-written formulas.

@@ -1,4 +1,4 @@
-"""The Victoria Park vehicle model (victoria_park.md section 1).
+"""The Victoria Park vehicle model (docs/method/victoria-park.md, "Vehicle model").
 
 The state is the pose of the **laser**, ``x = (px, py, phi)``; the controls are the rear-left
 encoder speed and the steering angle, ``u = (ve, alpha)``. Process noise enters on the controls,

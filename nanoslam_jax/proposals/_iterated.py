@@ -84,7 +84,7 @@ def gauss_newton_map(prior: Gaussian, residual, weights, mask, *, max_iter: int 
 
 
 class IteratedProposal(AbstractProposal):
-    """Iterated proposal (algorithms.md section 3): ``N(x_map, (J'J)^-1)`` at the MAP of prior x likelihood.
+    """Iterated proposal (docs/method/proposals.md, "Iterated proposal"): ``N(x_map, (J'J)^-1)`` at the MAP of prior x likelihood.
 
     With one Gauss-Newton step from the prior mean this is FastSLAM 2.0's proposal; iterated to
     convergence it is an IEKF-like proposal, between FastSLAM 2.0 and NANO.

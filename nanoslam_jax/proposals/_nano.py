@@ -22,7 +22,7 @@ from ._natural_gradient import Gaussian, natural_gradient_gaussian
 
 
 class NanoProposal(AbstractProposal):
-    """NANO-SLAM's proposal (algorithms.md section 2).
+    """NANO-SLAM's proposal (docs/method/proposals.md, "NANO").
 
     Attributes:
         rule: quadrature rule for the expectations (cubature by default).

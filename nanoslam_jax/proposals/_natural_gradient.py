@@ -1,4 +1,4 @@
-"""Natural-gradient Gaussian approximation (algorithms.md section 2), model-agnostic.
+"""Natural-gradient Gaussian approximation (docs/method/proposals.md, "NANO"), model-agnostic.
 
 Minimises ``J(q) = KL(q || N(x0, P0)) + E_q[l]`` over Gaussians ``q = N(x, P)`` with
 ``l(x) = 1/2 sum_k r_k(x)' W_k r_k(x)``, by the iteration
