@@ -1,9 +1,10 @@
 """Shared test fixtures, the shape checks of the test session and the markers set by fixture.
 
-With ``NANOSLAM_TYPECHECK=1`` every function and pytree class of the modules in ``TYPECHECKED``
-is imported through jaxtyping's import hook with beartype: a call whose arguments or result do
-not match the jaxtyping annotations (dtype, shape, shape names shared between arguments) fails
-the test with a ``jaxtyping.TypeCheckError``.
+Every function and pytree class of the modules in ``TYPECHECKED`` (the models and quadrature
+rules of the public API) is imported through jaxtyping's import hook with beartype: a call whose
+arguments or result do not match the jaxtyping annotations (dtype, shape, shape names shared
+between arguments) fails the test with a ``jaxtyping.TypeCheckError``. ``NANOSLAM_TYPECHECK=0``
+imports them unchecked.
 """
 
 import os
@@ -13,7 +14,7 @@ import pytest
 
 TYPECHECKED = ("nanoslam_jax.models", "nanoslam_jax.quadrature")
 
-if os.environ.get("NANOSLAM_TYPECHECK", "0") == "1":
+if os.environ.get("NANOSLAM_TYPECHECK", "1") != "0":
     import warnings
 
     from beartype.roar import BeartypeDecorHintPep585DeprecationWarning

@@ -82,7 +82,7 @@ def test_tests_that_read_a_real_dataset_are_marked_data(request):
 def test_shapes_of_the_public_models_are_checked():
     """Under jaxtyping with beartype, the public measurement model takes a pose of 3 components
     and a landmark of 2 (``Float[ArrayLike, "3"]``, ``Float[ArrayLike, "2"]``) and refuses others
-    before any computation; the same check the whole session gets with ``NANOSLAM_TYPECHECK=1``."""
+    before any computation; the same check the whole session's import hook applies (tests/conftest.py)."""
     from beartype import beartype
 
     from nanoslam_jax.models import range_bearing, range_bearing_jacobians
