@@ -56,6 +56,7 @@ def runs(tmp_path_factory):
                 files=(files_after_first, files_after_second, _files(cache)))
 
 
+@pytest.mark.slow
 def test_first_run_compiles_and_writes_the_cache(runs):
     c = runs["first"]["compilation"]
     assert c["cache_dir"] == str(runs["cache"])
@@ -65,6 +66,7 @@ def test_first_run_compiles_and_writes_the_cache(runs):
     assert [f for f in files if f.parts[0] != "exported"], "no executable was kept"
 
 
+@pytest.mark.slow
 def test_second_run_in_a_fresh_process_loads_from_the_cache(runs):
     first, second = runs["first"]["compilation"], runs["second"]["compilation"]
     assert second["cache_hits"] >= 1
@@ -76,6 +78,7 @@ def test_second_run_in_a_fresh_process_loads_from_the_cache(runs):
     assert second["trace_s"] < 0.25 * first["trace_s"]
 
 
+@pytest.mark.slow
 def test_cached_run_gives_identical_outputs(runs):
     root = runs["root"]
     for name in ("trajectory.csv", "map.csv"):
@@ -106,6 +109,7 @@ def test_a_run_never_executes_a_pickle_planted_in_the_cache(runs, tmp_path):
         assert entry.read_bytes().startswith(_cache._MAGIC)
 
 
+@pytest.mark.slow
 def test_no_cache_bypasses_the_cache(runs):
     c = runs["bypass"]["compilation"]
     assert c["cache_dir"] is None

@@ -227,6 +227,7 @@ def test_dead_reckoning_on_a_simulated_directory(sim_dir, tmp_path, capsys):
     assert not (out / "map.csv").exists()
 
 
+@pytest.mark.slow
 def test_default_out_dir_is_named_after_the_config(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     cfg_path = tmp_path / "quick_dr.yaml"

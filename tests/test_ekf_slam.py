@@ -89,6 +89,7 @@ def test_update_one_landmark_equals_hand_kalman_update(bearing_offset):
     assert np.array_equal(np.asarray(cov), np.asarray(cov).T)  # exactly symmetric
 
 
+@pytest.mark.slow
 def test_update_touches_only_the_active_part():
     """Capacity 3, landmark in slot 0 only (size = 5): inactive slots stay exactly as they were,
     the active 5x5 part equals the hand update; apply=False changes nothing."""
@@ -166,6 +167,7 @@ def test_augment_equals_closed_form_with_hand_jacobians():
     np.testing.assert_array_equal(np.asarray(cov2), P)
 
 
+@pytest.mark.slow
 def test_prediction_equals_dense_joint_linearisation():
     """Per DR piece, the dense joint prediction P <- A P A' + B Q B' with A, B the Jacobians of
     the joint motion (pose moves, landmarks stay) w.r.t. the joint state and the controls; masked
@@ -273,6 +275,7 @@ def test_capacity_does_not_change_results(sim, sim_run):
     np.testing.assert_allclose(np.asarray(sa.cov), np.asarray(sb.cov)[:3 + 2 * small, :3 + 2 * small], rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_padding_segments_are_noops(sim, sim_run):
     """Padding (valid False), whether zero segments or real ones, leaves the state bit for bit."""
     log, static, params = sim
@@ -280,6 +283,7 @@ def test_padding_segments_are_noops(sim, sim_run):
     assert_padding_is_noop(static, params, sim_run.state, log.segments, CHUNK, sim_run.state.mean[:3])
 
 
+@pytest.mark.slow
 def test_step_output_matches_particle_filter_dtypes(sim, sim_run):
     """The per-segment record has the particle filter's fields and dtypes (same driver code)."""
     o = sim_run.outputs

@@ -276,6 +276,7 @@ def test_victoria_park_paper_setting(vp_dir):
     assert np.median(fixed) < 8.74 and np.median(aligned) < 6.0, (fixed, aligned)
 
 
+@pytest.mark.slow
 def test_padding_segments_are_exact_no_ops():
     """The chunked driver pads the last chunk: results must not depend on the chunk size."""
     from nanoslam_jax.config import load_config
@@ -314,6 +315,7 @@ def test_scan_prefix_is_the_scan_of_the_prefix():
             assert not np.any(np.asarray(ys[k])[n:])
 
 
+@pytest.mark.slow
 def test_map_history_holds_the_best_particles_map_after_each_chunk():
     """``FilterRun.history``: after each chunk the best particle's confirmed landmarks, which are
     those of a run stopped there; the last entry is the final map, in a batch run too."""
@@ -339,6 +341,7 @@ def test_map_history_holds_the_best_particles_map_after_each_chunk():
         np.testing.assert_array_equal(batch.history.mean[-1, i][batch.history.held[-1, i]], final_map(batch.state, i))
 
 
+@pytest.mark.slow
 def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     """The per-row work over the scan's bucket of rows (the proposal, the sampled pose, the
     weight's likelihoods, the landmarks' starts and EKF updates) equals the same work over all
@@ -391,6 +394,7 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
 
 
 @pytest.mark.parametrize("buckets, management", [((), "off"), ((2,), "off"), ((), "on"), ((), "use_tentative")])
+@pytest.mark.slow
 def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets, management):
     """Two detections of one unmapped landmark in one scan: the first creates it at the sampled
     pose (eq. 16), the second matches that provisional landmark and updates it (EKF) at the same
@@ -509,6 +513,7 @@ def test_particle_devices_takes_the_most_devices_that_divide_the_particles():
     assert particle_devices("always", 1000, 4, split_ok=False) == 1
 
 
+@pytest.mark.slow
 def test_least_squares_methods_are_not_split_over_devices():
     """optimistix's least squares cannot run under shard_map (lineax issue #185; reproduced in
     tests/test_sweep.py), so a run of the iterated proposal or of NANO-SLAM initialised at the

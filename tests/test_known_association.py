@@ -25,6 +25,7 @@ def test_segments_carry_the_detection_ids():
 
 
 @pytest.mark.parametrize("method", ["nano", "fastslam1", "ekf_slam", "nasrukf"])
+@pytest.mark.slow
 def test_known_association_maps_each_seen_tree_once(method):
     """One landmark per tree the log saw, none from clutter (which carries no id), each near its tree."""
     cfg = load_config(None, SETTINGS + [f"filter.method={method}", "map.manage=false"])
@@ -38,6 +39,7 @@ def test_known_association_maps_each_seen_tree_once(method):
     assert np.median(d.min(axis=1)) < 1.0, np.median(d.min(axis=1))
 
 
+@pytest.mark.slow
 def test_known_and_nearest_differ_only_by_the_rule():
     """Without clutter and with trees far apart, the ids pick what nearest neighbour picks."""
     base = ["sim.duration=30", "sim.clutter_rate=0", "sim.n_trees=60", "filter.n_particles=4", "map.manage=false",

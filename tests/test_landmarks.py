@@ -67,6 +67,7 @@ EKF_CASES = [
 
 
 @pytest.mark.parametrize("case", range(len(EKF_CASES)))
+@pytest.mark.slow
 def test_ekf_update_matches_hand_update(case):
     x, m, S0, z = EKF_CASES[case]
     G = Gm_hand(x, m)
@@ -179,6 +180,7 @@ def assoc_fn():
 
 
 @pytest.mark.parametrize("sequential", [True, False])
+@pytest.mark.slow
 def test_associate_match_new_drop(assoc_fn, sequential):
     z = np.stack([
         detection_at_d2(0, 1.0, [1.0, 0.3]),  # existing landmark 0 (d2 = 1 < gate)
@@ -253,6 +255,7 @@ def test_associate_many_random_scans_claim_once(assoc_fn):
 
 
 @pytest.mark.parametrize("sequential", [True, False])
+@pytest.mark.slow
 def test_association_over_the_window_prefix_equals_the_whole_window(sequential):
     """``associate_window_prefix`` (the association over the 16, 32 or 64 leading window slots that
     hold the particle's landmarks, one branch for a vmapped batch) gives every detection what the
@@ -328,6 +331,7 @@ scatter = jax.jit(scatter_window)
 
 
 @pytest.mark.parametrize("n_active,radius", [(0, 1000.0), (2, 1000.0), (7, 1000.0), (CAP, 45.0)])
+@pytest.mark.slow
 def test_gather_within_radius_and_round_trip(n_active, radius):
     lm = full_map(n_active)
     pos = jnp.asarray([5.0, -3.0])
@@ -479,6 +483,7 @@ def test_scatter_overflow_is_counted(n_active, n_new, expect_overflow):
 
 
 @pytest.mark.parametrize("n_active,n_new", [(0, 2), (4, 3), (CAP - 2, 3), (CAP, 1)])
+@pytest.mark.slow
 def test_contiguous_placement_equals_free_slot_search_on_prefix_maps(n_active, n_new):
     """Without landmark management the active slots are a prefix: placing new landmarks after them must give
     exactly what the general free-slot search gives (including the overflow count)."""
@@ -494,6 +499,7 @@ def test_contiguous_placement_equals_free_slot_search_on_prefix_maps(n_active, n
 
 
 @pytest.mark.parametrize("n", [1, 31, 32, 77, 512])
+@pytest.mark.slow
 def test_first_true_and_prefix_count_equal_numpy(n):
     rng = np.random.default_rng(n)
     for p in (0.0, 0.05, 0.5, 1.0):
@@ -508,6 +514,7 @@ def test_first_true_and_prefix_count_equal_numpy(n):
             assert int(count) == mask.sum()
 
 
+@pytest.mark.slow
 def test_free_slots_over_a_prefix_equal_numpy():
     """The first k free slots searched over a prefix holding every active landmark plus k are
     those of the whole map (numpy), with ``capacity`` where the map has fewer."""

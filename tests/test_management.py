@@ -72,6 +72,7 @@ def detections(*rows):
     return z, m
 
 
+@pytest.mark.slow
 def test_existence_log_odds_follow_the_hand_computation():
     """A tree 10 m ahead, detected in scans 0-4 and then missed: its log-odds, confirmation and
     removal follow Bayes' rule computed by hand from p_detect, p_false and the thresholds."""
@@ -98,6 +99,7 @@ def test_existence_log_odds_follow_the_hand_computation():
     np.testing.assert_allclose(maps[0].mean[0], [10.0, 0.0], atol=1e-3)
 
 
+@pytest.mark.slow
 def test_a_tree_seen_once_is_dropped_after_the_tentative_period_and_its_slot_reused():
     """Seen once at 86 deg (outside the view shrunk by the 5 deg margin, so no miss is ever
     counted): it stays tentative for ``tentative_scans`` = 5 scans, is dropped at the sixth, and
@@ -115,6 +117,7 @@ def test_a_tree_seen_once_is_dropped_after_the_tentative_period_and_its_slot_reu
     assert maps[7].born[0] == 7
 
 
+@pytest.mark.slow
 def test_a_confirmed_landmark_out_of_view_is_kept():
     """Confirmed (three detections), then out of view for longer than the tentative period: kept."""
     cfg, static, params = settings()
@@ -123,6 +126,7 @@ def test_a_confirmed_landmark_out_of_view_is_kept():
     assert maps[-1].active[0] and maps[-1].confirmed[0] and maps[-1].misses[0] == 0
 
 
+@pytest.mark.slow
 def test_clutter_only_log_confirms_no_landmark():
     """A simulated log whose every detection is clutter (p_detect 0, 2 false detections per scan):
     landmarks are started (tentative) but none is ever confirmed, with the default settings."""
@@ -137,6 +141,7 @@ def test_clutter_only_log_confirms_no_landmark():
     assert not bool(jnp.any(lm.active & lm.confirmed))
 
 
+@pytest.mark.slow
 def test_occlusion_on_a_hand_built_scene():
     """Pose at the origin, heading +x, no detection of the local landmarks this scan:
     A (10 m, 0 deg, confirmed, 0.3 m diameter) hides B (20 m, 0.57 deg) behind it; C (20 m, 14 deg)
@@ -168,6 +173,7 @@ def test_occlusion_on_a_hand_built_scene():
     np.testing.assert_array_equal(hidden, [True, False, True])
 
 
+@pytest.mark.slow
 def test_management_over_the_window_prefix_equals_the_whole_window():
     """``manage_window_prefix`` (management over the 16, 32 or 64 leading window slots that hold
     the particle's landmarks, one branch for a vmapped batch) gives every landmark what
@@ -221,6 +227,7 @@ def test_management_over_the_window_prefix_equals_the_whole_window():
     np.testing.assert_array_equal(np.asarray(out.misses)[4:], 0)
 
 
+@pytest.mark.slow
 def test_diameter_term_separates_two_trees_at_the_same_range_and_bearing():
     """Two landmarks at the same place, diameters 0.2 and 0.5 m: a detection of diameter 0.5 m
     matches the second only with the diameter term (without it, the tie goes to the first slot)."""
@@ -238,6 +245,7 @@ def test_diameter_term_separates_two_trees_at_the_same_range_and_bearing():
     np.testing.assert_allclose(float(a.d2[0]), 0.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_diameter_estimates_converge_to_the_true_diameters():
     """On a simulated log (per-detection diameter noise 0.02 m), the confirmed landmarks matched to
     a true tree carry its diameter to well below the noise of one detection. The controls are exact
@@ -262,6 +270,7 @@ def test_diameter_estimates_converge_to_the_true_diameters():
     np.testing.assert_allclose(lm.diam_var[sel][near], cfg.map.sigma_diameter ** 2 / hits, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_capacity_is_never_exceeded_silently():
     """A map too small for the log: new landmarks that find no slot are counted, never lost
     silently, and no map holds more than its capacity."""
@@ -273,6 +282,7 @@ def test_capacity_is_never_exceeded_silently():
     assert int(np.max(np.sum(run.state.particles.landmarks.active, axis=1))) == 6
 
 
+@pytest.mark.slow
 def test_management_settings_are_traced():
     """Every management value is a traced hyperparameter: configurations differing only in them
     share the static settings (one compiled program) and give different runs."""
@@ -304,6 +314,7 @@ def test_observable_trees_are_those_in_view_long_enough():
 
 
 @pytest.mark.parametrize("method", ["ekf_slam"])
+@pytest.mark.slow
 def test_ekf_slam_clutter_only_confirms_nothing_and_removal_marginalises(method):
     """EKF-SLAM with management: a clutter-only log confirms no landmark, and every removed slot
     is an exact inactive slot of the joint Gaussian (mean 0, identity block, zero cross-covariance:

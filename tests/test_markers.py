@@ -32,7 +32,7 @@ SLOW = (
 # unit tests: always in the fast tier
 FAST = (
     "tests/test_cli.py::test_missing_or_unknown_command_is_a_usage_error",
-    "tests/test_filter.py::test_padding_segments_are_exact_no_ops",
+    "tests/test_filter.py::test_scan_prefix_is_the_scan_of_the_prefix",
     "tests/test_sweep.py::test_grid_expansion_is_the_cartesian_product_with_seeds",
     "tests/test_study.py::test_summary_medians_quartiles_and_worst_seed_by_hand",
 )
@@ -47,6 +47,7 @@ def _collect(*args: str) -> list[str]:
     return [line.split("[")[0] for line in proc.stdout.splitlines() if "::" in line]
 
 
+@pytest.mark.slow
 def test_fast_tier_leaves_out_the_end_to_end_tests():
     fast = set(_collect("-m", "not slow"))
     assert not fast & set(SLOW), sorted(fast & set(SLOW))
@@ -79,6 +80,7 @@ def test_tests_that_read_a_real_dataset_are_marked_data(request):
     assert not unmarked, f"read a real dataset but are not marked data: {unmarked}"
 
 
+@pytest.mark.slow
 def test_shapes_of_the_public_models_are_checked():
     """Under jaxtyping with beartype, the public measurement model takes a pose of 3 components
     and a landmark of 2 (``Float[ArrayLike, "3"]``, ``Float[ArrayLike, "2"]``) and refuses others

@@ -122,6 +122,7 @@ def test_model_written_in_a_test_module_equals_the_builtin_range_bearing(method)
     np.testing.assert_allclose(np.asarray(b.outputs.mean_pose), np.asarray(a.outputs.mean_pose), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_generic_innovation_information_equals_the_range_bearing_components():
     rng = np.random.default_rng(0)
     x = jnp.array([1.0, -2.0, 0.4])
@@ -261,6 +262,7 @@ def _central_difference(f, a, eps=1e-6):
 
 
 @pytest.mark.parametrize("model", [PlainRangeBearing(), Offset()], ids=["range_bearing", "offset"])
+@pytest.mark.slow
 def test_autodiff_jacobians_match_finite_differences(model):
     rng = np.random.default_rng(3)
     for _ in range(5):

@@ -40,6 +40,7 @@ def test_registered_method_is_known_and_validated():
         Method("broken")
 
 
+@pytest.mark.slow
 def test_toy_with_scale_one_is_fastslam1_and_the_scale_matters():
     """With scale 1 the toy proposal is the prior: the run equals FastSLAM 1.0's bit for bit; another
     scale changes the run."""

@@ -62,6 +62,7 @@ def _linear_fn(kind):
 
 @pytest.mark.parametrize("kind", ["linearized", "gauss_newton", "levenberg_marquardt"])
 @pytest.mark.parametrize("seed,k", [(0, 1), (1, 3), (2, 4)])
+@pytest.mark.slow
 def test_linear_proposals_are_kalman(kind, seed, k):
     """FastSLAM 2.0's update and the iterated MAP (Gauss-Newton, Levenberg-Marquardt) with its
     Laplace covariance all equal the Kalman posterior on a linear-Gaussian model (masked rows hold
@@ -81,6 +82,7 @@ def _iterated_fn(solver, max_iter, landmark_noise):
     return jax.jit(IteratedProposal(solver=solver, max_iter=max_iter, tol=1e-12, landmark_noise=landmark_noise).__call__)
 
 
+@pytest.mark.slow
 def test_iterated_first_step_is_fastslam2():
     """One Gauss-Newton step from the prior mean is FastSLAM 2.0's mean (optimistix counts the
     initial evaluation as a step, so ``max_iter=2``)."""
@@ -93,6 +95,7 @@ def test_iterated_first_step_is_fastslam2():
 
 
 @pytest.mark.parametrize("solver", ["gauss_newton", "levenberg_marquardt"])
+@pytest.mark.slow
 def test_iterated_converges_to_stationary_map(solver):
     """At convergence the gradient of -log(prior x likelihood) (hand Jacobians) vanishes."""
     for seed in (0, 1, 3):
@@ -346,6 +349,7 @@ def test_table1_config_is_valid():
     assert spec.seeds >= 16 and spec.first_seed >= 16
 
 
+@pytest.mark.slow
 def test_nasrukf_ablation_config_is_valid():
     spec = load_compare_spec(Path(__file__).resolve().parent.parent / "configs" / "table_nasrukf_ablation.yaml")
     cfgs = [load_config(spec.base, list(spec.set) + list(m.set)) for m in spec.methods]

@@ -145,6 +145,7 @@ def landmark_cases(seed, betas=None):
 # ----------------------------------------------------------------------------- vehicle Jacobians
 
 
+@pytest.mark.slow
 def test_vehicle_jacobians_match_closed_form():
     xs, us = vehicle_cases(0)
     dt = 0.025
@@ -156,6 +157,7 @@ def test_vehicle_jacobians_match_closed_form():
             np.testing.assert_allclose(Fu[k], Fu_h, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_vehicle_step_check_grads():
     # heading kept away from the +-pi cut so that finite differences stay on one side
     xs, us = vehicle_cases(1, phi_range=(-2.5, 2.5))
@@ -163,6 +165,7 @@ def test_vehicle_step_check_grads():
 
 
 @pytest.mark.parametrize("phi", [np.pi - 1e-3, np.pi, -np.pi + 1e-4])
+@pytest.mark.slow
 def test_vehicle_jacobian_across_heading_wrap(phi):
     # turning left across the +-pi cut: the wrapped heading jumps, its derivative does not
     x, u, dt = np.array([3.0, -2.0, phi]), np.array([5.0, 0.3]), 0.025
@@ -189,6 +192,7 @@ def test_range_bearing_jacobians_match_closed_form():
             np.testing.assert_allclose(Gm[k], Gm_h, rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.slow
 def test_range_bearing_component_jacobian_matches_closed_form():
     # The per-component form (one array per coordinate, a jvp per input) used over a window of
     # landmarks: the same model and the same Jacobian entries, evaluated on a whole batch at once.
@@ -205,6 +209,7 @@ def test_range_bearing_component_jacobian_matches_closed_form():
         np.testing.assert_allclose(J[:, 3:, k], Gm_h, rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.slow
 def test_range_bearing_check_grads_one_side_of_cut():
     # Bearings include +-(pi - 0.02): eps = 1e-4 perturbations move the bearing by ~1e-4 * |v| / r,
     # far less than the 0.02 to the cut, so the finite differences stay on one side.
@@ -216,6 +221,7 @@ def test_range_bearing_check_grads_one_side_of_cut():
 
 
 @pytest.mark.parametrize("beta", [np.pi, np.pi - 1e-9, -np.pi + 1e-9])
+@pytest.mark.slow
 def test_range_bearing_jacobian_continuous_across_wrap(beta):
     x = np.array([1.0, 2.0, 0.7])
     m = landmark_at(x, 7.0, beta)
@@ -229,6 +235,7 @@ def test_range_bearing_jacobian_continuous_across_wrap(beta):
     np.testing.assert_allclose(Gm_h, wrapped_fd_jacobian(lambda m: rb(x, m), m, angle_out=1), rtol=1e-7, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_inverse_range_bearing_jacobians():
     rng = np.random.default_rng(300)
     xs = np.stack([random_pose(rng) for _ in range(N_CASES)])
@@ -254,6 +261,7 @@ def test_inverse_round_trip():
     np.testing.assert_allclose(inv(xs, rb(xs, ms)), ms, rtol=1e-10, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_round_trip_bearing_pi_and_innovation_wrap():
     x = np.array([0.0, 0.0, 0.0])
     z = range_bearing(x, np.array([-5.0, 0.0]))  # directly behind
@@ -265,6 +273,7 @@ def test_round_trip_bearing_pi_and_innovation_wrap():
 # ----------------------------------------------------------------------------- angles
 
 
+@pytest.mark.slow
 def test_wrap_angle_properties():
     rng = np.random.default_rng(0)
     a = np.concatenate([rng.uniform(-50, 50, 2000), np.arange(-7, 8) * np.pi, [0.0, 1e-300, -1e-300]])
@@ -350,6 +359,7 @@ def integrate(x0, u, dt, n_steps_arr):
 
 
 @pytest.mark.parametrize("alpha", [0.3, -0.2])
+@pytest.mark.slow
 def test_constant_steering_follows_circle(alpha):
     x0, ve, T = np.array([2.0, -1.0, 2.5]), 4.0, 12.0  # more than a full turn: the heading wraps
     errs = []

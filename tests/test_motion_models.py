@@ -55,6 +55,7 @@ class TestCar(AbstractMotionModel):
         return jnp.diag(jnp.stack([self.sigma_v, self.sigma_alpha]))
 
 
+@pytest.mark.slow
 def test_unicycle_step_and_jacobians():
     m = Unicycle(sensor_x=0.2, sensor_y=-0.1, sigma_v=0.1, sigma_omega=0.05)
     x, u, dt = jnp.array([1.0, -2.0, 0.7]), jnp.array([0.8, 0.3]), 0.05
@@ -78,6 +79,7 @@ def test_unicycle_step_and_jacobians():
 
 
 @pytest.mark.parametrize("kind", ["unscented", "linearized"])
+@pytest.mark.slow
 def test_random_walk_prior_adds_dt_times_the_noise(kind):
     """With no motion, the prior's mean stays and its covariance grows by dt diag(s_xy^2, s_xy^2, s_phi^2)
     per piece: exactly, for both priors (the model is linear)."""
@@ -93,6 +95,7 @@ def test_random_walk_prior_adds_dt_times_the_noise(kind):
 
 
 @pytest.mark.parametrize("model", [Ackermann(sigma_v=0.7, sigma_alpha=0.05), Unicycle(0.3, 0.1, 0.2, 0.1)])
+@pytest.mark.slow
 def test_generic_unscented_prior_equals_the_rate_models_fast_path(model):
     """The unscented piece through noisy_step on every sigma point (what a user's model gets)
     equals the fast path of the rate models (rates once per distinct control)."""
@@ -122,6 +125,7 @@ def _short_real_like_config(extra=()):
     return load_config(None, ["sim.duration=40", "filter.n_particles=6", "output.plots=false", *extra])
 
 
+@pytest.mark.slow
 def test_model_written_in_a_test_module_equals_the_builtin_car():
     """A user's model passed as an object gives the built-in car's run (to rounding: its step is
     written with other trigonometric functions)."""
@@ -185,6 +189,7 @@ def test_bad_model_names_are_config_errors(tmp_path):
         load_config(None, ["model.motion=unicycle", "model.motion_params.sigma_v=1"])
 
 
+@pytest.mark.slow
 def test_simulated_differential_drive_log_slam_beats_dead_reckoning():
     """The simulator drives a differential-drive robot (logged controls v, omega with noise and a
     turn-rate bias); NANO-SLAM with the unicycle model is at least 5x better than dead reckoning."""
@@ -208,6 +213,7 @@ def test_simulated_differential_drive_log_slam_beats_dead_reckoning():
 
 
 @pytest.mark.parametrize("method", ["nano", "ekf_slam"])
+@pytest.mark.slow
 def test_stepping_the_built_filter_equals_the_batch_run(method):
     cfg = load_config(None, ["sim.duration=15", "filter.n_particles=5", f"filter.method={method}"])
     raw = simulate(cfg.sim, cfg.vehicle)

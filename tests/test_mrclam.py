@@ -263,6 +263,7 @@ def test_real_dead_reckoning_map_as_the_readme_says(mrclam_dir):
         assert 2.25 <= rmse < 3.35, (robot, rmse)
 
 
+@pytest.mark.slow
 def test_real_log_through_the_config(mrclam_dir, tmp_path):
     """data.format: mrclam through load_log and a dead-reckoning run (no GPS: no trajectory error,
     the result directory still written)."""

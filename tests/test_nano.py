@@ -91,6 +91,7 @@ def linear_ng(x0, P0, H, Rk, z, mask, rule, max_iter, solver="optimistix", gamma
 
 @pytest.mark.parametrize("rule", list(RULES))
 @pytest.mark.parametrize("seed,k", [(0, 1), (1, 3), (2, 4)])
+@pytest.mark.slow
 def test_linear_one_iteration_is_kalman(rule, seed, k):
     prob = linear_problem(seed, k)
     x_kf, P_kf = kalman(*prob)
@@ -103,6 +104,7 @@ def test_linear_one_iteration_is_kalman(rule, seed, k):
 
 
 @pytest.mark.parametrize("rule", list(RULES))
+@pytest.mark.slow
 def test_linear_further_iterations_stay_and_kl_stops_at_two(rule):
     prob = linear_problem(6)
     x_kf, P_kf = kalman(*prob)
@@ -114,6 +116,7 @@ def test_linear_further_iterations_stay_and_kl_stops_at_two(rule):
     assert int(out.result) == 0
 
 
+@pytest.mark.slow
 def test_linear_solvers_agree():
     """The optimistix fixed-point solve and the plain while_loop give the same answer and counts."""
     prob = linear_problem(3)
@@ -135,6 +138,7 @@ def test_linear_masked_rows_only():
     assert int(out.result) == 0
 
 
+@pytest.mark.slow
 def test_gauss_newton_map_linear_is_kalman():
     x0, P0, H, Rk, z, mask = linear_problem(4)
     x_kf, P_kf = kalman(x0, P0, H, Rk, z, mask)
@@ -278,6 +282,7 @@ def check_stationarity(x0, P0, lm, z, R, x_hat, lam, points_fn, tol_g, tol_h):
 
 
 @pytest.mark.parametrize("seed,wide", [(0, False), (1, False), (0, True), (4, True)])
+@pytest.mark.slow
 def test_nano_stationarity_gauss_hermite(seed, wide):
     """Converged NANO (gamma 1e-14) with a 5-point GH rule satisfies the stationarity conditions of J,
     expectations recomputed with an independently built GH rule of the same order and of order 10
@@ -297,6 +302,7 @@ def test_nano_stationarity_gauss_hermite(seed, wide):
 
 
 @pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.slow
 def test_nano_stationarity_cubature(seed):
     """The default cubature rule: stationarity w.r.t. an independently built cubature rule; both solvers."""
     x0, P0, lm, z, R = nonlinear_case(seed)
@@ -310,6 +316,7 @@ def test_nano_stationarity_cubature(seed):
     assert int(outs[0].iterations) == int(outs[1].iterations)
 
 
+@pytest.mark.slow
 def test_nano_stationarity_monte_carlo():
     """Monte Carlo cross-check of the stationarity conditions (no quadrature at all; 5 standard errors)."""
     x0, P0, lm, z, R = nonlinear_case(5, **WIDE)
@@ -376,6 +383,7 @@ def published_cases(n_cases=24, k=6, start_sigma=None):
 
 
 @pytest.mark.parametrize("start_sigma", [None, (1.0, math.radians(10.0))])
+@pytest.mark.slow
 def test_nano_published_noise_stops_within_seven_iterations(start_sigma):
     """Measured: 2 iterations (one case 3) from the near-zero start covariance (the prior is then
     much tighter than the 1 m range noise), 3-5 from a 1 m / 10 deg start covariance."""
@@ -392,6 +400,7 @@ def test_nano_published_noise_stops_within_seven_iterations(start_sigma):
         assert max(iters) >= 3, iters  # the iteration does real work here
 
 
+@pytest.mark.slow
 def test_nano_exact_hessian_converges_pd():
     """hessian='exact' (guarded positive definite) converges to a PD covariance. gamma is 1e-8, not
     smaller: with a tight heading (precision condition ~1e6) the KL between iterates has round-off
@@ -446,6 +455,7 @@ def test_fastslam2_is_ekf_at_prior_mean(seed):
     assert int(out.iterations) == 0 and int(out.result) == 0
 
 
+@pytest.mark.slow
 def test_fastslam2_landmark_noise_is_ekf_with_inflated_noise():
     """The published FastSLAM 2.0 form: the noise of each detection is R + Gm Sigma Gm' at the prior mean."""
     x0, P0, lm, z, R = nonlinear_case(7)
@@ -488,6 +498,7 @@ def test_tiny_prior_nano_fastslam2_ekf_agree():
 
 
 @pytest.mark.parametrize("seed", [0, 2])
+@pytest.mark.slow
 def test_gauss_newton_map_nonlinear_stationary(seed):
     """The Gauss-Newton MAP zeroes the gradient of -log(prior x likelihood) (hand Jacobian) and its
     precision is the Gauss-Newton Laplace precision L0 + sum Gx' W Gx at the MAP."""
@@ -514,6 +525,7 @@ def check_map_stationary(x0, P0, lm, z, R, x, precision, rtol):
     np.testing.assert_allclose(precision, L0 + H, rtol=rtol, atol=rtol * np.abs(L0 + H).max())
 
 
+@pytest.mark.slow
 def test_nano_gauss_newton_init_reaches_same_fixed_point():
     for seed in (0, 1):
         x0, P0, lm, z, R = nonlinear_case(seed, **WIDE)

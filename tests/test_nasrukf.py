@@ -48,6 +48,7 @@ def params_for(*extra):
 # --------------------------------------------------------------------------- fusion and feedback
 
 
+@pytest.mark.slow
 def test_fusion_of_two_estimates_is_the_information_weighted_average():
     """Eq. 4-5 for two independent Gaussian estimates (``shared_prior=False``): mean
     (P1^-1 + P2^-1)^-1 (P1^-1 x1 + P2^-1 x2), covariance (P1^-1 + P2^-1)^-1; headings on either
@@ -70,6 +71,7 @@ def test_fusion_of_two_estimates_is_the_information_weighted_average():
     np.testing.assert_allclose(np.asarray(S), np.asarray(S0), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_fusion_of_increments_is_the_kalman_posterior_of_independent_measurements():
     """Each estimate is the Kalman posterior of the shared prior and one linear measurement;
     ``increments`` fusion equals the Kalman posterior with all of them, and unused estimates are
@@ -125,6 +127,7 @@ def test_feedback_replaces_the_pose_marginal_and_keeps_the_feature_conditional(f
 # --------------------------------------------------------------------------- time update and initialisation
 
 
+@pytest.mark.slow
 def test_pose_time_update_equals_the_dense_ukf_of_pose_and_start_pose():
     """The template of the joint time updates: the standard (dense) UKF of (pose, start pose) with
     the control noise augmented, piece by piece (masked pieces skipped). The start pose's marginal is
@@ -154,6 +157,7 @@ def test_pose_time_update_equals_the_dense_ukf_of_pose_and_start_pose():
     assert np.abs(Pn - P).max() > 1e-3  # the prediction really added noise
 
 
+@pytest.mark.slow
 def test_feature_time_update_is_the_joint_gaussian_of_the_moved_pose():
     """A feature m = mean + A (x_start - x0) + e: after the pose moves, Cov(m, x) = A Cov(x_start, x)
     and Cov(m) is unchanged; the features' update (gain T, rank-one updates by gain D) gives both."""
@@ -178,6 +182,7 @@ def test_feature_time_update_is_the_joint_gaussian_of_the_moved_pose():
 
 
 @pytest.mark.parametrize("arc", [False, True])
+@pytest.mark.slow
 def test_new_feature_is_the_dense_unscented_transform_of_pose_and_detection(arc):
     static, params = params_for(f"nasrukf.feature={'arc' if arc else 'point'}")
     rng = np.random.default_rng(6)
@@ -241,12 +246,14 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
     assert np.asarray(o.n_associated).dtype == np.float64
 
 
+@pytest.mark.slow
 def test_padding_segments_are_noops(sim, sim_run):
     """Padding (valid False), whether zero segments or real ones, leaves the state bit for bit."""
     log, static, params = sim
     assert_padding_is_noop(static, params, sim_run.state, log.segments, CHUNK, sim_run.state.pose)
 
 
+@pytest.mark.slow
 def test_deterministic_and_seed_free(sim, sim_run):
     """No sampling: another seed gives the same run, bit for bit."""
     log, static, params = sim
@@ -278,6 +285,7 @@ def test_adaptive_noise_estimate_converges_to_the_true_noise():
     assert report["noise_at_floor_range"] == report["noise_at_floor_bearing"] == 0.0 and warnings == []
 
 
+@pytest.mark.slow
 def test_arc_features_estimate_the_radius_by_a_scalar_kalman_filter(sim, sim_run):
     """Arc features (6-D joint states, the diameter a third measurement): the radius is
     independent of the pose and the centre, so each feature's radius is the scalar Kalman filter

@@ -57,6 +57,7 @@ def sim_runs():
     return log, static, params, path, plain
 
 
+@pytest.mark.slow
 def test_path_runs_record_the_genealogy_without_changing_the_filter(sim_runs):
     """A run with ``estimate: path`` is the same filter (its per-segment estimate bit for bit),
     its path is the history carried forward of the final best particle, ends at the last best
@@ -112,6 +113,7 @@ def test_path_needs_particles(method):
         load_config(None, [f"filter.method={method}", "filter.estimate=path"])
 
 
+@pytest.mark.slow
 def test_reported_trajectory_needs_the_recorded_poses(sim_runs):
     _, _, _, _, plain = sim_runs
     with pytest.raises(ValueError, match="filter.estimate: path"):

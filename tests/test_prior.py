@@ -33,6 +33,7 @@ def generic_ut(x, P, u, dt, params):
 
 
 @pytest.mark.parametrize("seed", range(6))
+@pytest.mark.slow
 def test_structured_unscented_prior_equals_generic_augmented_ut(seed):
     rng = np.random.default_rng(seed)
     x = jnp.asarray(rng.normal(size=3) * [10, 10, 3])
@@ -48,6 +49,7 @@ def test_structured_unscented_prior_equals_generic_augmented_ut(seed):
 
 
 @pytest.mark.parametrize("kind", ["unscented", "linearized"])
+@pytest.mark.slow
 def test_padding_pieces_leave_the_prior_unchanged(kind):
     x, P = jnp.asarray([1.0, 2.0, 3.1]), jnp.diag(jnp.asarray([0.1, 0.2, 0.01]))
     dt = jnp.asarray([0.025, 0.0, 0.0])
@@ -58,6 +60,7 @@ def test_padding_pieces_leave_the_prior_unchanged(kind):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_unscented_and_linearized_priors_agree_for_small_noise():
     """With small control noise the model is nearly linear over the spread: both priors agree."""
     _, p = settings_from_config(load_config(None, ["noise.sigma_v=0.01", "noise.sigma_alpha_deg=0.05"]), 14)
@@ -101,6 +104,7 @@ def test_prior_commutes_with_rigid_motions(kind, seed):
 
 
 @pytest.mark.parametrize("kind", ["unscented", "linearized"])
+@pytest.mark.slow
 def test_relative_prior_placed_at_a_pose_equals_that_poses_prior(kind):
     """The shared prior of ``filter.prior_cov: reset``: one propagation from the origin, placed at
     each particle's pose, gives each particle's own propagation from ``init_cov * I``."""

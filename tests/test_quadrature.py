@@ -233,6 +233,7 @@ def test_points_robust_for_singular_covariance():
 
 
 @pytest.mark.parametrize("rule", [Cubature(), Unscented(alpha=0.9), GaussHermite(order=3)], ids=repr)
+@pytest.mark.slow
 def test_expect_pytree_jit_and_vmap(rule):
     n = 3
     _, P = random_gaussian(n, 11)

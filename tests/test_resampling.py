@@ -53,6 +53,7 @@ def offspring():
 
 @pytest.mark.parametrize("wname", list(WEIGHTS))
 @pytest.mark.parametrize("scheme", list(RESAMPLERS))
+@pytest.mark.slow
 def test_unbiased(offspring, scheme, wname):
     """Mean offspring count = N w_i within 5 standard errors of the Monte Carlo mean (estimated from
     the sample; a count with zero sample variance must be exact)."""
@@ -109,6 +110,7 @@ def test_uniform_systematic_and_stratified_are_identity_counts(offspring):
         assert np.all(offspring[scheme, "uniform"] == 1), scheme
 
 
+@pytest.mark.slow
 def test_resample_dispatch_and_unknown_kind():
     lw = jnp.asarray(log_weights(WEIGHTS["spread"]))
     key = jax.random.key(0)

@@ -115,6 +115,7 @@ def test_trees_are_spaced():
 # --------------------------------------------------------------------------- truth vs models
 
 
+@pytest.mark.slow
 def test_logged_controls_reproduce_truth_with_jax_model(exact_log):
     """Noise-free logged controls integrated with nanoslam_jax.models.vehicle_step give the truth."""
     log, params = exact_log, VehicleParams()

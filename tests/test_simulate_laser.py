@@ -179,6 +179,7 @@ def test_clutter_keeps_clear_of_trunks_and_path(short_log):
         assert np.all(d >= np.broadcast_to(need, d.shape) - 1e-2)
 
 
+@pytest.mark.slow
 def test_dropout_spurious_and_noise_rates():
     sim = SimConfig(seed=9, duration=60.0, laser_dropout=0.05, laser_spurious=0.02, laser_range_noise=0.03,
                     laser_fences=0)
@@ -236,6 +237,7 @@ def test_bad_laser_keys_name_the_key(key, value):
         load_config(None, [f"{key}={value}"])
 
 
+@pytest.mark.slow
 def test_a_park_too_crowded_for_the_clutter_names_the_key():
     with pytest.raises(ValueError, match="sim.laser_walls"):
         simulate_laser(SimConfig(duration=5.0, laser_walls=2, laser_clearance=60.0))

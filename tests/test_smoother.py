@@ -91,6 +91,7 @@ def test_association_along_the_path_finds_each_detections_tree():
         assert d2 >= 13.8
 
 
+@pytest.mark.slow
 def test_least_squares_optimum_equals_scipys():
     """Without the robust loss and the floors the smoother minimises the plain sum of squared
     whitened residuals; scipy.optimize.least_squares, fed residuals written here in numpy with
@@ -256,6 +257,7 @@ def _rmse(s, truth):
 
 
 @pytest.mark.parametrize("drift", [(8.0, -5.0, np.deg2rad(6.0)), (-15.0, 10.0, np.deg2rad(-10.0))])
+@pytest.mark.slow
 def test_loop_closure_joins_trees_mapped_twice(drift):
     """A map that holds the second lap's trees twice, displaced with the path: without the loop
     closure the smoothed second lap stays where the particle's drift put it; with it the copies are
@@ -286,6 +288,7 @@ def test_loop_closure_leaves_a_map_without_copies_alone():
     np.testing.assert_array_equal(closed.poses, plain.poses)
 
 
+@pytest.mark.slow
 def test_loop_closure_drops_joins_that_do_not_fit():
     """Joins whose detections do not fit after the solve are dropped, and the first solution stands:
     with an acceptance no join can reach, the copies are found (rejected) and nothing changes."""
@@ -347,6 +350,7 @@ def _drifting_away(drift, onset=300, seed=1):
     return dict(once, path=path, lm=np.r_[once["lm"], copies], copies=len(copies)), once
 
 
+@pytest.mark.slow
 def test_loop_closure_starts_from_the_path_its_copies_move():
     """A path that drifts away over the end of the log, 15 m and 12 deg at its end, and a map with
     the trees it saw there mapped again: the copies' transforms move the drifted stretch back
@@ -368,6 +372,7 @@ def test_loop_closure_starts_from_the_path_its_copies_move():
     assert np.abs(closed.poses[:, :2] - reference.poses[:, :2]).max() < 0.3  # measured 0.173
 
 
+@pytest.mark.slow
 def test_held_landmarks_give_back_the_trees_a_drifted_particle_removed():
     """The log of :func:`_drifting_away` with a final map from which the particle removed the
     first lap's trees it later saw drifted (only their copies are left; it explains 48 % of the

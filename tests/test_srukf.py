@@ -103,6 +103,7 @@ def h_nonlinear(x):
 
 
 @pytest.mark.parametrize("seed", range(4))
+@pytest.mark.slow
 def test_srukf_transform_equals_the_standard_ukf(seed):
     rng = np.random.default_rng(seed)
     x = rng.normal(size=4) + np.array([0, 0, 2.5, 1.0])
@@ -116,6 +117,7 @@ def test_srukf_transform_equals_the_standard_ukf(seed):
 
 
 @pytest.mark.parametrize("seed", range(4))
+@pytest.mark.slow
 def test_srukf_measurement_update_equals_the_standard_ukf(seed):
     rng = np.random.default_rng(100 + seed)
     x = np.array([6.0, 3.0, 0.2, -1.0]) + rng.normal(size=4) * 0.5
@@ -130,6 +132,7 @@ def test_srukf_measurement_update_equals_the_standard_ukf(seed):
     assert np.abs(mean - x).max() > 1e-2 and np.trace(cov_ref) < np.trace(P) - 1e-2
 
 
+@pytest.mark.slow
 def test_linear_model_square_root_ukf_equals_kalman_filter():
     """x' = F x + G w and z = H x: the SR transform is the Kalman prediction and the SR update the
     Kalman update, exactly (the unscented transform is exact for linear maps)."""

@@ -206,6 +206,7 @@ def test_invalid_sweeps_name_the_file_and_key(tmp_path):
         load_sweep(tmp_path / "bad.yaml")
 
 
+@pytest.mark.slow
 def test_shipped_sweep_files_load_and_expand():
     """Every sweep file in configs/ (the example and the tuning sweeps behind the shipped
     configs) loads, validates and expands to its stated configurations and seeds."""
@@ -218,6 +219,7 @@ def test_shipped_sweep_files_load_and_expand():
         assert len(runs) == len(points) * len(spec.seeds) > 0, f.name
 
 
+@pytest.mark.slow
 def test_groups_and_batches():
     """Runs are grouped by static settings; batches are as equal as possible, and fixed per group."""
     grid = {"noise.sigma_r": [0.3 + 0.01 * i for i in range(13)]}

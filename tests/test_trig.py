@@ -38,6 +38,7 @@ def test_tan_matches_libm():
 
 
 @pytest.mark.parametrize("y_scale", [1e-200, 1e-8, 1.0, 1e8, 1e200])
+@pytest.mark.slow
 def test_atan2_matches_libm(y_scale):
     rng = np.random.default_rng(3)
     y, x = rng.normal(size=100_000) * y_scale, rng.normal(size=100_000)
@@ -45,12 +46,14 @@ def test_atan2_matches_libm(y_scale):
     np.testing.assert_allclose(a, b, rtol=4 * ULP, atol=2 * ULP)
 
 
+@pytest.mark.slow
 def test_atan2_at_reduction_edges_and_axes():
     angles = np.concatenate([np.arange(-16, 17) * (np.pi / 16), np.arange(-8, 9) * (np.pi / 8) + 1e-12])
     y, x = np.sin(angles), np.cos(angles)
     np.testing.assert_allclose(np.asarray(trig.atan2(y, x)), np.arctan2(y, x), rtol=0, atol=4 * ULP)
 
 
+@pytest.mark.slow
 def test_atan2_special_values_follow_numpy():
     v = np.array([0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan])
     Y, X = np.meshgrid(v, v)
@@ -65,6 +68,7 @@ def test_sincos_nonfinite_is_nan():
     assert np.all(np.isnan(np.asarray(s))) and np.all(np.isnan(np.asarray(c)))
 
 
+@pytest.mark.slow
 def test_derivatives_are_the_analytic_ones():
     x = np.linspace(-7.0, 7.0, 101)
     ds = jax.vmap(jax.grad(trig.sin))(x)
@@ -87,6 +91,7 @@ def test_derivatives_are_the_analytic_ones():
     np.testing.assert_allclose(hyy, fd, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_float32_inputs_stay_float32_and_accurate():
     x = np.random.default_rng(5).uniform(-10, 10, 10_000).astype(np.float32)
     s, c = trig.sincos(jnp.asarray(x))

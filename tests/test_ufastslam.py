@@ -113,6 +113,7 @@ _seq_jit = jax.jit(unscented_sequential_update, static_argnames=("h", "z_angle_i
 @pytest.mark.parametrize("k", [1, 4])
 @pytest.mark.parametrize("ut", UT_SETTINGS)
 @pytest.mark.parametrize("angles", [(None, None), (1, 2)])
+@pytest.mark.slow
 def test_linear_model_equals_batch_kalman(k, ut, angles):
     """Sequential unscented updates on a linear model = the batch Kalman posterior (to ~1e-10).
 
@@ -132,6 +133,7 @@ def test_linear_model_equals_batch_kalman(k, ut, angles):
     assert np.trace(np.asarray(P)) < np.trace(P0)
 
 
+@pytest.mark.slow
 def test_masked_rows_are_no_ops():
     """A masked row (garbage values, even NaN) leaves the result that of the other rows."""
     rng, x0, P0, m, Sig = rotation_free_case(7, 3)
@@ -153,6 +155,7 @@ def test_masked_rows_are_no_ops():
     np.testing.assert_array_equal(P0_, P0)
 
 
+@pytest.mark.slow
 def test_proposal_module_no_detections_and_nonfinite_fallback():
     _, x0, P0, m, Sig = rotation_free_case(3, 2)
     z = h_np(x0, m)
@@ -174,6 +177,7 @@ def test_proposal_module_no_detections_and_nonfinite_fallback():
 # ----------------------------------------------------------------------------- range-bearing vs Gauss-Hermite
 
 
+@pytest.mark.slow
 def test_proposal_matches_gauss_hermite_and_beats_linearisation():
     """One detection: the unscented update vs the same update with 5-D Gauss-Hermite moments (order 9).
 
@@ -204,6 +208,7 @@ LM_CASES = [
 
 
 @pytest.mark.parametrize("case", range(len(LM_CASES)))
+@pytest.mark.slow
 def test_ukf_landmark_update_matches_gauss_hermite(case):
     """UKF landmark update vs the update with 2-D Gauss-Hermite moments (order 40).
 
@@ -295,6 +300,7 @@ def flipped(x, z):
     return x + np.array([0.0, 0.0, np.pi]), np.stack([z[..., 0], wrap(z[..., 1] - np.pi)], -1)
 
 
+@pytest.mark.slow
 def test_proposal_bearings_and_heading_across_pi():
     """Landmarks straight ahead (bearings +-0.01) vs the same scene with the heading turned by pi:
     the bearings, their sigma-point predictions and the heading then straddle the cut at +-pi,
@@ -392,6 +398,7 @@ def test_filter_tracks_simulated_truth():
     assert max(rmses) < 1.0 and np.mean(rmses) < 0.8, rmses
 
 
+@pytest.mark.slow
 def test_real_log_first_scans_finite(vp_dir):
     """The first 300 s of Victoria Park, the paper's setting (configs/victoria_park_ufastslam.yaml):
     nothing non-finite, and far better than dead reckoning, which drifts to 105.5 m RMSE (25.9 m

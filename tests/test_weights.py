@@ -73,6 +73,7 @@ def scene(sets, confirmed=(True, True)):
 
 
 @pytest.mark.parametrize("manage", [True, False])
+@pytest.mark.slow
 def test_product_weight_equals_the_hand_formula(manage):
     """FastSLAM 1.0 (the proposal is the prior, here the carried pose covariance unchanged by an
     empty segment): eq. 17 at (pose, pose_cov) plus log p0 for the new landmark."""
@@ -83,6 +84,7 @@ def test_product_weight_equals_the_hand_formula(manage):
 
 
 @pytest.mark.parametrize("weight", ["product", "marginal"])
+@pytest.mark.slow
 def test_fastslam2_weight_at_the_proposal_or_at_the_prior(weight):
     """FastSLAM 2.0 moves the pose: the product weight is eq. 17 at its (hand-computed EKF)
     proposal, the marginal weight the same formula at the prior; the two differ."""
