@@ -38,7 +38,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._angles import wrap_angle
-from ._motion import _f, _import_object
+from ._motion import _f, _model_class
 from ._range_bearing import (
     innovation as _rb_innovation,
 )
@@ -241,16 +241,7 @@ def measurement_model_class(name: str) -> type[AbstractMeasurementModel]:
         ValueError: naming the key, when the name is unknown, cannot be imported or is not a
             measurement model class.
     """
-    if name in MEASUREMENT_MODELS:
-        return MEASUREMENT_MODELS[name]
-    if ":" not in name:
-        raise ValueError(f"key 'model.measurement': {name!r} is not a built-in measurement model "
-                         f"({', '.join(MEASUREMENT_MODELS)}) nor an import path 'module:Class'")
-    cls = _import_object(name, "model.measurement")
-    if not (isinstance(cls, type) and issubclass(cls, AbstractMeasurementModel)):
-        raise ValueError(f"key 'model.measurement': {name!r} is not a subclass of "
-                         "nanoslam_jax.models.AbstractMeasurementModel")
-    return cls
+    return _model_class(name, "model.measurement", "measurement model", MEASUREMENT_MODELS, AbstractMeasurementModel)
 
 
 def measurement_model_from_config(cfg: "Config") -> AbstractMeasurementModel:

@@ -299,15 +299,20 @@ def motion_model_class(name: str) -> type[AbstractMotionModel]:
         ValueError: naming the key, when the name is unknown, cannot be imported or is not a
             motion model class.
     """
-    if name in MOTION_MODELS:
-        return MOTION_MODELS[name]
+    return _model_class(name, "model.motion", "motion model", MOTION_MODELS, AbstractMotionModel)
+
+
+def _model_class(name: str, key: str, what: str, builtins: dict[str, type], base: type) -> type:
+    """A model class by config name: one of ``builtins`` or an import path ``module:Class`` of a
+    subclass of ``base``; a ValueError names ``key`` otherwise."""
+    if name in builtins:
+        return builtins[name]
     if ":" not in name:
-        raise ValueError(f"key 'model.motion': {name!r} is not a built-in motion model "
-                         f"({', '.join(MOTION_MODELS)}) nor an import path 'module:Class'")
-    cls = _import_object(name, "model.motion")
-    if not (isinstance(cls, type) and issubclass(cls, AbstractMotionModel)):
-        raise ValueError(f"key 'model.motion': {name!r} is not a subclass of "
-                         "nanoslam_jax.models.AbstractMotionModel")
+        raise ValueError(f"key '{key}': {name!r} is not a built-in {what} "
+                         f"({', '.join(builtins)}) nor an import path 'module:Class'")
+    cls = _import_object(name, key)
+    if not (isinstance(cls, type) and issubclass(cls, base)):
+        raise ValueError(f"key '{key}': {name!r} is not a subclass of nanoslam_jax.models.{base.__name__}")
     return cls
 
 
