@@ -492,6 +492,73 @@ class SimConfig:
 
 
 @dataclass(frozen=True)
+class IndoorConfig:
+    """The indoor scenario (``nanoslam simulate --scenario indoor``, docs/simulate_indoor.md): rooms or
+    corridors of walls, corners, doors and round pillars, a low-speed differential-drive vehicle with wheel
+    slip, raw laser scans and the truth of every line, arc, corner and break point."""
+
+    seed: int = _f(0, lo=0, static=True, doc="seed of the world, the drive, the odometry noise and the scans")
+    template: Literal["random", "room", "l_room", "corridor"] = _f("random", static=True,
+        doc="the world: 'room' (rectangular, a far corner cut by a slanted wall half the time), 'l_room' "
+            "(L-shaped), 'corridor' (a ring corridor around a block of rooms, one side a wide hall), 'random' "
+            "(one of them, drawn by the seed); sizes, doors and pillars are drawn by the seed")
+    duration: float = _f(120.0, lo=0.0, lo_open=True, static=True, doc="seconds logged")
+    odom_period: float = _f(0.025, lo=0.001, hi=1.0, static=True,
+        doc="odometry (v, omega) period (s); the paper's data period is 25 ms")
+    scan_period: float = _f(0.025, lo=0.001, hi=10.0, static=True,
+        doc="laser scan period (s), scans at 0, scan_period, ...; the paper's data period is 25 ms")
+    static_time: float = _f(2.0, lo=0.0, static=True,
+        doc="the vehicle stands still this long (s) before it drives (the paper's static state estimation)")
+    speed_min: float = _f(0.2, lo=0.0, lo_open=True, hi=2.0, static=True,
+        doc="the speed profile swings between speed_min and speed_max (m/s) with a period of 20 to 40 s")
+    speed_max: float = _f(0.5, lo=0.0, lo_open=True, hi=2.0, static=True, doc="see speed_min (m/s)")
+    max_turn_rate_deg: float = _f(40.0, lo=1.0, hi=360.0, static=True,
+        doc="the vehicle slows down before arcs so that its turn rate stays below this (deg/s)")
+    turn_radius: float = _f(0.8, lo=0.05, hi=5.0, static=True,
+        doc="radius (m) the path's corners are rounded with; smaller where the arc would pass within 0.5 m of "
+            "a wall")
+    path_inset: float = _f(1.3, lo=0.5, hi=3.0, static=True,
+        doc="rooms: the path runs this far (m) inside the walls (corridors: along their middle)")
+    sensor_ls: float = _f(0.18, lo=-2.0, hi=2.0, static=True,
+        doc="the laser sits this far (m) behind the reference point (the centre of the wheel axle), the "
+            "paper's Ls = 180 mm; negative: ahead. A run on the log uses model.motion unicycle with "
+            "unicycle.sensor_x = -sensor_ls")
+    sigma_v: float = _f(0.01, lo=0.0, static=True, doc="odometry speed noise (m/s, one sigma, white per sample)")
+    sigma_omega_deg: float = _f(1.0, lo=0.0, static=True,
+        doc="odometry turn-rate noise (deg/s, one sigma, white per sample)")
+    slip_factor: float = _f(5.0, lo=1.0, static=True,
+        doc="wheel slip: the odometry noise's standard deviations are this many times larger in slip episodes")
+    slip_fraction: float = _f(0.2, lo=0.0, hi=0.95, static=True,
+        doc="mean fraction of the time in slip episodes (0: no slip)")
+    slip_duration: float = _f(4.0, lo=0.0, lo_open=True, static=True,
+        doc="mean length of a slip episode (s); episodes and the stretches between them are exponentially "
+            "distributed")
+    laser_beams: int = _f(361, lo=2, static=True,
+        doc="beams per scan, evenly over fov_deg (nanoslam detect and data.detections: laser read 361-beam "
+            "files)")
+    fov_deg: float = _f(180.0, lo=1.0, hi=360.0, static=True, doc="field of view (deg), symmetric about ahead")
+    max_range: float = _f(10.0, lo=0.5, hi=80.0, static=True,
+        doc="surfaces at or beyond this range (m) give no return (written as 81.91)")
+    range_noise: float = _f(0.01, lo=0.0, static=True, doc="range noise (m, one sigma) of a return")
+    dropout: float = _f(0.002, lo=0.0, hi=1.0, static=True,
+        doc="probability that a beam which hits a surface returns nothing")
+    spurious: float = _f(0.0005, lo=0.0, hi=1.0, static=True,
+        doc="probability that a beam reports a spurious range, uniform between 0.1 m and its true range (or "
+            "max_range)")
+    doors: int = _f(2, lo=0, static=True,
+        doc="door gaps cut into the walls (their jambs are break points), 0.5 m at least from corners")
+    door_width: float = _f(0.9, lo=0.1, hi=5.0, static=True, doc="width of a door gap (m)")
+    pillars: int = _f(1, lo=1, hi=6, static=True, doc="round pillars (arcs) in the world")
+    pillar_radius_min: float = _f(0.15, lo=0.02, hi=1.0, static=True,
+        doc="pillar radii are drawn between pillar_radius_min and pillar_radius_max (m)")
+    pillar_radius_max: float = _f(0.35, lo=0.02, hi=1.0, static=True, doc="see pillar_radius_min (m)")
+    partitions: int = _f(1, lo=0, hi=6, static=True,
+        doc="free-standing partition walls (screens, cabinets) at random angles, 0.5 m from the walls, the path "
+            "and the pillars; their two free ends are break points")
+    partition_length: float = _f(1.2, lo=0.2, hi=5.0, static=True, doc="length of a partition wall (m)")
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     """What a run writes."""
 
@@ -521,4 +588,5 @@ class Config:
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     sim: SimConfig = field(default_factory=SimConfig)
+    indoor: IndoorConfig = field(default_factory=IndoorConfig)
     output: OutputConfig = field(default_factory=OutputConfig)

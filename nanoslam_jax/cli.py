@@ -3,6 +3,7 @@
     nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
     nanoslam config [CONFIG] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--laser] [--set sim.key=value ...]
+    nanoslam simulate --scenario indoor --out DIR [--seed S] [--set indoor.key=value ...]
     nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
                      [--quick] [--resume] [--methods LABEL ...] [--particles N ...]
                      [--parallel MODE]   (study files)
@@ -68,6 +69,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--laser", action="store_true",
                    help="also ray-cast raw scans (sim.laser_* keys: walls, fences, bushes, noise) and write LASER.txt, "
                         "laser_truth.csv (which trees each scan hit, with how many beams) and laser_world.csv")
+    s.add_argument("--scenario", choices=["park", "indoor"], default="park",
+                   help="'park': the Victoria Park-like log (section sim); 'indoor': rooms or corridors with walls, "
+                        "corners, doors and pillars, a low-speed differential-drive vehicle, raw scans and the truth "
+                        "of every line, arc, corner and break point (section indoor, --seed sets indoor.seed; "
+                        "docs/simulate_indoor.md)")
 
     d = sub.add_parser("detect", help="detect trees (and lines, circles, corners, break points) in a log's raw "
                                       "laser scans and write a complete log",
@@ -207,6 +213,8 @@ def _config(args) -> int:
 def _simulate(args) -> int:
     from .simulate import simulate_to_dir
 
+    if args.scenario == "indoor":
+        return _simulate_indoor(args)
     overrides = list(args.overrides) + ([f"sim.seed={args.seed}"] if args.seed is not None else [])
     cfg = load_config(args.config, overrides)
     unicycle = cfg.unicycle if cfg.model.motion == "unicycle" else None
@@ -223,6 +231,25 @@ def _simulate(args) -> int:
     if args.laser:
         print(f"LASER.txt: {log.scans.n_scans} scans of {log.scans.n_beams} beams; laser_truth.csv: "
               f"{int((log.truth[:, 2] >= 3).sum())} trees hit by 3 or more beams over all scans")
+    return 0
+
+
+def _simulate_indoor(args) -> int:
+    from .simulate_indoor import simulate_indoor_to_dir
+
+    if args.laser:
+        raise ConfigError("--laser applies to --scenario park; an indoor log always has its raw scans")
+    overrides = list(args.overrides) + ([f"indoor.seed={args.seed}"] if args.seed is not None else [])
+    cfg = load_config(args.config, overrides)
+    log = simulate_indoor_to_dir(args.out, cfg.indoor)
+    w = log.world
+    print(f"wrote {args.out}: {w.template} (seed {cfg.indoor.seed}), {log.time.size} odometry samples, "
+          f"{log.scans.n_scans} scans of {log.scans.n_beams} beams; {w.walls.shape[0]} wall segments on "
+          f"{len(set(w.wall_line.tolist()))} lines, {w.pillars.shape[0]} pillars, {w.corners.shape[0]} corners, "
+          f"{w.breakpoints.shape[0]} break points; slip {100 * log.slip.mean():.0f} % of the time")
+    if log.scans.n_beams != 361:
+        print("nanoslam: note: nanoslam detect reads 361-beam LASER.txt files; read this one with "
+              f"load_laser(path, n_beams={log.scans.n_beams}, fov_deg={cfg.indoor.fov_deg})", file=sys.stderr)
     return 0
 
 

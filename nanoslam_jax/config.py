@@ -30,6 +30,7 @@ from ._config_schema import (
     DataConfig,
     DetectorConfig,
     FilterConfig,
+    IndoorConfig,
     IteratedConfig,
     MapConfig,
     MetricsConfig,
@@ -62,6 +63,7 @@ __all__ = [
     "NasrukfConfig",
     "MetricsConfig",
     "SimConfig",
+    "IndoorConfig",
     "OutputConfig",
     "SmootherConfig",
     "load_config",
@@ -214,6 +216,13 @@ def _check_consistency(cfg: Config, where: str) -> None:
     if mp.manage and not mp.confirm_probability <= mp.max_probability:
         raise ConfigError(f"{where}key 'map.confirm_probability': expected a value <= map.max_probability "
                           f"({mp.max_probability}), got {mp.confirm_probability}")
+    ind = cfg.indoor
+    if ind.speed_min > ind.speed_max:
+        raise ConfigError(f"{where}key 'indoor.speed_min': expected a value <= indoor.speed_max ({ind.speed_max}), "
+                          f"got {ind.speed_min}")
+    if ind.pillar_radius_min > ind.pillar_radius_max:
+        raise ConfigError(f"{where}key 'indoor.pillar_radius_min': expected a value <= indoor.pillar_radius_max "
+                          f"({ind.pillar_radius_max}), got {ind.pillar_radius_min}")
     if cfg.noise.forgetting >= 1.0:
         raise ConfigError(f"{where}key 'noise.forgetting': expected a value < 1, got {cfg.noise.forgetting}")
     from .methods import get_method, method_names
