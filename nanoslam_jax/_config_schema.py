@@ -157,11 +157,13 @@ class ModelConfig:
         doc="parameters of a model named by import path: a mapping of the class's field names to numbers")
     measurement: str = _f("range_bearing", static=True,
         doc="measurement model: 'range_bearing' (range and bearing to a point landmark; noise from section "
-            "noise, footprint from data.min_range, data.max_range, map.fov_deg and the map.view_margin keys), or "
-            "an import path 'module:Class' of a nanoslam_jax.models.AbstractMeasurementModel subclass")
+            "noise, footprint from data.min_range, data.max_range, map.fov_deg and the map.view_margin keys), "
+            "'line' (a wall as a line (rho, alpha), detected as a segment's line in the sensor frame; parameters "
+            "in model.measurement_params), 'circle' (an arc (xc, yc, R); not run by the filter yet), or an import "
+            "path 'module:Class' of a nanoslam_jax.models.AbstractMeasurementModel subclass")
     measurement_params: Optional[dict] = _f(None,
-        doc="parameters of a measurement model named by import path: a mapping of the class's field names to "
-            "numbers")
+        doc="parameters of the 'line' and 'circle' models or of a measurement model named by import path: a "
+            "mapping of the class's field names to numbers")
 
 
 @dataclass(frozen=True)
