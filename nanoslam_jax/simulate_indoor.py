@@ -857,8 +857,9 @@ def simulate_indoor_to_dir(directory: str | os.PathLike, cfg: IndoorConfig | Non
         directory: output directory (created if needed). Receives ``inputs.dat`` (``time v omega``),
             ``measurements.dat`` (the pillars), ``gps.dat`` and ``truth_poses.dat`` (the true laser positions
             and poses: simulated truth, not a GPS), ``truth_landmarks.dat`` / ``truth_diameters.dat`` (the
-            pillars), ``LASER.txt``, the truth CSV files of :data:`TRUTH_FILES` and ``scenario.yaml`` (the
-            ``indoor`` section and the template drawn).
+            pillars), ``LASER.txt``, the truth CSV files of :data:`TRUTH_FILES`, ``beam_truth.npz`` (arrays
+            ``kind`` and ``object_id`` of :class:`IndoorLog`: what each beam of each scan returned from) and
+            ``scenario.yaml`` (the ``indoor`` section and the template drawn).
         cfg: the ``indoor`` section; ``None``: defaults.
 
     Returns:
@@ -873,6 +874,7 @@ def simulate_indoor_to_dir(directory: str | os.PathLike, cfg: IndoorConfig | Non
     write_victoria_park(d, log.raw)
     write_laser(d / "LASER.txt", log.scans)
     write_indoor_truth(d, log)
+    np.savez_compressed(d / "beam_truth.npz", kind=log.kind.astype(np.int8), object_id=log.object_id.astype(np.int16))
     (d / "scenario.yaml").write_text(yaml.safe_dump({"indoor": dataclasses.asdict(cfg),
                                                      "template": log.world.template}, sort_keys=False))
     return log

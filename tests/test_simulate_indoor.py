@@ -279,6 +279,11 @@ def test_cli_writes_the_documented_files(tmp_path):
     np.testing.assert_array_equal(scans.valid, valid)
     np.testing.assert_allclose(scans.ranges[valid], log.scans.ranges[valid], atol=5e-4 + 1e-9)
     assert "indoor" in (out / "scenario.yaml").read_text()
+    beams = np.load(out / "beam_truth.npz")
+    np.testing.assert_array_equal(beams["kind"], log.kind)
+    np.testing.assert_array_equal(beams["object_id"], log.object_id)
+    for name in ("inputs.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat", "truth_diameters.dat", "LASER.txt"):
+        assert (out / name).is_file()
 
 
 def test_detect_runs_on_an_indoor_log(tmp_path, capsys):
