@@ -219,7 +219,7 @@ def _sensor_line(rho, alpha, pose):
 def test_front_end_recovers_the_truth_walls(clean_logs, template):
     """Split-and-merge lines on noise-free scans against the truth walls in the laser frame: exact for a line
     whose returns all lie on one wall; within 1 cm and 0.5 deg for one that shares a corner's return with the
-    wall beside it (the vertex split-and-merge gives both segments)."""
+    wall beside it (the vertex split-and-merge gives both segments). Corners and arcs against the truth too."""
     log = clean_logs[template]
     scans, w = log.scans, log.world
     pick = np.arange(0, scans.n_scans, 30)
@@ -249,6 +249,22 @@ def test_front_end_recovers_the_truth_walls(clean_logs, template):
         seen_total += seen.size
         seen_found += len(found & set(seen.tolist()))
     assert pure >= pick.size and seen_found >= 0.9 * seen_total
+    # corner points within 3 cm of a truth corner (the vertex return lies within a beam step of it); arcs exact
+    pose = log.scan_pose[pick]
+    c, si = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+
+    def world(scan, x, y):
+        return np.stack([pose[scan, 0] + c[scan] * x - si[scan] * y, pose[scan, 1] + si[scan] * x + c[scan] * y], 1)
+
+    corners = world(feats.corners.scan, feats.corners.x, feats.corners.y)
+    assert corners.shape[0] >= pick.size
+    gap = np.hypot(corners[:, None, 0] - w.corners[None, :, 0], corners[:, None, 1] - w.corners[None, :, 1]).min(axis=1)
+    assert gap.max() < 0.03
+    centres = world(feats.circles.scan, feats.circles.cx, feats.circles.cy)
+    d = np.hypot(centres[:, None, 0] - w.pillars[None, :, 0], centres[:, None, 1] - w.pillars[None, :, 1])
+    np.testing.assert_allclose(d.min(axis=1), 0.0, atol=1e-6)
+    np.testing.assert_allclose(feats.circles.radius, w.pillars[d.argmin(axis=1), 2], atol=1e-6)
+    assert template != "room" or centres.shape[0] >= 3
 
 
 def test_cli_writes_the_documented_files(tmp_path):
