@@ -348,14 +348,15 @@ def reference_path(waypoints: np.ndarray, radius: np.ndarray) -> IndoorPath:
 
 
 class _Outline(NamedTuple):
-    """A wall outline: closed polygon (counter-clockwise) and whether the free space lies inside it."""
+    """A wall outline: closed polygon (counter-clockwise as built; mirroring reverses it) and whether the free
+    space lies inside it."""
 
     vertices: np.ndarray
     free_inside: bool
 
 
 def _template_geometry(template: str, cfg: IndoorConfig, rng: np.random.Generator):
-    """Outlines, path waypoints (counter-clockwise, the first edge along +x) and the first radius guess."""
+    """Outlines and path waypoints (counter-clockwise, the first edge along +x) of a template."""
     u = rng.uniform
     if template == "room":
         w, h = u(6.0, 10.0), u(5.0, 8.0)
