@@ -24,9 +24,13 @@ import scipy.sparse as sp
 from jaxtyping import Float, Int
 from scipy.spatial import cKDTree
 
+from ._config_schema import SmootherConfig
 from .models import wrap_angle_np
 
-__all__ = ["LoopClosureSettings", "co_observed", "find_duplicates", "path_moved_by_copies"]
+#: The config's defaults (:class:`nanoslam_jax.config.SmootherConfig`), the one source of the settings' defaults.
+_DEFAULT = SmootherConfig()
+
+__all__ = ["LoopClosureSettings", "co_observed", "find_duplicates", "loop_closure_settings", "path_moved_by_copies"]
 
 
 class LoopClosureSettings(NamedTuple):
@@ -47,13 +51,21 @@ class LoopClosureSettings(NamedTuple):
             most; drawn at random with a fixed seed when the submap has more).
     """
 
-    window: float = 50.0
-    radius: float = 1.0
-    search: float = 40.0
-    max_turn: float = float(np.deg2rad(30.0))
-    min_inliers: int = 6
-    accept: float = 0.75
+    window: float = _DEFAULT.loop_closure_window
+    radius: float = _DEFAULT.loop_closure_radius
+    search: float = _DEFAULT.loop_closure_search
+    max_turn: float = float(np.deg2rad(_DEFAULT.loop_closure_max_turn_deg))
+    min_inliers: int = _DEFAULT.loop_closure_min_inliers
+    accept: float = _DEFAULT.loop_closure_accept
     hypotheses: int = 200
+
+
+def loop_closure_settings(sc) -> LoopClosureSettings:
+    """The loop closure's settings from the config's ``smoother`` section
+    (:class:`nanoslam_jax.config.SmootherConfig`, its ``loop_closure_*`` keys)."""
+    return LoopClosureSettings(window=sc.loop_closure_window, radius=sc.loop_closure_radius,
+                               search=sc.loop_closure_search, max_turn=float(np.deg2rad(sc.loop_closure_max_turn_deg)),
+                               min_inliers=sc.loop_closure_min_inliers, accept=sc.loop_closure_accept)
 
 
 def co_observed(seg: Int[np.ndarray, " n"], lid: Int[np.ndarray, " n"], n_landmarks: int) -> sp.csr_matrix:

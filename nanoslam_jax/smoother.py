@@ -54,18 +54,25 @@ import jax
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._config_schema import SmootherConfig
 from .filter._params import Params
 from .filter import relative_priors
-from ._loop_closure import LoopClosureSettings, co_observed, find_duplicates, path_moved_by_copies
+from ._loop_closure import LoopClosureSettings, co_observed, find_duplicates, path_moved_by_copies, loop_closure_settings
 from ._least_squares import _solve
 from .models import wrap_angle_np
 
 __all__ = ["LoopClosureSettings", "SmootherSettings", "Smoothed", "associate_path", "final_map", "held_landmarks",
-           "segment_motion", "smooth_path", "smooth_run", "smoother_map"]
+           "segment_motion", "smooth_filter_run", "smooth_path", "smooth_run", "smoother_map", "smoother_metrics"]
+
+#: The config's defaults (:class:`nanoslam_jax.config.SmootherConfig`), the one source of the settings' defaults.
+_DEFAULT = SmootherConfig()
 
 
 class SmootherSettings(NamedTuple):
     """The ``smoother`` section (:class:`nanoslam_jax.config.SmootherConfig`).
+
+    Its defaults are the config's: ``SmootherSettings()`` equals
+    ``SmootherSettings.from_config(SmootherConfig())`` (loop closure and map history on).
 
     Attributes:
         odometry_scale: the odometry factors' covariance is the filter's segment prior covariance
@@ -92,29 +99,26 @@ class SmootherSettings(NamedTuple):
             its history also holds, stays out).
     """
 
-    odometry_scale: float = 0.3
-    floor_xy: float = 0.1
-    floor_phi: float = float(np.deg2rad(0.3))
-    huber: float = 2.0
-    max_iter: int = 50
-    tol: float = 1e-3
-    loop_closure: LoopClosureSettings | None = None
-    loop_closure_rounds: int = 2
-    map_history: bool = False
-    map_history_radius: float = 1.0
-    map_history_min: int = 5
-    map_history_below: float = 0.8
+    odometry_scale: float = _DEFAULT.odometry_scale
+    floor_xy: float = _DEFAULT.floor_xy
+    floor_phi: float = float(np.deg2rad(_DEFAULT.floor_phi_deg))
+    huber: float = _DEFAULT.huber
+    max_iter: int = _DEFAULT.max_iter
+    tol: float = _DEFAULT.tol
+    loop_closure: LoopClosureSettings | None = loop_closure_settings(_DEFAULT) if _DEFAULT.loop_closure else None
+    loop_closure_rounds: int = _DEFAULT.loop_closure_rounds
+    map_history: bool = _DEFAULT.map_history
+    map_history_radius: float = _DEFAULT.map_history_radius
+    map_history_min: int = _DEFAULT.map_history_min
+    map_history_below: float = _DEFAULT.map_history_below
 
     @classmethod
     def from_config(cls, sc) -> "SmootherSettings":
         """From the config's ``smoother`` section (:class:`nanoslam_jax.config.SmootherConfig`)."""
-        lc = LoopClosureSettings(
-            window=sc.loop_closure_window, radius=sc.loop_closure_radius, search=sc.loop_closure_search,
-            max_turn=float(np.deg2rad(sc.loop_closure_max_turn_deg)), min_inliers=sc.loop_closure_min_inliers,
-            accept=sc.loop_closure_accept)
         return cls(odometry_scale=sc.odometry_scale, floor_xy=sc.floor_xy,
                    floor_phi=float(np.deg2rad(sc.floor_phi_deg)), huber=sc.huber, max_iter=sc.max_iter, tol=sc.tol,
-                   loop_closure=lc if sc.loop_closure else None, loop_closure_rounds=sc.loop_closure_rounds,
+                   loop_closure=loop_closure_settings(sc) if sc.loop_closure else None,
+                   loop_closure_rounds=sc.loop_closure_rounds,
                    map_history=sc.map_history, map_history_radius=sc.map_history_radius,
                    map_history_min=sc.map_history_min, map_history_below=sc.map_history_below)
 
@@ -405,3 +409,42 @@ def smooth_run(path, landmarks, segments, params: Params, settings: SmootherSett
     return smooth_path(path, landmarks, np.asarray(segments.z), np.asarray(segments.z_mask), np.asarray(mean),
                        np.asarray(cov), float(params.sigma_r), float(params.sigma_beta), float(params.gate), settings,
                        np.asarray(segments.time), held)
+
+
+def smooth_filter_run(run, path, segments, params: Params, config, prior: str = "unscented",
+                      index: int | None = None) -> Smoothed:
+    """Smooth one run of :func:`~nanoslam_jax.filter.run_filter` (or member ``index`` of a
+    :func:`~nanoslam_jax.filter.run_batch`): its final best particle's map (:func:`smoother_map`)
+    and ``path``, with the settings of the config's ``smoother`` section ``config``.
+
+    Args:
+        run: the run (:class:`~nanoslam_jax.filter.FilterRun`).
+        path: ``(segments, 3)`` its ancestral path (``reported_trajectory("path", ...)``, that member's).
+        segments: the log's segments.
+        params: the run's hyperparameters (one member's).
+        config: the ``smoother`` section (:class:`nanoslam_jax.config.SmootherConfig`).
+        prior: ``filter.prior``.
+        index: the member of a batch run (None: a single run).
+    """
+    settings = SmootherSettings.from_config(config)
+    final, held = smoother_map(run, settings, index)
+    return smooth_run(path, final, segments, params, settings, prior, held)
+
+
+def smoother_metrics(sm: Smoothed, config) -> tuple[dict, list[str]]:
+    """What a smoothed run reports: ``smoother_*`` figures, and a warning when it did not converge.
+
+    Args:
+        sm: the smoothed run.
+        config: the ``smoother`` section it ran with (named in the warning).
+
+    Returns:
+        ``(metrics, warnings)``.
+    """
+    m = dict(smoother_iterations=sm.iterations, smoother_converged=sm.converged, smoother_associated=sm.associated,
+             smoother_detections=sm.detections, smoother_cost_initial=sm.initial_cost, smoother_cost=sm.cost,
+             smoother_s=sm.seconds, smoother_merged=sm.merged, smoother_rejected=sm.rejected)
+    warn = [] if sm.converged else [
+        f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "
+        f"{config.max_iter}, smoother.tol {config.tol:g}); the smoothed path is reported as it stands"]
+    return m, warn
