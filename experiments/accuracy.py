@@ -15,7 +15,9 @@ own estimate of the same runs (``rmse_*_best``), a paired comparison of the two.
 ``smoother.enabled`` (configs/victoria_park_best.yaml) each seed's path and map are smoothed
 (:mod:`nanoslam_jax.smoother`) and scored, with the path it started from (``rmse_*_path``) and
 the filter's own estimate (``rmse_*_best``) beside them; a seed whose smoother did not converge
-is named.
+is named. Each seed is scored as every command scores a run (``nanoslam_jax._scoring.score_run``)
+and the seeds are summarised under its failed-seed rule (a seed whose estimate became non-finite
+is counted, named, and counts as an infinite error).
 """
 
 from __future__ import annotations
@@ -23,14 +25,18 @@ from __future__ import annotations
 import argparse
 import json
 
+import jax
 import numpy as np
 
 from nanoslam_jax import enable_compile_cache
+from nanoslam_jax._scoring import (MapEstimate, companion_tracks, failure_reason, format_number, score_run,
+                                   summarize_runs)
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
+from nanoslam_jax.filter import (reported_map, reported_trajectory, run_batch, settings_from_config, stack_params,
+                                 text_progress)
 from nanoslam_jax.metrics import evaluate
-from nanoslam_jax.smoother import SmootherSettings, smooth_run, smoother_map
+from nanoslam_jax.smoother import smooth_filter_run
 
 KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
 
@@ -70,55 +76,53 @@ def main() -> None:
     if args.without_fix:
         keys += ("rmse_fixed_without", "rmse_aligned_without")
     est = reported_trajectory(static.estimate, run.outputs, run.state)
-    smoothed = None
     if cfg.smoother.enabled:  # the final best particle's path and map refined offline, per seed
-        settings = SmootherSettings.from_config(cfg.smoother)
-        maps = [smoother_map(run, settings, i) for i in range(len(seeds))]  # (final map, held landmarks)
-        smoothed = [smooth_run(est[i], maps[i][0], log.segments, params, settings, cfg.filter.prior, maps[i][1])
-                    for i in range(len(seeds))]
         keys += ("rmse_fixed_path", "rmse_aligned_path", "smoother_iterations", "smoother_merged", "smoother_s")
     mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
+    maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
     rows = []
     for i, s in enumerate(seeds):
-        traj = est[i] if smoothed is None else smoothed[i].poses
-        m = evaluate(t, traj[:, :2], log.raw.gps, **mk)
-        if smoothed is not None:  # the path the smoother started from, paired
-            pth = evaluate(t, est[i][:, :2], log.raw.gps, **mk)
-            m.update(rmse_fixed_path=pth["rmse_fixed"], rmse_aligned_path=pth["rmse_aligned"],
-                     smoother_iterations=smoothed[i].iterations, smoother_merged=smoothed[i].merged,
-                     smoother_s=smoothed[i].seconds)
-            if not smoothed[i].converged:
-                print(f"warning: seed {s}: the smoother stopped after {smoothed[i].iterations} iterations without converging")
-        if static.estimate == "path":  # the filter's own estimate of the same run beside the path (paired)
-            b = evaluate(t, np.asarray(run.outputs.best_pose[i])[:, :2], log.raw.gps, **mk)
-            m.update(rmse_fixed_best=b["rmse_fixed"], rmse_aligned_best=b["rmse_aligned"])
-        if args.without_fix:
+        traj, before, extra = np.asarray(est[i]), None, {}
+        if cfg.smoother.enabled and np.all(np.isfinite(traj)):
+            sm = smooth_filter_run(run, traj, log.segments, params, cfg.smoother, cfg.filter.prior, i)
+            before, traj = traj, sm.poses
+            extra = dict(smoother_iterations=sm.iterations, smoother_merged=sm.merged, smoother_s=sm.seconds)
+            if not sm.converged:
+                print(f"warning: seed {s}: the smoother stopped after {sm.iterations} iterations without converging")
+        act = maps.active[i]
+        m = score_run(log, traj, cfg.metrics, MapEstimate(maps.mean[i][act], maps.confirmed[i][act]),
+                      companion_tracks(static.estimate, np.asarray(run.outputs.best_pose[i]),
+                                       np.asarray(run.outputs.mean_pose[i]), before))
+        m.update(extra)
+        if args.without_fix and m["finite"]:
             w = evaluate(t, traj[:, :2], gps[keep], **mk)
             m.update(rmse_fixed_without=w["rmse_fixed"], rmse_aligned_without=w["rmse_aligned"])
-        best = int(run.state.best[i])
-        lm = run.state.particles.landmarks
-        rows.append({"seed": int(s), **{k: m[k] for k in keys},
-                     "n_landmarks": int(lm.active[i, best].sum()),
-                     "n_confirmed": int((lm.active[i, best] & lm.confirmed[i, best]).sum()),
-                     "finite": bool(np.all(np.isfinite(traj)))})
+        reason = failure_reason(t, traj)
+        rows.append({"seed": int(s), "status": "failed" if reason else "ok", "reason": reason,
+                     **{k: m.get(k, float("nan")) for k in keys + ("n_landmarks", "n_confirmed")},
+                     "finite": m["finite"]})
 
     print(f"\n{cfg.name}: {cfg.filter.method}, {static.n_particles} particles, {len(seeds)} seeds, "
           f"{t.shape[0]} scans, batch run {run.run_s:.1f} s (compile {run.compile_s:.1f} s)\n")
     print("| seed | " + " | ".join(keys) + " | landmarks | confirmed |")
     print("|---" * (len(keys) + 3) + "|")
     for r in rows:
-        print(f"| {r['seed']} | " + " | ".join(f"{r[k]:.3f}" for k in keys) + f" | {r['n_landmarks']} | {r['n_confirmed']} |")
-    summary = {}
-    for k in keys + ("n_landmarks", "n_confirmed"):
-        v = np.array([r[k] for r in rows], float)
-        q1, med, q3 = np.percentile(v, [25, 50, 75])
-        summary[k] = {"median": med, "q1": q1, "q3": q3, "min": v.min(), "max": v.max()}
+        print(f"| {r['seed']} | " + " | ".join(format_number(float(r[k])) for k in keys)
+              + f" | {r['n_landmarks']} | {r['n_confirmed']} |")
+    st = summarize_runs(rows, keys + ("n_landmarks", "n_confirmed"))
+    summary = {k: {x: st[f"{k}_{x}"] for x in ("median", "q1", "q3", "min", "max")}
+               for k in keys + ("n_landmarks", "n_confirmed")}
     print("\n| metric | median | IQR | min | max |\n|---|---|---|---|---|")
-    for k, s in summary.items():
-        print(f"| {k} | {s['median']:.3f} | {s['q1']:.3f} - {s['q3']:.3f} | {s['min']:.3f} | {s['max']:.3f} |")
+    for k, q in summary.items():
+        print(f"| {k} | {format_number(q['median'])} | {format_number(q['q1'])} - {format_number(q['q3'])} | "
+              f"{format_number(q['min'])} | {format_number(q['max'])} |")
+    if st["n_failed"]:
+        print(f"\n{st['n_failed']} of {len(rows)} seeds failed (counted as an infinite error): seeds "
+              f"{st['failed_seeds'].replace(';', ', ')}: {st['reasons']}")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"config": args.config, "overrides": args.overrides, "rows": rows, "summary": summary}, f, indent=2)
+            json.dump({"config": args.config, "overrides": args.overrides, "rows": rows, "summary": summary,
+                       "n_failed": st["n_failed"], "failed_seeds": st["failed_seeds"]}, f, indent=2)
 
 
 if __name__ == "__main__":

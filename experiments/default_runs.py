@@ -10,7 +10,9 @@ simulated log (``sim.seed`` = 0, 1, ...) the filter seeds ``1000 * sim.seed + i`
 vmapped in one program; each run is scored by the evaluation protocol against the truth, next to
 noise-free dead reckoning on the same log, and its reported map (confirmed landmarks) against the
 trees its true path could see, in the SLAM frame and after the trajectory's rigid alignment.
-Prints one line per run and the medians, quartiles and worst cases.
+Prints one line per run and the medians, quartiles and worst cases. Runs are scored as every
+command scores one (``nanoslam_jax._scoring.score_run``) and summarised under its failed-seed rule
+(a run whose estimate became non-finite is counted and counts as the worst value).
 """
 
 from __future__ import annotations
@@ -22,10 +24,11 @@ import time
 import jax
 import numpy as np
 
+from nanoslam_jax._scoring import MapEstimate, failure_reason, score_run, seed_summary
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import dead_reckoning, reported_map, run_batch, settings_from_config, stack_params
-from nanoslam_jax.metrics import evaluate, map_summary
+from nanoslam_jax.filter import (dead_reckoning, reported_map, reported_trajectory, run_batch, settings_from_config,
+                                 stack_params)
 
 
 def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds: int) -> list[dict]:
@@ -38,20 +41,22 @@ def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds
     seeds = 1000 * sim_seed + np.arange(n_seeds)
     run = run_batch(static, stack_params([params] * n_seeds), log.segments, seeds, chunk=cfg.output.chunk)
     t = np.asarray(log.segments.time)
-    protocol = dict(frame=log.frame, rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
-    dr = evaluate(t, np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments)))[:, :2], log.raw.gps,
-                  **protocol)
+    dr = score_run(log, np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments))), cfg.metrics)
     maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
+    est = np.asarray(reported_trajectory(static.estimate, run.outputs, run.state))
+    nan = float("nan")
     rows = []
     for i, seed in enumerate(seeds):
-        m = evaluate(t, np.asarray(run.outputs.best_pose[i])[:, :2], log.raw.gps, **protocol)
         act = maps.active[i]
-        q = map_summary(maps.mean[i][act], maps.confirmed[i][act], log.map_truth, cfg.metrics.map_radius, m)
-        rows.append(dict(sim_seed=sim_seed, seed=int(seed), rmse_fixed=m["rmse_fixed"], rmse_aligned=m["rmse_aligned"],
-                         dr_rmse_fixed=dr["rmse_fixed"], dr_over_slam=dr["rmse_fixed"] / m["rmse_fixed"],
-                         n_confirmed=q["n_confirmed"], found=q["map_found_fraction"],
-                         spurious=q["map_spurious_fraction"], found_aligned=q["map_found_fraction_aligned"],
-                         spurious_aligned=q["map_spurious_fraction_aligned"],
+        m = score_run(log, est[i], cfg.metrics, MapEstimate(maps.mean[i][act], maps.confirmed[i][act]))
+        reason = failure_reason(t, est[i])
+        rows.append(dict(sim_seed=sim_seed, seed=int(seed), status="failed" if reason else "ok", reason=reason,
+                         rmse_fixed=m.get("rmse_fixed", nan), rmse_aligned=m.get("rmse_aligned", nan),
+                         dr_rmse_fixed=dr.get("rmse_fixed", nan),
+                         dr_over_slam=dr.get("rmse_fixed", nan) / m.get("rmse_fixed", nan),
+                         n_confirmed=m["n_confirmed"], found=m["map_found_fraction"],
+                         spurious=m["map_spurious_fraction"], found_aligned=m.get("map_found_fraction_aligned", nan),
+                         spurious_aligned=m.get("map_spurious_fraction_aligned", nan),
                          overflow=int(np.asarray(run.state.overflow)[i])))
     return rows
 
@@ -75,19 +80,27 @@ def main() -> None:
             print(f"sim {r['sim_seed']} seed {r['seed']}: RMSE {r['rmse_fixed']:.2f} m (aligned {r['rmse_aligned']:.2f}), "
                   f"dead reckoning {r['dr_rmse_fixed']:.1f} m ({r['dr_over_slam']:.1f}x); {r['n_confirmed']} confirmed, "
                   f"found {100 * r['found_aligned']:.0f} %, spurious {100 * r['spurious_aligned']:.1f} % (aligned)", flush=True)
-    col = {k: np.array([r[k] for r in rows], float) for k in rows[0]}
+    col = {k: np.array([r[k] for r in rows], float) for k in rows[0] if k not in ("status", "reason")}
+    failed = [r["status"] != "ok" for r in rows]
 
     def spread(v):
-        return f"median {np.median(v):.2f} (IQR {np.percentile(v, 25):.2f}-{np.percentile(v, 75):.2f}), worst {np.max(v):.2f}"
+        s = seed_summary(v, failed, "min")
+        return f"median {s['median']:.2f} (IQR {s['q1']:.2f}-{s['q3']:.2f}), worst {s['worst']:.2f}"
 
-    print(f"\n{len(rows)} runs, {time.perf_counter() - t0:.0f} s")
+    print(f"\n{len(rows)} runs, {time.perf_counter() - t0:.0f} s"
+          + (f", {sum(failed)} failed (non-finite estimate; counted as the worst value)" if any(failed) else ""))
     print(f"RMSE fixed [m]: {spread(col['rmse_fixed'])}; aligned: {spread(col['rmse_aligned'])}")
+    def st(k, goal):  # one column under the failed-seed rule (found: higher is better)
+        return seed_summary(col[k], failed, goal)
+
+    dos, fa, sa = st("dr_over_slam", "max"), st("found_aligned", "max"), st("spurious_aligned", "min")
     print(f"dead reckoning [m]: {col['dr_rmse_fixed'].min():.1f}-{col['dr_rmse_fixed'].max():.1f}; "
-          f"dead reckoning / SLAM: median {np.median(col['dr_over_slam']):.1f}, least {col['dr_over_slam'].min():.1f}")
-    print(f"confirmed landmarks: median {np.median(col['n_confirmed']):.0f}; aligned map: found median "
-          f"{100 * np.median(col['found_aligned']):.0f} % (least {100 * col['found_aligned'].min():.0f} %), spurious median "
-          f"{100 * np.median(col['spurious_aligned']):.1f} % (most {100 * col['spurious_aligned'].max():.1f} %); "
-          f"SLAM frame: found {100 * np.median(col['found']):.0f} %, spurious {100 * np.median(col['spurious']):.1f} %")
+          f"dead reckoning / SLAM: median {dos['median']:.1f}, least {dos['worst']:.1f}")
+    print(f"confirmed landmarks: median {st('n_confirmed', None)['median']:.0f}; aligned map: found median "
+          f"{100 * fa['median']:.0f} % (least {100 * fa['worst']:.0f} %), spurious median "
+          f"{100 * sa['median']:.1f} % (most {100 * sa['worst']:.1f} %); "
+          f"SLAM frame: found {100 * st('found', 'max')['median']:.0f} %, "
+          f"spurious {100 * st('spurious', 'min')['median']:.1f} %")
     print(f"RMSE < 2 m: {int(np.sum(col['rmse_fixed'] < 2))}/{len(rows)}; found >= 90 % and spurious <= 10 % (aligned): "
           f"{int(np.sum((col['found_aligned'] >= 0.9) & (col['spurious_aligned'] <= 0.1)))}/{len(rows)}; "
           f"capacity overflow in {int(np.sum(col['overflow'] > 0))}")

@@ -9,7 +9,10 @@ position (survey_rmse: median, interquartile range and worst over the seeds), la
 spurious (medians), the same RMSE pairing each landmark with the surveyed one of its barcode
 (known association), and the dead-reckoning map of the same robot (every sighting projected from
 the dead-reckoned path, averaged per barcode, paired by barcode) with its ratio to the median.
-Failed runs are counted in the row, never dropped from it silently.
+Seeds are summarised under the failed-seed rule of every command (``nanoslam_jax._scoring``): a
+failed run (e.g. a landmark capacity overflow under the sweep's ``fail_on_overflow``) is counted in
+the row and counts as the worst value (an infinite RMSE, ``-inf`` landmarks found), so a median
+that more than half the seeds failed is ``inf``.
 """
 
 from __future__ import annotations
@@ -19,19 +22,10 @@ import csv
 import math
 from pathlib import Path
 
-import numpy as np
-
+from nanoslam_jax._scoring import format_number, summarize_runs
 from nanoslam_jax.config import load_config, resolve_data_dir
 from nanoslam_jax.data import dead_reckoning_map, load_mrclam
 from nanoslam_jax.metrics import map_alignment_metrics
-
-
-def _stats(values: list[float]) -> tuple[float, float, float, float]:
-    v = np.asarray(values, dtype=float)
-    if v.size == 0:
-        return (math.nan,) * 4
-    q1, med, q3 = np.percentile(v, [25, 50, 75])
-    return float(med), float(q1), float(q3), float(np.max(v))
 
 
 def main() -> None:
@@ -57,14 +51,16 @@ def main() -> None:
           "| by barcode, median (m) | DR map (m) | DR / SLAM |")
     print("|---:|---|---|---:|---|---:|---:|---:|---:|---:|")
     for (robot, assoc, method), rs in sorted(groups.items()):
-        ok = [r for r in rs if r["status"] == "ok" and r.get("survey_rmse") not in ("", None)]
-        med, q1, q3, worst = _stats([float(r["survey_rmse"]) for r in ok])
-        found = np.median([float(r["survey_found"]) for r in ok]) if ok else math.nan
-        spur = np.median([float(r["survey_spurious"]) for r in ok]) if ok else math.nan
-        by_id = [float(r["survey_rmse_by_id"]) for r in ok if r.get("survey_rmse_by_id") not in ("", None)]
-        by_id_s = f"{np.median(by_id):.3f}" if by_id else "-"
-        print(f"| {robot} | {assoc} | {method} | {len(rs)} ({len(rs) - len(ok)}) | {med:.3f} [{q1:.3f}, {q3:.3f}] "
-              f"{worst:.3f} | {found:g} | {spur:g} | {by_id_s} | {baseline[robot]:.2f} | {baseline[robot] / med:.0f}x |")
+        st = summarize_runs(rs, ["survey_rmse", "survey_found", "survey_spurious", "survey_rmse_by_id"],
+                            stats=("median", "q1", "q3", "worst"))
+        med = st["survey_rmse_median"]
+        by_id = st["survey_rmse_by_id_median"]
+        by_id_s = "-" if math.isnan(by_id) else format_number(by_id)
+        ratio = f"{baseline[robot] / med:.0f}x" if math.isfinite(med) and med > 0 else "-"
+        print(f"| {robot} | {assoc} | {method} | {st['n_runs']} ({st['n_failed']}) | {format_number(med)} "
+              f"[{format_number(st['survey_rmse_q1'])}, {format_number(st['survey_rmse_q3'])}] "
+              f"{format_number(st['survey_rmse_worst'])} | {st['survey_found_median']:g} | "
+              f"{st['survey_spurious_median']:g} | {by_id_s} | {baseline[robot]:.2f} | {ratio} |")
 
 
 if __name__ == "__main__":

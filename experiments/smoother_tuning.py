@@ -22,19 +22,24 @@ import json
 import numpy as np
 
 from nanoslam_jax import enable_compile_cache
+from nanoslam_jax._scoring import score_run, seed_summary
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
-from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.smoother import SmootherSettings, smooth_run, smoother_map
 from target_score import score as target_score  # experiments/ is on the path when this script runs
 
 
+def _summary(v: np.ndarray, ok: np.ndarray) -> dict:
+    """One metric over the seeds under the failed-seed rule (a seed not ``ok`` counts as ``inf``)."""
+    return seed_summary(v, ~np.asarray(ok, bool), "min")
+
+
 def _score(fixed: np.ndarray, aligned: np.ndarray, ok: np.ndarray, a: float, f: float, w: float) -> float:
     """target_score.py's score of one setting's seeds (a seed not ``ok`` counts as a failed run)."""
-    row = {"rmse_aligned_median": np.median(aligned), "rmse_fixed_median": np.median(fixed),
-           "rmse_aligned_max": np.max(aligned), "rmse_fixed_max": np.max(fixed),
-           "n_failed": int(np.sum(~ok | ~np.isfinite(fixed) | ~np.isfinite(aligned)))}
+    sf, sa = _summary(fixed, ok), _summary(aligned, ok)
+    row = {"rmse_aligned_median": sa["median"], "rmse_fixed_median": sf["median"], "rmse_aligned_max": sa["max"],
+           "rmse_fixed_max": sf["max"], "n_failed": max(sf["n_failed"], sa["n_failed"])}
     return float(target_score(row, a, f, w)["score"])
 
 
@@ -68,9 +73,8 @@ def main() -> None:
     run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds, chunk=cfg.output.chunk,
                     progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
     paths = reported_trajectory("path", run.outputs, run.state)
-    t = np.asarray(log.segments.time)
-    mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
-    base = [evaluate(t, paths[i][:, :2], log.raw.gps, **mk) for i in range(len(seeds))]
+    nan = float("nan")
+    base = [score_run(log, paths[i], cfg.metrics) for i in range(len(seeds))]
 
     results = []
     combos = list(itertools.product(*grid.values())) or [()]
@@ -81,29 +85,37 @@ def main() -> None:
         for i, s in enumerate(seeds):
             final, held = smoother_map(run, settings, i)
             sm = smooth_run(paths[i], final, log.segments, params, settings, cfg.filter.prior, held)
-            m = evaluate(t, sm.poses[:, :2], log.raw.gps, **mk)
-            rows.append(dict(seed=int(s), rmse_fixed=m["rmse_fixed"], rmse_aligned=m["rmse_aligned"],
-                             rmse_fixed_path=base[i]["rmse_fixed"], rmse_aligned_path=base[i]["rmse_aligned"],
+            m = score_run(log, sm.poses, cfg.metrics)
+            rows.append(dict(seed=int(s), rmse_fixed=m.get("rmse_fixed", nan), rmse_aligned=m.get("rmse_aligned", nan),
+                             rmse_fixed_path=base[i].get("rmse_fixed", nan),
+                             rmse_aligned_path=base[i].get("rmse_aligned", nan),
                              iterations=sm.iterations, converged=sm.converged, seconds=sm.seconds))
         fx, al = (np.array([r[k] for r in rows]) for k in ("rmse_fixed", "rmse_aligned"))
         conv = np.array([r["converged"] for r in rows])
         setting = dict(zip(grid, values))
         score = _score(fx, al, conv, args.aligned, args.fixed, args.worst)
         results.append(dict(setting=setting, score=score, rows=rows))
-        print(f"{setting}: fixed {np.median(fx):.2f} (worst {fx.max():.2f}), aligned {np.median(al):.2f} "
-              f"(worst {al.max():.2f}), score {score:.3f}, {conv.sum()}/{len(conv)} converged, "
+        sf, sa = _summary(fx, conv), _summary(al, conv)
+        print(f"{setting}: fixed {sf['median']:.2f} (worst {sf['worst']:.2f}), aligned {sa['median']:.2f} "
+              f"(worst {sa['worst']:.2f}), score {score:.3f}, {conv.sum()}/{len(conv)} converged, "
               f"{np.median([r['seconds'] for r in rows]):.1f} s per seed", flush=True)
 
-    fx0, al0 = (np.array([b[k] for b in base]) for k in ("rmse_fixed", "rmse_aligned"))
-    print(f"\n{cfg.name}, seeds {seeds[0]}-{seeds[-1]}: the unsmoothed path: fixed {np.median(fx0):.2f} "
-          f"(worst {fx0.max():.2f}), aligned {np.median(al0):.2f} (worst {al0.max():.2f}), score "
+    fx0, al0 = (np.array([b.get(k, nan) for b in base]) for k in ("rmse_fixed", "rmse_aligned"))
+    all_ok = np.ones(len(seeds), bool)
+    sf0, sa0 = _summary(fx0, all_ok), _summary(al0, all_ok)
+    print(f"\n{cfg.name}, seeds {seeds[0]}-{seeds[-1]}: the unsmoothed path: fixed {sf0['median']:.2f} "
+          f"(worst {sf0['worst']:.2f}), aligned {sa0['median']:.2f} (worst {sa0['worst']:.2f}), score "
           f"{_score(fx0, al0, np.ones(len(seeds), bool), args.aligned, args.fixed, args.worst):.3f}\n")
     print("| " + " | ".join(grid) + " | rmse_fixed median [IQR], worst | rmse_aligned median [IQR], worst | "
           "iterations (max) | score |")
     print("|---" * (len(grid) + 4) + "|")
     for r in sorted(results, key=lambda r: r["score"]):
         fx, al = (np.array([x[k] for x in r["rows"]]) for k in ("rmse_fixed", "rmse_aligned"))
-        q = lambda v: f"{np.median(v):.2f} [{np.percentile(v, 25):.2f}, {np.percentile(v, 75):.2f}], {v.max():.2f}"  # noqa: E731
+        ok = np.array([x["converged"] for x in r["rows"]])
+
+        def q(v):
+            st = _summary(v, ok)
+            return f"{st['median']:.2f} [{st['q1']:.2f}, {st['q3']:.2f}], {st['worst']:.2f}"
         print("| " + " | ".join(f"{v:g}" for v in r["setting"].values()) + f" | {q(fx)} | {q(al)} | "
               f"{max(x['iterations'] for x in r['rows'])} | {r['score']:.3f} |")
     if args.json:

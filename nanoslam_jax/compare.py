@@ -19,8 +19,14 @@ figures to print beside ours::
 For each method the seeds run vmapped in one compiled program (:func:`filter.run_batch`); a
 separate single run of the first seed, timed chunk by chunk, gives the computation time per
 scan (the table's ms per scan and Fig. 5). EKF-SLAM, NASRUKF and dead reckoning are deterministic
-and run once. A method that fails (bad config, non-finite estimate, exception) is recorded with its
-reason; the others still run.
+and run once. With ``smoother.enabled`` (``filter.estimate: path``) each seed's final best particle's
+path and map are smoothed after the batch (:mod:`nanoslam_jax.smoother`), and the smoothed path is
+scored, with the path it started from beside it (``rmse_*_path``). Every run is scored by
+:func:`nanoslam_jax._scoring.score_run` and the seeds summarised by
+:func:`nanoslam_jax._scoring.summarize_runs`: a failed seed (non-finite estimate, exception) is
+counted and named, and counts as an infinite error in the medians, quartiles and worst seed. A
+method that fails as a whole (bad config, exception) is recorded with its reason; the others still
+run.
 
 Writes ``table1.md``, ``table1.csv`` (one row per method), ``runs.csv`` (one row per method and
 seed), ``summary.json``, ``compare.yaml`` (the resolved comparison with the version), the resolved
@@ -30,7 +36,6 @@ config of each method under ``configs/``, and ``fig3_trajectories.png``, ``fig4_
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import datetime as _dt
 import json
@@ -46,9 +51,12 @@ import numpy as np
 import yaml
 
 from ._version import __version__
+from ._scoring import (MapEstimate, companion_tracks, failure_reason, format_number, score_run, summarize_runs,
+                       write_rows_csv)
 from .config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
 from .filter import (dead_reckoning, reported_map, reported_trajectory, run_batch, run_filter,
                      settings_from_config, stack_params)
+from .smoother import smooth_filter_run, smoother_metrics
 
 def deterministic(method: str) -> bool:
     """Whether a run of ``method`` does not depend on the seed (Gaussian methods, dead reckoning)."""
@@ -223,30 +231,7 @@ def method_config(spec: CompareSpec, m: MethodSpec) -> Config:
         cfg = load_config(spec.base, list(spec.set) + list(m.set))
     except ConfigError as e:
         raise ConfigError(f"{spec.source}: method {m.label!r}: {e}") from None
-    if cfg.smoother.enabled:
-        raise ConfigError(f"{spec.source}: method {m.label!r}: smoother.enabled is not available in comparisons, "
-                          "which score the filters' own estimates; set it to false (nanoslam run and "
-                          "experiments/accuracy.py score the smoothed path)")
     return dataclasses.replace(cfg, name=f"{spec.name}-{m.label}")
-
-
-def _quartiles(v: np.ndarray) -> tuple[float, float, float]:
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return (math.nan,) * 3
-    q1, med, q3 = np.percentile(v, [25, 50, 75])
-    return float(med), float(q1), float(q3)
-
-
-def _evaluate(cfg: Config, log, est: np.ndarray) -> dict:
-    from .metrics import evaluate
-
-    t = np.asarray(log.segments.time)
-    if not np.all(np.isfinite(est)) or not len(log.raw.gps):
-        return {k: math.nan for k in RMSE_KEYS}
-    m = evaluate(t, est[:, :2], log.raw.gps, rotation_deg=cfg.metrics.gps_rotation_deg,
-                 jump_speed=cfg.metrics.jump_speed, frame=log.frame)
-    return {k: float(m[k]) for k in RMSE_KEYS}
 
 
 @dataclasses.dataclass
@@ -267,8 +252,16 @@ class MethodResult:
     chunk_t: Optional[np.ndarray] = None  # log time at the middle of each chunk
 
 
+def _map_of(maps, i: int) -> MapEstimate:
+    act = np.asarray(maps.active[i], bool)
+    ids = None if getattr(maps, "ident", None) is None else np.asarray(maps.ident[i])[act]
+    return MapEstimate(np.asarray(maps.mean[i])[act], np.asarray(maps.confirmed[i])[act], ids)
+
+
 def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodResult:
-    """Run one method over the seeds (vmapped) and once more, timed, for the time per scan."""
+    """Run one method over the seeds (vmapped) and once more, timed, for the time per scan; with
+    ``smoother.enabled`` each seed's run is smoothed after the batch; every seed is scored
+    (:func:`~nanoslam_jax._scoring.score_run`)."""
     cfg = method_config(spec, m)
     method = cfg.filter.method
     seg = log.segments
@@ -286,7 +279,11 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
         res.ms_per_scan = 1e3 * (time.perf_counter() - t1) / n
         res.compile_s = t1 - t0
         res.trajectory = est
-        res.rows.append({"seed": spec.first_seed, **_evaluate(cfg, log, est), "n_landmarks": 0, "n_confirmed": 0, "finite": bool(np.all(np.isfinite(est)))})
+        reason = failure_reason(t, est)
+        res.rows.append({"seed": spec.first_seed, "status": "failed" if reason else "ok", "reason": reason,
+                         **score_run(log, est, cfg.metrics), "n_landmarks": 0, "n_confirmed": 0})
+        if reason:
+            res.status, res.reason = "failed", reason
         return res
 
     # Timing: one run of the first seed, chunk by chunk.
@@ -299,74 +296,84 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
     res.chunk_t = t[mids]
 
     if len(seeds) == 1:
+        run, index = single, None
+        if cfg.smoother.enabled and cfg.smoother.map_history and single.chunk_size != min(cfg.output.chunk, n):
+            # The smoother's map history is the map at the end of each chunk of output.chunk
+            # segments: the scored run is chunked as `nanoslam run` chunks it.
+            single = run = run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk)
         maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
         overflow = np.asarray(single.state.overflow)[None]
         est_all = reported_trajectory(static.estimate, single.outputs, single.state)[None]
+        best_all, mean_all = (np.asarray(a)[None] for a in (single.outputs.best_pose, single.outputs.mean_pose))
         res.batch_run_s = single.run_s
     else:
-        batch = run_batch(static, stack_params([params] * len(seeds)), seg, np.asarray(seeds), chunk=cfg.output.chunk,
-                          progress=progress)
-        maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(batch.state))
-        overflow = np.asarray(batch.state.overflow)
-        est_all = reported_trajectory(static.estimate, batch.outputs, batch.state)
-        res.batch_run_s = batch.run_s
+        run = run_batch(static, stack_params([params] * len(seeds)), seg, np.asarray(seeds), chunk=cfg.output.chunk,
+                        progress=progress)
+        index = 0
+        maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
+        overflow = np.asarray(run.state.overflow)
+        est_all = reported_trajectory(static.estimate, run.outputs, run.state)
+        best_all, mean_all = np.asarray(run.outputs.best_pose), np.asarray(run.outputs.mean_pose)
+        res.batch_run_s = run.run_s
+    trajectories = []
     for i, s in enumerate(seeds):
-        est = est_all[i]
-        finite = bool(np.all(np.isfinite(est)))
-        res.rows.append({"seed": int(s), **_evaluate(cfg, log, est), "n_landmarks": int(maps.active[i].sum()),
-                         "n_confirmed": int((maps.active[i] & maps.confirmed[i]).sum()),
-                         "landmark_overflow": int(overflow[i]), "finite": finite})
-    res.trajectory = est_all[0]
+        est, before, extra = np.asarray(est_all[i]), None, {}
+        if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline, per seed
+            sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior,
+                                   None if index is None else i)
+            before, est = est, sm.poses
+            extra, _ = smoother_metrics(sm, cfg.smoother)
+        reason = failure_reason(t, est)
+        score = score_run(log, est, cfg.metrics, _map_of(maps, i),
+                          companion_tracks(static.estimate, best_all[i], mean_all[i], before))
+        res.rows.append({"seed": int(s), "status": "failed" if reason else "ok", "reason": reason, **score,
+                         "landmark_overflow": int(overflow[i]), **extra})
+        trajectories.append(est)
+    res.trajectory = trajectories[0]
     res.landmarks = maps.mean[0][maps.active[0] & maps.confirmed[0]]
-    bad = [r["seed"] for r in res.rows if not r["finite"]]
+    bad = [r["seed"] for r in res.rows if r["status"] != "ok"]
     if bad:
         res.status, res.reason = "failed", f"non-finite estimate for seed(s) {bad}"
     return res
 
 
+#: The columns a comparison summarises over seeds (those its runs report).
+SUMMARY_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "rmse_fixed_path",
+                "rmse_aligned_path", "rmse_fixed_best", "rmse_aligned_best", "n_landmarks", "n_confirmed")
+
+
 def summarise(res: MethodResult) -> dict:
-    """One table row: medians and quartiles over seeds."""
+    """One table row: median, quartiles and worst seed over the seeds, failed seeds counted
+    (:func:`~nanoslam_jax._scoring.summarize_runs`)."""
+    keys = [k for k in SUMMARY_KEYS if k in RMSE_KEYS or k.startswith("n_") or any(k in r for r in res.rows)]
+    st = summarize_runs(res.rows, keys, stats=("median", "q1", "q3", "worst"))
     out: dict[str, Any] = {"method": res.spec.label, "filter_method": res.method, "status": res.status,
-                           "reason": res.reason, "seeds": len(res.rows)}
-    for k in ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "n_landmarks", "n_confirmed"):
-        med, q1, q3 = _quartiles(np.array([r.get(k, math.nan) for r in res.rows], float))
-        out.update({f"{k}_median": med, f"{k}_q1": q1, f"{k}_q3": q3})
+                           "reason": res.reason, "seeds": len(res.rows), "n_failed": st["n_failed"],
+                           "failed_seeds": st["failed_seeds"]}
+    out.update({k: v for k, v in st.items() if k.endswith(("_median", "_q1", "_q3", "_worst"))})
     out.update(ms_per_scan=res.ms_per_scan, compile_s=res.compile_s, batch_run_s=res.batch_run_s,
                paper_rmse=res.spec.paper_rmse, paper_ms=res.spec.paper_ms)
     return out
 
 
-def _fmt(v: Any, nd: int = 3) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, float):
-        return "nan" if not math.isfinite(v) else f"{v:.{nd}f}"
-    return str(v)
-
-
 def markdown_table(rows: list[dict]) -> str:
-    """The Table I layout: RMSE (median and IQR over seeds), ms per scan, landmarks, paper's figures."""
-    lines = ["| method | seeds | RMSE fixed [m] median (IQR) | RMSE aligned [m] median (IQR) | ms per scan | confirmed landmarks | paper RMSE [m] | paper ms per step |",
-             "|---|---|---|---|---|---|---|---|"]
+    """The Table I layout: RMSE (median, IQR and worst seed over seeds; a failed seed counts as an
+    infinite error), ms per scan, landmarks, paper's figures."""
+    lines = ["| method | seeds | RMSE fixed [m] median (IQR) | worst | RMSE aligned [m] median (IQR) | worst | "
+             "ms per scan | confirmed landmarks | paper RMSE [m] | paper ms per step |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    fmt = format_number
     for r in rows:
+        seeds = f"{r['seeds']}" + (f" ({r['n_failed']} failed: {r['failed_seeds']})" if r.get("n_failed") else "")
         if r["status"] != "ok" and not math.isfinite(r.get("rmse_fixed_median", math.nan)):
-            lines.append(f"| {r['method']} | {r['seeds']} | failed: {r['reason']} | | | | {_fmt(r['paper_rmse'])} | {_fmt(r['paper_ms'], 2)} |")
+            lines.append(f"| {r['method']} | {seeds} | failed: {r['reason']} | | | | | | {fmt(r['paper_rmse'])} | "
+                         f"{fmt(r['paper_ms'], 2)} |")
             continue
-        iqr = lambda k: f"{_fmt(r[k + '_median'])} ({_fmt(r[k + '_q1'])}-{_fmt(r[k + '_q3'])})"  # noqa: E731
-        lines.append(f"| {r['method']} | {r['seeds']} | {iqr('rmse_fixed')} | {iqr('rmse_aligned')} | "
-                     f"{_fmt(r['ms_per_scan'], 2)} | {_fmt(r['n_confirmed_median'], 0)} | {_fmt(r['paper_rmse'])} | {_fmt(r['paper_ms'], 2)} |")
+        iqr = lambda k: f"{fmt(r[k + '_median'])} ({fmt(r[k + '_q1'])}-{fmt(r[k + '_q3'])})"  # noqa: E731
+        lines.append(f"| {r['method']} | {seeds} | {iqr('rmse_fixed')} | {fmt(r['rmse_fixed_worst'], 2)} | "
+                     f"{iqr('rmse_aligned')} | {fmt(r['rmse_aligned_worst'], 2)} | {fmt(r['ms_per_scan'], 2)} | "
+                     f"{fmt(r['n_confirmed_median'], 0)} | {fmt(r['paper_rmse'])} | {fmt(r['paper_ms'], 2)} |")
     return "\n".join(lines) + "\n"
-
-
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in keys})
 
 
 def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] = None, plots: bool = True,
@@ -421,12 +428,16 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
                 logs[k] = load_log(cfg, data_dir)
             res = run_method(spec, m, logs[k])
         except Exception as e:  # recorded, the comparison goes on
-            res = MethodResult(m, cfg.filter.method, rows=[], status="failed", reason=f"{type(e).__name__}: {e}")
+            reason = f"{type(e).__name__}: {e}"
+            seeds = [spec.first_seed] if deterministic(cfg.filter.method) else range(spec.first_seed,
+                                                                                    spec.first_seed + spec.seeds)
+            res = MethodResult(m, cfg.filter.method, rows=[{"seed": s, "status": "failed", "reason": reason}
+                                                           for s in seeds], status="failed", reason=reason)
             (out / f"error-{safe}.txt").write_text(traceback.format_exc())
         results.append(res)
         r = summarise(res)
-        stream.write(f"    {res.status} in {time.perf_counter() - t0:.1f} s: rmse_fixed {_fmt(r['rmse_fixed_median'])}, "
-                     f"rmse_aligned {_fmt(r['rmse_aligned_median'])}, {_fmt(res.ms_per_scan, 2)} ms/scan\n")
+        stream.write(f"    {res.status} in {time.perf_counter() - t0:.1f} s: rmse_fixed {format_number(r['rmse_fixed_median'])}, "
+                     f"rmse_aligned {format_number(r['rmse_aligned_median'])}, {format_number(res.ms_per_scan, 2)} ms/scan\n")
         stream.flush()
         # Written after every method: an interrupted comparison keeps what it finished.
         _write_outputs(out, spec, results)
@@ -438,14 +449,15 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
 
 def _write_outputs(out: Path, spec: CompareSpec, results: list[MethodResult]) -> None:
     table = [summarise(r) for r in results]
-    _write_csv(out / "table1.csv", table)
+    write_rows_csv(out / "table1.csv", table)
     runs = [{"method": r.spec.label, "filter_method": r.method, **row} for r in results for row in r.rows]
     if runs:
-        _write_csv(out / "runs.csv", runs)
+        write_rows_csv(out / "runs.csv", runs)
     header = (f"# {spec.name}: {len(spec.methods)} methods, {spec.seeds} seeds "
               f"({spec.first_seed}..{spec.first_seed + spec.seeds - 1}; EKF-SLAM, NASRUKF and dead reckoning are deterministic: one run)\n\n")
     (out / "table1.md").write_text(header + markdown_table(table))
-    safe = lambda v: None if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
+    # JSON has no inf: an infinite median (failed seeds) is written as the string "inf", NaN as null.
+    safe = lambda v: (None if math.isnan(v) else str(v)) if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
     (out / "summary.json").write_text(json.dumps([{k: safe(v) for k, v in row.items()} for row in table], indent=2) + "\n")
 
 

@@ -29,9 +29,9 @@ from .filter import (Params, Static, adaptive_noise_summary, configured_noise,
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
                      text_progress)
 from .filter._scan import is_gaussian
-from .metrics import (error_over_time, evaluate, map_alignment_metrics, map_summary, observable_landmarks,
-                      relative_gps, survey_summary)
-from .smoother import SmootherSettings, smooth_run, smoother_map
+from .metrics import error_over_time, evaluate, map_alignment_metrics, observable_landmarks, relative_gps
+from ._scoring import MapEstimate, companion_tracks, score_run
+from .smoother import smooth_filter_run, smoother_metrics
 
 
 @dataclasses.dataclass(frozen=True)
@@ -351,18 +351,12 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
         other = mean if static.estimate == "best" else best_pose
         if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
             unsmoothed = est
-            settings = SmootherSettings.from_config(cfg.smoother)
-            final, held = smoother_map(run, settings)
-            sm = smooth_run(est, final, seg, params, settings, cfg.filter.prior, held)
+            sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior)
             est = sm.poses
-            metrics.update(smoother_iterations=sm.iterations, smoother_converged=sm.converged,
-                           smoother_associated=sm.associated, smoother_detections=sm.detections,
-                           smoother_cost_initial=sm.initial_cost, smoother_cost=sm.cost, smoother_s=sm.seconds,
-                           smoother_merged=sm.merged, smoother_rejected=sm.rejected)
-            if not sm.converged:
-                metrics.setdefault("warnings", []).append(
-                    f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "
-                    f"{cfg.smoother.max_iter}, smoother.tol {cfg.smoother.tol:g}); the smoothed path is reported as it stands")
+            smoother_report, smoother_warnings = smoother_metrics(sm, cfg.smoother)
+            metrics.update(smoother_report)
+            if smoother_warnings:
+                metrics.setdefault("warnings", []).extend(smoother_warnings)
         ess = None if is_gaussian(cfg.filter.method) else np.asarray(o.ess)
         outputs, state = jax.tree.map(np.asarray, o), run.state
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
@@ -386,28 +380,16 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
     # JAX's own count of this run's tracing, lowering and compiling (or loading from the cache).
     metrics["compilation"] = {**compile_stats().since(stats0).as_dict(),
                               "cache_dir": jax.config.jax_compilation_cache_dir or None}
-    finite = bool(np.all(np.isfinite(est)))
-    metrics["finite"] = finite
-    if finite and len(log.raw.gps):
-        metrics.update(evaluate(t, est[:, :2], log.raw.gps, **mk))
-        if other is not None:
-            # The other per-segment estimate (for path: the filter's own, the best particle's).
-            o2 = evaluate(t, other[:, :2], log.raw.gps, **mk)
-            tag = "wmean" if static.estimate == "best" else "best"
-            metrics.update({f"rmse_fixed_{tag}": o2["rmse_fixed"], f"rmse_aligned_{tag}": o2["rmse_aligned"]})
-        if unsmoothed is not None:  # the path the smoother started from
-            before = evaluate(t, unsmoothed[:, :2], log.raw.gps, **mk)
-            metrics.update(rmse_fixed_path=before["rmse_fixed"], rmse_aligned_path=before["rmse_aligned"])
-        if "dr_rmse_fixed" in metrics:
-            metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
+    lm = None
     if landmarks is not None:
-        confirmed = landmarks[:, MAP_COLUMNS.index("confirmed")] > 0
-        metrics.update(map_summary(landmarks[:, :2], confirmed, log.map_truth,
-                                   cfg.metrics.map_radius, alignment=metrics if finite else None))
-        if log.survey is not None:
-            ids = landmarks[:, len(MAP_COLUMNS)] if landmarks.shape[1] > len(MAP_COLUMNS) else None
-            metrics.update(survey_summary(landmarks[:, :2], confirmed, log.survey.xy, cfg.metrics.map_radius,
-                                          ids, log.survey.ids))
+        ids = landmarks[:, len(MAP_COLUMNS)] if landmarks.shape[1] > len(MAP_COLUMNS) else None
+        lm = MapEstimate(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, ids)
+    # The one scorer of every command: the estimate against GPS, the map, and (for path: the
+    # filter's own estimate; after the smoother: the path it started from) the other trajectories.
+    others = None if other is None else companion_tracks(static.estimate, best_pose, mean, unsmoothed)
+    metrics.update(score_run(log, est, cfg.metrics, lm, others))
+    if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:
+        metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
     if log.survey is not None and np.all(np.isfinite(dr_poses)) and (np.asarray(seg.z_id) >= 0).any():
         # The baseline: every sighting of known id projected from the dead-reckoned path.
         dr_ids, dr_xy = sighting_map(dr_poses, seg)

@@ -162,13 +162,13 @@ def test_smoother_needs_the_path_estimate():
     assert load_config(None, ["smoother.enabled=true", "filter.estimate=path"]).smoother.enabled
 
 
-def test_sweeps_refuse_the_smoother():
+def test_sweeps_take_a_smoothed_base_but_not_the_smoothers_keys():
     from nanoslam_jax.sweep import sweep_from_dict
 
-    with pytest.raises(ConfigError, match="smoother.enabled is not available in sweeps"):
-        sweep_from_dict({"base": {"filter": {"estimate": "path"}, "smoother": {"enabled": True}}, "seeds": 1,
-                         "grid": {"filter.gate": [5.991]}})
-    with pytest.raises(ConfigError, match="cannot be swept"):
+    spec = sweep_from_dict({"base": {"filter": {"estimate": "path"}, "smoother": {"enabled": True}}, "seeds": 1,
+                            "grid": {"filter.gate": [5.991]}})
+    assert spec.base["smoother"]["enabled"]
+    with pytest.raises(ConfigError, match="smoother.floor_xy.*cannot be swept.*experiments/smoother_tuning.py"):
         sweep_from_dict({"seeds": 1, "shapes": {"smoother.floor_xy": [0.1, 0.2]}})
 
 

@@ -424,7 +424,10 @@ def test_a_non_finite_estimate_fails_the_run():
     seg = Segments(t, np.zeros((n, 1)), np.zeros((n, 1, 2)), np.zeros((n, 1), bool), np.zeros((n, 2, 2)),
                    np.zeros((n, 2), bool), np.zeros((n, 2)), np.ones(n, bool), np.full((n, 2), -1))
     log = _batch.LogData(seg, gps, "slam", None, "test")
-    task = BatchTask("g0", Static(), 0, None, np.array([0]), 1, ((0.0, 8.0, 1.0),), True, ("c0-s0",))
+    from nanoslam_jax.config import MetricsConfig
+
+    opts = (MetricsConfig(gps_rotation_deg=0.0, jump_speed=8.0, map_radius=1.0),)
+    task = BatchTask("g0", Static(), 0, None, np.array([0]), 1, opts, True, ("c0-s0",))
     r = _score(0, out, log, task)
     assert r["status"] == "failed" and r["reason"] == "non-finite estimate from segment 4 (t = 2.00 s)"
     pose[0, 4:, 1] = 0.0

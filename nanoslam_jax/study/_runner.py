@@ -40,7 +40,7 @@ from typing import Optional
 import yaml
 
 from .._version import __version__
-from ..compare import _fmt, _write_csv
+from .._scoring import format_number, write_rows_csv
 from ..config import ConfigError, config_to_dict
 from ._spec import STUDY_METRICS, StudyPoint, StudySpec, expand_study, point_sweep_dict
 from ._stats import equal_time, number, paired_comparison, summarize_points
@@ -200,7 +200,7 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
         else:
             row = _time_point(spec, pt, out, data_dir, cache)
             timing_file.append([row])
-            say(f"    seconds per log: {_fmt(row.get('seconds_per_log'))} ({row.get('timing_runs', 0)} timed runs)"
+            say(f"    seconds per log: {format_number(row.get('seconds_per_log'))} ({row.get('timing_runs', 0)} timed runs)"
                 if row["status"] == "ok" else f"    timing failed: {row['reason']}")
         write_tables(out, spec, held)
         say(f"    {time.perf_counter() - t_start:.0f} s elapsed")
@@ -256,14 +256,14 @@ def write_tables(out: Path, spec: StudySpec, points: list[dict]) -> tuple[list, 
             timing[(r["method"], None if r["particles"] == "" else int(r["particles"]))] = {
                 k: number(r[k]) for k in TIMING_FIELDS}
     if runs:
-        _write_csv(out / "runs.csv", runs)
+        write_rows_csv(out / "runs.csv", runs)
     summary = summarize_points(runs, STUDY_METRICS, timing)
     if summary:
-        _write_csv(out / "summary.csv", summary)
+        write_rows_csv(out / "summary.csv", summary)
     (out / "summary.md").write_text(_summary_markdown(spec, points, summary))
     paired = _paired_rows(spec, runs, summary)
     if paired:
-        _write_csv(out / "paired.csv", paired)
+        write_rows_csv(out / "paired.csv", paired)
     else:
         (out / "paired.csv").unlink(missing_ok=True)  # never one left from an earlier state of the study
     (out / "paired.md").write_text(_paired_markdown(spec, paired))
@@ -300,10 +300,10 @@ def _summary_markdown(spec: StudySpec, points: list[dict], summary: list[dict]) 
              "| method | particles | seeds (ok) | rmse_fixed median [IQR] | worst | rmse_aligned median [IQR] | worst | "
              "landmarks | s/log |", "|---|---|---|---|---|---|---|---|---|"]
     for s in sorted(summary, key=lambda s: (s["method"], s["particles"] or 0)):
-        cell = lambda m: f"{_fmt(s[m + '_median'])} [{_fmt(s[m + '_q1'])}, {_fmt(s[m + '_q3'])}]"  # noqa: E731
+        cell = lambda m: f"{format_number(s[m + '_median'])} [{format_number(s[m + '_q1'])}, {format_number(s[m + '_q3'])}]"  # noqa: E731
         lines.append(f"| {s['method']} | {s['particles'] or '-'} | {s['seeds']} ({s['n_ok']}) | {cell('rmse_fixed')} | "
-                     f"{_fmt(s['rmse_fixed_worst'])} | {cell('rmse_aligned')} | {_fmt(s['rmse_aligned_worst'])} | "
-                     f"{_fmt(s['n_landmarks_median'], 0)} | {_fmt(s.get('seconds_per_log'), 2)} |")
+                     f"{format_number(s['rmse_fixed_worst'])} | {cell('rmse_aligned')} | {format_number(s['rmse_aligned_worst'])} | "
+                     f"{format_number(s['n_landmarks_median'], 0)} | {format_number(s.get('seconds_per_log'), 2)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -321,12 +321,12 @@ def _paired_markdown(spec: StudySpec, rows: list[dict]) -> str:
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         at = math.isfinite(r["median_other_at_time"])
-        other_at = f"{_fmt(r['median_other_at_time'])} (N {r['bracket_at_time']})" if at else ""
+        other_at = f"{format_number(r['median_other_at_time'])} (N {r['bracket_at_time']})" if at else ""
         lines.append(
             f"| {r['particles']} | {r['other']} | {r['metric']} | {r['wins']}/{r['losses']}/{r['ties']} | "
-            f"{_fmt(r['sign_p'])} | {_fmt(r['median_diff'])} [{_fmt(r['diff_low'])}, {_fmt(r['diff_high'])}] | "
-            f"{_fmt(r['median_ref'])} vs {_fmt(r['median_other'])} | {_fmt(r['seconds_ref'], 2)} | {other_at} | "
-            f"{_fmt(r['diff_at_time']) if at else ''} |")
+            f"{format_number(r['sign_p'])} | {format_number(r['median_diff'])} [{format_number(r['diff_low'])}, {format_number(r['diff_high'])}] | "
+            f"{format_number(r['median_ref'])} vs {format_number(r['median_other'])} | {format_number(r['seconds_ref'], 2)} | {other_at} | "
+            f"{format_number(r['diff_at_time']) if at else ''} |")
     return "\n".join(lines) + "\n"
 
 

@@ -334,9 +334,6 @@ def point_config(spec: StudySpec, m: StudyMethod, particles: Optional[int] = Non
         raise ConfigError(f"{spec.source}: method {m.label!r}: {e}") from None
     if cfg.filter.method == "dead_reckoning":
         raise ConfigError(f"{spec.source}: method {m.label!r}: filter.method 'dead_reckoning' has no filter to study")
-    if cfg.smoother.enabled:
-        raise ConfigError(f"{spec.source}: method {m.label!r}: smoother.enabled is not available in the study, "
-                          "which scores the filters' own estimates; set it to false")
     return dataclasses.replace(cfg, name=f"{spec.name}-{_safe(m.label)}" + (f"-N{particles}" if particles else ""))
 
 

@@ -5,9 +5,10 @@ Every function takes plain rows (mappings, as read from ``runs.csv``: one per ru
 ``method``, ``particles``, ``seed``, ``status`` and the error columns), so the statistics can be
 checked by hand on a small table.
 
-**Failed runs** (a non-finite estimate, a landmark capacity overflow, an error) count as an
-infinite error: they raise the medians and quartiles they reach, they are the worst seed, and
-in a paired comparison a failed run loses to a finished one (two failed runs tie).
+**Failed runs** (a non-finite estimate, a landmark capacity overflow, an error) follow the rule
+of every summary over seeds (:mod:`nanoslam_jax._scoring`): they are counted and named, and count
+as an infinite error: they raise the medians and quartiles they reach, they are the worst seed,
+and in a paired comparison a failed run loses to a finished one (two failed runs tie).
 
 **Paired comparison** (:func:`paired_comparison`), at one particle count, of a reference method
 A (NANO-SLAM) against another method B over the seeds both ran: the seed selects each filter's
@@ -29,28 +30,18 @@ same time).
 from __future__ import annotations
 
 import math
-from typing import Any, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
-from .._summary import summary_stats
+from .._scoring import number, run_values, summarize_runs, summary_stats
 
 __all__ = ["number", "error_values", "summary_stats", "summarize_points", "paired_comparison", "equal_time"]
-
-def number(v: Any) -> float:
-    """A CSV cell or a Python value as a float (empty or unparsable: NaN; ``inf`` is kept)."""
-    if v is None or v == "":
-        return math.nan
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def error_values(rows: Sequence[dict], metric: str) -> np.ndarray:
     """One error per row: the metric of a finished run, ``inf`` for a failed one (or a NaN metric)."""
-    out = np.array([number(r.get(metric)) if r.get("status") == "ok" else math.inf for r in rows], float)
-    return np.where(np.isnan(out), math.inf, out)
+    return run_values(rows, metric, "min")
 
 
 def _key(r: dict) -> tuple:
@@ -69,20 +60,21 @@ def summarize_points(rows: Sequence[dict], metrics: Sequence[str], timing: Optio
 
     Returns:
         Per point, in order of first appearance: ``method``, ``particles``, ``seeds``, ``n_ok``,
-        ``n_failed``, ``<metric>_median/_q1/_q3/_worst/_best`` (:func:`summary_stats`) and
-        ``n_landmarks_median`` over the finished runs, then the timing columns.
+        ``n_failed``, ``failed_seeds``, ``<metric>_median/_q1/_q3/_worst/_best`` and
+        ``n_landmarks_median`` (over the finished runs) by
+        :func:`~nanoslam_jax._scoring.summarize_runs`, then the timing columns.
     """
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(_key(r), []).append(r)
     out = []
     for (method, particles), rs in groups.items():
-        ok = [r for r in rs if r.get("status") == "ok"]
-        s: dict = {"method": method, "particles": particles, "seeds": len(rs), "n_ok": len(ok), "n_failed": len(rs) - len(ok)}
-        for m in metrics:
-            s.update({f"{m}_{k}": v for k, v in summary_stats(error_values(rs, m)).items()})
-        lm = np.array([number(r.get("n_landmarks")) for r in ok], float)
-        s["n_landmarks_median"] = float(np.median(lm)) if lm.size else math.nan
+        st = summarize_runs(rs, metrics, goals={m: "min" for m in metrics},
+                            stats=("median", "q1", "q3", "worst", "best"))
+        s: dict = {"method": method, "particles": particles, "seeds": st["n_runs"], "n_ok": st["n_ok"],
+                   "n_failed": st["n_failed"], "failed_seeds": st["failed_seeds"]}
+        s.update({f"{m}_{k}": st[f"{m}_{k}"] for m in metrics for k in ("median", "q1", "q3", "worst", "best")})
+        s["n_landmarks_median"] = summarize_runs(rs, ["n_landmarks"], stats=("median",))["n_landmarks_median"]
         s.update((timing or {}).get((method, particles), {}))
         out.append(s)
     return out

@@ -5,7 +5,8 @@ a batch's time divided by its size is not what one run costs (batched runs are c
 and a process that exposes several JAX devices runs a single program more slowly). So each point
 is timed in a process of its own, set up as ``nanoslam run`` sets itself up
 (:func:`~nanoslam_jax._devices.setup_run_devices`: the particles split over the cores from 64
-particles up), running the point's first seed alone over the study's log:
+particles up), running the point's first seed alone over the study's log (the filter, and with
+``smoother.enabled`` the smoother after it, as ``nanoslam run`` does):
 
     python -m nanoslam_jax.study._timing CONFIG.yaml --json OUT.json [--data DIR] [--segments N]
         [--repeats 3] [--budget-s 60] [--cache DIR]
@@ -53,7 +54,8 @@ def time_point(config_path: str, data_dir: Optional[str], segments: Optional[int
     setup_run_devices(cfg)  # as `nanoslam run` does
     import numpy as np
 
-    from ..filter import run_filter, settings_from_config
+    from ..filter import reported_trajectory, run_filter, settings_from_config
+    from ..smoother import smooth_filter_run
     from .._cache import enable_compile_cache
     from ..sweep import load_log_data
 
@@ -67,7 +69,11 @@ def time_point(config_path: str, data_dir: Optional[str], segments: Optional[int
         if not np.all(np.isfinite(np.asarray(r.outputs.best_pose))):
             raise FloatingPointError(f"{config_path}: the timed run's estimate is not finite")
         compile_s = r.compile_s if compile_s is None else compile_s
-        runs.append(r.run_s)
+        smoother_s = 0.0
+        if cfg.smoother.enabled:  # the offline smoother after the run, part of what one run costs
+            path = np.asarray(reported_trajectory(static.estimate, r.outputs, r.state))
+            smoother_s = smooth_filter_run(r, path, log.segments, params, cfg.smoother, cfg.filter.prior).seconds
+        runs.append(r.run_s + smoother_s)
     scans = int(log.segments.time.shape[0])
     med = statistics.median(runs)
     return {"seconds_per_log": med, "seconds_per_log_min": min(runs), "runs_s": runs, "timing_runs": len(runs),

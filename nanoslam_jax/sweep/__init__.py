@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 _EXPORTS = {
     "_spec": ("SweepSpec", "RunOptions", "RandomSpec", "RandomParam", "ConfigPoint", "Run", "load_sweep",
-              "sweep_from_dict", "METRIC_KEYS", "MAP_METRIC_KEYS", "SURVEY_METRIC_KEYS"),
+              "sweep_from_dict", "METRIC_KEYS", "MAP_METRIC_KEYS", "SMOOTHER_METRIC_KEYS", "SURVEY_METRIC_KEYS"),
     "_expand": ("expand", "sample_random", "spec_identity", "stored_identity"),
     "_plan": ("Group", "plan_groups", "make_tasks"),
     "_batch": ("LogData", "BatchTask", "BatchOutput", "batch_program", "single_program", "execute_batch",
@@ -56,5 +56,5 @@ if TYPE_CHECKING:  # pragma: no cover
     from ._plan import Group, make_tasks, plan_groups  # noqa: F401
     from ._runner import AUTO_PARALLEL, SweepResult, resolve_parallel, run_sweep  # noqa: F401
     from ._spec import (  # noqa: F401
-        MAP_METRIC_KEYS, METRIC_KEYS, SURVEY_METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, load_sweep,
+        MAP_METRIC_KEYS, METRIC_KEYS, SMOOTHER_METRIC_KEYS, SURVEY_METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, load_sweep,
         sweep_from_dict)

@@ -21,10 +21,10 @@ import numpy as np
 from .._cache import program_cache, release_programs
 from ..config import Config
 from ..data import Segments
-from ..filter import (Params, Static, adaptive_noise_summary, ancestral_path, configured_noise, filter_scan,
-                      noise_estimates, reported_map)
-from ..metrics import evaluate, map_summary, survey_summary
-from ._spec import METRIC_KEYS
+from .._scoring import MapEstimate, companion_tracks, failure_reason, score_run
+from ..filter import (MapHistory, Params, Static, adaptive_noise_summary, ancestral_path, configured_noise,
+                      filter_scan, initial_state, noise_estimates, reported_map)
+from ..smoother import Smoothed, SmootherSettings, held_landmarks, smooth_run, smoother_metrics
 
 
 # --------------------------------------------------------------------------- the log
@@ -101,6 +101,11 @@ class BatchOutput(NamedTuple):
             leave it.
         noise: the final measurement-noise variances (``noise.adaptive``; else None), for
             :func:`~nanoslam_jax.filter.adaptive_noise_summary`.
+        map_ident: the reported map's landmark ids (known association), or None.
+        history_mean, history_held: ``(chunks, slots, 2)`` and ``(chunks, slots)``: the best
+            particle's map at the end of every chunk of ``history_chunk`` segments (the
+            :class:`~nanoslam_jax.filter.MapHistory` of a chunked run, for the smoother's
+            ``smoother.map_history``), or None.
     """
 
     best_pose: Any
@@ -120,11 +125,40 @@ class BatchOutput(NamedTuple):
     path_pose: Any = None
     noise: Any = None
     map_ident: Any = None
+    history_mean: Any = None
+    history_held: Any = None
 
 
-def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOutput:
-    """One run: the filter from ``jax.random.key(seed)`` over all segments (as ``run_filter`` does)."""
-    state, out = filter_scan(static, params, segments, jax.random.key(seed))
+def _chunked_scan(static: Static, params: Params, key, segments: Segments, chunk: int):
+    """The filter over ``segments`` in chunks of ``chunk`` segments, as ``run_filter`` drives it (the
+    last chunk padded, its padding skipped), recording the best particle's confirmed landmarks at
+    the end of every chunk. Returns the final state, the per-segment outputs and that history."""
+    n = segments.time.shape[0]
+    chunk = max(1, min(chunk, n))
+    k = -(-n // chunk)
+    pad = lambda a: jnp.concatenate([a, jnp.zeros((k * chunk - n,) + a.shape[1:], a.dtype)])  # noqa: E731
+    pieces = jax.tree.map(lambda a: pad(jnp.asarray(a)).reshape((k, chunk) + a.shape[1:]), segments)
+    valid = (jnp.arange(k * chunk) < n).reshape(k, chunk)
+
+    def body(state, x):
+        seg, ok = x
+        state, out = filter_scan(static, params, seg, state.key, state, ok, skip_padding=True)
+        lm = reported_map(state)
+        return state, (out, lm.mean, lm.active & lm.confirmed)
+
+    state, (outs, mean, held) = jax.lax.scan(body, initial_state(static, params, key), (pieces, valid))
+    outs = jax.tree.map(lambda a: a.reshape((k * chunk,) + a.shape[2:])[:n], outs)
+    return state, outs, (mean, held)
+
+
+def _member(static: Static, params: Params, seed, segments: Segments, history_chunk: int = 0) -> BatchOutput:
+    """One run: the filter from ``jax.random.key(seed)`` over all segments (as ``run_filter`` does);
+    with ``history_chunk`` in chunks of that many segments, recording the map history."""
+    if history_chunk:
+        state, out, (h_mean, h_held) = _chunked_scan(static, params, jax.random.key(seed), segments, history_chunk)
+    else:
+        state, out = filter_scan(static, params, segments, jax.random.key(seed))
+        h_mean = h_held = None
     lm = reported_map(state)
     n = segments.time.shape[0]
 
@@ -142,19 +176,21 @@ def _member(static: Static, params: Params, seed, segments: Segments) -> BatchOu
         map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
         path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate == "path" else None,
         noise=noise_estimates(state) if static.adaptive_noise else None,
-        map_ident=lm.ident,
+        map_ident=lm.ident, history_mean=h_mean, history_held=h_held,
     )
 
 
-def _local_batch(static: Static, vectorize: str, params: Params, seeds, segments: Segments) -> BatchOutput:
-    member = functools.partial(_member, static)
+def _local_batch(static: Static, vectorize: str, params: Params, seeds, segments: Segments,
+                 history_chunk: int = 0) -> BatchOutput:
+    member = functools.partial(_member, static, history_chunk=history_chunk)
     if vectorize == "vmap":
         return jax.vmap(member, in_axes=(0, 0, None))(params, seeds, segments)
     return jax.lax.map(lambda ps: member(ps[0], ps[1], segments), (params, seeds))
 
 
-@functools.partial(jax.jit, static_argnums=(0, 1, 2))
-def batch_program(static: Static, vectorize: str, devices: int, params: Params, seeds, segments: Segments) -> BatchOutput:
+@functools.partial(jax.jit, static_argnums=(0, 1, 2), static_argnames=("history_chunk",))
+def batch_program(static: Static, vectorize: str, devices: int, params: Params, seeds, segments: Segments,
+                  history_chunk: int = 0) -> BatchOutput:
     """A batch of runs in one compiled program.
 
     Args:
@@ -166,8 +202,11 @@ def batch_program(static: Static, vectorize: str, devices: int, params: Params, 
         params: hyperparameters with a leading batch axis on every leaf.
         seeds: ``(batch,)`` integer seeds.
         segments: the log's segments (shared by the batch).
+        history_chunk: run each member in chunks of this many segments and record the best
+            particle's map at the end of each (``BatchOutput.history_mean``, ``history_held``; the
+            smoother's map history); 0: one scan, no history.
     """
-    local = functools.partial(_local_batch, static, vectorize)
+    local = functools.partial(_local_batch, static, vectorize, history_chunk=history_chunk)
     if devices == 1:
         return local(params, seeds, segments)
     from jax.sharding import Mesh, PartitionSpec
@@ -208,11 +247,15 @@ class BatchTask:
         params: stacked hyperparameters (numpy), ``batch`` long (padding repeats the first run).
         seeds: ``(batch,)`` seeds (padded likewise).
         n_real: how many leading members are real runs.
-        metrics_opts: ``(gps_rotation_deg, jump_speed, map_radius)`` of each real run.
+        metrics_opts: the ``metrics`` section (:class:`nanoslam_jax.config.MetricsConfig`) of each
+            real run.
         fail_on_overflow: a landmark capacity overflow fails the run.
         run_ids: ids of the real runs.
         devices: split the batch over this many JAX devices (1: no split).
         vectorize: ``'vmap'`` or ``'map'`` (see :func:`batch_program`).
+        smoother: the ``smoother`` section (:class:`nanoslam_jax.config.SmootherConfig`) when it is
+            enabled: each run is smoothed on the host after the batch; else None.
+        history_chunk: see :func:`batch_program` (``output.chunk`` with ``smoother.map_history``).
     """
 
     group: str
@@ -226,6 +269,8 @@ class BatchTask:
     run_ids: tuple
     devices: int = 1
     vectorize: str = "vmap"
+    smoother: Any = None
+    history_chunk: int = 0
 
     @property
     def batch(self) -> int:
@@ -233,7 +278,8 @@ class BatchTask:
 
 
 def _program_key(task: BatchTask, segments: Segments) -> tuple:
-    return (task.static, task.vectorize, task.devices, task.batch, tuple((a.shape, str(a.dtype)) for a in segments))
+    return (task.static, task.vectorize, task.devices, task.batch, task.history_chunk,
+            tuple((a.shape, str(a.dtype)) for a in segments))
 
 
 def _place(task: BatchTask, segments: Segments):
@@ -268,7 +314,8 @@ def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, fl
         release_programs()
         t0 = time.perf_counter()
         try:
-            compiled = batch_program.lower(task.static, task.vectorize, task.devices, *args).compile()
+            compiled = batch_program.lower(task.static, task.vectorize, task.devices, *args,
+                                           history_chunk=task.history_chunk).compile()
         except Exception as e:
             _FAILED[key] = f"compilation failed: {_first_line(e)}"
             raise RuntimeError(_FAILED[key]) from e
@@ -310,32 +357,41 @@ def execute_batch(task: BatchTask, log: LogData) -> list[dict]:
     return rows
 
 
+def _smooth(i: int, out: BatchOutput, log: LogData, task: BatchTask, path: np.ndarray, lm: MapEstimate) -> Smoothed:
+    """Member ``i``'s final best particle's path and map smoothed (as ``nanoslam run`` does after
+    a run): its confirmed landmarks, and with ``smoother.map_history`` those it held at the end of
+    an earlier chunk."""
+    settings = SmootherSettings.from_config(task.smoother)
+    final = np.asarray(lm.xy)[np.asarray(lm.confirmed, bool)]
+    held = None
+    if settings.map_history and out.history_mean is not None:
+        held = held_landmarks(MapHistory(out.history_mean[i], out.history_held[i]), final, None,
+                              settings.map_history_radius)
+    p_i = jax.tree.map(lambda a: np.asarray(a)[i], task.params)
+    return smooth_run(path, final, log.segments, p_i, settings, task.static.prior, held)
+
+
 def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
-    """Metrics of member ``i`` (as ``run_experiment`` computes them) and its status."""
+    """Metrics of member ``i`` (:func:`~nanoslam_jax._scoring.score_run`, as every command scores
+    a run; the smoothed path with ``smoother.enabled``) and its status."""
     static = task.static
-    est = {"best": out.best_pose, "mean": out.mean_pose, "path": out.path_pose}[static.estimate][i]
-    t = log.time
+    est = np.asarray({"best": out.best_pose, "mean": out.mean_pose, "path": out.path_pose}[static.estimate][i])
+    act = np.asarray(out.map_active[i], bool)
+    lm = MapEstimate(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act],
+                     None if out.map_ident is None else np.asarray(out.map_ident[i])[act])
     m: dict = {}
-    reasons = []
-    finite = np.isfinite(est).all(axis=1)
-    rot, jump, radius = task.metrics_opts[i]
-    alignment = None
-    if finite.all():
-        if len(log.gps):  # a log without GPS (MRCLAM) is scored by its map alone
-            alignment = evaluate(t, est[:, :2], log.gps, rotation_deg=rot, jump_speed=jump, frame=log.frame)
-            m.update({k: v for k, v in alignment.items() if k in METRIC_KEYS})
-    else:
-        j = int(np.argmin(finite))
-        reasons.append(f"non-finite estimate from segment {j} (t = {t[j]:.2f} s)")
+    before = None
+    if task.smoother is not None and np.all(np.isfinite(est)):
+        sm = _smooth(i, out, log, task, est, lm)
+        before, est = est, sm.poses
+        sm_metrics, _ = smoother_metrics(sm, task.smoother)
+        m.update(sm_metrics, smoother_converged=int(sm.converged))
+    reason = failure_reason(log.time, est)
+    reasons = [reason] if reason else []
+    m.update(score_run(log, est, task.metrics_opts[i], lm,
+                       companion_tracks(static.estimate, out.best_pose[i], out.mean_pose[i], before)))
     has = out.n_associated[i] > 0
     overflow = int(out.overflow[i])
-    act = np.asarray(out.map_active[i])
-    m.update(map_summary(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act], log.map_truth,
-                         radius, alignment))
-    if log.survey is not None:
-        ids = None if out.map_ident is None else np.asarray(out.map_ident[i])[act]
-        m.update(survey_summary(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act],
-                                log.survey.xy, radius, ids, log.survey.ids))
     m.update(
         landmark_overflow=overflow,
         window_overflow_max=int(np.max(out.window_overflow[i], initial=0)), resample_count=int(out.resample_count[i]),

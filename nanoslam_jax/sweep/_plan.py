@@ -140,6 +140,11 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
         per_call = g.static.n_particles * (max(1, g.batch // split) if vectorize == "vmap" else 1)
         static = dataclasses.replace(g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call),
                                      devices=1)  # the batch, not a run's particles, is split over devices
+        # The smoother runs on the host after the batch, on each run's path and map; its map
+        # history needs the run in chunks of output.chunk segments, as `nanoslam run` makes it.
+        cfg0 = g.runs[0].point.config
+        smoother = cfg0.smoother if cfg0.smoother.enabled else None
+        history_chunk = cfg0.output.chunk if smoother is not None and smoother.map_history else 0
         for start in range(0, len(pending), g.batch):
             chunk = pending[start:start + g.batch]
             members = chunk + [chunk[0]] * (g.batch - len(chunk))
@@ -148,11 +153,9 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
             tasks.append(BatchTask(
                 group=g.label, static=static, log_id=g.log_id, params=params,
                 seeds=np.array([r.seed for r in members], dtype=np.int64), n_real=len(chunk),
-                metrics_opts=tuple((r.point.config.metrics.gps_rotation_deg, r.point.config.metrics.jump_speed,
-                                    r.point.config.metrics.map_radius)
-                                   for r in chunk),
+                metrics_opts=tuple(r.point.config.metrics for r in chunk),
                 fail_on_overflow=spec.run.fail_on_overflow, run_ids=tuple(r.run_id for r in chunk), devices=split,
-                vectorize=vectorize,
+                vectorize=vectorize, smoother=smoother, history_chunk=history_chunk,
             ))
     return tasks
 

@@ -8,7 +8,7 @@ import math
 import re
 import textwrap
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Optional, Sequence
 
 import matplotlib
 
@@ -16,16 +16,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .._scoring import metric_goal, number, seed_summary  # noqa: E402
 from ._spec import ConfigPoint, SweepSpec  # noqa: E402
 
 __all__ = ["plot_sweep", "plot_metric_vs_param", "plot_heatmap"]
-
-
-def _num(s: str) -> float:
-    try:
-        return float(s) if s != "" else math.nan
-    except ValueError:
-        return math.nan
 
 
 def _is_number(v: Any) -> bool:
@@ -37,17 +31,22 @@ def _safe(name: str) -> str:
 
 
 def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[float], metric: str,
-                         title: str = "", log_x: bool | None = None) -> None:
+                         title: str = "", log_x: bool | None = None, failed: Optional[Sequence[bool]] = None,
+                         goal: Optional[str] = "min") -> None:
     """Scatter of per-run values of ``metric`` against ``key`` and the median per distinct value.
 
     Args:
         path: output PNG.
         key: the swept parameter.
         xs: its value in each run (numbers, or anything else drawn as categories).
-        ys: the metric of each run (runs that failed are left out by the caller).
+        ys: the metric of each run.
         metric: the metric's name (axis label).
         title: figure title.
         log_x: logarithmic x axis (default: positive values spanning more than a factor 20).
+        failed: which runs failed (default: none). They are not drawn, but the median counts them
+            under the failed-seed rule (:func:`~nanoslam_jax._scoring.seed_summary` with ``goal``):
+            a median that reaches them is infinite and left out of the line.
+        goal: the metric's goal (``'min'``, ``'max'`` or ``None``).
     """
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     numeric = all(_is_number(x) for x in xs)
@@ -59,10 +58,14 @@ def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[f
         ax.set_xticks(list(pos.values()), [str(v) for v in distinct])
     x = np.array([pos[v] for v in xs], float)
     y = np.asarray(ys, float)
+    bad = np.zeros(y.shape, bool) if failed is None else np.asarray(failed, bool)
+    shown = ~bad & np.isfinite(y)
     jitter = 0.0 if numeric else 0.08
     rng = np.random.default_rng(0)
-    ax.scatter(x + jitter * rng.uniform(-1, 1, x.shape), y, s=14, alpha=0.5, label="runs (each seed)")
-    med = [np.nanmedian(y[x == pos[v]]) if np.any(x == pos[v]) else np.nan for v in distinct]
+    ax.scatter((x + jitter * rng.uniform(-1, 1, x.shape))[shown], y[shown], s=14, alpha=0.5, label="runs (each seed)")
+    med = [seed_summary(y[x == pos[v]], bad[x == pos[v]], goal)["median"] if np.any(x == pos[v]) else np.nan
+           for v in distinct]
+    med = [m if np.isfinite(m) else np.nan for m in med]
     ax.plot([pos[v] for v in distinct], med, "-o", color="C3", ms=4, label="median")
     if log_x is None:
         vals = [pos[v] for v in distinct]
@@ -109,18 +112,19 @@ def plot_sweep(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: 
 
     ``<metric>_vs_<key>.png`` for every swept key with more than one value, and
     ``heatmap_<metric>_<key1>_<key2>.png`` for every pair of grid keys (median over seeds and
-    over the other swept keys). Runs that failed are left out.
+    over the other swept keys). Failed runs are not drawn as points; the medians count them under
+    the failed-seed rule (:mod:`nanoslam_jax._scoring`), a median they make infinite is marked
+    ``failed``.
     """
     out.mkdir(parents=True, exist_ok=True)
     values = {p.config_id: p.values for p in points}
-    ok = [r for r in rows if r["status"] == "ok" and r["config_id"] in values]
+    runs = [r for r in rows if r["config_id"] in values]
     written = []
     for metric in metrics:
-        ys = np.array([_num(r.get(metric, "")) for r in ok], float)
-        keep = np.isfinite(ys)
-        runs = [r for r, k in zip(ok, keep) if k]
-        ys = ys[keep]
-        if not runs:
+        ys = np.array([number(r.get(metric, "")) for r in runs], float)
+        failed = np.array([r["status"] != "ok" for r in runs], bool)
+        goal = spec.goal if metric == spec.metric else metric_goal(metric)
+        if not np.any(~failed & np.isfinite(ys)):
             continue
         log_keys = {p.key for p in spec.random.params if p.log} if spec.random else set()
         for key in spec.swept_keys:
@@ -129,7 +133,7 @@ def plot_sweep(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: 
                 continue
             path = out / f"{_safe(metric)}_vs_{_safe(key)}.png"
             plot_metric_vs_param(path, key, xs, ys, metric, title=f"{spec.name}: {metric} against {key}",
-                                 log_x=True if key in log_keys else None)
+                                 log_x=True if key in log_keys else None, failed=failed, goal=goal)
             written.append(path)
         grid = [(k, list(v)) for k, v in spec.grid if len(v) > 1]
         for (kx, vx), (ky, vy) in itertools.combinations(grid, 2):
@@ -137,10 +141,10 @@ def plot_sweep(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: 
             table = np.full((len(vy), len(vx)), np.nan)
             for iy, yv in enumerate(vy):
                 for ix, xv in enumerate(vx):
-                    sel = [y for r, y in zip(runs, ys)
-                           if _match(cfgx[r["config_id"]].values[kx], xv) and _match(cfgx[r["config_id"]].values[ky], yv)]
-                    if sel:
-                        table[iy, ix] = float(np.median(sel))
+                    sel = np.array([_match(cfgx[r["config_id"]].values[kx], xv)
+                                    and _match(cfgx[r["config_id"]].values[ky], yv) for r in runs], bool)
+                    if sel.any():
+                        table[iy, ix] = seed_summary(ys[sel], failed[sel], goal)["median"]
             path = out / f"heatmap_{_safe(metric)}_{_safe(kx)}_{_safe(ky)}.png"
             others = [k for k in spec.swept_keys if k not in (kx, ky)]
             note = f" (median over seeds{' and ' + ', '.join(others) if others else ''})"

@@ -1,5 +1,6 @@
 """Results of a sweep on disk: the atomic ``results.csv`` appender and reader, the per-configuration
-summary over seeds (median and interquartile range), and the best configuration as a YAML file."""
+summary over seeds (median, interquartile range and range, failed seeds counted under the rule of
+:mod:`nanoslam_jax._scoring`), and the best configuration as a YAML file."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from typing import Any, Iterable, Optional, Sequence
 import numpy as np
 import yaml
 
-from .._summary import summary_stats
+from .._scoring import summarize_runs
 from .._version import __version__
 from ..config import config_to_dict
 from ._spec import ConfigPoint, SweepSpec
@@ -171,28 +172,24 @@ def read_results(path: str | os.PathLike, key: str = "run_id") -> list[dict]:
     return list(by_id.values())
 
 
-def _num(s: str) -> float:
-    try:
-        return float(s) if s != "" else math.nan
-    except ValueError:
-        return math.nan
-
-
 def summarize(rows: Sequence[dict], points: Sequence[ConfigPoint], groups: dict[str, str],
-              metric_keys: Sequence[str]) -> list[dict]:
-    """One summary per configuration over its seeds.
+              metric_keys: Sequence[str], goals: Optional[dict] = None) -> list[dict]:
+    """One summary per configuration over its seeds (:func:`~nanoslam_jax._scoring.summarize_runs`).
 
     Args:
         rows: result rows (as read from ``results.csv``).
         points: the sweep's configurations (for the swept values).
         groups: config id -> group label.
         metric_keys: metrics to summarise.
+        goals: a metric's goal (``'min'``/``'max'``) where it differs from
+            :func:`~nanoslam_jax._scoring.metric_goal`'s (the sweep's ``metric`` and ``goal``).
 
     Returns:
         Per configuration (in id order, only those with rows): ``config_id``, ``group``, the swept
-        values, ``n_runs``, ``n_ok``, ``n_failed``, ``reasons`` (distinct failure reasons), and
-        ``<metric>_median``, ``<metric>_q1``, ``<metric>_q3``, ``<metric>_min`` and ``<metric>_max``
-        over the runs with status ``ok`` (NaN when none): for an error, ``_max`` is the worst seed.
+        values, ``n_runs``, ``n_ok``, ``n_failed``, ``failed_seeds``, ``reasons`` (distinct failure
+        reasons), and ``<metric>_median``, ``<metric>_q1``, ``<metric>_q3``, ``<metric>_min`` and
+        ``<metric>_max`` over every seed, a failed seed counting as the worst value (``inf`` for
+        an error; a descriptive column such as ``n_landmarks`` over the seeds that finished ok).
     """
     by_cfg: dict[str, list[dict]] = {}
     for r in rows:
@@ -202,16 +199,11 @@ def summarize(rows: Sequence[dict], points: Sequence[ConfigPoint], groups: dict[
         rs = by_cfg.get(p.config_id)
         if not rs:
             continue
-        ok = [r for r in rs if r["status"] == "ok"]
+        st = summarize_runs(rs, metric_keys, goals)
         s: dict = {"config_id": p.config_id, "group": groups.get(p.config_id, ""), **p.values,
-                   "n_runs": len(rs), "n_ok": len(ok), "n_failed": len(rs) - len(ok),
-                   "reasons": "; ".join(sorted({r["reason"] for r in rs if r["status"] != "ok"}))}
-        for m in metric_keys:
-            v = np.array([_num(r.get(m, "")) for r in ok], float)
-            v = v[np.isfinite(v)]
-            st = summary_stats(v)
-            s.update({f"{m}_median": st["median"], f"{m}_q1": st["q1"], f"{m}_q3": st["q3"],
-                      f"{m}_min": st["best"], f"{m}_max": st["worst"]})
+                   "n_runs": st["n_runs"], "n_ok": st["n_ok"], "n_failed": st["n_failed"],
+                   "failed_seeds": st["failed_seeds"], "reasons": st["reasons"]}
+        s.update({k: v for k, v in st.items() if k not in s})
         out.append(s)
     return out
 
@@ -238,7 +230,7 @@ def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_ke
                   best: Optional[dict], complete: bool) -> None:
     """``summary.csv`` (every statistic) and ``summary.md`` (a readable table sorted by the metric)."""
     keys = list(spec.swept_keys)
-    cols = ["config_id", "group", *keys, "n_runs", "n_ok", "n_failed"]
+    cols = ["config_id", "group", *keys, "n_runs", "n_ok", "n_failed", "failed_seeds"]
     cols += [f"{m}_{s}" for m in metric_keys for s in ("median", "q1", "q3", "min", "max")] + ["reasons"]
     tmp = out / "summary.csv.tmp"
     with open(tmp, "w", newline="") as f:
@@ -255,8 +247,9 @@ def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_ke
     shown = [k for k in (m, "rmse_fixed", "rmse_aligned", "final_error", "n_landmarks") if k in metric_keys]
     shown = list(dict.fromkeys(shown))
     lines = [f"# Sweep {spec.name}", "",
-             f"{len(summary)} configurations x {len(spec.seeds)} seeds; median [q1, q3] (min-max) over the seeds "
-             f"that finished ok; sorted by {m} ({'lower' if spec.goal == 'min' else 'higher'} is better)."
+             f"{len(summary)} configurations x {len(spec.seeds)} seeds; median [q1, q3] (min-max) over the seeds, "
+             f"a failed seed counting as the worst value (inf for an error); sorted by {m} "
+             f"({'lower' if spec.goal == 'min' else 'higher'} is better)."
              + ("" if complete else " **Partial: the sweep has not finished.**"), ""]
     if best is not None:
         lines += [f"Best: **{best['config_id']}** ({', '.join(f'{k}={best[k]!r}' for k in keys) or 'the base config'}), "
@@ -273,7 +266,8 @@ def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_ke
     failed = [s for s in summary if s["n_failed"]]
     if failed:
         lines += ["", "Failed runs:", ""]
-        lines += [f"- {s['config_id']}: {s['n_failed']} of {s['n_runs']}: {s['reasons']}" for s in failed]
+        lines += [f"- {s['config_id']}: {s['n_failed']} of {s['n_runs']} (seeds {s['failed_seeds'].replace(';', ', ')}): "
+                  f"{s['reasons']}" for s in failed]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
 
 

@@ -31,7 +31,7 @@ from ._batch import BatchTask, LogData, _first_line, execute_batch, load_log_dat
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
 from ._expand import expand, spec_identity, spec_to_dict, stored_identity
 from ._plan import Group, logs_by_id, make_tasks, plan_groups, resolve_vectorize
-from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, SURVEY_METRIC_KEYS, ConfigPoint, SweepSpec
+from ._spec import MAP_METRIC_KEYS, METRIC_KEYS, SMOOTHER_METRIC_KEYS, SURVEY_METRIC_KEYS, ConfigPoint, SweepSpec
 
 __all__ = [
     "SweepResult",
@@ -338,6 +338,7 @@ def run_sweep(
     metric_keys = list(METRIC_KEYS) + (list(MAP_METRIC_KEYS) if any(l.map_truth is not None
                                                                        for _, l in logs.values()) else [])
     metric_keys += list(SURVEY_METRIC_KEYS) if any(l.survey is not None for _, l in logs.values()) else []
+    metric_keys += list(SMOOTHER_METRIC_KEYS) if any(g.runs[0].point.config.smoother.enabled for g in groups) else []
     if any(g.static.adaptive_noise for g in groups):  # where the adaptive noise estimates ended
         metric_keys += list(NOISE_SUMMARY_KEYS)
         if any(g.static.adaptive_noise and g.static.method == "nasrukf" and g.static.nasrukf_feature == "arc"
@@ -405,7 +406,7 @@ def run_sweep(
 
     rows = read_results(results_path)
     cfg_group = {r.config_id: g.label for g in groups for r in g.runs}
-    summary = summarize(rows, points, cfg_group, metric_keys)
+    summary = summarize(rows, points, cfg_group, metric_keys, {spec.metric: spec.goal})
     best = select_best(summary, spec.metric, len(spec.seeds), spec.goal)
     complete = len({r["run_id"] for r in rows} & set(run_meta)) == len(runs)
     write_summary(out, summary, spec, metric_keys, best, complete)

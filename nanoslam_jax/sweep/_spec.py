@@ -38,6 +38,7 @@ __all__ = [
     "sweep_from_dict",
     "config_key_info",
     "METRIC_KEYS",
+    "SMOOTHER_METRIC_KEYS",
     "SURVEY_METRIC_KEYS",
 ]
 
@@ -56,6 +57,10 @@ MAP_METRIC_KEYS = ("map_n_true", "map_n_found", "map_found_fraction", "map_n_spu
 #: (:func:`nanoslam_jax.metrics.survey_summary`; the ``_by_id`` ones with known association).
 SURVEY_METRIC_KEYS = ("survey_rmse", "survey_found", "survey_spurious", "survey_landmarks", "survey_rmse_by_id",
                       "survey_found_by_id", "survey_spurious_by_id")
+#: Extra metrics of a sweep whose base config runs the smoother: the path it started from and the
+#: filter's own estimate (``rmse_*_path``, ``rmse_*_best``), and the smoother's account.
+SMOOTHER_METRIC_KEYS = ("rmse_fixed_path", "rmse_aligned_path", "rmse_fixed_best", "rmse_aligned_best",
+                        "smoother_iterations", "smoother_converged", "smoother_merged", "smoother_s")
 
 _TOP_KEYS = ("name", "base", "set", "segments", "seeds", "grid", "random", "shapes", "metric", "goal", "run", "ray",
              "plots")
@@ -65,7 +70,9 @@ _RUN_KEYS = ("batch", "memory_gb", "vectorize", "backend", "parallel", "workers"
 _RAY_KEYS = ("address", "num_cpus")
 #: Config keys no sweep may vary: identity, the seed (use ``seeds``), and output settings.
 _UNSWEEPABLE = ("name", "seed")
-_UNSWEEPABLE_SECTIONS = ("output", "smoother")  # smoother: host-side, after the run (experiments/smoother_tuning.py)
+#: Sections no sweep may vary: output settings, and the smoother's (it runs on the host after each run with the
+#: base config's settings; experiments/smoother_tuning.py varies them over one batch of runs).
+_UNSWEEPABLE_SECTIONS = ("output", "smoother")
 
 
 @dataclass(frozen=True)
@@ -245,6 +252,9 @@ def _check_sweep_key(key: Any, section: str, where: str, *, want_static: bool) -
     _, static = config_key_info(key, f"{where}: key '{section}.{key}'")
     if key in _UNSWEEPABLE or key.split(".")[0] in _UNSWEEPABLE_SECTIONS:
         hint = "; list seeds under 'seeds'" if key == "seed" else ""
+        if key.startswith("smoother."):
+            hint = ("; the smoother runs after each run with the base config's settings "
+                    "(experiments/smoother_tuning.py varies them over one batch of runs)")
         raise ConfigError(f"{where}: key '{section}.{key}': '{key}' cannot be swept{hint}")
     if want_static and not static:
         raise ConfigError(f"{where}: key '{section}.{key}': '{key}' is a traced hyperparameter (no recompilation); "
@@ -381,9 +391,6 @@ def _load_base(raw: Any, overrides: tuple[str, ...], path: Optional[Path], where
         cfg = config_from_dict(mapping, source=f"{where}: base")
     else:
         raise ConfigError(f"{where}: key 'base': expected a config file name or a mapping of config keys, got {raw!r}")
-    if cfg.smoother.enabled:
-        raise ConfigError(f"{where}: key 'base': smoother.enabled is not available in sweeps (the smoother runs on "
-                          "the host after a run; tune it with experiments/smoother_tuning.py); set it to false")
     return config_to_dict(cfg)
 
 
