@@ -929,3 +929,18 @@ def feature_map_errors(
         summary["n_break_points"], summary["n_break_points_matched"] = breaks["n_true"], breaks["n_matched"]
         summary["break_point_median"], summary["break_point_worst"] = _summary(breaks["error"])
     return {"lines": lines, "arcs": arcs, "corners": corner, "break_points": breaks, "summary": summary}
+
+
+# The scoring of a whole run and the summary over seeds under the failed-seed rule: the one scorer of
+# every command (run, compare, sweep, study), in nanoslam_jax._scoring (which builds on this module,
+# hence loaded on first use).
+_SCORING = ("MapEstimate", "metric_goal", "score_run", "seed_summary", "summarize_runs")
+__all__ += list(_SCORING)
+
+
+def __getattr__(name: str):
+    if name in _SCORING:
+        from . import _scoring
+
+        return getattr(_scoring, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
