@@ -10,8 +10,9 @@ the largest of the four ratios
     worst aligned / (1.5 x median aligned),  worst fixed / (1.5 x median fixed),
 
 so a score of at most 1 meets every target and the lowest score is the nearest. The statistics
-are those of the sweep's ``summary.csv`` (median and maximum over the seeds that finished); a
-configuration with a failed seed is ranked last. Prints a Markdown table, best first.
+are those of the sweep's ``summary.csv`` (median and maximum over the seeds, a failed seed counted
+as an infinite error); a configuration with a failed seed is ranked last. Prints a Markdown table,
+best first.
 """
 
 from __future__ import annotations
