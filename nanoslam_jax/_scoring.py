@@ -42,7 +42,7 @@ from typing import Any, Mapping, NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .metrics import evaluate, map_summary, survey_summary
+from .metrics import evaluate, map_summary, rmse_heading_deg, survey_summary
 
 __all__ = [
     "HIGHER_IS_BETTER", "MapEstimate", "companion_tracks", "failure_reason", "format_number", "metric_goal", "number", "run_values",
@@ -95,6 +95,12 @@ def _gps(log) -> np.ndarray:
     return np.asarray(raw.gps if raw is not None else log.gps)
 
 
+def _truth_poses(log) -> Optional[np.ndarray]:
+    """The log's true path ``time, x, y, phi`` (simulated logs), or None."""
+    raw = getattr(log, "raw", None)
+    return raw.truth_poses if raw is not None else getattr(log, "truth_poses", None)
+
+
 def failure_reason(times: np.ndarray, est: np.ndarray) -> str:
     """Where a trajectory stops being finite (``''`` when it is finite everywhere)."""
     finite = np.isfinite(np.asarray(est)).reshape(len(est), -1).all(axis=1)
@@ -133,7 +139,9 @@ def score_run(log, est: np.ndarray, metrics, landmarks: Optional[MapEstimate] = 
 
     Returns:
         ``finite`` (whether ``est`` is finite everywhere); with a finite ``est`` and GPS, every
-        figure of :func:`~nanoslam_jax.metrics.evaluate`; with ``landmarks``, ``n_landmarks``,
+        figure of :func:`~nanoslam_jax.metrics.evaluate`; with a finite ``est`` that has headings
+        and a log with a true path, ``rmse_heading_deg`` (:func:`~nanoslam_jax.metrics.rmse_heading_deg`);
+        with ``landmarks``, ``n_landmarks``,
         ``n_confirmed`` and the map figures the log supports (``map_*`` against a simulated log's
         true trees, ``survey_*`` against a survey).
     """
@@ -152,6 +160,9 @@ def score_run(log, est: np.ndarray, metrics, landmarks: Optional[MapEstimate] = 
             if np.all(np.isfinite(other)):
                 o = evaluate(t, other[:, :2], gps, **mk)
                 out.update({f"rmse_fixed_{tag}": o["rmse_fixed"], f"rmse_aligned_{tag}": o["rmse_aligned"]})
+    truth = _truth_poses(log)
+    if finite and truth is not None and est.ndim == 2 and est.shape[1] >= 3:
+        out["rmse_heading_deg"] = rmse_heading_deg(t, est[:, 2], truth)
     if landmarks is not None:
         xy, conf = np.asarray(landmarks.xy, float).reshape(-1, 2), np.asarray(landmarks.confirmed, bool)
         out.update(map_summary(xy, conf, log.map_truth, metrics.map_radius, alignment))

@@ -183,8 +183,8 @@ def _run(args) -> int:
     setup_run_devices(cfg)
     out = Path(args.out) if args.out else default_out_dir(cfg)
     metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)
-    keys = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "dr_rmse_fixed", "n_landmarks",
-            "n_confirmed", "map_found_fraction", "map_spurious_fraction", "map_found_fraction_aligned",
+    keys = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "dr_rmse_fixed", "rmse_heading_deg",
+            "n_landmarks", "n_confirmed", "map_found_fraction", "map_spurious_fraction", "map_found_fraction_aligned",
             "map_spurious_fraction_aligned", "ms_per_scan", "compile_s"]
     summary = {k: round(metrics[k], 3) if isinstance(metrics[k], float) else metrics[k] for k in keys if k in metrics}
     if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:

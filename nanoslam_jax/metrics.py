@@ -41,6 +41,8 @@ __all__ = [
     "jump_mask",
     "evaluate",
     "error_over_time",
+    "heading_errors",
+    "rmse_heading_deg",
     "landmark_errors",
     "observable_landmarks",
     "map_quality",
@@ -310,6 +312,43 @@ def evaluate(
     else:
         out["rmse_fixed_clean"] = out["rmse_aligned_clean"] = out["align_rotation_clean_deg"] = float("nan")
     return out
+
+
+def heading_errors(est_t: np.ndarray, est_phi: np.ndarray, truth_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Heading error, wrapped to [-180, 180) deg, at every estimate time inside the truth's span.
+
+    The true heading is interpolated linearly in time (unwrapped first, so an interpolation never
+    crosses the +-180 deg cut the long way round); the error is ``estimate - truth``, wrapped.
+
+    Args:
+        est_t: ``(T,)`` estimate times (s).
+        est_phi: ``(T,)`` estimated headings (rad, any branch).
+        truth_poses: ``(N, 4)`` true poses ``time, x, y, phi`` (``RawLog.truth_poses``), times
+            non-decreasing.
+
+    Returns:
+        ``(t, err_deg)``: the estimate times inside the truth's span and the errors there (deg).
+
+    Raises:
+        ValueError: on bad shapes, or when no estimate time falls inside the truth's span.
+    """
+    tp = np.asarray(truth_poses, dtype=float)
+    est_t, est_phi = np.asarray(est_t, dtype=float), np.asarray(est_phi, dtype=float)
+    if tp.ndim != 2 or tp.shape[1] != 4:
+        raise ValueError(f"truth_poses must be (N, 4) rows of time, x, y, phi, got {tp.shape}")
+    if est_t.shape != est_phi.shape or est_t.ndim != 1:
+        raise ValueError(f"est_t and est_phi must be matching (T,) arrays, got {est_t.shape} and {est_phi.shape}")
+    inside = (est_t >= tp[0, 0]) & (est_t <= tp[-1, 0]) if tp.shape[0] else np.zeros(est_t.shape, bool)
+    if not inside.any():
+        raise ValueError("no estimate time falls inside the true path's time span")
+    truth = np.interp(est_t[inside], tp[:, 0], np.unwrap(tp[:, 3]))
+    err = np.mod(est_phi[inside] - truth + np.pi, 2.0 * np.pi) - np.pi
+    return est_t[inside], np.degrees(err)
+
+
+def rmse_heading_deg(est_t: np.ndarray, est_phi: np.ndarray, truth_poses: np.ndarray) -> float:
+    """Root mean square of the wrapped heading error (deg) against a true path (:func:`heading_errors`)."""
+    return _rmse(heading_errors(est_t, est_phi, truth_poses)[1])
 
 
 def landmark_errors(est_landmarks: np.ndarray, true_landmarks: np.ndarray, radius: float = 2.0) -> dict:
@@ -672,6 +711,7 @@ def map_alignment_metrics(
         "pairs": pairs,
         "pair_errors": err,
     }
+
 
 # ---------------------------------------------------------------------------------------------
 # Line and arc maps (the second paper's Table 1)

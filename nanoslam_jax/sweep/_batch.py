@@ -42,6 +42,7 @@ class LogData:
             ``None`` without ground truth).
         source: where the log came from.
         survey: a real log's surveyed landmarks (:class:`~nanoslam_jax.experiment.Survey`), or None.
+        truth_poses: a simulated log's true path ``time, x, y, phi``, or None.
     """
 
     segments: Segments
@@ -50,6 +51,7 @@ class LogData:
     map_truth: Optional[np.ndarray]
     source: str
     survey: Any = None
+    truth_poses: Optional[np.ndarray] = None
 
     @property
     def time(self) -> np.ndarray:
@@ -78,7 +80,8 @@ def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optiona
     seg = log.segments
     n = seg.time.shape[0] if segments is None else min(segments, seg.time.shape[0])
     seg = type(seg)(*(np.asarray(a)[:n] for a in seg))
-    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source, log.survey)
+    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source, log.survey,
+                   log.raw.truth_poses)
 
 
 # --------------------------------------------------------------------------- the compiled program
