@@ -113,7 +113,8 @@ _TOP = {"name", "base", "seeds", "first_seed", "timing_chunk", "set", "methods"}
 _ROW = {"label", "set", "paper_rmse", "paper_ms"}
 
 
-def _str_list(value: Any, key: str, where: str) -> tuple[str, ...]:
+def str_list(value: Any, key: str, where: str) -> tuple[str, ...]:
+    """A comparison (or study) file's list of ``key=value`` overrides (a mapping is taken too), checked."""
     if value is None:
         return ()
     if isinstance(value, dict):  # {filter.method: nano} is accepted too
@@ -123,7 +124,8 @@ def _str_list(value: Any, key: str, where: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _int(value: Any, key: str, where: str, lo: int) -> int:
+def int_at_least(value: Any, key: str, where: str, lo: int) -> int:
+    """A comparison (or study) file's integer ``value`` of ``key``, at least ``lo``, checked."""
     if isinstance(value, bool) or not isinstance(value, int) or value < lo:
         raise ConfigError(f"{where}: key '{key}': expected an integer >= {lo}, got {value!r}")
     return value
@@ -187,7 +189,7 @@ def method_rows(rows: Any, where: str, allowed: set) -> list[tuple[str, dict, st
         label = row.get("label")
         if not isinstance(label, str) or not label:
             raise ConfigError(f"{where}: key '{key}.label': expected a non-empty string, got {label!r}")
-        out.append((key, row, label, _str_list(row.get("set"), f"{key}.set", where)))
+        out.append((key, row, label, str_list(row.get("set"), f"{key}.set", where)))
     labels = [r[2] for r in out]
     if len(set(labels)) != len(labels):
         raise ConfigError(f"{where}: key 'methods': labels must be unique, got {labels}")
@@ -215,10 +217,10 @@ def load_compare_spec(path: str | Path, overrides: tuple[str, ...] = (), seeds: 
                for key, row, label, sets in method_rows(raw.get("methods"), where, _ROW)]
     spec = CompareSpec(
         name=str(raw.get("name", p.stem)), base=base, methods=tuple(methods),
-        seeds=_int(seeds if seeds is not None else raw.get("seeds", 8), "seeds", where, 1),
-        first_seed=_int(raw.get("first_seed", 0), "first_seed", where, 0),
-        timing_chunk=_int(raw.get("timing_chunk", 250), "timing_chunk", where, 1),
-        set=_str_list(raw.get("set"), "set", where) + tuple(overrides), source=where,
+        seeds=int_at_least(seeds if seeds is not None else raw.get("seeds", 8), "seeds", where, 1),
+        first_seed=int_at_least(raw.get("first_seed", 0), "first_seed", where, 0),
+        timing_chunk=int_at_least(raw.get("timing_chunk", 250), "timing_chunk", where, 1),
+        set=str_list(raw.get("set"), "set", where) + tuple(overrides), source=where,
     )
     for m in spec.methods:  # validate every method's config now, before anything runs
         method_config(spec, m)

@@ -38,7 +38,7 @@ import re
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from ..compare import deterministic, _int, _str_list, method_rows, read_comparison, resolve_base
+from ..compare import deterministic, int_at_least, method_rows, read_comparison, resolve_base, str_list
 from ..config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
 
 __all__ = ["StudyMethod", "StudyTiming", "PairedSpec", "StudySpec", "StudyPoint", "load_study", "is_study_file",
@@ -174,8 +174,8 @@ def _particle_map(value: Any, key: str, where: str) -> tuple[tuple[int, int], ..
                           f"got {value!r}")
     out = []
     for n, s in value.items():
-        _int(n, f"{key}.{n}", where, 1)
-        _int(s, f"{key}.{n}", where, 1)
+        int_at_least(n, f"{key}.{n}", where, 1)
+        int_at_least(s, f"{key}.{n}", where, 1)
         out.append((n, s))
     return tuple(sorted(out))
 
@@ -185,7 +185,7 @@ def _timing(value: Any, where: str, base: StudyTiming) -> StudyTiming:
         return base
     if not isinstance(value, dict) or set(value) - _TIMING:
         raise ConfigError(f"{where}: key 'timing': expected a mapping with keys {sorted(_TIMING)}, got {value!r}")
-    repeats = _int(value.get("repeats", base.repeats), "timing.repeats", where, 1)
+    repeats = int_at_least(value.get("repeats", base.repeats), "timing.repeats", where, 1)
     budget = value.get("budget_s", base.budget_s)
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not budget > 0:
         raise ConfigError(f"{where}: key 'timing.budget_s': expected a number > 0, got {budget!r}")
@@ -213,12 +213,12 @@ def _paired(value: Any, labels: list[str], where: str) -> Optional[PairedSpec]:
     if isinstance(conf, bool) or not isinstance(conf, (int, float)) or not 0 < conf < 1:
         raise ConfigError(f"{where}: key 'paired.confidence': expected a number in (0, 1), got {conf!r}")
     return PairedSpec(ref, tuple(against), tuple(metrics),
-                      _int(value.get("bootstrap", PairedSpec.bootstrap), "paired.bootstrap", where, 100), float(conf),
-                      _int(value.get("bootstrap_seed", 0), "paired.bootstrap_seed", where, 0))
+                      int_at_least(value.get("bootstrap", PairedSpec.bootstrap), "paired.bootstrap", where, 100), float(conf),
+                      int_at_least(value.get("bootstrap_seed", 0), "paired.bootstrap_seed", where, 0))
 
 
 def _segments(value: Any, key: str, where: str) -> Optional[int]:
-    return None if value is None else _int(value, key, where, 1)
+    return None if value is None else int_at_least(value, key, where, 1)
 
 
 def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool = False,
@@ -258,7 +258,7 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
     labels = [m.label for m in methods]
 
     particles = _particle_map(raw.get("particles"), "particles", where)
-    first_seed = _int(raw.get("first_seed", 0), "first_seed", where, 0)
+    first_seed = int_at_least(raw.get("first_seed", 0), "first_seed", where, 0)
     segments = _segments(raw.get("segments"), "segments", where)
     timing = _timing(raw.get("timing"), where, StudyTiming())
     if quick:
@@ -269,7 +269,7 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         if "segments" in q:
             segments = _segments(q["segments"], "quick.segments", where)
         if "first_seed" in q:
-            first_seed = _int(q["first_seed"], "quick.first_seed", where, 0)
+            first_seed = int_at_least(q["first_seed"], "quick.first_seed", where, 0)
         timing = _timing(q.get("timing"), where, timing)
         keep = q.get("methods")
         if keep is not None:
@@ -290,7 +290,7 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         methods = [m if m.particles is None else dataclasses.replace(m, particles=tuple((n, s) for n, s in m.particles if n in counts))
                    for m in methods]
     if seeds is not None:
-        _int(seeds, "--seeds", where, 1)
+        int_at_least(seeds, "--seeds", where, 1)
         particles = tuple((n, seeds) for n, _ in particles)
         methods = [m if m.particles is None else dataclasses.replace(m, particles=tuple((n, seeds) for n, _ in m.particles))
                    for m in methods]
@@ -303,7 +303,7 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         paired = dataclasses.replace(paired, against=against) if paired.reference in in_variant and against else None
     spec = StudySpec(
         name=str(raw.get("name", p.stem)) + ("-quick" if quick else ""), source=where, base=base,
-        set=_str_list(raw.get("set"), "set", where) + tuple(overrides), methods=tuple(methods), particles=particles,
+        set=str_list(raw.get("set"), "set", where) + tuple(overrides), methods=tuple(methods), particles=particles,
         first_seed=first_seed, segments=segments, timing=timing, run=tuple(run.items()), paired=paired, quick=quick,
     )
     points = expand_study(spec)  # every method's config is validated here, before anything runs
