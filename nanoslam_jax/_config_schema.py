@@ -372,6 +372,20 @@ class NasrukfConfig:
         doc="the paper's 'enough new feature data' count N_new: a feature's detections update the pose "
             "only once it has been detected this many times (1: from its second detection on, as the "
             "other methods' landmarks); until then they refine the feature only")
+    adaptive_process: bool = _f(False, static=True,
+        doc="estimate the process noise Q of the time update online (eq. 9's estimated Q): a Sage-Husa "
+            "estimate from the pose corrections K nu and covariance changes of each scan's fused joint states, "
+            "with the weights d_k = (1 - b) / (1 - b^(k+1)) of process_forgetting, scaling the motion model's "
+            "configured noise "
+            "(noise.sigma_v and sigma_alpha_deg, unicycle or random_walk sigmas) by a matrix Lambda, Q = S Lambda "
+            "S'. A run reports process_noise_ratio_<j> (estimated over configured standard deviation of each noise "
+            "component) in metrics.json; method nasrukf only")
+    process_forgetting: float = _f(0.99, lo=0.0, lo_open=True,
+        doc="forgetting factor b of the adaptive process-noise estimate, 0 < b < 1 (its memory is about "
+            "1 / (1 - b) scans with an update)")
+    process_floor: float = _f(0.01, lo=0.0, lo_open=True, hi=1.0,
+        doc="smallest eigenvalue of the adaptive process-noise scale Lambda: the estimate stays at or above this "
+            "fraction of the configured noise in every direction")
 
 
 @dataclass(frozen=True)

@@ -225,6 +225,12 @@ def _check_consistency(cfg: Config, where: str) -> None:
                           f"({ind.pillar_radius_max}), got {ind.pillar_radius_min}")
     if cfg.noise.forgetting >= 1.0:
         raise ConfigError(f"{where}key 'noise.forgetting': expected a value < 1, got {cfg.noise.forgetting}")
+    if cfg.nasrukf.process_forgetting >= 1.0:
+        raise ConfigError(f"{where}key 'nasrukf.process_forgetting': expected a value < 1, "
+                          f"got {cfg.nasrukf.process_forgetting}")
+    if cfg.nasrukf.adaptive_process and cfg.filter.method != "nasrukf":
+        raise ConfigError(f"{where}key 'nasrukf.adaptive_process': the adaptive process-noise estimate is "
+                          f"NASRUKF's, not filter.method {cfg.filter.method!r}'s; set it to false or use nasrukf")
     from .methods import get_method, method_names
 
     try:

@@ -25,11 +25,12 @@ from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
-from .filter import (Params, Static, adaptive_noise_summary, configured_noise,
+from .filter import (Params, Static, adaptive_noise_summary, adaptive_process_summary, configured_noise,
                      dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
                      text_progress)
 from .filter._scan import is_gaussian
-from .metrics import error_over_time, evaluate, map_alignment_metrics, observable_landmarks, relative_gps
+from .metrics import (error_over_time, evaluate, map_alignment_metrics, observable_landmarks, relative_gps,
+                      rmse_heading_deg)
 from ._scoring import MapEstimate, companion_tracks, score_run
 from .smoother import smooth_filter_run, smoother_metrics
 
@@ -376,6 +377,12 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
             metrics.update(noise_metrics)
             if noise_warnings:
                 metrics.setdefault("warnings", []).extend(noise_warnings)
+        if static.adaptive_process:
+            process_metrics, process_warnings = adaptive_process_summary(
+                np.asarray(run.state.process_scale), int(run.state.process_count), float(params.process_floor))
+            metrics.update(process_metrics)
+            if process_warnings:
+                metrics.setdefault("warnings", []).extend(process_warnings)
 
     # JAX's own count of this run's tracing, lowering and compiling (or loading from the cache).
     metrics["compilation"] = {**compile_stats().since(stats0).as_dict(),
@@ -390,6 +397,8 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
     metrics.update(score_run(log, est, cfg.metrics, lm, others))
     if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:
         metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
+    if "rmse_heading_deg" in metrics and cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):
+        metrics["dr_rmse_heading_deg"] = rmse_heading_deg(t, dr_poses[:, 2], log.raw.truth_poses)
     if log.survey is not None and np.all(np.isfinite(dr_poses)) and (np.asarray(seg.z_id) >= 0).any():
         # The baseline: every sighting of known id projected from the dead-reckoned path.
         dr_ids, dr_xy = sighting_map(dr_poses, seg)

@@ -49,7 +49,12 @@ Per segment (:func:`nasrukf_step`):
    ``N(x_i, P_i)``. Eq. 4 assumes independent estimates (``P_ij = 0``); these all continue from the
    scan's common prior, so it is applied to each one's information gain over that prior:
    ``Lambda = Lambda_0 + sum_i (P_i^-1 - Lambda_0)``, ``x = x_0 + Lambda^-1 sum_i P_i^-1 (x_i - x_0)``,
-   the exact posterior when the detections are independent given the pose. Eq. 5 as printed
+   the exact posterior when the detections are independent given the pose. With
+   ``nasrukf.adaptive_process`` the fused joint states' pose corrections ``x_i - x_0 = K_i nu_i``
+   and covariance changes ``P_i - P_0``, averaged, update the estimated process noise ``Q`` of
+   eq. 9 (a Sage-Husa estimate with eq. 11's weights ``d_k``,
+   :func:`~._srukf.adaptive_process_update`), which scales the time update's noise from the next
+   segment on. Eq. 5 as printed
    (``sum_i P_i^-1 x_i / sum_i P_i^-1`` over all ``N`` features, those not detected sitting at the
    prior) counts the prior once per feature, shrinking the pose covariance by the feature count at every
    scan. Features with fewer than
@@ -95,9 +100,11 @@ from ._params import Params, Static
 from ._srukf import (
     SigmaMeasurement,
     adaptive_noise_rows,
+    adaptive_process_update,
     chol_rank_update,
     measurement_update,
     predict_measurement,
+    process_noise_basis,
     srukf_transform,
 )
 from ._nasrukf_state import NasrukfFeatures, NasrukfState, configured_noise, feature_dim
@@ -121,6 +128,7 @@ def pose_time_update(
     u: Float[Array, "dr 2"],
     dr_mask: Bool[Array, " dr"],
     params: Params,
+    noise_scale_sqrt: Float[Array, "w w"] | None = None,
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"], Float[Array, "3 3"], Float[Array, "3 3"]]:
     """The pose's SR-UKF time update through a segment's DR pieces, with its start pose carried.
 
@@ -134,6 +142,8 @@ def pose_time_update(
         x, S: the pose mean and lower square root at the start of the segment.
         dt, u, dr_mask: the segment's DR pieces (masked pieces change nothing).
         params: vehicle constants, control noise, unscented parameters.
+        noise_scale_sqrt: a lower square root ``Lambda^(1/2)`` scaling the motion model's noise,
+            ``S(dt) Lambda^(1/2)`` (the estimated ``Q`` of eq. 9); None: the configured noise.
 
     Returns:
         The predicted mean and square root, ``T`` and ``D``.
@@ -149,7 +159,9 @@ def pose_time_update(
         def move(p, w):
             return jnp.concatenate([motion.noisy_step(p[:3], u[i], w, dt[i]), p[3:]])
 
-        yn, Ln = srukf_transform(y, L, move, motion.noise_sqrt(dt[i]), rule, angles=(2, 5))
+        Sw = motion.noise_sqrt(dt[i])
+        Sw = Sw if noise_scale_sqrt is None else Sw @ noise_scale_sqrt
+        yn, Ln = srukf_transform(y, L, move, Sw, rule, angles=(2, 5))
         return jnp.where(dr_mask[i], yn, y), jnp.where(dr_mask[i], Ln, L)
 
     n_pieces = jnp.max(jnp.where(dr_mask, jnp.arange(1, dr_mask.shape[0] + 1), 0))
@@ -305,8 +317,14 @@ def nasrukf_step(
     arc = static.nasrukf_feature == "arc"
     noise = state.noise if static.adaptive_noise else configured_noise(static, params)
 
-    # 1. Time update: the pose, then every feature's part of its joint state.
-    x0, S0, T, D = pose_time_update(state.pose, state.pose_sqrt, seg.dt, seg.u, seg.dr_mask & valid, params)
+    # 1. Time update: the pose (with the estimated process noise), then every feature's part of its joint state.
+    dr_mask = seg.dr_mask & valid
+    if static.adaptive_process:
+        scale_sqrt = jnp.linalg.cholesky(state.process_scale)
+        basis = process_noise_basis(state.process_basis, state.pose, seg.dt, seg.u, dr_mask, params.motion)
+    else:
+        scale_sqrt, basis = None, state.process_basis
+    x0, S0, T, D = pose_time_update(state.pose, state.pose_sqrt, seg.dt, seg.u, dr_mask, params, scale_sqrt)
     P0 = mmt(S0, S0)
     feats = propagate_features(state.features, T, D)
 
@@ -366,6 +384,19 @@ def nasrukf_step(
     if static.manage:  # tentative features (and those started in this scan) move the pose only if asked
         fuse = fuse & ((existing & local.landmarks.confirmed[ws]) | mp.use_tentative)
     x_g, S_g = fuse_poses(x0, S0, post.x[:, :3], post.L[:, :3, :3], fuse)
+    process_scale, process_count = state.process_scale, state.process_count
+    if static.adaptive_process:  # the estimated Q from the fused joint states' corrections and covariance changes
+        dx = jax.vmap(_minus, (0, None))(post.x[:, :3], x0)
+        Pi = mmt(post.L[:, :3, :3], post.L[:, :3, :3])
+        w = fuse.astype(x0.dtype)
+        change = jnp.sum(w[:, None, None] * (dx[:, :, None] * dx[:, None, :] + Pi - P0), axis=0) / jnp.maximum(
+            jnp.sum(w), 1.0)
+        updated = jnp.any(fuse)
+        new_scale = adaptive_process_update(process_scale, process_count, change, S0, basis, params.process_forgetting,
+                                            params.process_floor)
+        process_scale = jnp.where(updated, new_scale, process_scale)
+        process_count = process_count + updated.astype(process_count.dtype)
+        basis = jnp.where(updated, jnp.zeros_like(basis), basis)
     upd = jax.vmap(to_conditional, (0, 0, 0, None))(post.x[:, :3], post.x[:, 3:], post.L, x_g)
     ini = jax.vmap(to_conditional, (0, 0, 0, None))(new_y[:, :3], new_y[:, 3:], new_L, x_g)
     feats = feats._replace(mean=feats.mean + mv(feats.gain, _minus(x_g, x0)))
@@ -415,6 +446,8 @@ def nasrukf_step(
     new_state = NasrukfState(
         pose=keep(x_g, state.pose), pose_sqrt=keep(S_g, state.pose_sqrt), features=keep(feats, state.features),
         noise=keep(noise, state.noise), noise_count=keep(noise_count, state.noise_count),
+        process_scale=keep(process_scale, state.process_scale), process_count=keep(process_count, state.process_count),
+        process_basis=keep(basis, state.process_basis),
         count=jnp.where(valid, jnp.sum(feats.landmarks.active), state.count).astype(jnp.int32), key=state.key,
         resample_count=state.resample_count, overflow=state.overflow + overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),

@@ -54,6 +54,12 @@ class NasrukfState(NamedTuple):
         noise: the measurement-noise variances in use (range, bearing, and diameter for arcs): the
             configured ones, or the adaptive estimate.
         noise_count: residuals the adaptive estimate has seen.
+        process_scale: the process-noise scale ``Lambda`` in use: the time update's noise is
+            ``S(dt) Lambda^(1/2) e`` with ``S`` the motion model's configured square root (identity,
+            or the adaptive estimate with ``nasrukf.adaptive_process``).
+        process_count: updates the adaptive process-noise estimate has seen.
+        process_basis: the linearised map from ``Lambda`` to the pose covariance added since the last
+            update (:func:`~._srukf.process_noise_basis`; zeros unless the estimate is on).
         count: active features.
         key: PRNG key (unused; carried for the driver).
         resample_count: always 0 (no particles).
@@ -66,6 +72,9 @@ class NasrukfState(NamedTuple):
     features: NasrukfFeatures
     noise: Float[Array, " mz"]
     noise_count: Int[Array, ""]
+    process_scale: Float[Array, "w w"]
+    process_count: Int[Array, ""]
+    process_basis: Float[Array, "w w 3 3"]
     count: Int[Array, ""]
     key: Key[Array, ""]
     resample_count: Int[Array, ""]
@@ -93,20 +102,22 @@ def configured_noise(static: Static, params: Params) -> Float[Array, " mz"]:
 
 
 def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> NasrukfState:
-    """The pose at the origin with covariance ``init_cov * I``, no features, the configured noise.
+    """The pose at the origin with covariance ``init_cov * I``, no features, the configured noise
+    (measurement and process).
 
     Args:
         static: static settings (``capacity``, ``nasrukf_feature``).
         params: hyperparameters (``init_cov``, noise).
         key: PRNG key (carried, unused).
     """
-    c, f = static.capacity, feature_dim(static)
+    c, f, w = static.capacity, feature_dim(static), params.motion.noise_dim
     zero = jnp.zeros((), jnp.int32)
     features = NasrukfFeatures(
         mean=jnp.zeros((c, f)), gain=jnp.zeros((c, f, 3)), sqrt=jnp.broadcast_to(jnp.eye(f), (c, f, f)),
         landmarks=LandmarkMap.empty(c, ident=static.association == "known"))
     return NasrukfState(
         pose=jnp.zeros(3), pose_sqrt=jnp.sqrt(jnp.asarray(params.init_cov, float)) * jnp.eye(3), features=features,
-        noise=configured_noise(static, params), noise_count=zero, count=zero, key=key, resample_count=zero,
+        noise=configured_noise(static, params), noise_count=zero, process_scale=jnp.eye(w), process_count=zero,
+        process_basis=jnp.zeros((w, w, 3, 3)), count=zero, key=key, resample_count=zero,
         overflow=zero, scan=zero,
     )

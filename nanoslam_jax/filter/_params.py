@@ -60,6 +60,7 @@ class Static:
     iterated_landmark_noise: bool = True
     adaptive_noise: bool = False
     nasrukf_feature: str = "point"
+    adaptive_process: bool = False
 
     @property
     def window_size(self) -> int:
@@ -143,6 +144,8 @@ class Params(NamedTuple):
         forgetting: forgetting factor ``b`` of the adaptive measurement-noise estimate.
         noise_floor: smallest adaptive noise variance, as a fraction of the configured one.
         new_feature_hits: NASRUKF's ``N_new``: detections a feature needs before it updates the pose.
+        process_forgetting: forgetting factor ``b`` of NASRUKF's adaptive process-noise estimate.
+        process_floor: smallest eigenvalue of that estimate's scale, a fraction of the configured noise.
         method: the traced parameters of a registered method that declares them (``filter.method_params``
             over the method's defaults), by name; empty for the built-in methods.
     """
@@ -168,6 +171,8 @@ class Params(NamedTuple):
     forgetting: Float[ArrayLike, ""]
     noise_floor: Float[ArrayLike, ""]
     new_feature_hits: Float[ArrayLike, ""]
+    process_forgetting: Float[ArrayLike, ""]
+    process_floor: Float[ArrayLike, ""]
     method: dict = {}
 
     @property
@@ -254,7 +259,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
         devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(f.method, n.init)),
         adaptive_noise=nz.adaptive,
-        nasrukf_feature=cfg.nasrukf.feature,
+        nasrukf_feature=cfg.nasrukf.feature, adaptive_process=cfg.nasrukf.adaptive_process,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     mp = cfg.map
@@ -276,6 +281,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         nano_alpha=a(n.ut_alpha), nano_beta=a(n.ut_beta), nano_kappa=a(n.ut_kappa),
         max_range=a(cfg.data.max_range), window_margin=a(f.window_margin), map=map_params,
         forgetting=a(nz.forgetting), noise_floor=a(nz.adaptive_floor), new_feature_hits=a(cfg.nasrukf.new_feature_hits),
+        process_forgetting=a(cfg.nasrukf.process_forgetting), process_floor=a(cfg.nasrukf.process_floor),
         method={k: a(v) for k, v in get_method(f.method).method_params(f.method_params).items()},
     )
     return static, params

@@ -15,6 +15,9 @@ These are the building blocks of NASRUKF FastSLAM (docs/method/nasrukf.md; the N
 - :func:`adaptive_noise_update` / :func:`adaptive_noise_rows`: the measurement-noise estimate of
   eq. 11 with the forgetting factor ``b``, ``d_k = (1 - b) / (1 - b^(k+1))``;
   :func:`adaptive_noise_summary` (numpy, on the host) reports where a run's estimates ended.
+- :func:`process_noise_basis` / :func:`adaptive_process_update`: the estimated process noise
+  ``Q`` of eq. 9, a Sage-Husa estimate with the same weights ``d_k`` from the state corrections
+  and the covariance change of the updates; :func:`adaptive_process_summary` reports it.
 
 Conventions: the square root of a covariance ``P`` is a lower triangular ``L`` with ``L L' = P`` and
 a non-negative diagonal. Sigma points are those of :class:`~nanoslam_jax.quadrature.Unscented`
@@ -31,7 +34,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.linalg import cho_solve
+from jax.scipy.linalg import cho_solve, solve_triangular
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
@@ -364,4 +367,119 @@ def adaptive_noise_summary(noise: ArrayLike, configured: ArrayLike, floor_fracti
         f"variance) in {100 * f:.0f} % of the particles: the residuals were smaller than the filter predicted, "
         "so the gates shrank and detections of mapped landmarks may fail association; see the key's documentation"
         for n, f in zip(names, at_floor) if f >= NOISE_FLOOR_WARN_FRACTION]
+    return metrics, warnings
+
+
+def process_noise_basis(
+    basis: Float[Array, "w w 3 3"],
+    x: Float[Array, "3"],
+    dt: Float[Array, " dr"],
+    u: Float[Array, "dr c"],
+    dr_mask: Bool[Array, " dr"],
+    motion,
+) -> Float[Array, "w w 3 3"]:
+    """The linear map from the process-noise scale ``Lambda`` to the pose covariance it adds.
+
+    A time update with the noise ``S(dt) Lambda^(1/2) e`` (``S`` the motion model's
+    :meth:`~nanoslam_jax.models.AbstractMotionModel.noise_sqrt`, ``e`` white) adds, linearised,
+    ``Q_pose = sum_ab Lambda_ab B_ab`` to the pose covariance; each piece maps the basis on,
+    ``B_ab <- F B_ab F' + A_a A_b'`` with ``F = df/dx``, ``A = (df/dw) S(dt)`` at the noise-free
+    pose (autodiff). The basis accumulates over segments until an update uses it.
+
+    Args:
+        basis: the basis so far (zeros right after an update).
+        x: the pose at the start of the segment.
+        dt, u, dr_mask: the segment's DR pieces (masked pieces change nothing).
+        motion: the motion model.
+
+    Returns:
+        The basis at the end of the segment.
+    """
+
+    def body(i, carry):
+        p, B = carry
+        F, G = motion.jacobians(p, u[i], dt[i])
+        A = G @ motion.noise_sqrt(dt[i])
+        Bn = jnp.einsum("ij,abjk,lk->abil", F, B, F) + jnp.einsum("ia,jb->abij", A, A)
+        pn = motion.step(p, u[i], dt[i])
+        return jnp.where(dr_mask[i], pn, p), jnp.where(dr_mask[i], Bn, B)
+
+    n_pieces = jnp.max(jnp.where(dr_mask, jnp.arange(1, dr_mask.shape[0] + 1), 0))
+    return jax.lax.fori_loop(0, n_pieces, body, (x, basis))[1]
+
+
+#: Singular values of the whitened basis below this fraction of the largest are not inverted by
+#: :func:`adaptive_process_update`: a noise direction that adds less than that to the prior, relative
+#: to the best-seen one, keeps its scale for that update.
+PROCESS_RCOND = 1e-2
+
+
+def adaptive_process_update(
+    scale: Float[Array, "w w"],
+    k: Int[ArrayLike, ""],
+    change: Float[Array, "3 3"],
+    prior_sqrt: Float[Array, "3 3"],
+    basis: Float[Array, "w w 3 3"],
+    b: Float[ArrayLike, ""],
+    floor: Float[ArrayLike, ""],
+) -> Float[Array, "w w"]:
+    """The process-noise scale after the ``k``-th update (Sage-Husa, weights ``d_k``).
+
+    The noise of the time update is ``S(dt) Lambda^(1/2) e``, ``Lambda = I`` the configured one. An
+    update moves the pose by ``dx = K nu`` and its covariance from ``P-`` to ``P``. With
+    ``P- = Phi P_prev Phi' + Q_pose(Lambda)`` and ``E[dx dx'] = P- - P`` for the true noise, the
+    one-update sample of the noise is ``Q_hat = dx dx' + P - Phi P_prev Phi' = Q_pose(Lambda) +
+    (dx dx' + P - P-)``; its scale is read off the linear map ``Q_pose`` (:func:`process_noise_basis`)
+    by least squares in the prior's whitened frame (``P-^(-1/2) . P-^(-T/2)``), and
+    ``Lambda_k = (1 - d_k) Lambda_(k-1) + d_k Lambda_hat = Lambda_(k-1) + d_k L^+(dx dx' + P - P-)``.
+    The result is symmetrised and its eigenvalues held at ``floor`` or above (positive definite).
+
+    Args:
+        scale: the current ``Lambda`` (symmetric positive definite).
+        k: updates it has seen (0 for the first).
+        change: ``dx dx' + P - P-`` of this update (the pose's).
+        prior_sqrt: lower square root of ``P-``.
+        basis: the map ``Lambda -> Q_pose`` since the previous update.
+        b: forgetting factor in (0, 1).
+        floor: smallest eigenvalue of ``Lambda`` (a fraction of the configured noise).
+    """
+    w = scale.shape[0]
+    Wi = solve_triangular(prior_sqrt, jnp.eye(3, dtype=prior_sqrt.dtype), lower=True)
+    white = lambda M: (Wi @ M @ Wi.T).reshape(-1)  # noqa: E731
+    pairs = [(a, c) for a in range(w) for c in range(a, w)]
+    X = jnp.stack([white(basis[a, c] + basis[c, a] if a != c else basis[a, a]) for a, c in pairs], axis=1)
+    y = white(0.5 * (change + change.T))
+    theta = jnp.linalg.lstsq(X, y, rcond=PROCESS_RCOND)[0]
+    inc = jnp.zeros((w, w), scale.dtype)
+    for i, (a, c) in enumerate(pairs):
+        inc = inc.at[a, c].set(theta[i]).at[c, a].set(theta[i])
+    new = scale + forgetting_weight(b, k) * inc
+    vals, vecs = jnp.linalg.eigh(0.5 * (new + new.T))
+    held = (vecs * jnp.maximum(vals, floor)) @ vecs.T
+    return 0.5 * (held + held.T)
+
+
+def adaptive_process_summary(scale: ArrayLike, count: int, floor: float) -> tuple[dict, list[str]]:
+    """Where a run's process-noise estimate ended, and a warning where it sits at the floor.
+
+    Args:
+        scale: the final ``Lambda`` (``w x w``): the estimated noise covariance is
+            ``S Lambda S'`` with ``S`` the configured square root.
+        count: updates the estimate has seen.
+        floor: ``nasrukf.process_floor``.
+
+    Returns:
+        ``(metrics, warnings)``: ``process_noise_ratio_<j>`` (``sqrt(Lambda_jj)``, the estimated
+        standard deviation of noise component ``j`` over the configured one), ``process_noise_scale``
+        (``Lambda`` as nested lists), ``process_noise_updates`` and ``process_noise_at_floor``
+        (whether its smallest eigenvalue is at the floor).
+    """
+    scale = np.asarray(scale, float)
+    at_floor = bool(np.min(np.linalg.eigvalsh(scale)) <= floor * (1.0 + 1e-9))
+    metrics = {f"process_noise_ratio_{j}": float(np.sqrt(scale[j, j])) for j in range(scale.shape[0])}
+    metrics.update(process_noise_scale=scale.tolist(), process_noise_updates=int(count),
+                   process_noise_at_floor=at_floor)
+    warnings = [f"nasrukf.adaptive_process: the process-noise estimate ended at nasrukf.process_floor ({floor:g} of "
+                "the configured covariance) in some direction: the pose corrections were smaller than the "
+                "configured noise predicts there"] if at_floor else []
     return metrics, warnings
