@@ -273,7 +273,8 @@ def ekf_slam_step(
         old = book0.active
         full = book._replace(mean=landmark_means(mean), cov=landmark_blocks(cov, capacity), active=old)
         radius = params.max_range + params.window_margin
-        local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius)
+        local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius,
+                                      model=params.measurement)
         local = manage_window(local, mean[:3], c.seen.at[idx].get(mode="fill", fill_value=False), seg.z, z_mask,
                               seg.diam, valid & seg.is_scan, state.scan, params.measurement, mp, static.occlusion)
         managed = drop_stale(scatter_window(full, local, idx), state.scan, mp)

@@ -168,7 +168,7 @@ def particle_update(
 
     radius = params.max_range + params.window_margin
     local, idx, window_overflow = _over_slot_bucket(
-        static, slot_bucket, lambda b, lm, x: gather_window(lm, x, W, radius, b), lm, x0[:2])
+        static, slot_bucket, lambda b, lm, x: gather_window(lm, x, W, radius, b, model), lm, x0[:2])
     # With the row buckets (many particles per call), also the association over the window's
     # prefix: the same association, compiled three times, which pays off only where the particles'
     # arithmetic outweighs the compilation (no faster at 10 particles, ~40 % longer to compile).

@@ -49,6 +49,7 @@ __all__ = [
     "normalize_line",
     "line_from_slope_intercept",
     "line_from_vertical",
+    "line_through",
     "slope_intercept_from_line",
     "sensor_pose",
     "line_to_sensor",
@@ -112,6 +113,24 @@ def line_from_vertical(c: Float[ArrayLike, "*n"]) -> Float[Array, "*n 2"]:
     """
     c = jnp.asarray(c, dtype=float)
     return normalize_line(jnp.stack([c, jnp.zeros_like(c)], -1))
+
+
+def line_through(p0: Float[ArrayLike, "*n 2"], p1: Float[ArrayLike, "*n 2"]) -> Float[Array, "*n 2"]:
+    """The normal form of the lines through two points each (a segment's ends).
+
+    Args:
+        p0: first points ``(x, y)`` (m).
+        p1: second points, distinct from the first.
+
+    Returns:
+        ``(rho, alpha)``, normalised (``rho >= 0``).
+    """
+    p0, p1 = jnp.asarray(p0, dtype=float), jnp.asarray(p1, dtype=float)
+    d = p1 - p0
+    length = jnp.hypot(d[..., 0], d[..., 1])
+    n_x, n_y = -d[..., 1] / length, d[..., 0] / length
+    rho = n_x * p0[..., 0] + n_y * p0[..., 1]
+    return normalize_line(jnp.stack([rho, jnp.arctan2(n_y, n_x)], -1))
 
 
 class SlopeIntercept(NamedTuple):
@@ -325,7 +344,9 @@ class LineSegment(AbstractMeasurementModel):
     the segment's line in the sensor's frame ``z = (rho_s, alpha_s)`` (:func:`line_to_sensor`), as
     the front end's total least squares line fit reports it (``Lines.rho``, ``Lines.alpha``).
 
-    :meth:`landmark_from` is :func:`line_to_world`. The innovation wraps ``alpha_s``.
+    :meth:`landmark_from` is :func:`line_to_world`. The innovation wraps ``alpha_s``. The filter's
+    local window searches the lines by their perpendicular distance from the particle
+    (:meth:`window_distance2`).
 
     :meth:`visible`: the line's foot point, its nearest point to the sensor (range ``rho_s``,
     bearing ``alpha_s``), lies inside the sensor's range and field of view shrunk by the margins.
@@ -374,6 +395,10 @@ class LineSegment(AbstractMeasurementModel):
 
     def landmark_from(self, x, z, aux=None):
         return line_to_world(z, x, self.offset)
+
+    def window_distance2(self, position, m):
+        """Squared perpendicular distance from ``position`` to each line ``(rho, alpha)``."""
+        return jnp.square(m[:, 0] - jnp.cos(m[:, 1]) * position[0] - jnp.sin(m[:, 1]) * position[1])
 
     def noise_cov(self):
         return jnp.diag(jnp.stack([jnp.square(self.sigma_rho), jnp.square(self.sigma_alpha)]))

@@ -67,8 +67,9 @@ class AbstractMeasurementModel(eqx.Module):
     """A measurement model with its traced parameters.
 
     Class attributes a model sets:
-        landmark_dim: length of a landmark's state ``m`` (its first two components are its
-            position in the plane, which the filter's local window searches by).
+        landmark_dim: length of a landmark's state ``m`` (the filter's local window searches
+            the landmarks by :meth:`window_distance2`; by default its first two components are its
+            position in the plane).
         measurement_dim: length of a detection ``z``.
         aux_dim: length of a detection's auxiliary input (0: none; ``aux`` is then None).
         angles: indices of the components of ``z`` that are angles (wrapped to (-pi, pi] in
@@ -114,6 +115,20 @@ class AbstractMeasurementModel(eqx.Module):
         """Whether the sensor at pose ``x`` would detect landmark ``m`` (inside its field of view
         and range, shrunk by any margin): a landmark that is visible and not detected counts a miss
         in landmark management."""
+
+    def window_distance2(self, position: Float[Array, "2"], m: Float[Array, "n l"]) -> Float[Array, " n"]:
+        """Squared distance from a position to each landmark, by which the filter's local window
+        picks the landmarks near a particle (those within the sensor's range plus a margin).
+
+        The default is the Euclidean distance to the landmark's first two components (its position
+        in the plane); a landmark with an extent overrides it (a line: its perpendicular distance).
+
+        Args:
+            position: the particle's position ``(px, py)``.
+            m: ``(n, landmark_dim)`` landmarks.
+        """
+        # Components written out: a reduction over a trailing axis of 2 is ~10x slower on XLA:CPU.
+        return jnp.square(m[:, 0] - position[0]) + jnp.square(m[:, 1] - position[1])
 
     @property
     def R(self) -> Float[Array, "d d"]:
