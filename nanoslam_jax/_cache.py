@@ -82,7 +82,7 @@ def enable_compile_cache(path: str | os.PathLike | None = None) -> str:
     Raises:
         ValueError: naming the directory and ``NANOSLAM_CACHE_DIR`` when it cannot be created.
     """
-    current = jax.config.jax_compilation_cache_dir
+    current = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]  # jax.config's options are dynamic
     if current:
         return str(current)
     p = Path(path) if path is not None else default_cache_dir()
@@ -143,10 +143,10 @@ class CompileStats:
 _STATS: Optional[CompileStats] = None
 
 
-def _on_duration(event: str, duration: float, **_) -> None:
+def _on_duration(event: str, duration_secs: float, **_) -> None:
     name = _DURATIONS.get(event)
     if name is not None and _STATS is not None:
-        setattr(_STATS, name, getattr(_STATS, name) + duration)
+        setattr(_STATS, name, getattr(_STATS, name) + duration_secs)
 
 
 def _on_event(event: str, **_) -> None:
@@ -308,7 +308,7 @@ def program_key(fn: Callable, static: Any, args: tuple) -> Optional[str]:
 
 def _exported_dir() -> Optional[Path]:
     """Where traced programs are kept: ``exported/`` in the cache directory in use (None: no cache)."""
-    cache = jax.config.jax_compilation_cache_dir
+    cache = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]  # jax.config's options are dynamic
     return Path(cache) / "exported" if cache else None
 
 
@@ -332,7 +332,7 @@ def _subtrees(tree: jax.tree_util.PyTreeDef, path: tuple = ()):
         yield from _subtrees(child, path + (i,))
 
 
-def _namedtuple_class(name: str) -> type:
+def _namedtuple_class(name: str) -> type[Any]:
     """The NamedTuple class ``module:qualname`` of a module this process has already imported,
     found in the module's and classes' own namespaces: nothing is imported or run."""
     module_name, _, qualname = name.partition(":")
@@ -465,7 +465,7 @@ def _write_exported(path: Path, key: str, in_tree, exported, out_tree) -> None:
         raise
 
 
-def compile_program(fn: Callable, static: Any, *args: Any) -> Callable:
+def compile_program(fn: jax.stages.Wrapped, static: Any, *args: Any) -> Callable:
     """``fn.lower(static, *args).compile()``, loading the traced program from the cache when it can.
 
     Without a cache directory (:func:`enable_compile_cache` not called, or ``--no-cache``), or for

@@ -5,6 +5,8 @@ CPU; these closed forms compile to a handful of fused element-wise operations in
 functions act on the last two axes and broadcast over leading axes.
 """
 
+from typing import cast
+
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -41,7 +43,7 @@ def mv(a: Float[Array, "... n k"], v: Float[Array, "... k"]) -> Float[Array, "..
 
 def dot(u: Float[Array, "... n"], v: Float[Array, "... n"]) -> Float[Array, "..."]:
     """Inner product over a tiny last axis (see :func:`mm`)."""
-    return sum(u[..., l] * v[..., l] for l in range(u.shape[-1]))
+    return cast(Array, sum(u[..., l] * v[..., l] for l in range(u.shape[-1])))  # the axis is never empty
 
 
 def tsum(a: Float[Array, "..."], axis: int = 0) -> Float[Array, "..."]:
@@ -50,7 +52,7 @@ def tsum(a: Float[Array, "..."], axis: int = 0) -> Float[Array, "..."]:
     XLA:CPU emits reductions whose result keeps tiny minor axes (``(k, 3, 3) -> (3, 3)``) as
     scalar loops, several times slower than the unrolled element-wise sum, which fuses.
     """
-    return sum(jnp.take(a, i, axis=axis) for i in range(a.shape[axis]))
+    return cast(Array, sum(jnp.take(a, i, axis=axis) for i in range(a.shape[axis])))  # the axis is never empty
 
 
 def mt(a: Float[Array, "... n m"]) -> Float[Array, "... m n"]:

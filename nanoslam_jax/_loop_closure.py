@@ -255,7 +255,7 @@ def path_moved_by_copies(poses, landmarks, seg, lid, parent, group, time_s, sett
     lo = min(int(np.searchsorted(t, t[at.min()] - settings.window)), int(knots[0][0]) - 1)
     hi = max(int(np.searchsorted(t, t[at.max()] + settings.window)), int(knots[-1][0]) + 1)
     x = [lo] + [k[0] for k in knots] + [hi]
-    th, tx, ty = (np.interp(np.arange(len(poses)), x, [0.0] + [k[i] for k in knots] + [0.0]) for i in (1, 2, 3))
-    c, s = np.cos(th), np.sin(th)
+    rot, tx, ty = (np.interp(np.arange(len(poses)), x, [0.0] + [k[i] for k in knots] + [0.0]) for i in (1, 2, 3))
+    c, s = np.cos(rot), np.sin(rot)
     p = poses
-    return np.stack([c * p[:, 0] - s * p[:, 1] + tx, s * p[:, 0] + c * p[:, 1] + ty, wrap_angle_np(p[:, 2] + th)], 1)
+    return np.stack([c * p[:, 0] - s * p[:, 1] + tx, s * p[:, 0] + c * p[:, 1] + ty, wrap_angle_np(p[:, 2] + rot)], 1)

@@ -226,6 +226,7 @@ def _simulate(args) -> int:
     else:
         raw = simulate_to_dir(args.out, cfg.sim, cfg.vehicle, unicycle)
     n_scans = len(set(raw.detections[:, 0].tolist()))
+    assert raw.truth_landmarks is not None  # a simulated log has its truth
     print(f"wrote {args.out}: {raw.dr.shape[0]} DR samples, {raw.detections.shape[0]} detections in {n_scans} scans, "
           f"{raw.truth_landmarks.shape[0]} landmarks (seed {cfg.sim.seed})")
     if args.laser:

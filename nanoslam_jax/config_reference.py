@@ -81,7 +81,7 @@ def config_sections(cls: type = Config) -> tuple[SectionDoc, ...]:
     top, sections = [], []
     for f in dataclasses.fields(cls):
         tp = hints[f.name]
-        if dataclasses.is_dataclass(tp):
+        if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             sub_hints = typing.get_type_hints(tp)
             sub_default = getattr(default, f.name)
             keys = tuple(KeyDoc(f"{f.name}.{g.name}", type_name(sub_hints[g.name]), getattr(sub_default, g.name),

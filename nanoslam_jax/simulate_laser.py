@@ -161,6 +161,7 @@ def build_world(raw: RawLog, sim: SimConfig, rng: np.random.Generator) -> LaserW
     trees = np.asarray(raw.truth_landmarks, dtype=np.float64)
     radius = 0.5 * np.asarray(raw.truth_diameters, dtype=np.float64)
     lo, hi = trees.min(axis=0), trees.max(axis=0)
+    assert raw.truth_poses is not None  # a simulated log has its truth
     path = cKDTree(raw.truth_poses[:, 1:3])
     clear = sim.laser_clearance
 
@@ -332,6 +333,7 @@ def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, " B"], w
 def _scan_rows(raw: RawLog) -> np.ndarray:
     """Rows of ``raw.truth_poses`` at scan times (the simulator never puts a scan on a DR sample)."""
     rate = 1.0 / np.median(np.diff(raw.dr[:, 0]))
+    assert raw.truth_poses is not None  # a simulated log has its truth
     k = raw.truth_poses[:, 0] * rate
     return np.flatnonzero(np.abs(k - np.round(k)) > 1e-6)
 
@@ -356,6 +358,7 @@ def simulate_laser(sim: SimConfig | None = None, vehicle: VehicleConfig | None =
     rng_world, rng_noise = np.random.default_rng(seeds[5]), np.random.default_rng(seeds[6])
     world = build_world(raw, sim, rng_world)
     rows = _scan_rows(raw)
+    assert raw.truth_poses is not None  # a simulated log has its truth
     scan_t, poses = raw.truth_poses[rows, 0], raw.truth_poses[rows, 1:]
     angles = fan_angles(sim.laser_beams, sim.laser_fov_deg)
     n_s, n_b = scan_t.shape[0], angles.shape[0]

@@ -307,6 +307,7 @@ def smooth_path(
                         best = (sol, fit)
                     if np.mean(fit) >= settings.loop_closure.accept:
                         break
+                assert best is not None  # starts is never empty
                 (p2, l2, _, _, c2, conv2), fit = best
                 g = group[lid[joined]]
                 bad = [k for k in np.unique(g) if np.mean(fit[g == k]) < settings.loop_closure.accept]

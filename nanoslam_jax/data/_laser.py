@@ -114,8 +114,6 @@ def _read_ascii(path: Path, n_beams: int) -> tuple[np.ndarray, np.ndarray, Calla
     try:
         values = np.array(tokens, dtype=np.float64)
     except ValueError:
-        values = None
-    if values is None:
         # Find the first token that is not a number; report its position in the stream and its line.
         for k, tok in enumerate(tokens):
             try:
@@ -127,6 +125,7 @@ def _read_ascii(path: Path, n_beams: int) -> tuple[np.ndarray, np.ndarray, Calla
                 raise LogFormatError(
                     f"{path} line {line}, number {k + 1} (scan {scan + 1}, {what}): expected a number, "
                     f"got {tok!r}") from None
+        raise
     if values.size == 0:
         raise LogFormatError(f"{path}: no data; expected scans of {per_scan} numbers (time and {n_beams} ranges)")
     if values.size % per_scan:
@@ -218,9 +217,9 @@ def load_laser(path: str | os.PathLike, n_beams: int = VICTORIA_PARK_BEAMS, fov_
                  if line_of else f" row {s + 1}")
         raise LogFormatError(f"{path}{where} (scan {s + 1}): scan times must be non-decreasing, got {time[s]!r} "
                              f"after {time[s - 1]!r}")
-    bad = np.argwhere(ranges < 0)
-    if bad.size:
-        s, b = (int(v) for v in bad[0])
+    negative = np.argwhere(ranges < 0)
+    if negative.size:
+        s, b = (int(v) for v in negative[0])
         k = s * (ranges.shape[1] + 1) + 1 + b
         where = f" line {line_of(k)}, number {k + 1}" if line_of else f" row {s + 1}"
         raise LogFormatError(f"{path}{where} (scan {s + 1}, beam {b}): expected a range >= 0, got {ranges[s, b]!r}")

@@ -290,10 +290,10 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
     dr = _read_mat(dr_path, _DR_MAT) if dr_path.suffix == ".mat" else _read_ascii(dr_path, _INPUTS)
     gps = _read_gps_mat(gps_path) if gps_path.suffix == ".mat" else _read_ascii(gps_path, _GPS)
     if det_path is None:
-        detections = np.zeros((0, len(_MEASUREMENTS.columns)))
+        det = np.zeros((0, len(_MEASUREMENTS.columns)))
     else:
-        detections = _read_ascii(det_path, _MEASUREMENTS)
-        detections[:, 2] = wrap_angle_np(detections[:, 2] - np.pi / 2)
+        det = _read_ascii(det_path, _MEASUREMENTS)
+        det[:, 2] = wrap_angle_np(det[:, 2] - np.pi / 2)
 
     truth = {}
     for key, table in (("truth_poses", _TRUTH_POSES), ("truth_landmarks", _TRUTH_LANDMARKS),
@@ -302,7 +302,7 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
             truth[key] = _read_ascii(directory / table.name, table)
     if "truth_diameters" in truth:
         truth["truth_diameters"] = truth["truth_diameters"][:, 0]
-    return RawLog(dr=dr, detections=detections, gps=gps, source=str(directory), **truth)
+    return RawLog(dr=dr, detections=det, gps=gps, source=str(directory), **truth)
 
 
 def _as_table(data: np.ndarray, table: _Table) -> Float[np.ndarray, "n columns"]:

@@ -182,8 +182,9 @@ def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.
     rows = np.c_[det[keep, 1:4], ids[keep]]
     z, z_mask, diam, z_id = _detections(rows, scan_of_det[keep], scan_times, np.flatnonzero(layout["is_scan"]),
                                         layout["time"].size, k_max, f"{min_range} <= range < {max_range} m")
-    return Segments(time=layout["time"], dt=dt, u=u, dr_mask=dr_mask, z=z, z_mask=z_mask, diam=diam,
-                    is_scan=layout["is_scan"], z_id=z_id)
+    # Numpy arrays: the segments live on the host until a run transfers them (jax arrays under jit).
+    return Segments(time=layout["time"], dt=dt, u=u, dr_mask=dr_mask, z=z, z_mask=z_mask,  # type: ignore[arg-type]
+                    diam=diam, is_scan=layout["is_scan"], z_id=z_id)  # type: ignore[arg-type]
 
 
 def segment_summary(seg: Segments) -> dict[str, int]:

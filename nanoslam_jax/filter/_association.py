@@ -130,7 +130,12 @@ def associate(
         slot_diam = jnp.concatenate([local.diam, diam])
         slot_var = jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, diam.shape)]) + var_d
         diam_term = (diam, slot_diam, 1.0 / slot_var, use_diameter)
-    id_term = None if ids is None else (ids, jnp.concatenate([local.ident, ids]))
+    id_term = None
+    if ids is not None:
+        if local.ident is None:
+            raise ValueError("association by landmark id needs a map with the ident field (LandmarkMap.empty(..., "
+                             "ident=True))")
+        id_term = (ids, jnp.concatenate([local.ident, ids]))
     return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term,
                               id_term, model)
 
@@ -216,6 +221,8 @@ def nearest_neighbours(
         def distances(zk, ik):
             return jnp.where(slot_id == ik, 0.0, jnp.inf).astype(z.dtype)
     elif not components:
+        assert model is not None and not isinstance(z_hat, tuple) and not isinstance(s_inv, tuple)
+
         def distances(zk, dk):
             nu = jax.vmap(model.innovation, (None, 0))(zk, z_hat)
             d2 = quad_form(nu, s_inv)

@@ -85,7 +85,7 @@ class EkfSlamState(NamedTuple):
     mean: Float[Array, " n"]
     cov: Float[Array, "n n"]
     landmarks: LandmarkMap
-    count: Int[Array, ""]
+    count: Int[Array, ""]  # type: ignore[assignment]  # the field shadows tuple.count
     key: Key[Array, ""]
     resample_count: Int[Array, ""]
     overflow: Int[Array, ""]
@@ -122,7 +122,7 @@ class _Carry(NamedTuple):
     available: Bool[Array, " capacity"]
     book: LandmarkMap
     seen: Bool[Array, " capacity"]
-    count: Int[Array, ""]
+    count: Int[Array, ""]  # type: ignore[assignment]  # the field shadows tuple.count
     n_associated: Int[Array, ""]
     n_new: Int[Array, ""]
     overflow: Int[Array, ""]
@@ -166,14 +166,15 @@ def _remove(mean, cov, book: LandmarkMap, remove: Bool[Array, " capacity"]):
     slots, _ = first_true(remove, capacity)
 
     def body(i, mc):
-        return ekf_slam_marginalise(*mc, slots[i])
+        m, c = mc
+        return ekf_slam_marginalise(m, c, slots[i])
 
     mean, cov = jax.lax.fori_loop(0, n_remove, body, (mean, cov))
     return mean, cov, book._replace(active=book.active & ~remove)
 
 
 def ekf_slam_step(
-    static: Static, params: Params, state: EkfSlamState, seg: Segments, valid: Bool[Array, ""] = True,
+    static: Static, params: Params, state: EkfSlamState, seg: Segments, valid: Bool[Array, ""] | bool = True,
 ) -> tuple[EkfSlamState, StepOutput]:
     """Advance EKF-SLAM through one segment: prediction, the scan's detections in order, then
     landmark management.

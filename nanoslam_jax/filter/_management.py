@@ -111,8 +111,8 @@ def manage_window(
     z: Float[Array, "k 2"],
     z_mask: Bool[Array, " k"],
     diam: Float[Array, " k"],
-    observed: Bool[Array, ""],
-    scan: Int[Array, ""],
+    observed: Bool[Array, ""] | bool,
+    scan: Int[Array, ""] | int,
     model: AbstractMeasurementModel,
     mp: MapParams,
     occlusion: bool,
@@ -185,12 +185,12 @@ def confirm_rule(log_odds: Float[Array, "*n"], hits: Int[Array, "*n"], mp: MapPa
     return (log_odds >= mp.log_odds_confirm) & (hits >= mp.confirm_hits)
 
 
-def fresh(born: Int[Array, "*n"], scan: Int[Array, ""], mp: MapParams) -> Bool[Array, "*n"]:
+def fresh(born: Int[Array, "*n"], scan: Int[Array, ""] | int, mp: MapParams) -> Bool[Array, "*n"]:
     """Whether landmarks started at scan ``born`` are still within their tentative period."""
     return (scan - born) <= mp.tentative_scans
 
 
-def drop_stale(lm: LandmarkMap, scan: Int[Array, ""], mp: MapParams) -> LandmarkMap:
+def drop_stale(lm: LandmarkMap, scan: Int[Array, ""] | int, mp: MapParams) -> LandmarkMap:
     """Deactivate, over the whole map, the tentative landmarks past their tentative period
     (including those out of the local window, which no scan tests)."""
     return lm._replace(active=lm.active & (lm.confirmed | fresh(lm.born, scan, mp)))
@@ -203,7 +203,7 @@ def new_landmarks(
     extra_hits: Int[Array, " k"],
     diam: Float[Array, " k"],
     diam_var: Float[Array, " k"],
-    scan: Int[Array, ""],
+    scan: Int[Array, ""] | int,
     mp: MapParams,
     manage: bool,
     ident: Int[Array, " k"] | None = None,

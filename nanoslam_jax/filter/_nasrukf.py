@@ -229,7 +229,8 @@ def init_feature(
 def association_information(
     x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots f"], gain: Float[Array, "slots f 3"],
     sqrt: Float[Array, "slots f f"], R: Float[Array, "2 2"],
-) -> tuple[tuple[Float[Array, " slots"], Float[Array, " slots"]], tuple[Float[Array, " slots"], ...]]:
+) -> tuple[tuple[Float[Array, " slots"], Float[Array, " slots"]],
+           tuple[Float[Array, " slots"], Float[Array, " slots"], Float[Array, " slots"]]]:
     """Predicted range and bearing of each slot's centre and the entries of its inverse innovation
     covariance ``J P J' + Gm C Gm' + R``, ``J = Gx + Gm gain`` (joint state linearised, autodiff)."""
     c = mean[:, :2]
@@ -291,7 +292,7 @@ class _Rows(NamedTuple):
 
 
 def nasrukf_step(
-    static: Static, params: Params, state: NasrukfState, seg: Segments, valid: Bool[Array, ""] = True,
+    static: Static, params: Params, state: NasrukfState, seg: Segments, valid: Bool[Array, ""] | bool = True,
 ) -> tuple[NasrukfState, StepOutput]:
     """Advance NASRUKF FastSLAM through one segment (see the module docstring).
 

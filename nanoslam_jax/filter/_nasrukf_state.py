@@ -75,7 +75,7 @@ class NasrukfState(NamedTuple):
     process_scale: Float[Array, "w w"]
     process_count: Int[Array, ""]
     process_basis: Float[Array, "w w 3 3"]
-    count: Int[Array, ""]
+    count: Int[Array, ""]  # type: ignore[assignment]  # the field shadows tuple.count
     key: Key[Array, ""]
     resample_count: Int[Array, ""]
     overflow: Int[Array, ""]

@@ -12,7 +12,7 @@ import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, Bool, Float
 
 from ..config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
 from ..methods import get_method
@@ -99,18 +99,18 @@ class MapParams(NamedTuple):
         sigma_diameter: diameter measurement noise (m).
     """
 
-    log_odds_hit: Float[ArrayLike, ""]
-    log_odds_miss: Float[ArrayLike, ""]
-    log_odds_birth: Float[ArrayLike, ""]
-    log_odds_confirm: Float[ArrayLike, ""]
-    confirm_hits: Float[ArrayLike, ""]
-    tentative_scans: Float[ArrayLike, ""]
-    log_odds_remove: Float[ArrayLike, ""]
-    log_odds_max: Float[ArrayLike, ""]
-    occlusion_width: Float[ArrayLike, ""]
-    use_tentative: Bool[ArrayLike, ""]
-    use_diameter: Bool[ArrayLike, ""]
-    sigma_diameter: Float[ArrayLike, ""]
+    log_odds_hit: Float[Array, ""]
+    log_odds_miss: Float[Array, ""]
+    log_odds_birth: Float[Array, ""]
+    log_odds_confirm: Float[Array, ""]
+    confirm_hits: Float[Array, ""]
+    tentative_scans: Float[Array, ""]
+    log_odds_remove: Float[Array, ""]
+    log_odds_max: Float[Array, ""]
+    occlusion_width: Float[Array, ""]
+    use_tentative: Bool[Array, ""]
+    use_diameter: Bool[Array, ""]
+    sigma_diameter: Float[Array, ""]
 
 
 def _logit(p: float) -> float:
@@ -152,27 +152,27 @@ class Params(NamedTuple):
 
     motion: AbstractMotionModel
     measurement: AbstractMeasurementModel
-    init_cov: Float[ArrayLike, ""]
-    ut_alpha: Float[ArrayLike, ""]
-    ut_beta: Float[ArrayLike, ""]
-    ut_kappa: Float[ArrayLike, ""]
-    gate: Float[ArrayLike, ""]
-    new_landmark: Float[ArrayLike, ""]
-    log_p0: Float[ArrayLike, ""]
-    resample_threshold: Float[ArrayLike, ""]
-    gamma: Float[ArrayLike, ""]
-    step: Float[ArrayLike, ""]
-    nano_alpha: Float[ArrayLike, ""]
-    nano_beta: Float[ArrayLike, ""]
-    nano_kappa: Float[ArrayLike, ""]
-    max_range: Float[ArrayLike, ""]
-    window_margin: Float[ArrayLike, ""]
+    init_cov: Float[Array, ""]
+    ut_alpha: Float[Array, ""]
+    ut_beta: Float[Array, ""]
+    ut_kappa: Float[Array, ""]
+    gate: Float[Array, ""]
+    new_landmark: Float[Array, ""]
+    log_p0: Float[Array, ""]
+    resample_threshold: Float[Array, ""]
+    gamma: Float[Array, ""]
+    step: Float[Array, ""]
+    nano_alpha: Float[Array, ""]
+    nano_beta: Float[Array, ""]
+    nano_kappa: Float[Array, ""]
+    max_range: Float[Array, ""]
+    window_margin: Float[Array, ""]
     map: "MapParams"
-    forgetting: Float[ArrayLike, ""]
-    noise_floor: Float[ArrayLike, ""]
-    new_feature_hits: Float[ArrayLike, ""]
-    process_forgetting: Float[ArrayLike, ""]
-    process_floor: Float[ArrayLike, ""]
+    forgetting: Float[Array, ""]
+    noise_floor: Float[Array, ""]
+    new_feature_hits: Float[Array, ""]
+    process_forgetting: Float[Array, ""]
+    process_floor: Float[Array, ""]
     method: dict = {}
 
     @property
@@ -181,12 +181,12 @@ class Params(NamedTuple):
         return self.measurement.noise_cov()
 
     @property
-    def sigma_r(self) -> Float[ArrayLike, ""]:
+    def sigma_r(self) -> Float[Array, ""]:
         """Range noise (m) of a range-bearing measurement model."""
         return self._range_bearing().sigma_r
 
     @property
-    def sigma_beta(self) -> Float[ArrayLike, ""]:
+    def sigma_beta(self) -> Float[Array, ""]:
         """Bearing noise (rad) of a range-bearing measurement model."""
         return self._range_bearing().sigma_beta
 

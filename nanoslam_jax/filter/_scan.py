@@ -45,7 +45,7 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
     """The proposal of ``static.method`` (a registered particle method) with its traced
     hyperparameters from ``params``."""
     method = get_method(static.method)
-    if method.kind != "particle":
+    if method.kind != "particle" or method.proposal is None:
         particle = [m for m in method_names() if get_method(m).kind == "particle"]
         raise ValueError(f"filter.method: {static.method!r} has no particle-filter proposal; expected one of "
                          f"{', '.join(particle)}")
@@ -65,6 +65,7 @@ def _masked_step(static: Static, params: Params, state, inp: tuple):
     seg, valid, rel_prior = inp
     method = get_method(static.method)
     if method.kind == "gaussian":
+        assert method.step is not None  # Method requires it of a Gaussian method
         return method.step(static, params, state, seg, valid)
     return filter_step(static, params, make_proposal(static, params), state, seg, valid, rel_prior)
 
@@ -95,6 +96,7 @@ def initial_state(static: Static, params: Params, key: Key[Array, ""]):
     ``NasrukfState`` for NASRUKF."""
     method = get_method(static.method)
     if method.kind == "gaussian":
+        assert method.init is not None  # Method requires it of a Gaussian method
         return method.init(static, params, key)
     return init_state(static, params, key)
 
@@ -238,7 +240,7 @@ def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
     n = segments.time.shape[0]
     valid = np.arange(length) < n
     pad = lambda a: np.concatenate([a, np.zeros((length - n,) + a.shape[1:], a.dtype)]) if length > n else a  # noqa: E731
-    return Segments(*(pad(np.asarray(a)) for a in segments)), valid
+    return Segments(*(pad(np.asarray(a)) for a in segments)), valid  # type: ignore[arg-type]  # numpy on the host
 
 
 def _drive(chunk_fn, static: Static, params: Params, state: Any, segments: Segments, chunk: int,

@@ -109,7 +109,7 @@ def particle_update(
     z: Float[Array, "k 2"],
     z_mask: Bool[Array, " k"],
     eps: Float[Array, "3"],
-    valid: Bool[Array, ""] = True,
+    valid: Bool[Array, ""] | bool = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
     slot_bucket: Int[Array, ""] | None = None,
     diam: Float[Array, " k"] | None = None,
@@ -294,7 +294,7 @@ def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, " n"]) -> 
 
 def filter_step(
     static: Static, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
-    valid: Bool[Array, ""] = True,
+    valid: Bool[Array, ""] | bool = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
 ) -> tuple[FilterState, StepOutput]:
     """Advance the particle set through one segment.
@@ -329,7 +329,7 @@ def filter_step(
 
 def _step(
     static: Static, axis: str | None, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
-    valid: Bool[Array, ""], rel_prior,
+    valid: Bool[Array, ""] | bool, rel_prior,
 ) -> tuple[FilterState, StepOutput]:
     """:func:`filter_step` on one device; ``axis`` names the device axis when the maps are split
     (``state.particles.landmarks`` then holds this device's share, everything else all particles)."""

@@ -7,6 +7,7 @@ import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import Literal, cast
 
 import numpy as np
 
@@ -89,8 +90,8 @@ def write_features_csv(path: str | os.PathLike, feats: Features) -> int:
             else:
                 cells.append(np.asarray(v).astype(str))
         rows = np.full(n, kind, dtype=object)
-        for c in cells:
-            rows = rows + "," + c.astype(object)
+        for cell in cells:
+            rows = rows + "," + cell.astype(object)
         blocks.append((scan, np.full(n, order), rows))
 
     L = feats.lines
@@ -141,9 +142,11 @@ def detect_log(data_dir: str | os.PathLike, out_dir: str | os.PathLike, cfg: Det
     Returns:
         ``(raw, features)``: the log with its new detections, and all features.
     """
+    if fmt not in ("auto", "ascii", "mat"):
+        raise ValueError(f"data.format: detection reads a Victoria Park log ('auto', 'ascii' or 'mat'), got {fmt!r}")
     data_dir, out_dir = Path(data_dir), Path(out_dir)
     scans = load_laser(data_dir)
-    raw = load_victoria_park(data_dir, fmt, detections=False)
+    raw = load_victoria_park(data_dir, cast(Literal["auto", "ascii", "mat"], fmt), detections=False)
     feats = extract_features_chunked(scans, cfg, progress=progress)
     raw = RawLog(dr=raw.dr, detections=feats.tree_table(), gps=raw.gps, source=str(data_dir))
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeGuard
 
 import equinox as eqx
 import jax
@@ -222,6 +222,7 @@ class RangeBearing(AbstractMeasurementModel):
 
     def in_view(self, r: Float[ArrayLike, "*n"], b: Float[ArrayLike, "*n"]) -> Bool[Array, "*n"]:
         """:meth:`visible` of landmarks predicted at range ``r`` and bearing ``b``."""
+        r, b = jnp.asarray(r), jnp.asarray(b)
         return ((r > self.min_range + self.view_margin) & (r < self.max_range - self.view_margin)
                 & (jnp.abs(b) < self.half_fov - self.view_margin_angle))
 
@@ -232,11 +233,13 @@ class RangeBearing(AbstractMeasurementModel):
     @classmethod
     def from_config(cls, cfg: "Config") -> "RangeBearing":
         nz, d, mp = cfg.noise, cfg.data, cfg.map
-        return cls(nz.sigma_r, math.radians(nz.sigma_beta_deg), d.min_range, d.max_range, math.radians(mp.fov_deg) / 2,
-                   mp.view_margin, math.radians(mp.view_margin_deg))
+        # The fields' converters take the floats (a converter is invisible to mypy).
+        return cls(nz.sigma_r, math.radians(nz.sigma_beta_deg), d.min_range, d.max_range,  # type: ignore[arg-type]
+                   math.radians(mp.fov_deg) / 2, mp.view_margin,  # type: ignore[arg-type]
+                   math.radians(mp.view_margin_deg))  # type: ignore[arg-type]
 
 
-def is_range_bearing(model: Any) -> bool:
+def is_range_bearing(model: Any) -> TypeGuard[RangeBearing]:
     """Whether the filter's hand-specialised range-bearing paths apply to ``model`` (a
     :class:`RangeBearing`, subclasses included); any other model takes the generic (autodiff) path."""
     return isinstance(model, RangeBearing)

@@ -209,7 +209,9 @@ class Ackermann(AbstractRateModel):
     @classmethod
     def from_config(cls, cfg: "Config") -> "Ackermann":
         v, nz = cfg.vehicle, cfg.noise
-        return cls(v.wheelbase, v.encoder_offset, v.laser_a, v.laser_b, nz.sigma_v, math.radians(nz.sigma_alpha_deg))
+        # The fields' converters take the floats (a converter is invisible to mypy).
+        return cls(v.wheelbase, v.encoder_offset, v.laser_a, v.laser_b,  # type: ignore[arg-type]
+                   nz.sigma_v, math.radians(nz.sigma_alpha_deg))  # type: ignore[arg-type]
 
 
 class Unicycle(AbstractRateModel):
@@ -249,7 +251,8 @@ class Unicycle(AbstractRateModel):
     @classmethod
     def from_config(cls, cfg: "Config") -> "Unicycle":
         u = cfg.unicycle
-        return cls(u.sensor_x, u.sensor_y, u.sigma_v, math.radians(u.sigma_omega_deg))
+        # The fields' converters take the floats (a converter is invisible to mypy).
+        return cls(u.sensor_x, u.sensor_y, u.sigma_v, math.radians(u.sigma_omega_deg))  # type: ignore[arg-type]
 
 
 class RandomWalk(AbstractMotionModel):
@@ -280,7 +283,8 @@ class RandomWalk(AbstractMotionModel):
     @classmethod
     def from_config(cls, cfg: "Config") -> "RandomWalk":
         r = cfg.random_walk
-        return cls(r.sigma_xy, math.radians(r.sigma_phi_deg))
+        # The fields' converters take the floats (a converter is invisible to mypy).
+        return cls(r.sigma_xy, math.radians(r.sigma_phi_deg))  # type: ignore[arg-type]
 
 
 #: The built-in motion models by their config name (``model.motion``).

@@ -75,7 +75,9 @@ def range_bearing_jacobian_components(
     cols = []
     for i in range(5):
         def along(a, i=i):
-            return range_bearing_components(*args[:i], a, *args[i + 1:])
+            parts = list(args)
+            parts[i] = a
+            return range_bearing_components(*parts)
 
         z, dz = jax.jvp(along, (args[i],), (jnp.ones_like(args[i]),))
         cols.append(dz)

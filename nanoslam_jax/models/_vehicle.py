@@ -34,7 +34,7 @@ class VehicleParams(NamedTuple):
 
 def centre_speed(ve: Float[ArrayLike, ""], alpha: Float[ArrayLike, ""], params: VehicleParams) -> Float[Array, ""]:
     """Rear-axle centre speed from the encoder speed: ``vc = ve / (1 - tan(alpha) H / L)``."""
-    return ve / (1.0 - tan(alpha) * params.encoder_offset / params.wheelbase)
+    return jnp.asarray(ve) / (1.0 - tan(alpha) * params.encoder_offset / params.wheelbase)
 
 
 def vehicle_rates(u: Float[ArrayLike, "2"], params: VehicleParams) -> Float[Array, "2"]:

@@ -69,7 +69,7 @@ def map_estimate(
         rm = jnp.einsum("kde,ke->kd", Uk, r).reshape(-1)
         return jnp.concatenate([rp, rm])
 
-    sol = optx.least_squares(fn, _solver(solver, tol), prior.mean, max_steps=max_iter, throw=False)
+    sol: optx.Solution = optx.least_squares(fn, _solver(solver, tol), prior.mean, max_steps=max_iter, throw=False)
     ok = jnp.all(jnp.isfinite(sol.value))
     x = project(jnp.where(ok, sol.value, prior.mean))
     J = jax.jacfwd(lambda y: fn(y, None))(x)

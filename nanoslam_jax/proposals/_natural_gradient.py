@@ -142,7 +142,8 @@ class NaturalGradientKL(optx.AbstractFixedPointSolver):
     criterion is scale-free.
     """
 
-    gamma: Array
+    # To mypy the solver interface's abstract rtol, atol, norm come first; equinox keeps this order.
+    gamma: Array  # type: ignore[misc]
     diff: Callable = eqx.field(static=True, default=jnp.subtract)
     rtol: float = eqx.field(static=True, default=0.0)
     atol: float = eqx.field(static=True, default=0.0)
@@ -212,10 +213,11 @@ def natural_gradient_gaussian(
     gamma = jnp.asarray(gamma, prior.mean.dtype)
     y0 = (prior.mean, prior.precision) if start is None else (start.mean, start.precision)
     if solver == "optimistix":
-        sol = optx.fixed_point(problem, NaturalGradientKL(gamma, diff), y0, max_steps=max_iter, throw=False,
-                               adjoint=optx.RecursiveCheckpointAdjoint())
+        sol: optx.Solution = optx.fixed_point(problem, NaturalGradientKL(gamma=gamma, diff=diff), y0,
+                                              max_steps=max_iter, throw=False,
+                                              adjoint=optx.RecursiveCheckpointAdjoint())
         (x, lam), steps = sol.value, sol.stats["num_steps"]
-        capped = sol.result != optx.RESULTS.successful
+        capped = jnp.asarray(sol.result != optx.RESULTS.successful)
     else:
         def cond(c):
             i, _, kl = c

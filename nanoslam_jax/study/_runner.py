@@ -311,6 +311,7 @@ def _paired_markdown(spec: StudySpec, rows: list[dict]) -> str:
     if not rows:
         return f"# {spec.name}: paired comparison\n\nNone configured (or the compared points have not run yet).\n"
     p = spec.paired
+    assert p is not None  # rows come only from a paired spec
     lines = [f"# {spec.name}: {p.reference} against the others", "",
              f"Same particle count, same seeds: wins / losses / ties of {p.reference} (lower error), the exact "
              f"two-sided sign test's p, the median of the paired differences {p.reference} - other with its "

@@ -212,7 +212,7 @@ def _paired(value: Any, labels: list[str], where: str) -> Optional[PairedSpec]:
     conf = value.get("confidence", PairedSpec.confidence)
     if isinstance(conf, bool) or not isinstance(conf, (int, float)) or not 0 < conf < 1:
         raise ConfigError(f"{where}: key 'paired.confidence': expected a number in (0, 1), got {conf!r}")
-    return PairedSpec(ref, tuple(against), tuple(metrics),
+    return PairedSpec(str(ref), tuple(against), tuple(metrics),
                       int_at_least(value.get("bootstrap", PairedSpec.bootstrap), "paired.bootstrap", where, 100), float(conf),
                       int_at_least(value.get("bootstrap_seed", 0), "paired.bootstrap_seed", where, 0))
 

@@ -63,7 +63,8 @@ def time_point(config_path: str, data_dir: Optional[str], segments: Optional[int
         enable_compile_cache(cache)
     log = load_log_data(cfg, data_dir, segments)
     static, params = settings_from_config(cfg, log.segments.k_max)
-    runs, compile_s = [], None
+    runs: list[float] = []
+    compile_s = None
     while len(runs) < repeats and (not runs or sum(runs) < budget_s):
         r = run_filter(static, params, log.segments, cfg.seed, chunk=cfg.output.chunk)
         if not np.all(np.isfinite(np.asarray(r.outputs.best_pose))):

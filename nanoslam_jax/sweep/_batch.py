@@ -79,7 +79,7 @@ def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optiona
     log = load_log(cfg, data_dir)
     seg = log.segments
     n = seg.time.shape[0] if segments is None else min(segments, seg.time.shape[0])
-    seg = type(seg)(*(np.asarray(a)[:n] for a in seg))
+    seg = type(seg)(*(np.asarray(a)[:n] for a in seg))  # type: ignore[arg-type]  # numpy on the host
     return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source, log.survey,
                    log.raw.truth_poses)
 

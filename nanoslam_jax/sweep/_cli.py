@@ -10,12 +10,13 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 __all__ = ["add_sweep_parser", "sweep_command"]
 
 
-def add_sweep_parser(sub, parents: tuple = ()) -> argparse.ArgumentParser:
+def add_sweep_parser(sub, parents: Sequence[argparse.ArgumentParser] = ()) -> argparse.ArgumentParser:
     """Register the ``sweep`` subcommand on an ``add_subparsers`` object.
 
     Args:

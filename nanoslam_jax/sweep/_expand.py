@@ -51,6 +51,8 @@ def sample_random(random: RandomSpec) -> list[dict]:
         for p in random.params:
             if p.choice is not None:
                 s[p.key] = p.choice[int(rng.integers(len(p.choice)))]
+            elif p.low is None or p.high is None:
+                raise ValueError(f"random key {p.key!r}: expected low and high, or a choice")
             elif p.log:
                 s[p.key] = float(math.exp(rng.uniform(math.log(p.low), math.log(p.high))))
             else:
@@ -91,7 +93,8 @@ def expand(spec: SweepSpec) -> tuple[list[ConfigPoint], list[Run], list[tuple[di
     keys = spec.swept_keys
     raws = _points(spec)
     width = max(4, len(str(len(raws) - 1)))
-    points, skipped = [], []
+    points: list[ConfigPoint] = []
+    skipped: list[tuple[dict, str]] = []
     for i, values in enumerate(raws):
         raw = copy.deepcopy(spec.base)
         for k, v in values.items():

@@ -30,8 +30,9 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
 
-def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[float], metric: str,
-                         title: str = "", log_x: bool | None = None, failed: Optional[Sequence[bool]] = None,
+def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[float] | np.ndarray, metric: str,
+                         title: str = "", log_x: bool | None = None,
+                         failed: Optional[Sequence[bool] | np.ndarray] = None,
                          goal: Optional[str] = "min") -> None:
     """Scatter of per-run values of ``metric`` against ``key`` and the median per distinct value.
 

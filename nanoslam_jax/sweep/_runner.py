@@ -317,8 +317,8 @@ def run_sweep(
         mode, n_workers = resolve_parallel(requested, workers or opts.workers)
         devices = 1
         if mode == "devices":
-            wanted = n_workers * SWEEP_DEVICES_PER_CORE
-            devices = min(setup_devices(wanted), wanted)
+            n_devices = n_workers * SWEEP_DEVICES_PER_CORE
+            devices = min(setup_devices(n_devices), n_devices)
             if devices < n_workers and requested == "auto":  # JAX started before the sweep: next best
                 mode, devices = "processes", 1
             elif devices < n_workers:
