@@ -55,6 +55,7 @@ def test_forgetting_weight_is_the_normalised_exponential_weight(b):
 # --------------------------------------------------------------------------- the estimator's pieces
 
 
+@pytest.mark.slow
 def test_random_walk_basis_is_the_noise_of_each_piece():
     """Random walk: F = I, so the map Lambda -> added covariance is sum_i S(dt_i) Lambda S(dt_i)'
     over the real pieces (masked pieces add nothing); the basis accumulates onto a given one."""
@@ -94,6 +95,7 @@ def test_basis_reproduces_the_unscented_time_update(model):
                                rtol=1e-4, atol=1e-6 * np.abs(added).max())
 
 
+@pytest.mark.slow
 def test_update_inverts_the_basis_and_keeps_the_scale_positive_definite():
     """A change that is exactly Q_pose(Delta) moves Lambda by d_k Delta (least squares in the
     whitened frame is exact then); a change that would make it indefinite is held at the floor."""
