@@ -32,9 +32,11 @@ def _f(default: Any, *, lo: float | None = None, hi: float | None = None,
 class DataConfig:
     """Where the log comes from and how it is cut into fixed-shape segments."""
 
-    kind: Literal["victoria_park", "simulated"] = _f("victoria_park", static=True,
+    kind: Literal["victoria_park", "simulated", "indoor"] = _f("victoria_park", static=True,
         doc="'victoria_park': read a log directory (Victoria Park-format, or another data.format); 'simulated': "
-            "simulate one (see sim).")
+            "simulate one (see sim); 'indoor': simulate an indoor log in memory (section indoor), or read the "
+            "directory --data (or data.path) that `nanoslam simulate --scenario indoor` wrote; its true walls, "
+            "corners and pillars score a map of lines (Table 1's metrics)")
     path: Optional[str] = _f(None, static=True,
         doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park "
             "(format mrclam: ../shared/data/utias_mrclam/MRCLAM_Dataset1)")
@@ -50,9 +52,12 @@ class DataConfig:
     max_dr_per_segment: int = _f(12, lo=2, static=True,
         doc="DR pieces per segment; longer gaps between scans are split with empty segments")
     t_end: Optional[float] = _f(None, lo=0.0, lo_open=True, static=True, doc="use the log only up to this time (s)")
-    detections: Literal["file", "laser"] = _f("file", static=True,
+    detections: Literal["file", "laser", "laser_lines"] = _f("file", static=True,
         doc="'file': the detections of measurements.dat; 'laser': detect the trees in the log's raw scans "
-            "(LASER.txt or aa3_lsr2.mat) on load with the detector section (what `nanoslam detect` writes)")
+            "(LASER.txt or aa3_lsr2.mat) on load with the detector section (what `nanoslam detect` writes); "
+            "'laser_lines': the line segments the front end fits to the raw scans, at least "
+            "detector.min_line_length long, as (rho, alpha) of the segment's line in the sensor frame (for "
+            "model.measurement line; data.min_range and data.max_range apply to rho)")
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ from typing import Any, Mapping, NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .metrics import evaluate, map_summary, rmse_heading_deg, survey_summary
+from .metrics import evaluate, feature_map_errors, map_summary, rmse_heading_deg, survey_summary
 
 __all__ = [
     "HIGHER_IS_BETTER", "MapEstimate", "companion_tracks", "failure_reason", "format_number", "metric_goal", "number", "run_values",
@@ -52,11 +52,12 @@ __all__ = [
 #: Metrics where a higher value is better (a failed seed counts as ``-inf`` in their summary).
 HIGHER_IS_BETTER = frozenset({
     "map_n_found", "map_found_fraction", "map_n_found_aligned", "map_found_fraction_aligned", "survey_found",
-    "survey_found_by_id", "dr_over_slam", "survey_dr_over_slam",
+    "survey_found_by_id", "dr_over_slam", "survey_dr_over_slam", "n_lines_matched", "n_corners_matched",
 })
 #: Prefixes and names of the errors (lower is better; a failed seed counts as ``+inf``).
 _ERROR_PREFIXES = ("rmse_", "dr_rmse_", "map_rmse", "map_median_est_to_true", "map_spurious", "map_n_spurious",
-                   "survey_rmse", "survey_spurious", "dr_survey_rmse")
+                   "survey_rmse", "survey_spurious", "dr_survey_rmse", "line_slope_", "line_intercept_", "line_rho_",
+                   "line_alpha_", "corner_")
 _ERRORS = frozenset({"mean_error", "max_error", "final_error"})
 
 #: Stand-in for an infinite value inside ``np.quantile`` (interpolating towards ``inf`` can give NaN).
@@ -143,7 +144,11 @@ def score_run(log, est: np.ndarray, metrics, landmarks: Optional[MapEstimate] = 
         and a log with a true path, ``rmse_heading_deg`` (:func:`~nanoslam_jax.metrics.rmse_heading_deg`);
         with ``landmarks``, ``n_landmarks``,
         ``n_confirmed`` and the map figures the log supports (``map_*`` against a simulated log's
-        true trees, ``survey_*`` against a survey).
+        true trees, ``survey_*`` against a survey; for a map of lines against an indoor log's true
+        walls, the ``summary`` of :func:`~nanoslam_jax.metrics.feature_map_errors` over the
+        confirmed lines: ``line_slope_*``, ``line_intercept_*``, ``line_rho_*``, ``line_alpha_*``,
+        ``corner_*`` (median and worst), ``n_lines``, ``n_lines_matched``, ``n_corners``,
+        ``n_corners_matched``, and ``n_lines_est``).
     """
     t = np.asarray(log.segments.time)
     gps = _gps(log)
@@ -168,6 +173,10 @@ def score_run(log, est: np.ndarray, metrics, landmarks: Optional[MapEstimate] = 
         out.update(map_summary(xy, conf, log.map_truth, metrics.map_radius, alignment))
         if log.survey is not None:
             out.update(survey_summary(xy, conf, log.survey.xy, metrics.map_radius, landmarks.ids, log.survey.ids))
+        features = getattr(log, "feature_truth", None)
+        if features is not None:  # a map of lines (rho, alpha): the second paper's Table 1
+            table = feature_map_errors(xy[conf], features.lines, corners=features.corners)["summary"]
+            out.update(table, n_lines_est=int(conf.sum()))
     return out
 
 

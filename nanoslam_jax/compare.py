@@ -398,8 +398,8 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
     configs = {m.label: method_config(spec, m) for m in spec.methods}
     logs: dict[str, Any] = {}
     first = next(iter(configs.values()))
-    key_of = lambda c: json.dumps([config_to_dict(c)[k] for k in ("data", "sim", "vehicle", "detector")],  # noqa: E731
-                                  sort_keys=True)
+    key_of = lambda c: json.dumps([config_to_dict(c)[k] for k in ("data", "sim", "indoor", "vehicle", "detector")]  # noqa: E731
+                                  + [c.model.measurement], sort_keys=True)
     logs[key_of(first)] = load_log(first, data_dir)  # a bad log fails before anything is written
     if not len(logs[key_of(first)].raw.gps):
         raise ConfigError(f"{spec.source}: compare scores the trajectories against GPS, and the log "

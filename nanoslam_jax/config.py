@@ -199,13 +199,23 @@ def _check_consistency(cfg: Config, where: str) -> None:
     if d.min_range >= d.max_range:
         raise ConfigError(f"{where}key 'data.min_range': expected a value < data.max_range ({d.max_range}), got {d.min_range}")
     if d.kind == "victoria_park" and d.format == "mrclam":
-        if d.detections == "laser":
+        if d.detections != "file":
             raise ConfigError(f"{where}key 'data.detections': an MRCLAM log has no laser scans, only its sightings; "
-                              "expected 'file' with data.format mrclam, got 'laser'")
+                              f"expected 'file' with data.format mrclam, got {d.detections!r}")
         if cfg.model.motion == "ackermann":
             raise ConfigError(f"{where}key 'model.motion': an MRCLAM log's odometry is (v, omega) of a differential-drive "
                               "robot, not the car's (speed, steering); expected unicycle (or random_walk, or your own "
                               "model) with data.format mrclam, got 'ackermann'")
+    lines_in = d.detections == "laser_lines"
+    if lines_in and cfg.model.measurement != "line":
+        raise ConfigError(f"{where}key 'model.measurement': data.detections laser_lines gives line segments "
+                          f"(rho, alpha); expected 'line', got {cfg.model.measurement!r}")
+    if cfg.model.measurement == "line" and not lines_in and (d.kind == "indoor" or d.detections == "laser"):
+        raise ConfigError(f"{where}key 'data.detections': model.measurement line takes line segments; expected "
+                          f"'laser_lines' with data.kind {d.kind!r}, got {d.detections!r}")
+    if lines_in and d.kind == "simulated":
+        raise ConfigError(f"{where}key 'data.detections': the simulated park log has no raw scans; expected 'file' "
+                          "with data.kind simulated (or data.kind indoor for line segments), got 'laser_lines'")
     mp = cfg.map
     if mp.manage and mp.p_false >= mp.p_detect:
         raise ConfigError(f"{where}key 'map.p_false': expected a value < map.p_detect ({mp.p_detect}), got {mp.p_false}")

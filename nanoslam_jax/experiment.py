@@ -48,6 +48,9 @@ class LoadedLog:
             path, :func:`~nanoslam_jax.metrics.observable_landmarks`), or None without ground truth.
         survey: the surveyed landmarks of a real log without a true path (MRCLAM's), in a frame of
             their own, or None.
+        feature_truth: the true walls (lines), corners, pillars and break points a line map is
+            judged against (an indoor log's, :class:`~nanoslam_jax.simulate_indoor.FeatureTruth`),
+            or None (no such truth, or a map of points).
     """
 
     raw: RawLog
@@ -56,6 +59,7 @@ class LoadedLog:
     source: str
     map_truth: Optional[np.ndarray] = None
     survey: Optional["Survey"] = None
+    feature_truth: Any = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,37 +79,69 @@ def with_laser_detections(raw: RawLog, directory, detector) -> RawLog:
     """``raw`` with its detections replaced by the trees the front end finds in the raw scans of
     ``directory`` (``LASER.txt`` or ``aa3_lsr2.mat``) with the ``detector`` settings."""
     from .data import load_laser
-    from .frontend import detect_trees
 
-    return dataclasses.replace(raw, detections=detect_trees(load_laser(directory), detector))
+    return with_scan_detections(raw, load_laser(directory), "laser", detector)
+
+
+def with_scan_detections(raw: RawLog, scans, kind: str, detector) -> RawLog:
+    """``raw`` with its detections replaced by what the front end finds in the raw ``scans`` with the
+    ``detector`` settings: ``kind`` ``'laser'``: the trees (``time, range, bearing, diameter``);
+    ``'laser_lines'``: the line segments (``time, rho, alpha, length``,
+    :func:`~nanoslam_jax.frontend.detect_lines`)."""
+    from .frontend import detect_lines, detect_trees
+
+    detect = detect_lines if kind == "laser_lines" else detect_trees
+    return dataclasses.replace(raw, detections=detect(scans, detector), detection_ids=None)
 
 
 def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
     """Read (or simulate) the log of ``cfg`` and cut it into segments.
 
     Args:
-        cfg: the run configuration (``data`` and ``sim`` sections).
-        data_dir: a ``--data`` directory overriding ``data.path``.
+        cfg: the run configuration (``data`` and ``sim`` or ``indoor`` sections).
+        data_dir: a ``--data`` directory overriding ``data.path`` (with ``data.kind: indoor``, an
+            indoor log directory read instead of simulating one).
     """
+    features = None
     if cfg.data.kind == "simulated":
         from .simulate import simulate_config
 
         raw, frame, source = simulate_config(cfg), "slam", f"simulated (seed {cfg.sim.seed})"
+    elif cfg.data.kind == "indoor" and data_dir is None and cfg.data.path is None:
+        from .simulate_indoor import feature_truth, simulate_indoor
+
+        indoor = simulate_indoor(cfg.indoor)
+        raw, frame, features = indoor.raw, "slam", feature_truth(indoor.world)
+        source = f"simulated indoor ({indoor.world.template}, seed {cfg.indoor.seed})"
+        if cfg.data.detections != "file":
+            raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector)
     else:
+        from .data import load_laser
+        from .simulate_indoor import read_feature_truth
+
         directory = resolve_data_dir(cfg, data_dir)
         if cfg.data.format == "mrclam":
             raw = load_mrclam(directory, cfg.data.robot)
         else:
             raw = load_victoria_park(directory, cfg.data.format, detections=cfg.data.detections == "file")
-        if cfg.data.detections == "laser":
-            raw = with_laser_detections(raw, directory, cfg.detector)
+        if cfg.data.detections != "file":
+            raw = with_scan_detections(raw, load_laser(directory), cfg.data.detections, cfg.detector)
         frame = "slam" if raw.truth_poses is not None else "relative"
         source = raw.source or str(directory)
+        features = read_feature_truth(directory)
     d = cfg.data
-    segments = make_segments(raw, min_range=d.min_range, max_range=d.max_range, k_max=d.k_max,
-                             max_dr_per_segment=d.max_dr_per_segment, t_end=d.t_end)
+    try:
+        segments = make_segments(raw, min_range=d.min_range, max_range=d.max_range, k_max=d.k_max,
+                                 max_dr_per_segment=d.max_dr_per_segment, t_end=d.t_end)
+    except ValueError as e:
+        if d.detections == "laser_lines" and "no laser scan" in str(e):
+            raise ValueError(f"{e}: the front end found no line segment at least detector.min_line_length "
+                             f"({cfg.detector.min_line_length} m) long") from None
+        raise
+    lines = cfg.model.measurement == "line"  # a map of lines: scored against the true walls, not points
+    features = features if lines else None
     map_truth = None
-    if raw.truth_landmarks is not None and raw.truth_poses is not None:
+    if raw.truth_landmarks is not None and raw.truth_poses is not None and not lines:
         t = np.asarray(segments.time)[np.asarray(segments.z_mask).any(axis=1)]
         seen = observable_landmarks(raw.truth_landmarks, raw.truth_poses, t, d.max_range, cfg.map.fov_deg, d.min_range)
         map_truth = np.asarray(raw.truth_landmarks)[seen]
@@ -114,7 +150,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         xy = np.asarray(raw.truth_landmarks, dtype=float)
         ids = np.arange(xy.shape[0]) if raw.landmark_ids is None else np.asarray(raw.landmark_ids, dtype=np.int64)
         survey = Survey(xy, ids)
-    return LoadedLog(raw, segments, frame, source, map_truth, survey)
+    return LoadedLog(raw, segments, frame, source, map_truth, survey, features)
 
 
 def sighting_map(poses: np.ndarray, segments: Segments) -> tuple[np.ndarray, np.ndarray]:
@@ -439,9 +475,11 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
     gps = log.raw.gps
     ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" and len(gps) else gps[:, 1:3]
     label = "GPS (relative frame)" if log.frame == "relative" else "truth"
+    if cfg.model.measurement == "line":  # a map of lines (rho, alpha): no points to draw
+        landmarks = None
     confirmed = None if landmarks is None else landmarks[:, MAP_COLUMNS.index("confirmed")] > 0
     # True landmarks in another frame than the path (a surveyed map, e.g. MRCLAM's) are not drawn.
-    true_landmarks = log.raw.truth_landmarks if log.frame == "slam" else None
+    true_landmarks = log.raw.truth_landmarks if log.frame == "slam" and landmarks is not None else None
     plot_trajectory(out / "trajectory.png", ref, [(cfg.filter.method, est[:, :2])],
                     None if landmarks is None else landmarks[:, :2], true_landmarks,
                     title=f"{cfg.name}: {cfg.filter.method}", reference_label=label, confirmed=confirmed)

@@ -76,20 +76,24 @@ from .data import LaserScans, fan_angles, write_victoria_park
 from .data._laser import NO_RETURN, write_laser
 from .data._types import RawLog
 from .models._angles import wrap_angle_np
+from .models._lines import line_through, slope_intercept_from_line
 from .simulate_laser import KIND_NONE, KIND_TREE, KIND_WALL, LaserWorld, ray_cast
 
 __all__ = [
     "ACCELERATION",
     "BREAK_DOOR",
     "BREAK_FREE_END",
+    "FeatureTruth",
     "TEMPLATES",
     "TRUTH_FILES",
     "IndoorLog",
     "IndoorPath",
     "IndoorWorld",
     "build_world",
+    "feature_truth",
     "hessian_lines",
     "indoor_laser_world",
+    "read_feature_truth",
     "reference_path",
     "simulate_indoor",
     "simulate_indoor_to_dir",
@@ -146,6 +150,73 @@ class IndoorWorld(NamedTuple):
     breakpoint_kind: Int[np.ndarray, " K"]
     waypoints: Float[np.ndarray, "n 2"]
     turn_radius: Float[np.ndarray, " n"]
+
+
+class FeatureTruth(NamedTuple):
+    """The true features of an indoor world in the form a line map is scored in (the second paper's
+    Table 1, :func:`~nanoslam_jax.metrics.feature_map_errors`).
+
+    Attributes:
+        lines: ``(L, 2)`` the distinct straight walls ``(rho, alpha)`` (the wall segments a door splits
+            share one line), in the order of their line ids.
+        line_ids: ``(L,)`` the line id of each row (``IndoorWorld.wall_line``).
+        corners: ``(C, 2)`` the rows of ``lines`` meeting at each corner.
+        arcs: ``(P, 3)`` the pillars ``(xc, yc, R)``.
+        break_points: ``(K, 2)`` the break points (door jambs, free ends).
+    """
+
+    lines: Float[np.ndarray, "L 2"]
+    line_ids: Int[np.ndarray, " L"]
+    corners: Int[np.ndarray, "C 2"]
+    arcs: Float[np.ndarray, "P 3"]
+    break_points: Float[np.ndarray, "K 2"]
+
+
+def _feature_truth(walls: np.ndarray, wall_line: np.ndarray, corner_lines: np.ndarray, arcs: np.ndarray,
+                   break_points: np.ndarray) -> FeatureTruth:
+    ids, first = np.unique(np.asarray(wall_line, dtype=np.int64), return_index=True)
+    rho, alpha = hessian_lines(np.asarray(walls, dtype=np.float64).reshape(-1, 4)[first])
+    row = np.searchsorted(ids, np.asarray(corner_lines, dtype=np.int64).reshape(-1, 2))
+    return FeatureTruth(np.stack([rho, alpha], axis=1).reshape(-1, 2), ids, row,
+                        np.asarray(arcs, dtype=np.float64).reshape(-1, 3),
+                        np.asarray(break_points, dtype=np.float64).reshape(-1, 2))
+
+
+def feature_truth(world: IndoorWorld) -> FeatureTruth:
+    """The true lines, corners, arcs and break points of a world (:class:`FeatureTruth`)."""
+    return _feature_truth(world.walls, world.wall_line, world.wall_line[world.corner_walls], world.pillars,
+                          world.breakpoints)
+
+
+def read_feature_truth(directory: str | os.PathLike) -> FeatureTruth | None:
+    """The :class:`FeatureTruth` of an indoor log directory from its truth files (``truth_walls.csv``,
+    ``truth_corners.csv``, ``truth_arcs.csv``, ``truth_breakpoints.csv``, as :func:`write_indoor_truth`
+    writes them); None when the directory has no ``truth_walls.csv``.
+
+    Raises:
+        ValueError: a truth file lacks a column it needs (the message names the file and the column).
+    """
+    d = Path(directory)
+    if not (d / "truth_walls.csv").is_file():
+        return None
+
+    def table(name: str, columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+        path = d / name
+        if not path.is_file():
+            return {c: np.zeros(0) for c in columns}
+        data = np.genfromtxt(path, delimiter=",", names=True, dtype=None, encoding="utf-8", ndmin=1)
+        missing = [c for c in columns if c not in (data.dtype.names or ())]
+        if missing:
+            raise ValueError(f"{path}: expected the column {missing[0]!r} (columns {', '.join(TRUTH_FILES[name])})")
+        return {c: np.atleast_1d(data[c]) for c in columns}
+
+    w = table("truth_walls.csv", ("line_id", "x0", "y0", "x1", "y1"))
+    c = table("truth_corners.csv", ("line_a", "line_b"))
+    a = table("truth_arcs.csv", ("xc", "yc", "radius"))
+    b = table("truth_breakpoints.csv", ("x", "y"))
+    return _feature_truth(np.stack([w["x0"], w["y0"], w["x1"], w["y1"]], axis=1), w["line_id"],
+                          np.stack([c["line_a"], c["line_b"]], axis=1), np.stack([a["xc"], a["yc"], a["radius"]], 1),
+                          np.stack([b["x"], b["y"]], axis=1))
 
 
 class IndoorPath(NamedTuple):
@@ -227,32 +298,30 @@ class IndoorLog(NamedTuple):
 
 
 def hessian_lines(segments: Float[np.ndarray, "W 4"]) -> tuple[Float[np.ndarray, " W"], Float[np.ndarray, " W"]]:
-    """Hessian normal form ``(rho, alpha)`` of the lines through segments: the points ``p`` of the line
-    satisfy ``p . (cos alpha, sin alpha) = rho`` with ``rho >= 0`` (the distance from the origin) and
-    ``alpha`` in ``(-pi, pi]`` (the direction of the foot of the perpendicular)."""
+    """Hessian normal form ``(rho, alpha)`` of the lines through segments
+    (:func:`~nanoslam_jax.models.line_through`): the points ``p`` of the line satisfy ``p . (cos alpha,
+    sin alpha) = rho`` with ``rho >= 0`` (the distance from the origin) and ``alpha`` in ``(-pi, pi]`` (the
+    direction of the foot of the perpendicular)."""
     seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
-    d = seg[:, 2:] - seg[:, :2]
-    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
-    rho = np.sum(n * seg[:, :2], axis=1)
-    n = np.where((rho < 0.0)[:, None], -n, n)
-    return np.abs(rho), np.arctan2(n[:, 1], n[:, 0]) + 0.0  # + 0.0: no -0.0
+    line = np.asarray(line_through(seg[:, :2], seg[:, 2:]))
+    return line[:, 0], line[:, 1] + 0.0  # + 0.0: no -0.0
 
 
 def slope_intercept_lines(segments: Float[np.ndarray, "W 4"]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                                          np.ndarray]:
-    """The paper's line forms (eq. 14-15): ``y = a x + b``, or ``x = c`` for a vertical line.
+    """The paper's line forms (eq. 14-15) of the lines through segments
+    (:func:`~nanoslam_jax.models.slope_intercept_from_line`): ``y = a x + b``, or ``x = c`` for a vertical
+    line.
 
     Returns:
-        ``(vertical, a, b, c)``: ``(W,)`` booleans (the segment's ends share their x coordinate to 1e-12 of
-        its length) and the parameters, NaN where the other form applies.
+        ``(vertical, a, b, c)``: ``(W,)`` booleans (the line's slope exceeds 1e12: the segment's ends share
+        their x coordinate to 1e-12 of its length) and the parameters, NaN where the other form applies.
     """
-    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
-    dx, dy = seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]
-    vertical = np.abs(dx) <= 1e-12 * np.hypot(dx, dy)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = np.where(vertical, np.nan, dy / np.where(vertical, 1.0, dx))
-    b = np.where(vertical, np.nan, seg[:, 1] - a * seg[:, 0])
-    c = np.where(vertical, 0.5 * (seg[:, 0] + seg[:, 2]), np.nan)
+    rho, alpha = hessian_lines(segments)
+    form = slope_intercept_from_line(np.stack([rho, alpha], axis=1), max_slope=1e12)
+    vertical = np.asarray(form.vertical)
+    a, b, c = (np.where(vertical == v, np.asarray(x), np.nan) for v, x in ((False, form.a), (False, form.b),
+                                                                             (True, form.c)))
     return vertical, a, b, c
 
 

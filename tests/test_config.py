@@ -45,7 +45,7 @@ def test_embedded_default_is_nano_on_a_simulated_log():
 def test_shipped_configs_load_and_take_their_name_from_the_file(path):
     cfg = load_config(path)
     assert cfg.name == path.stem
-    assert cfg.data.kind == "victoria_park"
+    assert cfg.data.kind == ("indoor" if "indoor" in path.stem else "victoria_park")  # indoor: simulated in memory
 
 
 def test_shipped_configs_say_what_they_run():

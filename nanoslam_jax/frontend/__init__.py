@@ -5,6 +5,7 @@ from ._circles import CircleFit as CircleFit
 from ._circles import fit_circle as fit_circle
 from ._circles import fit_circles as fit_circles
 from ._clusters import breakpoint_threshold as breakpoint_threshold
+from ._extract import detect_lines as detect_lines
 from ._extract import detect_trees as detect_trees
 from ._extract import extract_features as extract_features
 from ._io import (
@@ -67,6 +68,7 @@ __all__ = [
     "Trees",
     "breakpoint_threshold",
     "concatenate_features",
+    "detect_lines",
     "detect_log",
     "detect_trees",
     "extract_features",

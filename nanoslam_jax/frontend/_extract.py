@@ -13,7 +13,7 @@ from ._segments import extract_lines
 from ._trees import find_trees, middle_range
 from ._types import Circles, Features
 
-__all__ = ["detect_trees", "extract_features"]
+__all__ = ["detect_lines", "detect_trees", "extract_features"]
 
 
 def extract_features(scans: LaserScans, cfg: DetectorConfig | None = None) -> Features:
@@ -59,3 +59,21 @@ def detect_trees(scans: LaserScans, cfg: DetectorConfig | None = None) -> Float[
         time, then bearing (right to left).
     """
     return extract_features(scans, cfg).tree_table()
+
+
+def detect_lines(scans: LaserScans, cfg: DetectorConfig | None = None) -> Float[np.ndarray, "L 4"]:
+    """Line segment detections of every scan (the walls a ``line`` landmark map is built from), in the
+    rows of a log's detections.
+
+    Segments are split-and-merge fits at least ``detector.min_line_length`` long (the paper's L_min)
+    with ``detector.min_line_points`` returns (:func:`extract_features`).
+
+    Args:
+        scans: the raw scans.
+        cfg: the detector settings (default: the ``detector`` section's defaults).
+
+    Returns:
+        ``(L, 4)`` rows ``time, rho, alpha, length`` (:meth:`Features.line_table`): the segment's line in
+        the sensor frame, ``p . (cos alpha, sin alpha) = rho`` with ``rho >= 0``, and its length (m).
+    """
+    return extract_features(scans, cfg).line_table()

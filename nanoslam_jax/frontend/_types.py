@@ -192,6 +192,14 @@ class Features(NamedTuple):
     breakpoints: BreakPoints
     trees: Trees
 
+    def line_table(self) -> Float[np.ndarray, "L 4"]:
+        """The line segments as detections: ``(L, 4)`` rows ``time, rho, alpha, length`` (the line's
+        distance from the sensor (m), the bearing of its normal in the vehicle frame (rad, 0 ahead,
+        left positive), the segment's length (m)), in the layout of :meth:`tree_table`; ordered by
+        time, then beam (right to left)."""
+        ln = self.lines
+        return np.stack([self.time[ln.scan], ln.rho, ln.alpha, ln.length], axis=1).reshape(-1, 4)
+
     def tree_table(self) -> Float[np.ndarray, "M 4"]:
         """The trees as ``(M, 4)`` rows ``time, range, bearing (vehicle frame), diameter``."""
         t = self.trees
