@@ -40,7 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
     rows, failed = [], []
-    header = "| seed | world | " + " | ".join(h for _, h, _, _ in COLUMNS) + " | lines matched | corners matched |"
+    header = ("| seed | world | " + " | ".join(h for _, h, _, _ in COLUMNS)
+              + " | lines matched | corners matched | lines in map |")
     print(header)
     print("|" + "---|" * (header.count("|") - 1))
     for s in seeds:
@@ -56,14 +57,18 @@ def main(argv: list[str] | None = None) -> int:
         cells = [f"{m[k] * sc:.{d}f}" if ok and k in m else "fail" for k, _, sc, d in COLUMNS]
         world = m.get("data", "").replace("simulated indoor ", "")
         print(f"| {s} | {world} | " + " | ".join(cells) + f" | {m.get('n_lines_matched', '-')}/{m.get('n_lines', '-')} | "
-              f"{m.get('n_corners_matched', '-')}/{m.get('n_corners', '-')} |  <!-- {time.perf_counter() - t0:.0f} s -->",
+              f"{m.get('n_corners_matched', '-')}/{m.get('n_corners', '-')} | {m.get('n_lines_est', '-')} |"
+              f"  <!-- {time.perf_counter() - t0:.0f} s -->",
               flush=True)
     for stat in ("median", "worst"):
         cells = []
         for k, _, sc, d in COLUMNS:
             v = seed_summary([r.get(k, float("nan")) for r in rows], failed, "min", seeds)[stat]
             cells.append(f"{v * sc:.{d}f}")
-        print(f"| {stat} | | " + " | ".join(cells) + " | | |")
+        print(f"| {stat} | | " + " | ".join(cells) + " | | | |")
+    print(f"| total | | {' | ' * (len(COLUMNS) - 1)} | {sum(r.get('n_lines_matched', 0) for r in rows)}/"
+          f"{sum(r.get('n_lines', 0) for r in rows)} | {sum(r.get('n_corners_matched', 0) for r in rows)}/"
+          f"{sum(r.get('n_corners', 0) for r in rows)} | {sum(r.get('n_lines_est', 0) for r in rows)} |")
     return 0
 
 
