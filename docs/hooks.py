@@ -27,8 +27,10 @@ def _benchmark_markdown(part: str) -> str:
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     result = json.loads((ROOT / "docs" / "data" / "benchmark.json").read_text())
-    head = (f"Commit `{result['commit']}`, {result['date']}, {result['cores']} cores, produced by "
-            f"`{result['command']}` (the file `docs/data/benchmark.json`).")
+    head = (
+        f"Commit `{result['commit']}`, {result['date']}, {result['cores']} cores, produced by "
+        f"`{result['command']}` (the file `docs/data/benchmark.json`)."
+    )
     return head + "\n\n" + bench.markdown({part: result[part]})
 
 

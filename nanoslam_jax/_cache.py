@@ -48,8 +48,18 @@ from typing import Any, Callable, Optional
 
 import jax
 
-__all__ = ["CACHE_ENV", "CompileStats", "compile_program", "compile_stats", "default_cache_dir",
-           "enable_compile_cache", "memory_maps", "program_cache", "program_key", "release_programs"]
+__all__ = [
+    "CACHE_ENV",
+    "CompileStats",
+    "compile_program",
+    "compile_stats",
+    "default_cache_dir",
+    "enable_compile_cache",
+    "memory_maps",
+    "program_cache",
+    "program_key",
+    "release_programs",
+]
 
 #: Environment variable that moves the cache directory.
 CACHE_ENV = "NANOSLAM_CACHE_DIR"
@@ -89,8 +99,10 @@ def enable_compile_cache(path: str | os.PathLike | None = None) -> str:
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise ValueError(f"{p}: cannot create the compilation cache directory ({e.strerror}); "
-                         f"set {CACHE_ENV} to a writable directory or pass --no-cache") from None
+        raise ValueError(
+            f"{p}: cannot create the compilation cache directory ({e.strerror}); "
+            f"set {CACHE_ENV} to a writable directory or pass --no-cache"
+        ) from None
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
     jax.config.update("jax_compilation_cache_dir", str(p))
     return str(p)
@@ -133,8 +145,9 @@ class CompileStats:
 
     def since(self, earlier: "CompileStats") -> "CompileStats":
         """What was added after the snapshot ``earlier``."""
-        return CompileStats(**{f.name: getattr(self, f.name) - getattr(earlier, f.name)
-                               for f in dataclasses.fields(self)})
+        return CompileStats(
+            **{f.name: getattr(self, f.name) - getattr(earlier, f.name) for f in dataclasses.fields(self)}
+        )
 
     def as_dict(self) -> dict:
         return {**dataclasses.asdict(self), "total_s": self.total_s}
@@ -254,8 +267,11 @@ def _plugin_modules(static: Any, args: tuple) -> set[str]:
     arguments (equinox modules: a motion model) and the functions of the registered method."""
     import equinox as eqx
 
-    mods = {type(x).__module__ for x in jax.tree.leaves(args, is_leaf=lambda x: isinstance(x, eqx.Module))
-            if isinstance(x, eqx.Module)}
+    mods = {
+        type(x).__module__
+        for x in jax.tree.leaves(args, is_leaf=lambda x: isinstance(x, eqx.Module))
+        if isinstance(x, eqx.Module)
+    }
     name = getattr(static, "method", None)
     if isinstance(name, str):
         from .methods import get_method
@@ -265,8 +281,11 @@ def _plugin_modules(static: Any, args: tuple) -> set[str]:
         except ValueError:
             method = None
         if method is not None:
-            mods |= {f.__module__ for f in (method.proposal, method.init, method.step, method.shardable)
-                     if f is not None and getattr(f, "__module__", None)}
+            mods |= {
+                f.__module__
+                for f in (method.proposal, method.init, method.step, method.shardable)
+                if f is not None and getattr(f, "__module__", None)
+            }
     return {m for m in mods if m != __package__ and not m.startswith(__package__ + ".")}
 
 
@@ -299,9 +318,15 @@ def program_key(fn: Callable, static: Any, args: tuple) -> Optional[str]:
     leaves, tree = jax.tree.flatten(args)
     config = sorted((k, repr(v)) for k, v in jax.config.values.items() if "cache" not in k and "log" not in k)
     h = hashlib.sha256(_environment_digest().encode())
-    for part in (f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', repr(fn))}", repr(static), str(tree),
-                 repr(config), repr([(str(jax.typeof(x)), repr(getattr(x, "sharding", None))) for x in leaves]),
-                 repr(jax.devices()), plugins):
+    for part in (
+        f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', repr(fn))}",
+        repr(static),
+        str(tree),
+        repr(config),
+        repr([(str(jax.typeof(x)), repr(getattr(x, "sharding", None))) for x in leaves]),
+        repr(jax.devices()),
+        plugins,
+    ):
         h.update(part.encode() + b"\0")
     return h.hexdigest()[:40]
 
@@ -344,8 +369,11 @@ def _namedtuple_class(name: str) -> type[Any]:
         obj = vars(obj).get(part)
         if obj is None:
             raise ValueError(f"{name}: not found")
-    if not (isinstance(obj, type) and issubclass(obj, tuple)
-            and any(isinstance(vars(c).get("_fields"), tuple) for c in obj.__mro__)):
+    if not (
+        isinstance(obj, type)
+        and issubclass(obj, tuple)
+        and any(isinstance(vars(c).get("_fields"), tuple) for c in obj.__mro__)
+    ):
         raise ValueError(f"{name}: not a NamedTuple")
     return obj
 
@@ -427,18 +455,23 @@ def _read_exported(path: Path, key: str, in_tree: jax.tree_util.PyTreeDef, leave
         if not data.startswith(_MAGIC):
             return None
         start = len(_MAGIC) + 8
-        size = int.from_bytes(data[len(_MAGIC):start], "big")
-        header = json.loads(data[start:start + size].decode("utf-8"))
-        blob = data[start + size:]
-        if (header.get("format") != _EXPORT_FORMAT or header.get("key") != key
-                or header.get("in_tree") != str(in_tree)
-                or header.get("sha256") != hashlib.sha256(blob).hexdigest()):
+        size = int.from_bytes(data[len(_MAGIC) : start], "big")
+        header = json.loads(data[start : start + size].decode("utf-8"))
+        blob = data[start + size :]
+        if (
+            header.get("format") != _EXPORT_FORMAT
+            or header.get("key") != key
+            or header.get("in_tree") != str(in_tree)
+            or header.get("sha256") != hashlib.sha256(blob).hexdigest()
+        ):
             return None
         out_tree = _rebuild_tree(header["out_tree"], in_tree)
         exported = jax.export.deserialize(bytearray(blob))
         avals = [(tuple(a.shape), str(a.dtype)) for a in exported.in_avals]
-        if (avals != [(tuple(jax.typeof(x).shape), str(jax.typeof(x).dtype)) for x in leaves]
-                or len(exported.out_avals) != out_tree.num_leaves):
+        if (
+            avals != [(tuple(jax.typeof(x).shape), str(jax.typeof(x).dtype)) for x in leaves]
+            or len(exported.out_avals) != out_tree.num_leaves
+        ):
             return None
         return exported, out_tree
     except Exception:  # anything unreadable is a miss
@@ -449,10 +482,15 @@ def _write_exported(path: Path, key: str, in_tree, exported, out_tree) -> None:
     """Keep the program at ``path`` (atomically, readable by all), or raise :class:`_Unkeepable`
     when its output tree cannot be written down as plain data."""
     blob = bytes(exported.serialize())
-    header = json.dumps({
-        "format": _EXPORT_FORMAT, "key": key, "in_tree": str(in_tree),
-        "out_tree": _describe_tree(out_tree, {t: p for p, t in reversed(list(_subtrees(in_tree)))}),
-        "sha256": hashlib.sha256(blob).hexdigest()}).encode("utf-8")
+    header = json.dumps(
+        {
+            "format": _EXPORT_FORMAT,
+            "key": key,
+            "in_tree": str(in_tree),
+            "out_tree": _describe_tree(out_tree, {t: p for p, t in reversed(list(_subtrees(in_tree)))}),
+            "sha256": hashlib.sha256(blob).hexdigest(),
+        }
+    ).encode("utf-8")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     try:
@@ -519,8 +557,9 @@ def compile_program(fn: jax.stages.Wrapped, static: Any, *args: Any) -> Callable
             # Custom calls (LAPACK kernels of lineax's QR, ...) are allowed although their ABI is not
             # guaranteed across jaxlib versions: an entry is only ever read back by the very same
             # versions (every installed distribution's version is in its key).
-            exported = jax.export.export(jax.jit(flat), disabled_checks=[
-                jax.export.DisabledSafetyCheck.custom_call("ALL")])(*leaves)
+            exported = jax.export.export(
+                jax.jit(flat), disabled_checks=[jax.export.DisabledSafetyCheck.custom_call("ALL")]
+            )(*leaves)
         except Exception:  # a program jax.export cannot hold: compile it directly (executable layer only)
             compiled_direct = fn.lower(static, *args).compile()
             _COMPILED[path] = compiled_direct

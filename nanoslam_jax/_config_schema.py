@@ -22,8 +22,15 @@ SPLIT_DEVICES_FROM = 64
 ADAPTIVE_NOISE_METHODS = ("nasrukf", "nano", "fastslam2", "ufastslam")
 
 
-def _f(default: Any, *, lo: float | None = None, hi: float | None = None,
-       lo_open: bool = False, static: bool = False, doc: str = "") -> Any:
+def _f(
+    default: Any,
+    *,
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    static: bool = False,
+    doc: str = "",
+) -> Any:
     """A dataclass field with range and staticness metadata."""
     return field(default=default, metadata=dict(lo=lo, hi=hi, lo_open=lo_open, static=static, doc=doc))
 
@@ -32,32 +39,45 @@ def _f(default: Any, *, lo: float | None = None, hi: float | None = None,
 class DataConfig:
     """Where the log comes from and how it is cut into fixed-shape segments."""
 
-    kind: Literal["victoria_park", "simulated", "indoor"] = _f("victoria_park", static=True,
+    kind: Literal["victoria_park", "simulated", "indoor"] = _f(
+        "victoria_park",
+        static=True,
         doc="'victoria_park': read a log directory (Victoria Park-format, or another data.format); 'simulated': "
-            "simulate one (see sim); 'indoor': simulate an indoor log in memory (section indoor), or read the "
-            "directory --data (or data.path) that `nanoslam simulate --scenario indoor` wrote; its true walls, "
-            "corners and pillars score a map of lines (Table 1's metrics)")
-    path: Optional[str] = _f(None, static=True,
+        "simulate one (see sim); 'indoor': simulate an indoor log in memory (section indoor), or read the "
+        "directory --data (or data.path) that `nanoslam simulate --scenario indoor` wrote; its true walls, "
+        "corners and pillars score a map of lines (Table 1's metrics)",
+    )
+    path: Optional[str] = _f(
+        None,
+        static=True,
         doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park "
-            "(format mrclam: ../shared/data/utias_mrclam/MRCLAM_Dataset1)")
-    format: Literal["auto", "ascii", "mat", "mrclam"] = _f("auto", static=True,
+        "(format mrclam: ../shared/data/utias_mrclam/MRCLAM_Dataset1)",
+    )
+    format: Literal["auto", "ascii", "mat", "mrclam"] = _f(
+        "auto",
+        static=True,
         doc="'ascii': inputs.dat/measurements.dat/gps.dat; 'mat': aa3_dr.mat/aa3_gpsx.mat (+ measurements.dat); "
-            "'auto': ascii when present; 'mrclam': a UTIAS MRCLAM dataset directory (Barcodes.dat, "
-            "Landmark_Groundtruth.dat, RobotN_Odometry.dat, RobotN_Measurement.dat): robot data.robot's (v, omega) "
-            "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids")
+        "'auto': ascii when present; 'mrclam': a UTIAS MRCLAM dataset directory (Barcodes.dat, "
+        "Landmark_Groundtruth.dat, RobotN_Odometry.dat, RobotN_Measurement.dat): robot data.robot's (v, omega) "
+        "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids",
+    )
     robot: int = _f(1, lo=1, hi=5, static=True, doc="data.format mrclam: which robot's log (1-5)")
     min_range: float = _f(0.0, lo=0.0, static=True, doc="detections with range below this are dropped (m)")
     max_range: float = _f(30.0, lo=0.0, lo_open=True, static=True, doc="detections with range >= this are dropped (m)")
     k_max: Optional[int] = _f(None, lo=1, static=True, doc="detections per segment; null: the most in any kept scan")
-    max_dr_per_segment: int = _f(12, lo=2, static=True,
-        doc="DR pieces per segment; longer gaps between scans are split with empty segments")
+    max_dr_per_segment: int = _f(
+        12, lo=2, static=True, doc="DR pieces per segment; longer gaps between scans are split with empty segments"
+    )
     t_end: Optional[float] = _f(None, lo=0.0, lo_open=True, static=True, doc="use the log only up to this time (s)")
-    detections: Literal["file", "laser", "laser_lines"] = _f("file", static=True,
+    detections: Literal["file", "laser", "laser_lines"] = _f(
+        "file",
+        static=True,
         doc="'file': the detections of measurements.dat; 'laser': detect the trees in the log's raw scans "
-            "(LASER.txt or aa3_lsr2.mat) on load with the detector section (what `nanoslam detect` writes); "
-            "'laser_lines': the line segments the front end fits to the raw scans, at least "
-            "detector.min_line_length long, as (rho, alpha) of the segment's line in the sensor frame (for "
-            "model.measurement line; data.min_range and data.max_range apply to rho)")
+        "(LASER.txt or aa3_lsr2.mat) on load with the detector section (what `nanoslam detect` writes); "
+        "'laser_lines': the line segments the front end fits to the raw scans, at least "
+        "detector.min_line_length long, as (rho, alpha) of the segment's line in the sensor frame (for "
+        "model.measurement line; data.min_range and data.max_range apply to rho)",
+    )
 
 
 @dataclass(frozen=True)
@@ -66,77 +86,170 @@ class DetectorConfig:
     breakpoint detector, split-and-merge line segments, circle fits and the tree detector. Its keys
     change the detections (the data), so all are static: a sweep runs each value on its own log."""
 
-    max_range: float = _f(75.0, static=True, lo=0.0, lo_open=True,
-        doc="returns at or beyond this range (m) are treated as no return")
-    breakpoint_lambda_deg: float = _f(10.0, static=True, lo=0.0, lo_open=True, hi=89.0,
+    max_range: float = _f(
+        75.0, static=True, lo=0.0, lo_open=True, doc="returns at or beyond this range (m) are treated as no return"
+    )
+    breakpoint_lambda_deg: float = _f(
+        10.0,
+        static=True,
+        lo=0.0,
+        lo_open=True,
+        hi=89.0,
         doc="adaptive breakpoint detector: the shallowest incidence angle (deg) of a surface still taken as "
-            "continuous; neighbouring returns r, r' split when |p - p'| > min(r, r') sin(dphi) / sin(lambda - dphi) "
-            "+ 3 breakpoint_sigma_r")
+        "continuous; neighbouring returns r, r' split when |p - p'| > min(r, r') sin(dphi) / sin(lambda - dphi) "
+        "+ 3 breakpoint_sigma_r",
+    )
     breakpoint_sigma_r: float = _f(0.03, static=True, lo=0.0, doc="range noise (m) in the breakpoint threshold")
-    max_dropout_beams: int = _f(2, static=True, lo=0,
+    max_dropout_beams: int = _f(
+        2,
+        static=True,
+        lo=0,
         doc="this many no-return beams at most between two returns do not end a cluster (dropouts), "
-            "when the two returns pass the breakpoint test")
-    split_distance: float = _f(0.08, static=True, lo=0.0, lo_open=True,
+        "when the two returns pass the breakpoint test",
+    )
+    split_distance: float = _f(
+        0.08,
+        static=True,
+        lo=0.0,
+        lo_open=True,
         doc="split-and-merge d_max: a segment is split at its point farthest from the chord when that "
-            "point is farther than this (m)")
-    merge_distance: float = _f(0.03, static=True, lo=0.0, lo_open=True,
+        "point is farther than this (m)",
+    )
+    merge_distance: float = _f(
+        0.03,
+        static=True,
+        lo=0.0,
+        lo_open=True,
         doc="split-and-merge md_max: neighbouring segments of a cluster merge when the mean distance (m) of "
-            "their points to the joint chord is below this (and none is beyond split_distance)")
-    min_line_length: float = _f(0.5, static=True, lo=0.0,
-        doc="L_min: a segment at least this long (m) with min_line_points points is a line")
+        "their points to the joint chord is below this (and none is beyond split_distance)",
+    )
+    min_line_length: float = _f(
+        0.5, static=True, lo=0.0, doc="L_min: a segment at least this long (m) with min_line_points points is a line"
+    )
     min_line_points: int = _f(5, static=True, lo=2, doc="points a line segment has at least")
     split_rounds: int = _f(24, lo=1, static=True, doc="rounds of splitting (and of merging) at most")
-    collinear_angle_deg: float = _f(5.0, static=True, lo=0.0,
-        doc="lines of neighbouring clusters merge when their directions differ by less than this (deg) ...")
-    collinear_distance: float = _f(0.1, static=True, lo=0.0,
-        doc="... each one's end lies within this distance (m) of the other's line ...")
+    collinear_angle_deg: float = _f(
+        5.0,
+        static=True,
+        lo=0.0,
+        doc="lines of neighbouring clusters merge when their directions differ by less than this (deg) ...",
+    )
+    collinear_distance: float = _f(
+        0.1, static=True, lo=0.0, doc="... each one's end lies within this distance (m) of the other's line ..."
+    )
     collinear_gap: float = _f(2.0, static=True, lo=0.0, doc="... and the gap between them is below this (m)")
-    corner_min_angle_deg: float = _f(30.0, static=True, lo=0.0, hi=90.0,
-        doc="two lines meeting at a vertex make a corner when their directions differ by at least this (deg)")
+    corner_min_angle_deg: float = _f(
+        30.0,
+        static=True,
+        lo=0.0,
+        hi=90.0,
+        doc="two lines meeting at a vertex make a corner when their directions differ by at least this (deg)",
+    )
     circle_min_points: int = _f(4, static=True, lo=3, doc="clusters with at least this many points get a circle fit")
-    circle_max_residual: float = _f(0.02, static=True, lo=0.0, lo_open=True,
-        doc="a circle fit whose RMS geometric residual exceeds this (m) is rejected (not an arc)")
-    circle_max_radius: float = _f(2.0, static=True, lo=0.0, lo_open=True,
-        doc="arcs of larger radius (m) are not reported")
+    circle_max_residual: float = _f(
+        0.02,
+        static=True,
+        lo=0.0,
+        lo_open=True,
+        doc="a circle fit whose RMS geometric residual exceeds this (m) is rejected (not an arc)",
+    )
+    circle_max_radius: float = _f(
+        2.0, static=True, lo=0.0, lo_open=True, doc="arcs of larger radius (m) are not reported"
+    )
     tree_min_diameter: float = _f(0.0, static=True, lo=0.0, doc="trees thinner than this (m) are rejected")
-    tree_max_diameter: float = _f(1.2, static=True, lo=0.0, lo_open=True,
-        doc="trees (and clusters spanning a chord) wider than this (m) are rejected")
+    tree_max_diameter: float = _f(
+        1.2,
+        static=True,
+        lo=0.0,
+        lo_open=True,
+        doc="trees (and clusters spanning a chord) wider than this (m) are rejected",
+    )
     tree_min_range: float = _f(1.0, static=True, lo=0.0, doc="trees whose surface is nearer than this (m) are rejected")
-    tree_max_range: float = _f(75.0, static=True, lo=0.0, lo_open=True,
-        doc="trees whose centre is beyond this (m) are rejected")
-    tree_min_separation: float = _f(3.0, static=True, lo=0.0,
+    tree_max_range: float = _f(
+        75.0, static=True, lo=0.0, lo_open=True, doc="trees whose centre is beyond this (m) are rejected"
+    )
+    tree_min_separation: float = _f(
+        3.0,
+        static=True,
+        lo=0.0,
         doc="a tree's end returns lie at least this far (m) from the nearest returns of the clusters beside it "
-            "in the scan (a trunk stands alone; foliage, hedges and fences come in pieces)")
-    tree_min_clearance: float = _f(2.0, static=True, lo=0.0,
+        "in the scan (a trunk stands alone; foliage, hedges and fences come in pieces)",
+    )
+    tree_min_clearance: float = _f(
+        2.0,
+        static=True,
+        lo=0.0,
         doc="no return of the scan outside a tree's cluster lies within this distance (m) of the trunk's surface "
-            "(0: no such test)")
-    tree_max_asymmetry: float = _f(0.33, static=True, lo=0.0,
+        "(0: no such test)",
+    )
+    tree_max_asymmetry: float = _f(
+        0.33,
+        static=True,
+        lo=0.0,
         doc="a tree's first and last returns differ in range by at most this fraction of its diameter "
-            "(an oblique surface is not a trunk)")
-    tree_fit_min_points: int = _f(8, static=True, lo=3,
+        "(an oblique surface is not a trunk)",
+    )
+    tree_fit_min_points: int = _f(
+        8,
+        static=True,
+        lo=3,
         doc="from this many returns on, a cluster is a tree only if its circle fit is convex (centre beyond "
-            "its middle return), smooth (tree_max_residual) and not flat (tree_max_fit_ratio), and the tree's "
-            "diameter and centre come from that fit; below, from its angular width")
-    tree_max_residual: float = _f(0.1, static=True, lo=0.0, lo_open=True,
-        doc="a cluster whose circle fit's RMS residual exceeds this (m) is rough (foliage, a bush): no tree")
-    tree_max_fit_ratio: float = _f(3.0, static=True, lo=1.0,
+        "its middle return), smooth (tree_max_residual) and not flat (tree_max_fit_ratio), and the tree's "
+        "diameter and centre come from that fit; below, from its angular width",
+    )
+    tree_max_residual: float = _f(
+        0.1,
+        static=True,
+        lo=0.0,
+        lo_open=True,
+        doc="a cluster whose circle fit's RMS residual exceeds this (m) is rough (foliage, a bush): no tree",
+    )
+    tree_max_fit_ratio: float = _f(
+        3.0,
+        static=True,
+        lo=1.0,
         doc="a tree whose circle fit's radius exceeds its angular-width radius by more than this factor is "
-            "flat (a wall or fence piece) and rejected")
-    edge_margin_deg: float = _f(2.5, static=True, lo=0.0,
-        doc="clusters reaching within this angle (deg) of the field of view's edges are partly seen: no tree")
-    reject_occluded: bool = _f(True, static=True,
-        doc="a cluster whose neighbouring beam on either side returned nearer (occluded at an edge) is no tree")
-    tree_min_returns: int = _f(1, static=True, lo=1,
+        "flat (a wall or fence piece) and rejected",
+    )
+    edge_margin_deg: float = _f(
+        2.5,
+        static=True,
+        lo=0.0,
+        doc="clusters reaching within this angle (deg) of the field of view's edges are partly seen: no tree",
+    )
+    reject_occluded: bool = _f(
+        True,
+        static=True,
+        doc="a cluster whose neighbouring beam on either side returned nearer (occluded at an edge) is no tree",
+    )
+    tree_min_returns: int = _f(
+        1,
+        static=True,
+        lo=1,
         doc="a tree has at least this many returns (2: a single return, which may be a stray one, is never a "
-            "tree; the Victoria Park log's own detector reports thin trunks seen by one beam)")
-    tree_range_noise: float = _f(0.02, static=True, lo=0.0, lo_open=True,
+        "tree; the Victoria Park log's own detector reports thin trunks seen by one beam)",
+    )
+    tree_range_noise: float = _f(
+        0.02,
+        static=True,
+        lo=0.0,
+        lo_open=True,
         doc="range noise (m) with which the trunk profile fit weighs where a tree's edges lie between its edge "
-            "beams and the beams beside them (smaller: trust the ranges more)")
-    tree_max_profile_residual: float = _f(0.2, static=True, lo=0.0, lo_open=True,
+        "beams and the beams beside them (smaller: trust the ranges more)",
+    )
+    tree_max_profile_residual: float = _f(
+        0.2,
+        static=True,
+        lo=0.0,
+        lo_open=True,
         doc="a cluster of 3 or more returns whose ranges depart from the near side of a trunk as wide as the "
-            "cluster by more than this RMS (m) is no tree (bush fragments, oblique wall pieces)")
-    reject_no_return_edge: bool = _f(False, static=True,
-        doc="a cluster next to a no-return beam is no tree (off: a trunk against open sky is a tree)")
+        "cluster by more than this RMS (m) is no tree (bush fragments, oblique wall pieces)",
+    )
+    reject_no_return_edge: bool = _f(
+        False,
+        static=True,
+        doc="a cluster next to a no-return beam is no tree (off: a trunk against open sky is a tree)",
+    )
 
 
 @dataclass(frozen=True)
@@ -154,21 +267,30 @@ class VehicleConfig:
 class ModelConfig:
     """Which motion and measurement models the filter uses (see the page "Your own robot and sensor")."""
 
-    motion: str = _f("ackermann", static=True,
+    motion: str = _f(
+        "ackermann",
+        static=True,
         doc="motion model: 'ackermann' (the Victoria Park car; sections vehicle and noise), 'unicycle' "
-            "(differential drive with (v, omega) odometry; section unicycle), 'random_walk' (no odometry; section "
-            "random_walk), or an import path 'module:Class' of a nanoslam_jax.models.AbstractMotionModel subclass")
-    motion_params: Optional[dict] = _f(None,
-        doc="parameters of a model named by import path: a mapping of the class's field names to numbers")
-    measurement: str = _f("range_bearing", static=True,
+        "(differential drive with (v, omega) odometry; section unicycle), 'random_walk' (no odometry; section "
+        "random_walk), or an import path 'module:Class' of a nanoslam_jax.models.AbstractMotionModel subclass",
+    )
+    motion_params: Optional[dict] = _f(
+        None, doc="parameters of a model named by import path: a mapping of the class's field names to numbers"
+    )
+    measurement: str = _f(
+        "range_bearing",
+        static=True,
         doc="measurement model: 'range_bearing' (range and bearing to a point landmark; noise from section "
-            "noise, footprint from data.min_range, data.max_range, map.fov_deg and the map.view_margin keys), "
-            "'line' (a wall as a line (rho, alpha), detected as a segment's line in the sensor frame; parameters "
-            "in model.measurement_params), 'circle' (an arc (xc, yc, R); not run by the filter yet), or an import "
-            "path 'module:Class' of a nanoslam_jax.models.AbstractMeasurementModel subclass")
-    measurement_params: Optional[dict] = _f(None,
+        "noise, footprint from data.min_range, data.max_range, map.fov_deg and the map.view_margin keys), "
+        "'line' (a wall as a line (rho, alpha), detected as a segment's line in the sensor frame; parameters "
+        "in model.measurement_params), 'circle' (an arc (xc, yc, R); not run by the filter yet), or an import "
+        "path 'module:Class' of a nanoslam_jax.models.AbstractMeasurementModel subclass",
+    )
+    measurement_params: Optional[dict] = _f(
+        None,
         doc="parameters of the 'line' and 'circle' models or of a measurement model named by import path: a "
-            "mapping of the class's field names to numbers")
+        "mapping of the class's field names to numbers",
+    )
 
 
 @dataclass(frozen=True)
@@ -197,75 +319,115 @@ class NoiseConfig:
     sigma_alpha_deg: float = _f(6.0, lo=0.0, lo_open=True, doc="steering noise (deg) per DR sample")
     sigma_r: float = _f(1.0, lo=0.0, lo_open=True, doc="range noise (m)")
     sigma_beta_deg: float = _f(3.0, lo=0.0, lo_open=True, doc="bearing noise (deg)")
-    adaptive: bool = _f(False, static=True,
+    adaptive: bool = _f(
+        False,
+        static=True,
         doc="re-estimate the measurement noise online from the residuals of the associated detections (the "
-            "NASRUKF paper's eq. 11: R_k = (1 - d_k) R_k-1 + d_k diag(nu nu' - predicted covariance), "
-            "d_k = (1 - b) / (1 - b^(k+1))), starting from sigma_r, sigma_beta (and nasrukf.sigma_diameter); "
-            "for nasrukf, nano, fastslam2, ufastslam. It credits the sensor with the residuals' variance less the "
-            "predicted one, so it is only as good as the predicted pose and landmark covariances: where they "
-            "exceed the residuals' spread it falls to adaptive_floor and detections of mapped trees then fail the "
-            "gate. A run reports noise_sigma_*_final and noise_at_floor_* in metrics.json and warns when most "
-            "particles end at the floor")
-    forgetting: float = _f(0.99, lo=0.0, lo_open=True,
-        doc="forgetting factor b of the adaptive estimate, 0 < b < 1 (its memory is about 1 / (1 - b) detections)")
-    adaptive_floor: float = _f(0.01, lo=0.0, lo_open=True, hi=1.0,
-        doc="smallest variance the adaptive estimate may reach, as a fraction of the configured one")
+        "NASRUKF paper's eq. 11: R_k = (1 - d_k) R_k-1 + d_k diag(nu nu' - predicted covariance), "
+        "d_k = (1 - b) / (1 - b^(k+1))), starting from sigma_r, sigma_beta (and nasrukf.sigma_diameter); "
+        "for nasrukf, nano, fastslam2, ufastslam. It credits the sensor with the residuals' variance less the "
+        "predicted one, so it is only as good as the predicted pose and landmark covariances: where they "
+        "exceed the residuals' spread it falls to adaptive_floor and detections of mapped trees then fail the "
+        "gate. A run reports noise_sigma_*_final and noise_at_floor_* in metrics.json and warns when most "
+        "particles end at the floor",
+    )
+    forgetting: float = _f(
+        0.99,
+        lo=0.0,
+        lo_open=True,
+        doc="forgetting factor b of the adaptive estimate, 0 < b < 1 (its memory is about 1 / (1 - b) detections)",
+    )
+    adaptive_floor: float = _f(
+        0.01,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        doc="smallest variance the adaptive estimate may reach, as a fraction of the configured one",
+    )
 
 
 @dataclass(frozen=True)
 class FilterConfig:
     """The Rao-Blackwellised particle filter shared by all particle methods."""
 
-    method: str = _f("nano", static=True,
+    method: str = _f(
+        "nano",
+        static=True,
         doc="the method: a particle filter with the proposal of nano, fastslam1 (the prior), fastslam2 "
-            "(EKF-linearised), ufastslam (unscented) or iterated (Gauss-Newton MAP); ekf_slam (one joint "
-            "Gaussian); nasrukf; dead_reckoning (the motion model alone); or a method registered with "
-            "nanoslam_jax.methods.register (by its name, or by import path 'module:METHOD')")
-    method_params: Optional[dict] = _f(None,
-        doc="parameters of a registered method that declares them: a mapping of name to number (traced)")
+        "(EKF-linearised), ufastslam (unscented) or iterated (Gauss-Newton MAP); ekf_slam (one joint "
+        "Gaussian); nasrukf; dead_reckoning (the motion model alone); or a method registered with "
+        "nanoslam_jax.methods.register (by its name, or by import path 'module:METHOD')",
+    )
+    method_params: Optional[dict] = _f(
+        None, doc="parameters of a registered method that declares them: a mapping of name to number (traced)"
+    )
     n_particles: int = _f(10, lo=1, static=True, doc="particles")
     capacity: int = _f(512, lo=1, static=True, doc="landmark slots per particle")
-    window: int = _f(64, lo=1, static=True,
-        doc="landmarks per particle considered for association in a scan (local window)")
+    window: int = _f(
+        64, lo=1, static=True, doc="landmarks per particle considered for association in a scan (local window)"
+    )
     window_margin: float = _f(5.0, lo=0.0, doc="the window holds landmarks within max_range + this (m)")
-    prior: Literal["unscented", "linearized"] = _f("unscented", static=True,
-        doc="how control noise is mapped to the pose covariance")
-    prior_cov: Literal["reset", "carry"] = _f("reset", static=True,
-        doc="'reset': start each segment from the sampled pose with init_cov; 'carry': from the last proposal covariance")
+    prior: Literal["unscented", "linearized"] = _f(
+        "unscented", static=True, doc="how control noise is mapped to the pose covariance"
+    )
+    prior_cov: Literal["reset", "carry"] = _f(
+        "reset",
+        static=True,
+        doc="'reset': start each segment from the sampled pose with init_cov; 'carry': from the last proposal covariance",
+    )
     init_cov: float = _f(1e-8, lo=0.0, lo_open=True, doc="near-zero pose variance at the start and after a reset")
     ut_alpha: float = _f(0.9, lo=0.0, lo_open=True, doc="unscented alpha of the prior (and of UFastSLAM)")
     ut_beta: float = _f(2.0, lo=0.0, doc="unscented beta of the prior (and of UFastSLAM); 2 is optimal for Gaussians")
     ut_kappa: float = _f(0.0, doc="unscented kappa of the prior (and of UFastSLAM)")
     gate: float = _f(5.991, lo=0.0, lo_open=True, doc="chi-square (2 dof) association gate on d2")
-    new_landmark: float = _f(9.21, lo=0.0, lo_open=True, doc="a detection whose best d2 exceeds this starts a landmark (9.21: chi-square 99 %, 2 dof; "
-            "with landmark management a spurious one is removed again)")
+    new_landmark: float = _f(
+        9.21,
+        lo=0.0,
+        lo_open=True,
+        doc="a detection whose best d2 exceeds this starts a landmark (9.21: chi-square 99 %, 2 dof; "
+        "with landmark management a spurious one is removed again)",
+    )
     sequential: bool = _f(True, static=True, doc="associate detections one after another within a scan")
-    association: Literal["nearest", "known"] = _f("nearest", static=True,
+    association: Literal["nearest", "known"] = _f(
+        "nearest",
+        static=True,
         doc="'nearest': nearest neighbour within filter.gate, a new landmark above filter.new_landmark; 'known': "
-            "the log's landmark ids (e.g. MRCLAM's barcodes): a detection matches the landmark started by its "
-            "id and starts one when none has it; detections without an id are ignored")
-    weight: Literal["product", "marginal"] = _f("product", static=True,
-        doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior")
+        "the log's landmark ids (e.g. MRCLAM's barcodes): a detection matches the landmark started by its "
+        "id and starts one when none has it; detections without an id are ignored",
+    )
+    weight: Literal["product", "marginal"] = _f(
+        "product", static=True, doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior"
+    )
     p0: float = _f(0.05, lo=0.0, lo_open=True, doc="likelihood factor of a new landmark")
-    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f("systematic", static=True,
-        doc="resampling scheme")
+    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f(
+        "systematic", static=True, doc="resampling scheme"
+    )
     resample_threshold: float = _f(0.5, lo=0.0, hi=1.0, doc="resample when ESS < threshold * N")
-    estimate: Literal["best", "mean", "path"] = _f("best", static=True,
+    estimate: Literal["best", "mean", "path"] = _f(
+        "best",
+        static=True,
         doc="reported trajectory: at each segment the highest-weight particle's pose (best, the paper's) or the "
-            "weighted mean (mean); or path: the history of the particle that is best at the end of the log, "
-            "followed back through the resampling steps (the path its final map was built along; an offline, "
-            "smoothed estimate; particle methods only; records every particle's pose per segment)")
-    row_buckets: Literal["auto", "always", "never"] = _f("auto", static=True,
+        "weighted mean (mean); or path: the history of the particle that is best at the end of the log, "
+        "followed back through the resampling steps (the path its final map was built along; an offline, "
+        "smoothed estimate; particle methods only; records every particle's pose per segment)",
+    )
+    row_buckets: Literal["auto", "always", "never"] = _f(
+        "auto",
+        static=True,
         doc="run the proposal, the weight's likelihoods and the landmarks' updates over only 4, 8 or k_max "
-            "detection rows, the fewest that hold the scan's detections, and the association over the "
-            "16, 32 or all window slots that hold the particles' landmarks (the same results to rounding; "
-            "compiled three times, so compilation takes longer): 'auto' from "
-            f"{ROW_BUCKETS_FROM} particles up, where the particles' arithmetic outweighs per-operation overhead")
-    split_devices: Literal["auto", "always", "never"] = _f("auto", static=True,
+        "detection rows, the fewest that hold the scan's detections, and the association over the "
+        "16, 32 or all window slots that hold the particles' landmarks (the same results to rounding; "
+        "compiled three times, so compilation takes longer): 'auto' from "
+        f"{ROW_BUCKETS_FROM} particles up, where the particles' arithmetic outweighs per-operation overhead",
+    )
+    split_devices: Literal["auto", "always", "never"] = _f(
+        "auto",
+        static=True,
         doc="split a single run's particles over the JAX CPU devices (one per core; `nanoslam run` sets them "
-            f"up) when they divide evenly; the same results to rounding. 'auto': from {SPLIT_DEVICES_FROM} particles up "
-            "(below that the devices' exchange at every scan outweighs the split work); never for "
-            "filter.method iterated or nano.init gauss_newton (optimistix's least squares cannot run split)")
+        f"up) when they divide evenly; the same results to rounding. 'auto': from {SPLIT_DEVICES_FROM} particles up "
+        "(below that the devices' exchange at every scan outweighs the split work); never for "
+        "filter.method iterated or nano.init gauss_newton (optimistix's least squares cannot run split)",
+    )
 
 
 @dataclass(frozen=True)
@@ -286,79 +448,138 @@ class MapConfig:
     falls below ``remove_probability`` is removed and its slot reused.
     """
 
-    manage: bool = _f(True, static=True,
+    manage: bool = _f(
+        True,
+        static=True,
         doc="landmark management on; false: every detection beyond filter.new_landmark starts a permanent "
-            "landmark that is used at once (the published methods' rule), and the other keys here are ignored")
-    p_detect: float = _f(0.75, lo=0.0, lo_open=True, hi=1.0,
-        doc="probability that a landmark inside the sensor footprint is detected in a scan")
-    p_false: float = _f(0.075, lo=0.0, lo_open=True, hi=1.0,
+        "landmark that is used at once (the published methods' rule), and the other keys here are ignored",
+    )
+    p_detect: float = _f(
+        0.75,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        doc="probability that a landmark inside the sensor footprint is detected in a scan",
+    )
+    p_false: float = _f(
+        0.075,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
         doc="probability that a landmark that does not exist (clutter) is 'detected' again in a scan "
-            "(a clutter detection falling in its gate); must be below p_detect")
-    birth_probability: float = _f(0.5, lo=0.0, lo_open=True, hi=1.0,
-        doc="existence probability of a landmark right after the detection that starts it")
-    confirm_probability: float = _f(0.9, lo=0.0, lo_open=True, hi=1.0,
-        doc="a tentative landmark is confirmed when its existence probability reaches this ...")
+        "(a clutter detection falling in its gate); must be below p_detect",
+    )
+    birth_probability: float = _f(
+        0.5,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        doc="existence probability of a landmark right after the detection that starts it",
+    )
+    confirm_probability: float = _f(
+        0.9,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        doc="a tentative landmark is confirmed when its existence probability reaches this ...",
+    )
     confirm_hits: int = _f(4, lo=1, doc="... and it has at least this many detections (its first included)")
-    tentative_scans: int = _f(40, lo=1,
-        doc="a tentative landmark not confirmed within this many scans after its birth is dropped")
-    remove_probability: float = _f(0.02, lo=0.0, hi=1.0,
-        doc="a landmark whose existence probability falls below this is removed (its slot reused)")
-    max_probability: float = _f(0.99, lo=0.0, lo_open=True, hi=1.0,
-        doc="existence probabilities are capped here, so a tree that has gone can still be removed "
-            "after a few misses")
+    tentative_scans: int = _f(
+        40, lo=1, doc="a tentative landmark not confirmed within this many scans after its birth is dropped"
+    )
+    remove_probability: float = _f(
+        0.02, lo=0.0, hi=1.0, doc="a landmark whose existence probability falls below this is removed (its slot reused)"
+    )
+    max_probability: float = _f(
+        0.99,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        doc="existence probabilities are capped here, so a tree that has gone can still be removed after a few misses",
+    )
     fov_deg: float = _f(180.0, lo=0.0, lo_open=True, hi=360.0, doc="the sensor's field of view (deg)")
-    view_margin: float = _f(3.0, lo=0.0,
+    view_margin: float = _f(
+        3.0,
+        lo=0.0,
         doc="a miss is counted only when the landmark is at least this far (m) inside the sensor's range "
-            "limits (data.min_range, data.max_range)")
+        "limits (data.min_range, data.max_range)",
+    )
     view_margin_deg: float = _f(2.5, lo=0.0, doc="... and this far (deg) inside the field of view")
-    occlusion: bool = _f(True, static=True,
+    occlusion: bool = _f(
+        True,
+        static=True,
         doc="no miss for a landmark hidden behind a nearer object at a similar bearing (a detection of "
-            "the scan or a confirmed landmark)")
-    occlusion_width: float = _f(1.0, lo=0.0,
-        doc="half-width (m) added to an occluder's radius (half its diameter) in the occlusion test")
-    use_tentative: bool = _f(True,
+        "the scan or a confirmed landmark)",
+    )
+    occlusion_width: float = _f(
+        1.0, lo=0.0, doc="half-width (m) added to an occluder's radius (half its diameter) in the occlusion test"
+    )
+    use_tentative: bool = _f(
+        True,
         doc="tentative landmarks also shape the proposal and the weight; false: only confirmed ones do "
-            "(a detection matching a tentative landmark then weighs as a new one, filter.p0)")
-    use_diameter: bool = _f(False,
+        "(a detection matching a tentative landmark then weighs as a new one, filter.p0)",
+    )
+    use_diameter: bool = _f(
+        False,
         doc="add the tree-diameter term (d - d_j)^2 / (var_j + sigma_diameter^2) to the association "
-            "distance (then filter.gate and filter.new_landmark apply to a 3-dof chi-square: 7.815 and "
-            "16.266 at 95 % and 99.9 %)")
-    sigma_diameter: float = _f(0.05, lo=0.0, lo_open=True,
-        doc="diameter measurement noise (m): the per-landmark diameter filter and the association term")
+        "distance (then filter.gate and filter.new_landmark apply to a 3-dof chi-square: 7.815 and "
+        "16.266 at 95 % and 99.9 %)",
+    )
+    sigma_diameter: float = _f(
+        0.05,
+        lo=0.0,
+        lo_open=True,
+        doc="diameter measurement noise (m): the per-landmark diameter filter and the association term",
+    )
 
 
 @dataclass(frozen=True)
 class NanoConfig:
     """The NANO proposal (the docs, page method/proposals.md)."""
 
-    quadrature: Literal["cubature", "unscented", "gauss_hermite"] = _f("cubature", static=True,
-        doc="rule for the expectations over the proposal: cubature (6 points), unscented (7), gauss_hermite (gh_order^3)")
+    quadrature: Literal["cubature", "unscented", "gauss_hermite"] = _f(
+        "cubature",
+        static=True,
+        doc="rule for the expectations over the proposal: cubature (6 points), unscented (7), gauss_hermite (gh_order^3)",
+    )
     gh_order: int = _f(3, lo=1, hi=10, static=True, doc="Gauss-Hermite order p (p^3 points)")
     ut_alpha: float = _f(1.0, lo=0.0, lo_open=True, doc="unscented alpha (nano.quadrature: unscented)")
     ut_beta: float = _f(2.0, lo=0.0, doc="unscented beta (nano.quadrature: unscented)")
     ut_kappa: float = _f(0.0, doc="unscented kappa (nano.quadrature: unscented)")
-    hessian: Literal["gauss_newton", "exact"] = _f("gauss_newton", static=True,
-        doc="expected Hessian of the log-likelihood: Gauss-Newton (J' R^-1 J, positive semi-definite) or exact (autodiff)")
+    hessian: Literal["gauss_newton", "exact"] = _f(
+        "gauss_newton",
+        static=True,
+        doc="expected Hessian of the log-likelihood: Gauss-Newton (J' R^-1 J, positive semi-definite) or exact (autodiff)",
+    )
     gamma: float = _f(1e-4, lo=0.0, lo_open=True, doc="KL stopping threshold")
     max_iter: int = _f(10, lo=1, static=True, doc="iteration cap")
     step: float = _f(1.0, lo=0.0, lo_open=True, hi=1.0, doc="natural-gradient step beta (damping below 1)")
     landmark_noise: bool = _f(False, static=True, doc="use R + Gm Sigma Gm' in the likelihood")
-    init: Literal["prior", "gauss_newton"] = _f("prior", static=True, doc="start from the prior or the Gauss-Newton MAP")
-    solver: Literal["optimistix", "while_loop"] = _f("while_loop", static=True,
+    init: Literal["prior", "gauss_newton"] = _f(
+        "prior", static=True, doc="start from the prior or the Gauss-Newton MAP"
+    )
+    solver: Literal["optimistix", "while_loop"] = _f(
+        "while_loop",
+        static=True,
         doc="the iteration as a plain lax.while_loop (default, the faster) or as an optimistix "
-            "fixed-point solve with a KL stopping rule (same iterates)")
+        "fixed-point solve with a KL stopping rule (same iterates)",
+    )
 
 
 @dataclass(frozen=True)
 class IteratedConfig:
     """The iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal, method ``iterated``."""
 
-    solver: Literal["gauss_newton", "levenberg_marquardt"] = _f("gauss_newton", static=True,
-        doc="optimistix least-squares solver for the MAP of prior x likelihood")
+    solver: Literal["gauss_newton", "levenberg_marquardt"] = _f(
+        "gauss_newton", static=True, doc="optimistix least-squares solver for the MAP of prior x likelihood"
+    )
     max_iter: int = _f(10, lo=1, static=True, doc="solver step cap")
     tol: float = _f(1e-8, lo=0.0, lo_open=True, static=True, doc="solver rtol = atol")
-    landmark_noise: bool = _f(True, static=True,
-        doc="weigh residuals with (R + Gm Sigma Gm')^-1 as FastSLAM 2.0 does (one step = FastSLAM 2.0)")
+    landmark_noise: bool = _f(
+        True,
+        static=True,
+        doc="weigh residuals with (R + Gm Sigma Gm')^-1 as FastSLAM 2.0 does (one step = FastSLAM 2.0)",
+    )
 
 
 @dataclass(frozen=True)
@@ -369,28 +590,46 @@ class NasrukfConfig:
     Its unscented transforms use ``filter.ut_alpha``, ``ut_beta``, ``ut_kappa``; association uses
     ``filter.gate``, ``filter.new_landmark``, ``filter.window``; ``filter.capacity`` feature slots."""
 
-    feature: Literal["point", "arc"] = _f("point", static=True,
+    feature: Literal["point", "arc"] = _f(
+        "point",
+        static=True,
         doc="'point': a tree is its centre, a 5-D joint state (pose + centre); 'arc': the paper's arc "
-            "feature, a 6-D joint state (pose + centre + radius) with the detection's diameter as a third "
-            "measurement (diameter = 2 radius, noise map.sigma_diameter)")
-    new_feature_hits: int = _f(1, lo=1,
+        "feature, a 6-D joint state (pose + centre + radius) with the detection's diameter as a third "
+        "measurement (diameter = 2 radius, noise map.sigma_diameter)",
+    )
+    new_feature_hits: int = _f(
+        1,
+        lo=1,
         doc="the paper's 'enough new feature data' count N_new: a feature's detections update the pose "
-            "only once it has been detected this many times (1: from its second detection on, as the "
-            "other methods' landmarks); until then they refine the feature only")
-    adaptive_process: bool = _f(False, static=True,
+        "only once it has been detected this many times (1: from its second detection on, as the "
+        "other methods' landmarks); until then they refine the feature only",
+    )
+    adaptive_process: bool = _f(
+        False,
+        static=True,
         doc="estimate the process noise Q of the time update online (eq. 9's estimated Q): a Sage-Husa "
-            "estimate from the pose corrections K nu and covariance changes of each scan's fused joint states, "
-            "with the weights d_k = (1 - b) / (1 - b^(k+1)) of process_forgetting, scaling the motion model's "
-            "configured noise "
-            "(noise.sigma_v and sigma_alpha_deg, unicycle or random_walk sigmas) by a matrix Lambda, Q = S Lambda "
-            "S'. A run reports process_noise_ratio_<j> (estimated over configured standard deviation of each noise "
-            "component) in metrics.json; method nasrukf only")
-    process_forgetting: float = _f(0.99, lo=0.0, lo_open=True,
+        "estimate from the pose corrections K nu and covariance changes of each scan's fused joint states, "
+        "with the weights d_k = (1 - b) / (1 - b^(k+1)) of process_forgetting, scaling the motion model's "
+        "configured noise "
+        "(noise.sigma_v and sigma_alpha_deg, unicycle or random_walk sigmas) by a matrix Lambda, Q = S Lambda "
+        "S'. A run reports process_noise_ratio_<j> (estimated over configured standard deviation of each noise "
+        "component) in metrics.json; method nasrukf only",
+    )
+    process_forgetting: float = _f(
+        0.99,
+        lo=0.0,
+        lo_open=True,
         doc="forgetting factor b of the adaptive process-noise estimate, 0 < b < 1 (its memory is about "
-            "1 / (1 - b) scans with an update)")
-    process_floor: float = _f(0.01, lo=0.0, lo_open=True, hi=1.0,
+        "1 / (1 - b) scans with an update)",
+    )
+    process_floor: float = _f(
+        0.01,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
         doc="smallest eigenvalue of the adaptive process-noise scale Lambda: the estimate stays at or above this "
-            "fraction of the configured noise in every direction")
+        "fraction of the configured noise in every direction",
+    )
 
 
 @dataclass(frozen=True)
@@ -399,10 +638,14 @@ class MetricsConfig:
 
     gps_rotation_deg: float = _f(-35.4, doc="rotation of the relative-GPS frame")
     jump_speed: float = _f(8.0, lo=0.0, lo_open=True, doc="GPS fixes implying a faster jump are removed in *_clean")
-    map_radius: float = _f(1.0, lo=0.0, lo_open=True,
+    map_radius: float = _f(
+        1.0,
+        lo=0.0,
+        lo_open=True,
         doc="a confirmed landmark within this distance (m) of a true one matches it: simulated logs' true trees "
-            "(map_found_fraction, map_spurious_fraction), a real log's surveyed landmarks after the alignment "
-            "(survey_found, survey_spurious)")
+        "(map_found_fraction, map_spurious_fraction), a real log's surveyed landmarks after the alignment "
+        "(survey_found, survey_spurious)",
+    )
 
 
 @dataclass(frozen=True)
@@ -410,51 +653,109 @@ class SmootherConfig:
     """Offline smoothing of the final best particle's path and map by least squares
     (:mod:`nanoslam_jax.smoother`). It needs ``filter.estimate: path``."""
 
-    enabled: bool = _f(False, static=True,
+    enabled: bool = _f(
+        False,
+        static=True,
         doc="after the run, refine the final best particle's ancestral path and confirmed landmarks by "
-            "least squares over all odometry and detections (an offline estimate: trajectory.csv and the "
-            "rmse_* metrics are then the smoothed path's; the filter's own beside it)")
-    odometry_scale: float = _f(0.3, lo=0.0, lo_open=True, static=True,
-        doc="the odometry factors' covariance is the filter's segment prior covariance times this")
-    floor_xy: float = _f(0.1, lo=0.0, static=True,
-        doc="standard deviation added to each position coordinate of every odometry factor (m)")
-    floor_phi_deg: float = _f(0.3, lo=0.0, static=True,
-        doc="standard deviation added to the heading of every odometry factor (deg)")
-    huber: float = _f(2.0, lo=0.0, lo_open=True, static=True,
-        doc="Huber threshold on a detection's whitened residual norm")
+        "least squares over all odometry and detections (an offline estimate: trajectory.csv and the "
+        "rmse_* metrics are then the smoothed path's; the filter's own beside it)",
+    )
+    odometry_scale: float = _f(
+        0.3,
+        lo=0.0,
+        lo_open=True,
+        static=True,
+        doc="the odometry factors' covariance is the filter's segment prior covariance times this",
+    )
+    floor_xy: float = _f(
+        0.1,
+        lo=0.0,
+        static=True,
+        doc="standard deviation added to each position coordinate of every odometry factor (m)",
+    )
+    floor_phi_deg: float = _f(
+        0.3, lo=0.0, static=True, doc="standard deviation added to the heading of every odometry factor (deg)"
+    )
+    huber: float = _f(
+        2.0, lo=0.0, lo_open=True, static=True, doc="Huber threshold on a detection's whitened residual norm"
+    )
     max_iter: int = _f(50, lo=1, static=True, doc="Levenberg-Marquardt iterations at most")
-    tol: float = _f(1e-3, lo=0.0, lo_open=True, static=True,
-        doc="converged when no coordinate moves more than this (m, rad)")
-    loop_closure: bool = _f(True, static=True,
+    tol: float = _f(
+        1e-3, lo=0.0, lo_open=True, static=True, doc="converged when no coordinate moves more than this (m, rad)"
+    )
+    loop_closure: bool = _f(
+        True,
+        static=True,
         doc="after a first solve, find trees the run mapped twice (a stretch of new landmarks that a rigid "
-            "transform lays onto earlier ones) and join them, then solve again (docs/method/smoother.md)")
-    loop_closure_window: float = _f(50.0, lo=0.0, lo_open=True, static=True,
-        doc="the landmarks first seen in a window this long (s) are registered together against earlier ones")
-    loop_closure_radius: float = _f(1.0, lo=0.0, lo_open=True, static=True,
+        "transform lays onto earlier ones) and join them, then solve again (docs/method/smoother.md)",
+    )
+    loop_closure_window: float = _f(
+        50.0,
+        lo=0.0,
+        lo_open=True,
+        static=True,
+        doc="the landmarks first seen in a window this long (s) are registered together against earlier ones",
+    )
+    loop_closure_radius: float = _f(
+        1.0,
+        lo=0.0,
+        lo_open=True,
+        static=True,
         doc="a copy lies within this distance (m) of its original after the transform; two landmarks this close "
-            "and never detected together are joined")
-    loop_closure_search: float = _f(40.0, lo=0.0, static=True,
-        doc="the transform moves a window's landmarks by at most this (m): the drift searched for")
-    loop_closure_max_turn_deg: float = _f(30.0, lo=0.0, hi=180.0, static=True,
-        doc="the transform turns a window's landmarks by at most this (deg)")
-    loop_closure_min_inliers: int = _f(6, lo=2, static=True,
-        doc="a transform is taken when at least this many landmarks of the window fall onto earlier ones")
-    loop_closure_accept: float = _f(0.75, lo=0.0, hi=1.0, static=True,
+        "and never detected together are joined",
+    )
+    loop_closure_search: float = _f(
+        40.0,
+        lo=0.0,
+        static=True,
+        doc="the transform moves a window's landmarks by at most this (m): the drift searched for",
+    )
+    loop_closure_max_turn_deg: float = _f(
+        30.0, lo=0.0, hi=180.0, static=True, doc="the transform turns a window's landmarks by at most this (deg)"
+    )
+    loop_closure_min_inliers: int = _f(
+        6,
+        lo=2,
+        static=True,
+        doc="a transform is taken when at least this many landmarks of the window fall onto earlier ones",
+    )
+    loop_closure_accept: float = _f(
+        0.75,
+        lo=0.0,
+        hi=1.0,
+        static=True,
         doc="a group of joins (a window, a close pair) is kept when, solved again, at least this fraction of its "
-            "copies' detections lies within filter.gate of a landmark")
+        "copies' detections lies within filter.gate of a landmark",
+    )
     loop_closure_rounds: int = _f(2, lo=1, static=True, doc="searches for copies (each followed by a solve) at most")
-    map_history: bool = _f(True, static=True,
+    map_history: bool = _f(
+        True,
+        static=True,
         doc="the map also holds the confirmed landmarks the best particle held at the end of a chunk of the run "
-            "(output.chunk segments) but not at its end: trees that a drifted particle removed and mapped again "
-            "elsewhere, which the loop closure can then join (docs/method/smoother.md)")
-    map_history_radius: float = _f(1.0, lo=0.0, static=True,
-        doc="a held landmark within this distance (m) of one of the final map, or of one held later, is the same tree")
-    map_history_min: int = _f(5, lo=1, static=True,
+        "(output.chunk segments) but not at its end: trees that a drifted particle removed and mapped again "
+        "elsewhere, which the loop closure can then join (docs/method/smoother.md)",
+    )
+    map_history_radius: float = _f(
+        1.0,
+        lo=0.0,
+        static=True,
+        doc="a held landmark within this distance (m) of one of the final map, or of one held later, is the same tree",
+    )
+    map_history_min: int = _f(
+        5,
+        lo=1,
+        static=True,
         doc="a held landmark joins the map when it explains at least this many detections the final map leaves "
-            "unexplained along the path ...")
-    map_history_below: float = _f(0.8, lo=0.0, hi=1.0, static=True,
+        "unexplained along the path ...",
+    )
+    map_history_below: float = _f(
+        0.8,
+        lo=0.0,
+        hi=1.0,
+        static=True,
         doc="... when the final map explains less than this fraction of the log's detections along the path (a "
-            "particle that lost the trees of its first visit)")
+        "particle that lost the trees of its first visit)",
+    )
 
 
 @dataclass(frozen=True)
@@ -463,8 +764,12 @@ class SimConfig:
 
     seed: int = _f(0, lo=0, static=True, doc="seed of the simulated world and log")
     duration: float = _f(240.0, lo=0.0, lo_open=True, static=True, doc="seconds driven")
-    n_trees: int = _f(250, lo=1, static=True,
-        doc="trees in the park (250: 5.8 detections per scan on the default path; the real log has 5.2 at r < 30 m)")
+    n_trees: int = _f(
+        250,
+        lo=1,
+        static=True,
+        doc="trees in the park (250: 5.8 detections per scan on the default path; the real log has 5.2 at r < 30 m)",
+    )
     area: float = _f(200.0, lo=10.0, static=True, doc="side of the square park (m)")
     speed: float = _f(3.0, lo=0.0, lo_open=True, static=True, doc="mean encoder speed (m/s)")
     loops: float = _f(2.0, lo=0.0, static=True, doc="number of loops driven")
@@ -478,38 +783,89 @@ class SimConfig:
     sigma_beta_deg: float = _f(1.0, lo=0.0, static=True, doc="true bearing noise (deg)")
     sigma_v: float = _f(0.3, lo=0.0, static=True, doc="true encoder speed noise (m/s), white, per DR sample")
     sigma_alpha_deg: float = _f(2.0, lo=0.0, static=True, doc="true steering noise (deg), white, per DR sample")
-    sigma_omega_deg: float = _f(2.0, lo=0.0, static=True,
-        doc="true turn-rate noise (deg/s), white, per DR sample, of a differential-drive robot (model.motion: unicycle)")
-    omega_bias_deg: float = _f(0.5, static=True,
-        doc="constant turn-rate bias in the logged controls of a differential-drive robot (deg/s)")
-    steering_bias_deg: float = _f(0.3, static=True,
+    sigma_omega_deg: float = _f(
+        2.0,
+        lo=0.0,
+        static=True,
+        doc="true turn-rate noise (deg/s), white, per DR sample, of a differential-drive robot (model.motion: unicycle)",
+    )
+    omega_bias_deg: float = _f(
+        0.5, static=True, doc="constant turn-rate bias in the logged controls of a differential-drive robot (deg/s)"
+    )
+    steering_bias_deg: float = _f(
+        0.3,
+        static=True,
         doc="constant steering bias in the logged controls (deg): dead reckoning drifts like the real "
-            "vehicle's (about 40 m RMSE over the default 240 s log)")
-    laser_beams: int = _f(361, lo=2, static=True,
-        doc="raw scans (nanoslam simulate --laser): beams per scan, evenly spread over laser_fov_deg")
-    laser_fov_deg: float = _f(180.0, lo=1.0, hi=360.0, static=True,
-        doc="raw scans: field of view (deg), symmetric about straight ahead (Victoria Park's SICK: 180 at 0.5 deg)")
-    laser_max_range: float = _f(80.0, lo=1.0, static=True,
-        doc="raw scans: surfaces at or beyond this range (m) give no return, written as 81.91 as in the real log")
+        "vehicle's (about 40 m RMSE over the default 240 s log)",
+    )
+    laser_beams: int = _f(
+        361,
+        lo=2,
+        static=True,
+        doc="raw scans (nanoslam simulate --laser): beams per scan, evenly spread over laser_fov_deg",
+    )
+    laser_fov_deg: float = _f(
+        180.0,
+        lo=1.0,
+        hi=360.0,
+        static=True,
+        doc="raw scans: field of view (deg), symmetric about straight ahead (Victoria Park's SICK: 180 at 0.5 deg)",
+    )
+    laser_max_range: float = _f(
+        80.0,
+        lo=1.0,
+        static=True,
+        doc="raw scans: surfaces at or beyond this range (m) give no return, written as 81.91 as in the real log",
+    )
     laser_range_noise: float = _f(0.02, lo=0.0, static=True, doc="raw scans: range noise (m, one sigma) of a return")
-    laser_dropout: float = _f(0.005, lo=0.0, hi=1.0, static=True,
-        doc="raw scans: probability that a beam which hits a surface returns nothing")
-    laser_spurious: float = _f(0.001, lo=0.0, hi=1.0, static=True,
+    laser_dropout: float = _f(
+        0.005,
+        lo=0.0,
+        hi=1.0,
+        static=True,
+        doc="raw scans: probability that a beam which hits a surface returns nothing",
+    )
+    laser_spurious: float = _f(
+        0.001,
+        lo=0.0,
+        hi=1.0,
+        static=True,
         doc="raw scans: probability that a beam reports a spurious range, uniform between 0.5 m and its true "
-            "range (or laser_max_range for a beam with no surface)")
-    laser_walls: int = _f(4, lo=0, static=True, doc="raw scans: solid walls (straight segments 8 to 40 m long) in the park")
-    laser_fences: int = _f(4, lo=0, static=True,
+        "range (or laser_max_range for a beam with no surface)",
+    )
+    laser_walls: int = _f(
+        4, lo=0, static=True, doc="raw scans: solid walls (straight segments 8 to 40 m long) in the park"
+    )
+    laser_fences: int = _f(
+        4,
+        lo=0,
+        static=True,
         doc="raw scans: wire fences (straight segments 8 to 40 m long) in the park; a beam crossing one returns "
-            "from it with probability laser_fence_return, else passes through")
-    laser_fence_return: float = _f(0.7, lo=0.0, hi=1.0, static=True,
-        doc="raw scans: probability that a beam crossing a fence returns from it")
-    laser_bushes: int = _f(60, lo=0, static=True,
+        "from it with probability laser_fence_return, else passes through",
+    )
+    laser_fence_return: float = _f(
+        0.7, lo=0.0, hi=1.0, static=True, doc="raw scans: probability that a beam crossing a fence returns from it"
+    )
+    laser_bushes: int = _f(
+        60,
+        lo=0,
+        static=True,
         doc="raw scans: bushes (irregular star-shaped outlines of 20 vertices, mean radius 0.5 to 2 m, each "
-            "vertex's radius varied by up to laser_bush_roughness) in the park")
-    laser_bush_roughness: float = _f(0.35, lo=0.0, hi=0.9, static=True,
-        doc="raw scans: the largest relative variation of a bush outline's radius between its vertices")
-    laser_clearance: float = _f(1.0, lo=0.0, static=True,
-        doc="raw scans: walls, fences and bushes keep at least this gap (m) to every trunk, and 3 m to the path")
+        "vertex's radius varied by up to laser_bush_roughness) in the park",
+    )
+    laser_bush_roughness: float = _f(
+        0.35,
+        lo=0.0,
+        hi=0.9,
+        static=True,
+        doc="raw scans: the largest relative variation of a bush outline's radius between its vertices",
+    )
+    laser_clearance: float = _f(
+        1.0,
+        lo=0.0,
+        static=True,
+        doc="raw scans: walls, fences and bushes keep at least this gap (m) to every trunk, and 3 m to the path",
+    )
 
 
 @dataclass(frozen=True)
@@ -519,63 +875,134 @@ class IndoorConfig:
     slip, raw laser scans and the truth of every line, arc, corner and break point."""
 
     seed: int = _f(0, lo=0, static=True, doc="seed of the world, the drive, the odometry noise and the scans")
-    template: Literal["random", "room", "l_room", "corridor"] = _f("random", static=True,
+    template: Literal["random", "room", "l_room", "corridor"] = _f(
+        "random",
+        static=True,
         doc="the world: 'room' (rectangular, a far corner cut by a slanted wall half the time), 'l_room' "
-            "(L-shaped), 'corridor' (a ring corridor around a block of rooms, one side a wide hall), 'random' "
-            "(one of them, drawn by the seed); sizes, doors and pillars are drawn by the seed")
+        "(L-shaped), 'corridor' (a ring corridor around a block of rooms, one side a wide hall), 'random' "
+        "(one of them, drawn by the seed); sizes, doors and pillars are drawn by the seed",
+    )
     duration: float = _f(120.0, lo=0.0, lo_open=True, static=True, doc="seconds logged")
-    odom_period: float = _f(0.025, lo=0.001, hi=1.0, static=True,
-        doc="odometry (v, omega) period (s); the paper's data period is 25 ms")
-    scan_period: float = _f(0.025, lo=0.001, hi=10.0, static=True,
-        doc="laser scan period (s), scans at 0, scan_period, ...; the paper's data period is 25 ms")
-    static_time: float = _f(2.0, lo=0.0, static=True,
-        doc="the vehicle stands still this long (s) before it drives (the paper's static state estimation)")
-    speed_min: float = _f(0.2, lo=0.0, lo_open=True, hi=2.0, static=True,
-        doc="the speed profile swings between speed_min and speed_max (m/s) with a period of 20 to 40 s")
+    odom_period: float = _f(
+        0.025, lo=0.001, hi=1.0, static=True, doc="odometry (v, omega) period (s); the paper's data period is 25 ms"
+    )
+    scan_period: float = _f(
+        0.025,
+        lo=0.001,
+        hi=10.0,
+        static=True,
+        doc="laser scan period (s), scans at 0, scan_period, ...; the paper's data period is 25 ms",
+    )
+    static_time: float = _f(
+        2.0,
+        lo=0.0,
+        static=True,
+        doc="the vehicle stands still this long (s) before it drives (the paper's static state estimation)",
+    )
+    speed_min: float = _f(
+        0.2,
+        lo=0.0,
+        lo_open=True,
+        hi=2.0,
+        static=True,
+        doc="the speed profile swings between speed_min and speed_max (m/s) with a period of 20 to 40 s",
+    )
     speed_max: float = _f(0.5, lo=0.0, lo_open=True, hi=2.0, static=True, doc="see speed_min (m/s)")
-    max_turn_rate_deg: float = _f(40.0, lo=1.0, hi=360.0, static=True,
-        doc="the vehicle slows down before arcs so that its turn rate stays below this (deg/s)")
-    turn_radius: float = _f(0.8, lo=0.05, hi=5.0, static=True,
-        doc="radius (m) the path's corners are rounded with; smaller where the arc would pass within 0.5 m of "
-            "a wall")
-    path_inset: float = _f(1.3, lo=0.5, hi=3.0, static=True,
-        doc="rooms: the path runs this far (m) inside the walls (corridors: along their middle)")
-    sensor_ls: float = _f(0.18, lo=-2.0, hi=2.0, static=True,
+    max_turn_rate_deg: float = _f(
+        40.0,
+        lo=1.0,
+        hi=360.0,
+        static=True,
+        doc="the vehicle slows down before arcs so that its turn rate stays below this (deg/s)",
+    )
+    turn_radius: float = _f(
+        0.8,
+        lo=0.05,
+        hi=5.0,
+        static=True,
+        doc="radius (m) the path's corners are rounded with; smaller where the arc would pass within 0.5 m of a wall",
+    )
+    path_inset: float = _f(
+        1.3,
+        lo=0.5,
+        hi=3.0,
+        static=True,
+        doc="rooms: the path runs this far (m) inside the walls (corridors: along their middle)",
+    )
+    sensor_ls: float = _f(
+        0.18,
+        lo=-2.0,
+        hi=2.0,
+        static=True,
         doc="the laser sits this far (m) behind the reference point (the centre of the wheel axle), the "
-            "paper's Ls = 180 mm; negative: ahead. A run on the log uses model.motion unicycle with "
-            "unicycle.sensor_x = -sensor_ls")
+        "paper's Ls = 180 mm; negative: ahead. A run on the log uses model.motion unicycle with "
+        "unicycle.sensor_x = -sensor_ls",
+    )
     sigma_v: float = _f(0.01, lo=0.0, static=True, doc="odometry speed noise (m/s, one sigma, white per sample)")
-    sigma_omega_deg: float = _f(1.0, lo=0.0, static=True,
-        doc="odometry turn-rate noise (deg/s, one sigma, white per sample)")
-    slip_factor: float = _f(5.0, lo=1.0, static=True,
-        doc="wheel slip: the odometry noise's standard deviations are this many times larger in slip episodes")
-    slip_fraction: float = _f(0.2, lo=0.0, hi=0.95, static=True,
-        doc="mean fraction of the time in slip episodes (0: no slip)")
-    slip_duration: float = _f(4.0, lo=0.0, lo_open=True, static=True,
-        doc="mean length of a slip episode (s); episodes and the stretches between them are exponentially "
-            "distributed")
-    laser_beams: int = _f(361, lo=2, static=True,
-        doc="beams per scan, evenly over fov_deg (nanoslam detect and data.detections: laser read 361-beam "
-            "files)")
+    sigma_omega_deg: float = _f(
+        1.0, lo=0.0, static=True, doc="odometry turn-rate noise (deg/s, one sigma, white per sample)"
+    )
+    slip_factor: float = _f(
+        5.0,
+        lo=1.0,
+        static=True,
+        doc="wheel slip: the odometry noise's standard deviations are this many times larger in slip episodes",
+    )
+    slip_fraction: float = _f(
+        0.2, lo=0.0, hi=0.95, static=True, doc="mean fraction of the time in slip episodes (0: no slip)"
+    )
+    slip_duration: float = _f(
+        4.0,
+        lo=0.0,
+        lo_open=True,
+        static=True,
+        doc="mean length of a slip episode (s); episodes and the stretches between them are exponentially distributed",
+    )
+    laser_beams: int = _f(
+        361,
+        lo=2,
+        static=True,
+        doc="beams per scan, evenly over fov_deg (nanoslam detect and data.detections: laser read 361-beam files)",
+    )
     fov_deg: float = _f(180.0, lo=1.0, hi=360.0, static=True, doc="field of view (deg), symmetric about ahead")
-    max_range: float = _f(10.0, lo=0.5, hi=80.0, static=True,
-        doc="surfaces at or beyond this range (m) give no return (written as 81.91)")
+    max_range: float = _f(
+        10.0, lo=0.5, hi=80.0, static=True, doc="surfaces at or beyond this range (m) give no return (written as 81.91)"
+    )
     range_noise: float = _f(0.01, lo=0.0, static=True, doc="range noise (m, one sigma) of a return")
-    dropout: float = _f(0.002, lo=0.0, hi=1.0, static=True,
-        doc="probability that a beam which hits a surface returns nothing")
-    spurious: float = _f(0.0005, lo=0.0, hi=1.0, static=True,
-        doc="probability that a beam reports a spurious range, uniform between 0.1 m and its true range (or "
-            "max_range)")
-    doors: int = _f(2, lo=0, static=True,
-        doc="door gaps cut into the walls (their jambs are break points), 0.5 m at least from corners")
+    dropout: float = _f(
+        0.002, lo=0.0, hi=1.0, static=True, doc="probability that a beam which hits a surface returns nothing"
+    )
+    spurious: float = _f(
+        0.0005,
+        lo=0.0,
+        hi=1.0,
+        static=True,
+        doc="probability that a beam reports a spurious range, uniform between 0.1 m and its true range (or max_range)",
+    )
+    doors: int = _f(
+        2,
+        lo=0,
+        static=True,
+        doc="door gaps cut into the walls (their jambs are break points), 0.5 m at least from corners",
+    )
     door_width: float = _f(0.9, lo=0.1, hi=5.0, static=True, doc="width of a door gap (m)")
     pillars: int = _f(1, lo=1, hi=6, static=True, doc="round pillars (arcs) in the world")
-    pillar_radius_min: float = _f(0.15, lo=0.02, hi=1.0, static=True,
-        doc="pillar radii are drawn between pillar_radius_min and pillar_radius_max (m)")
+    pillar_radius_min: float = _f(
+        0.15,
+        lo=0.02,
+        hi=1.0,
+        static=True,
+        doc="pillar radii are drawn between pillar_radius_min and pillar_radius_max (m)",
+    )
     pillar_radius_max: float = _f(0.35, lo=0.02, hi=1.0, static=True, doc="see pillar_radius_min (m)")
-    partitions: int = _f(1, lo=0, hi=6, static=True,
+    partitions: int = _f(
+        1,
+        lo=0,
+        hi=6,
+        static=True,
         doc="free-standing partition walls (screens, cabinets) at random angles, 0.5 m from the walls, the path "
-            "and the pillars; their two free ends are break points")
+        "and the pillars; their two free ends are break points",
+    )
     partition_length: float = _f(1.2, lo=0.2, hi=5.0, static=True, doc="length of a partition wall (m)")
 
 

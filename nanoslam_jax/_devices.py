@@ -64,7 +64,12 @@ def setup_run_devices(cfg) -> int:
 
     cores = available_cores()
     split_ok = shardable(cfg.filter.method, cfg.nano.init)
-    if cores > 1 and particle_devices(cfg.filter.split_devices, cfg.filter.n_particles, cores * DEVICES_PER_CORE,
-                                      split_ok=split_ok) > 1:
+    if (
+        cores > 1
+        and particle_devices(
+            cfg.filter.split_devices, cfg.filter.n_particles, cores * DEVICES_PER_CORE, split_ok=split_ok
+        )
+        > 1
+    ):
         return setup_devices(cores * DEVICES_PER_CORE)
     return len(jax.devices())

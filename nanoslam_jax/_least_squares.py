@@ -57,7 +57,9 @@ def _solve_normal(H: sp.spmatrix, rhs: np.ndarray, n_poses: int) -> np.ndarray:
     A = H[:nP, :nP].tocoo()
     upper = A.col >= A.row
     if np.any(A.col - A.row > _BAND):
-        raise ValueError("smoother: the poses' normal matrix is not banded (an odometry factor ties non-consecutive poses)")
+        raise ValueError(
+            "smoother: the poses' normal matrix is not banded (an odometry factor ties non-consecutive poses)"
+        )
     ab = np.zeros((_BAND + 1, nP))
     ab[_BAND + A.row[upper] - A.col[upper], A.col[upper]] = A.data[upper]
     cb = sla.cholesky_banded(ab, lower=False)
@@ -110,14 +112,17 @@ def _solve(path, lm_all, seg, z_obs, lid, motion, w_odo, w_det, settings):
         xa = np.concatenate([np.zeros((1, 3)), P[:-1]])
         eo, Ja, Jb = (np.asarray(a) for a in _odometry_linearised(xa, P, motion))
         eo, Ja, Jb = np.einsum("tij,tj->ti", w_odo, eo), w_odo @ Ja, w_odo @ Jb
-        ed, Jx, Jm = (np.asarray(a)[:n] for a in _detection_linearised(P[seg_p], L[lid_p] if M else np.zeros((n_pad, 2)), zz))
+        ed, Jx, Jm = (
+            np.asarray(a)[:n] for a in _detection_linearised(P[seg_p], L[lid_p] if M else np.zeros((n_pad, 2)), zz)
+        )
         ed, Jx, Jm = ed * w_det, Jx * w_det[:, None], Jm * w_det[:, None]
         norm = np.linalg.norm(ed, axis=1)
         huber = norm > k
-        cost = 0.5 * np.sum(eo ** 2) + np.sum(np.where(huber, k * norm - 0.5 * k * k, 0.5 * norm ** 2))
+        cost = 0.5 * np.sum(eo**2) + np.sum(np.where(huber, k * norm - 0.5 * k * k, 0.5 * norm**2))
         sw = np.sqrt(np.where(huber, k / np.maximum(norm, 1e-300), 1.0))  # IRLS weights of the Huber loss
-        vals = np.concatenate([Ja[1:].ravel(), Jb.ravel(), (Jx * sw[:, None, None]).ravel(),
-                               (Jm * sw[:, None, None]).ravel()])
+        vals = np.concatenate(
+            [Ja[1:].ravel(), Jb.ravel(), (Jx * sw[:, None, None]).ravel(), (Jm * sw[:, None, None]).ravel()]
+        )
         J = sp.csr_matrix((vals, (rows, cols)), shape=(3 * T + 2 * n, nV))
         e = np.concatenate([eo.ravel(), (ed * sw[:, None]).ravel()])
         return cost, J, e

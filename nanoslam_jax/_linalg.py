@@ -78,9 +78,7 @@ def det2(a: Float[Array, "... 2 2"]) -> Float[Array, "..."]:
 def inv2(a: Float[Array, "... 2 2"]) -> Float[Array, "... 2 2"]:
     """Inverse of 2x2 matrices (adjugate over determinant)."""
     d = det2(a)
-    adj = jnp.stack(
-        [jnp.stack([a[..., 1, 1], -a[..., 0, 1]], -1), jnp.stack([-a[..., 1, 0], a[..., 0, 0]], -1)], -2
-    )
+    adj = jnp.stack([jnp.stack([a[..., 1, 1], -a[..., 0, 1]], -1), jnp.stack([-a[..., 1, 0], a[..., 0, 0]], -1)], -2)
     return adj / d[..., None, None]
 
 
@@ -129,9 +127,7 @@ def chol3(a: Float[Array, "... 3 3"]) -> Float[Array, "... 3 3"]:
     l32 = (a[..., 2, 1] - l31 * l21) / l22
     l33 = jnp.sqrt(jnp.maximum(a[..., 2, 2] - l31 * l31 - l32 * l32, _TINY))
     z = jnp.zeros_like(l11)
-    return jnp.stack(
-        [jnp.stack([l11, z, z], -1), jnp.stack([l21, l22, z], -1), jnp.stack([l31, l32, l33], -1)], -2
-    )
+    return jnp.stack([jnp.stack([l11, z, z], -1), jnp.stack([l21, l22, z], -1), jnp.stack([l31, l32, l33], -1)], -2)
 
 
 def logdet_spd(a: Float[Array, "... n n"]) -> Float[Array, "..."]:

@@ -63,9 +63,14 @@ class LoopClosureSettings(NamedTuple):
 def loop_closure_settings(sc) -> LoopClosureSettings:
     """The loop closure's settings from the config's ``smoother`` section
     (:class:`nanoslam_jax.config.SmootherConfig`, its ``loop_closure_*`` keys)."""
-    return LoopClosureSettings(window=sc.loop_closure_window, radius=sc.loop_closure_radius,
-                               search=sc.loop_closure_search, max_turn=float(np.deg2rad(sc.loop_closure_max_turn_deg)),
-                               min_inliers=sc.loop_closure_min_inliers, accept=sc.loop_closure_accept)
+    return LoopClosureSettings(
+        window=sc.loop_closure_window,
+        radius=sc.loop_closure_radius,
+        search=sc.loop_closure_search,
+        max_turn=float(np.deg2rad(sc.loop_closure_max_turn_deg)),
+        min_inliers=sc.loop_closure_min_inliers,
+        accept=sc.loop_closure_accept,
+    )
 
 
 def co_observed(seg: Int[np.ndarray, " n"], lid: Int[np.ndarray, " n"], n_landmarks: int) -> sp.csr_matrix:
@@ -142,11 +147,11 @@ def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndar
     # chunks that bound the memory.
     counts = np.zeros(len(th), int)
     for a in range(0, len(th), 20000):
-        t_, r_ = th[a:a + 20000], tr[a:a + 20000]
+        t_, r_ = th[a : a + 20000], tr[a : a + 20000]
         R = np.stack([np.stack([np.cos(t_), -np.sin(t_)], 1), np.stack([np.sin(t_), np.cos(t_)], 1)], 1)
         pts = np.einsum("hij,nj->hni", R, new) + r_[:, None, :]
         d, _ = tree.query(pts.reshape(-1, 2), distance_upper_bound=s.radius)
-        counts[a:a + 20000] = np.isfinite(d).reshape(len(t_), n).sum(1)
+        counts[a : a + 20000] = np.isfinite(d).reshape(len(t_), n).sum(1)
     best_i, best_j = empty
     for h in np.argsort(-counts)[:5]:  # the leading hypotheses, made one-to-one and refined
         if counts[h] < need:
@@ -213,8 +218,10 @@ def find_duplicates(
     # joins the earlier.
     live = np.nonzero((parent == np.arange(len(L))) & np.isfinite(first))[0]
     tree = cKDTree(L[live])
-    for a, b in sorted(tree.query_pairs(settings.radius, output_type="ndarray").tolist(),
-                       key=lambda ab: np.linalg.norm(L[live[ab[0]]] - L[live[ab[1]]])):
+    for a, b in sorted(
+        tree.query_pairs(settings.radius, output_type="ndarray").tolist(),
+        key=lambda ab: np.linalg.norm(L[live[ab[0]]] - L[live[ab[1]]]),
+    ):
         a, b = live[a], live[b]
         if parent[a] != a or parent[b] != b or together[a, b]:
             continue

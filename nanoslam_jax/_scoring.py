@@ -45,19 +45,53 @@ import numpy as np
 from .metrics import evaluate, feature_map_errors, map_summary, rmse_heading_deg, survey_summary
 
 __all__ = [
-    "HIGHER_IS_BETTER", "MapEstimate", "companion_tracks", "failure_reason", "format_number", "metric_goal", "number", "run_values",
-    "score_run", "seed_summary", "summarize_runs", "summary_stats", "write_rows_csv",
+    "HIGHER_IS_BETTER",
+    "MapEstimate",
+    "companion_tracks",
+    "failure_reason",
+    "format_number",
+    "metric_goal",
+    "number",
+    "run_values",
+    "score_run",
+    "seed_summary",
+    "summarize_runs",
+    "summary_stats",
+    "write_rows_csv",
 ]
 
 #: Metrics where a higher value is better (a failed seed counts as ``-inf`` in their summary).
-HIGHER_IS_BETTER = frozenset({
-    "map_n_found", "map_found_fraction", "map_n_found_aligned", "map_found_fraction_aligned", "survey_found",
-    "survey_found_by_id", "dr_over_slam", "survey_dr_over_slam", "n_lines_matched", "n_corners_matched",
-})
+HIGHER_IS_BETTER = frozenset(
+    {
+        "map_n_found",
+        "map_found_fraction",
+        "map_n_found_aligned",
+        "map_found_fraction_aligned",
+        "survey_found",
+        "survey_found_by_id",
+        "dr_over_slam",
+        "survey_dr_over_slam",
+        "n_lines_matched",
+        "n_corners_matched",
+    }
+)
 #: Prefixes and names of the errors (lower is better; a failed seed counts as ``+inf``).
-_ERROR_PREFIXES = ("rmse_", "dr_rmse_", "map_rmse", "map_median_est_to_true", "map_spurious", "map_n_spurious",
-                   "survey_rmse", "survey_spurious", "dr_survey_rmse", "line_slope_", "line_intercept_", "line_rho_",
-                   "line_alpha_", "corner_")
+_ERROR_PREFIXES = (
+    "rmse_",
+    "dr_rmse_",
+    "map_rmse",
+    "map_median_est_to_true",
+    "map_spurious",
+    "map_n_spurious",
+    "survey_rmse",
+    "survey_spurious",
+    "dr_survey_rmse",
+    "line_slope_",
+    "line_intercept_",
+    "line_rho_",
+    "line_alpha_",
+    "corner_",
+)
 _ERRORS = frozenset({"mean_error", "max_error", "final_error"})
 
 #: Stand-in for an infinite value inside ``np.quantile`` (interpolating towards ``inf`` can give NaN).
@@ -111,8 +145,9 @@ def failure_reason(times: np.ndarray, est: np.ndarray) -> str:
     return f"non-finite estimate from segment {j} (t = {float(times[j]):.2f} s)"
 
 
-def companion_tracks(estimate: str, best_pose: np.ndarray, mean_pose: np.ndarray,
-                     before_smoother: Optional[np.ndarray] = None) -> dict[str, np.ndarray]:
+def companion_tracks(
+    estimate: str, best_pose: np.ndarray, mean_pose: np.ndarray, before_smoother: Optional[np.ndarray] = None
+) -> dict[str, np.ndarray]:
     """The trajectories a run reports beside its estimate, for :func:`score_run`'s ``others``:
     the filter's other per-segment estimate (``wmean``, the weighted mean, when ``filter.estimate``
     is ``best``; else ``best``, the best particle's pose) and, after the smoother, the ``path`` it
@@ -123,8 +158,13 @@ def companion_tracks(estimate: str, best_pose: np.ndarray, mean_pose: np.ndarray
     return out
 
 
-def score_run(log, est: np.ndarray, metrics, landmarks: Optional[MapEstimate] = None,
-              others: Optional[Mapping[str, np.ndarray]] = None) -> dict:
+def score_run(
+    log,
+    est: np.ndarray,
+    metrics,
+    landmarks: Optional[MapEstimate] = None,
+    others: Optional[Mapping[str, np.ndarray]] = None,
+) -> dict:
     """The metrics of one run.
 
     Args:
@@ -206,8 +246,12 @@ def summary_stats(values: np.ndarray) -> dict:
     return dict(median=q[0], q1=q[1], q3=q[2], worst=float(np.max(v)), best=float(np.min(v)))
 
 
-def seed_summary(values: Sequence[float], failed: Optional[Sequence[bool]] = None, goal: Optional[str] = "min",
-                 seeds: Optional[Sequence[int]] = None) -> dict:
+def seed_summary(
+    values: Sequence[float],
+    failed: Optional[Sequence[bool]] = None,
+    goal: Optional[str] = "min",
+    seeds: Optional[Sequence[int]] = None,
+) -> dict:
     """One metric over seeds under the failed-seed rule (module docstring).
 
     Args:
@@ -243,8 +287,16 @@ def seed_summary(values: Sequence[float], failed: Optional[Sequence[bool]] = Non
     q1, q3 = (st["q1"], st["q3"]) if sign > 0 else (-st["q3"], -st["q1"])
     lo, hi = float(np.min(v)), float(np.max(v))
     best, worst = (lo, hi) if goal != "max" else (hi, lo)
-    return {"median": sign * st["median"], "q1": q1, "q3": q3, "min": lo, "max": hi, "best": best, "worst": worst,
-            **out}
+    return {
+        "median": sign * st["median"],
+        "q1": q1,
+        "q3": q3,
+        "min": lo,
+        "max": hi,
+        "best": best,
+        "worst": worst,
+        **out,
+    }
 
 
 def run_values(rows: Sequence[Mapping], metric: str, goal: Optional[str] = "min") -> np.ndarray:
@@ -255,8 +307,12 @@ def run_values(rows: Sequence[Mapping], metric: str, goal: Optional[str] = "min"
     return np.where(np.isnan(out), bad, out)
 
 
-def summarize_runs(rows: Sequence[Mapping], metrics: Sequence[str], goals: Optional[Mapping[str, Optional[str]]] = None,
-                   stats: Sequence[str] = ("median", "q1", "q3", "min", "max")) -> dict:
+def summarize_runs(
+    rows: Sequence[Mapping],
+    metrics: Sequence[str],
+    goals: Optional[Mapping[str, Optional[str]]] = None,
+    stats: Sequence[str] = ("median", "q1", "q3", "min", "max"),
+) -> dict:
     """Runs of one setting (one row per seed) summarised under the failed-seed rule.
 
     Args:
@@ -274,9 +330,13 @@ def summarize_runs(rows: Sequence[Mapping], metrics: Sequence[str], goals: Optio
     goals = dict(goals or {})
     failed = [r.get("status", "ok") != "ok" for r in rows]
     seeds = [int(x) if math.isfinite(x := number(r.get("seed", i))) else i for i, r in enumerate(rows)]
-    out: dict = {"n_runs": len(rows), "n_ok": len(rows) - sum(failed), "n_failed": sum(failed),
-                 "failed_seeds": ";".join(str(s) for s, f in zip(seeds, failed) if f),
-                 "reasons": "; ".join(sorted({str(r.get("reason", "")) for r, f in zip(rows, failed) if f} - {""}))}
+    out: dict = {
+        "n_runs": len(rows),
+        "n_ok": len(rows) - sum(failed),
+        "n_failed": sum(failed),
+        "failed_seeds": ";".join(str(s) for s, f in zip(seeds, failed) if f),
+        "reasons": "; ".join(sorted({str(r.get("reason", "")) for r, f in zip(rows, failed) if f} - {""})),
+    }
     for m in metrics:
         st = seed_summary([r.get(m) for r in rows], failed, goals.get(m, metric_goal(m)), seeds)
         out.update({f"{m}_{k}": st[k] for k in stats})

@@ -171,7 +171,7 @@ def computed_once(tree: T) -> T:
     flat = jax.lax.optimization_barrier(jnp.concatenate([jnp.ravel(a) for a in leaves]))
     out, start = [], 0
     for a in leaves:
-        out.append(flat[start:start + a.size].reshape(a.shape))
+        out.append(flat[start : start + a.size].reshape(a.shape))
         start += a.size
     return jax.tree.unflatten(treedef, out)
 

@@ -51,18 +51,34 @@ import numpy as np
 import yaml
 
 from ._version import __version__
-from ._scoring import (MapEstimate, companion_tracks, failure_reason, format_number, score_run, summarize_runs,
-                       write_rows_csv)
+from ._scoring import (
+    MapEstimate,
+    companion_tracks,
+    failure_reason,
+    format_number,
+    score_run,
+    summarize_runs,
+    write_rows_csv,
+)
 from .config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
-from .filter import (dead_reckoning, reported_map, reported_trajectory, run_batch, run_filter,
-                     settings_from_config, stack_params)
+from .filter import (
+    dead_reckoning,
+    reported_map,
+    reported_trajectory,
+    run_batch,
+    run_filter,
+    settings_from_config,
+    stack_params,
+)
 from .smoother import smooth_filter_run, smoother_metrics
+
 
 def deterministic(method: str) -> bool:
     """Whether a run of ``method`` does not depend on the seed (Gaussian methods, dead reckoning)."""
     from .methods import get_method
 
     return get_method(method).kind != "particle"
+
 
 RMSE_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
 
@@ -185,7 +201,9 @@ def method_rows(rows: Any, where: str, allowed: set) -> list[tuple[str, dict, st
             raise ConfigError(f"{where}: key '{key}': expected a mapping, got {row!r}")
         unknown = set(row) - allowed
         if unknown:
-            raise ConfigError(f"{where}: key '{key}': unknown key(s) {sorted(unknown)}; expected some of {sorted(allowed)}")
+            raise ConfigError(
+                f"{where}: key '{key}': unknown key(s) {sorted(unknown)}; expected some of {sorted(allowed)}"
+            )
         label = row.get("label")
         if not isinstance(label, str) or not label:
             raise ConfigError(f"{where}: key '{key}.label': expected a non-empty string, got {label!r}")
@@ -212,15 +230,24 @@ def load_compare_spec(path: str | Path, overrides: tuple[str, ...] = (), seeds: 
     where = str(p)
     raw = read_comparison(p, _TOP)
     base = resolve_base(raw.get("base"), p)
-    methods = [MethodSpec(label, sets, _number(row.get("paper_rmse"), f"{key}.paper_rmse", where),
-                          _number(row.get("paper_ms"), f"{key}.paper_ms", where))
-               for key, row, label, sets in method_rows(raw.get("methods"), where, _ROW)]
+    methods = [
+        MethodSpec(
+            label,
+            sets,
+            _number(row.get("paper_rmse"), f"{key}.paper_rmse", where),
+            _number(row.get("paper_ms"), f"{key}.paper_ms", where),
+        )
+        for key, row, label, sets in method_rows(raw.get("methods"), where, _ROW)
+    ]
     spec = CompareSpec(
-        name=str(raw.get("name", p.stem)), base=base, methods=tuple(methods),
+        name=str(raw.get("name", p.stem)),
+        base=base,
+        methods=tuple(methods),
         seeds=int_at_least(seeds if seeds is not None else raw.get("seeds", 8), "seeds", where, 1),
         first_seed=int_at_least(raw.get("first_seed", 0), "first_seed", where, 0),
         timing_chunk=int_at_least(raw.get("timing_chunk", 250), "timing_chunk", where, 1),
-        set=str_list(raw.get("set"), "set", where) + tuple(overrides), source=where,
+        set=str_list(raw.get("set"), "set", where) + tuple(overrides),
+        source=where,
     )
     for m in spec.methods:  # validate every method's config now, before anything runs
         method_config(spec, m)
@@ -282,8 +309,16 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
         res.compile_s = t1 - t0
         res.trajectory = est
         reason = failure_reason(t, est)
-        res.rows.append({"seed": spec.first_seed, "status": "failed" if reason else "ok", "reason": reason,
-                         **score_run(log, est, cfg.metrics), "n_landmarks": 0, "n_confirmed": 0})
+        res.rows.append(
+            {
+                "seed": spec.first_seed,
+                "status": "failed" if reason else "ok",
+                "reason": reason,
+                **score_run(log, est, cfg.metrics),
+                "n_landmarks": 0,
+                "n_confirmed": 0,
+            }
+        )
         if reason:
             res.status, res.reason = "failed", reason
         return res
@@ -309,8 +344,14 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
         best_all, mean_all = (np.asarray(a)[None] for a in (single.outputs.best_pose, single.outputs.mean_pose))
         res.batch_run_s = single.run_s
     else:
-        run = run_batch(static, stack_params([params] * len(seeds)), seg, np.asarray(seeds), chunk=cfg.output.chunk,
-                        progress=progress)
+        run = run_batch(
+            static,
+            stack_params([params] * len(seeds)),
+            seg,
+            np.asarray(seeds),
+            chunk=cfg.output.chunk,
+            progress=progress,
+        )
         index = 0
         maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
         overflow = np.asarray(run.state.overflow)
@@ -321,15 +362,23 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
     for i, s in enumerate(seeds):
         est, before, extra = np.asarray(est_all[i]), None, {}
         if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline, per seed
-            sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior,
-                                   None if index is None else i)
+            sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior, None if index is None else i)
             before, est = est, sm.poses
             extra, _ = smoother_metrics(sm, cfg.smoother)
         reason = failure_reason(t, est)
-        score = score_run(log, est, cfg.metrics, _map_of(maps, i),
-                          companion_tracks(static.estimate, best_all[i], mean_all[i], before))
-        res.rows.append({"seed": int(s), "status": "failed" if reason else "ok", "reason": reason, **score,
-                         "landmark_overflow": int(overflow[i]), **extra})
+        score = score_run(
+            log, est, cfg.metrics, _map_of(maps, i), companion_tracks(static.estimate, best_all[i], mean_all[i], before)
+        )
+        res.rows.append(
+            {
+                "seed": int(s),
+                "status": "failed" if reason else "ok",
+                "reason": reason,
+                **score,
+                "landmark_overflow": int(overflow[i]),
+                **extra,
+            }
+        )
         trajectories.append(est)
     res.trajectory = trajectories[0]
     res.landmarks = maps.mean[0][maps.active[0] & maps.confirmed[0]]
@@ -340,8 +389,18 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
 
 
 #: The columns a comparison summarises over seeds (those its runs report).
-SUMMARY_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "rmse_fixed_path",
-                "rmse_aligned_path", "rmse_fixed_best", "rmse_aligned_best", "n_landmarks", "n_confirmed")
+SUMMARY_KEYS = (
+    "rmse_fixed",
+    "rmse_aligned",
+    "rmse_fixed_clean",
+    "rmse_aligned_clean",
+    "rmse_fixed_path",
+    "rmse_aligned_path",
+    "rmse_fixed_best",
+    "rmse_aligned_best",
+    "n_landmarks",
+    "n_confirmed",
+)
 
 
 def summarise(res: MethodResult) -> dict:
@@ -349,37 +408,55 @@ def summarise(res: MethodResult) -> dict:
     (:func:`~nanoslam_jax._scoring.summarize_runs`)."""
     keys = [k for k in SUMMARY_KEYS if k in RMSE_KEYS or k.startswith("n_") or any(k in r for r in res.rows)]
     st = summarize_runs(res.rows, keys, stats=("median", "q1", "q3", "worst"))
-    out: dict[str, Any] = {"method": res.spec.label, "filter_method": res.method, "status": res.status,
-                           "reason": res.reason, "seeds": len(res.rows), "n_failed": st["n_failed"],
-                           "failed_seeds": st["failed_seeds"]}
+    out: dict[str, Any] = {
+        "method": res.spec.label,
+        "filter_method": res.method,
+        "status": res.status,
+        "reason": res.reason,
+        "seeds": len(res.rows),
+        "n_failed": st["n_failed"],
+        "failed_seeds": st["failed_seeds"],
+    }
     out.update({k: v for k, v in st.items() if k.endswith(("_median", "_q1", "_q3", "_worst"))})
-    out.update(ms_per_scan=res.ms_per_scan, compile_s=res.compile_s, batch_run_s=res.batch_run_s,
-               paper_rmse=res.spec.paper_rmse, paper_ms=res.spec.paper_ms)
+    out.update(
+        ms_per_scan=res.ms_per_scan,
+        compile_s=res.compile_s,
+        batch_run_s=res.batch_run_s,
+        paper_rmse=res.spec.paper_rmse,
+        paper_ms=res.spec.paper_ms,
+    )
     return out
 
 
 def markdown_table(rows: list[dict]) -> str:
     """The Table I layout: RMSE (median, IQR and worst seed over seeds; a failed seed counts as an
     infinite error), ms per scan, landmarks, paper's figures."""
-    lines = ["| method | seeds | RMSE fixed [m] median (IQR) | worst | RMSE aligned [m] median (IQR) | worst | "
-             "ms per scan | confirmed landmarks | paper RMSE [m] | paper ms per step |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| method | seeds | RMSE fixed [m] median (IQR) | worst | RMSE aligned [m] median (IQR) | worst | "
+        "ms per scan | confirmed landmarks | paper RMSE [m] | paper ms per step |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     fmt = format_number
     for r in rows:
         seeds = f"{r['seeds']}" + (f" ({r['n_failed']} failed: {r['failed_seeds']})" if r.get("n_failed") else "")
         if r["status"] != "ok" and not math.isfinite(r.get("rmse_fixed_median", math.nan)):
-            lines.append(f"| {r['method']} | {seeds} | failed: {r['reason']} | | | | | | {fmt(r['paper_rmse'])} | "
-                         f"{fmt(r['paper_ms'], 2)} |")
+            lines.append(
+                f"| {r['method']} | {seeds} | failed: {r['reason']} | | | | | | {fmt(r['paper_rmse'])} | "
+                f"{fmt(r['paper_ms'], 2)} |"
+            )
             continue
         iqr = lambda k: f"{fmt(r[k + '_median'])} ({fmt(r[k + '_q1'])}-{fmt(r[k + '_q3'])})"  # noqa: E731
-        lines.append(f"| {r['method']} | {seeds} | {iqr('rmse_fixed')} | {fmt(r['rmse_fixed_worst'], 2)} | "
-                     f"{iqr('rmse_aligned')} | {fmt(r['rmse_aligned_worst'], 2)} | {fmt(r['ms_per_scan'], 2)} | "
-                     f"{fmt(r['n_confirmed_median'], 0)} | {fmt(r['paper_rmse'])} | {fmt(r['paper_ms'], 2)} |")
+        lines.append(
+            f"| {r['method']} | {seeds} | {iqr('rmse_fixed')} | {fmt(r['rmse_fixed_worst'], 2)} | "
+            f"{iqr('rmse_aligned')} | {fmt(r['rmse_aligned_worst'], 2)} | {fmt(r['ms_per_scan'], 2)} | "
+            f"{fmt(r['n_confirmed_median'], 0)} | {fmt(r['paper_rmse'])} | {fmt(r['paper_ms'], 2)} |"
+        )
     return "\n".join(lines) + "\n"
 
 
-def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] = None, plots: bool = True,
-                stream=sys.stderr) -> list[dict]:
+def run_compare(
+    spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] = None, plots: bool = True, stream=sys.stderr
+) -> list[dict]:
     """Run every method of ``spec`` and write the comparison directory.
 
     Args:
@@ -398,20 +475,36 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
     configs = {m.label: method_config(spec, m) for m in spec.methods}
     logs: dict[str, Any] = {}
     first = next(iter(configs.values()))
-    key_of = lambda c: json.dumps([config_to_dict(c)[k] for k in ("data", "sim", "indoor", "vehicle", "detector")]  # noqa: E731
-                                  + [c.model.measurement], sort_keys=True)
+
+    def key_of(c):
+        return json.dumps(
+            [config_to_dict(c)[k] for k in ("data", "sim", "indoor", "vehicle", "detector")]
+            + [c.model.measurement],
+            sort_keys=True,
+        )
+
     logs[key_of(first)] = load_log(first, data_dir)  # a bad log fails before anything is written
     if not len(logs[key_of(first)].raw.gps):
-        raise ConfigError(f"{spec.source}: compare scores the trajectories against GPS, and the log "
-                          f"{logs[key_of(first)].source} has none; score its map with `nanoslam sweep` "
-                          f"(metric: survey_rmse) or `nanoslam run`")
+        raise ConfigError(
+            f"{spec.source}: compare scores the trajectories against GPS, and the log "
+            f"{logs[key_of(first)].source} has none; score its map with `nanoslam sweep` "
+            f"(metric: survey_rmse) or `nanoslam run`"
+        )
     out.mkdir(parents=True, exist_ok=True)
     (out / "configs").mkdir(exist_ok=True)
-    resolved = {"name": spec.name, "base": spec.base, "seeds": spec.seeds, "first_seed": spec.first_seed,
-                "timing_chunk": spec.timing_chunk, "set": list(spec.set),
-                "methods": [dataclasses.asdict(m) | {"set": list(m.set)} for m in spec.methods],
-                "version": __version__, "versions": versions(), "source": spec.source,
-                "written": _dt.datetime.now().isoformat(timespec="seconds")}
+    resolved = {
+        "name": spec.name,
+        "base": spec.base,
+        "seeds": spec.seeds,
+        "first_seed": spec.first_seed,
+        "timing_chunk": spec.timing_chunk,
+        "set": list(spec.set),
+        "methods": [dataclasses.asdict(m) | {"set": list(m.set)} for m in spec.methods],
+        "version": __version__,
+        "versions": versions(),
+        "source": spec.source,
+        "written": _dt.datetime.now().isoformat(timespec="seconds"),
+    }
     (out / "compare.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
 
     results: list[MethodResult] = []
@@ -420,7 +513,8 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
         safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in m.label)
         (out / "configs" / f"{safe}.yaml").write_text(
             f"# nanoslam-jax {__version__}, seeds {spec.first_seed}..{spec.first_seed + spec.seeds - 1}\n"
-            + yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+            + yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
+        )
         stream.write(f"[{i + 1}/{len(spec.methods)}] {m.label} ({cfg.filter.method})\n")
         stream.flush()
         t0 = time.perf_counter()
@@ -431,15 +525,25 @@ def run_compare(spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] 
             res = run_method(spec, m, logs[k])
         except Exception as e:  # recorded, the comparison goes on
             reason = f"{type(e).__name__}: {e}"
-            seeds = [spec.first_seed] if deterministic(cfg.filter.method) else range(spec.first_seed,
-                                                                                    spec.first_seed + spec.seeds)
-            res = MethodResult(m, cfg.filter.method, rows=[{"seed": s, "status": "failed", "reason": reason}
-                                                           for s in seeds], status="failed", reason=reason)
+            seeds = (
+                [spec.first_seed]
+                if deterministic(cfg.filter.method)
+                else range(spec.first_seed, spec.first_seed + spec.seeds)
+            )
+            res = MethodResult(
+                m,
+                cfg.filter.method,
+                rows=[{"seed": s, "status": "failed", "reason": reason} for s in seeds],
+                status="failed",
+                reason=reason,
+            )
             (out / f"error-{safe}.txt").write_text(traceback.format_exc())
         results.append(res)
         r = summarise(res)
-        stream.write(f"    {res.status} in {time.perf_counter() - t0:.1f} s: rmse_fixed {format_number(r['rmse_fixed_median'])}, "
-                     f"rmse_aligned {format_number(r['rmse_aligned_median'])}, {format_number(res.ms_per_scan, 2)} ms/scan\n")
+        stream.write(
+            f"    {res.status} in {time.perf_counter() - t0:.1f} s: rmse_fixed {format_number(r['rmse_fixed_median'])}, "
+            f"rmse_aligned {format_number(r['rmse_aligned_median'])}, {format_number(res.ms_per_scan, 2)} ms/scan\n"
+        )
         stream.flush()
         # Written after every method: an interrupted comparison keeps what it finished.
         _write_outputs(out, spec, results)
@@ -455,12 +559,16 @@ def _write_outputs(out: Path, spec: CompareSpec, results: list[MethodResult]) ->
     runs = [{"method": r.spec.label, "filter_method": r.method, **row} for r in results for row in r.rows]
     if runs:
         write_rows_csv(out / "runs.csv", runs)
-    header = (f"# {spec.name}: {len(spec.methods)} methods, {spec.seeds} seeds "
-              f"({spec.first_seed}..{spec.first_seed + spec.seeds - 1}; EKF-SLAM, NASRUKF and dead reckoning are deterministic: one run)\n\n")
+    header = (
+        f"# {spec.name}: {len(spec.methods)} methods, {spec.seeds} seeds "
+        f"({spec.first_seed}..{spec.first_seed + spec.seeds - 1}; EKF-SLAM, NASRUKF and dead reckoning are deterministic: one run)\n\n"
+    )
     (out / "table1.md").write_text(header + markdown_table(table))
     # JSON has no inf: an infinite median (failed seeds) is written as the string "inf", NaN as null.
     safe = lambda v: (None if math.isnan(v) else str(v)) if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
-    (out / "summary.json").write_text(json.dumps([{k: safe(v) for k, v in row.items()} for row in table], indent=2) + "\n")
+    (out / "summary.json").write_text(
+        json.dumps([{k: safe(v) for k, v in row.items()} for row in table], indent=2) + "\n"
+    )
 
 
 def _figures(out: Path, spec: CompareSpec, results: list[MethodResult], logs: dict, configs: dict) -> None:
@@ -476,17 +584,34 @@ def _figures(out: Path, spec: CompareSpec, results: list[MethodResult], logs: di
     t = np.asarray(log.segments.time)
     ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" else gps[:, 1:3]
     ref_label = "GPS (relative frame)" if log.frame == "relative" else "truth"
-    plot_trajectory_grid(out / "fig3_trajectories.png", ref, [(r.spec.label, r.trajectory[:, :2], r.landmarks) for r in ok],
-                         true_landmarks=log.raw.truth_landmarks, reference_label=ref_label,
-                         title=f"{spec.name}: seed {spec.first_seed}")
+    plot_trajectory_grid(
+        out / "fig3_trajectories.png",
+        ref,
+        [(r.spec.label, r.trajectory[:, :2], r.landmarks) for r in ok],
+        true_landmarks=log.raw.truth_landmarks,
+        reference_label=ref_label,
+        title=f"{spec.name}: seed {spec.first_seed}",
+    )
     series = []
     keep = jump_mask(gps[:, 0], gps[:, 1:3], cfg.metrics.jump_speed)  # GPS jumps would dwarf the errors
     for r in ok:
-        te, err = error_over_time(t, r.trajectory[:, :2], gps[keep], rotation_deg=cfg.metrics.gps_rotation_deg, frame=log.frame)
+        te, err = error_over_time(
+            t, r.trajectory[:, :2], gps[keep], rotation_deg=cfg.metrics.gps_rotation_deg, frame=log.frame
+        )
         series.append((r.spec.label, te, err))
-    plot_series(out / "fig4_error.png", series, "position error [m]",
-                f"{spec.name}: error against {ref_label}, GPS jumps removed (seed {spec.first_seed})")
+    plot_series(
+        out / "fig4_error.png",
+        series,
+        "position error [m]",
+        f"{spec.name}: error against {ref_label}, GPS jumps removed (seed {spec.first_seed})",
+    )
     timed = [(r.spec.label, r.chunk_t, r.chunk_ms) for r in results if r.chunk_ms is not None]
     if timed:
-        plot_series(out / "fig5_time.png", timed, "computation time per scan [ms]",
-                    f"{spec.name}: time per scan (mean over chunks of {spec.timing_chunk} scans)", logy=True, marker=".")
+        plot_series(
+            out / "fig5_time.png",
+            timed,
+            "computation time per scan [ms]",
+            f"{spec.name}: time per scan (mean over chunks of {spec.timing_chunk} scans)",
+            logy=True,
+            marker=".",
+        )

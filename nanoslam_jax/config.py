@@ -197,50 +197,75 @@ def _build(cls: type, raw: Any, prefix: str, where: str) -> Any:
 def _check_consistency(cfg: Config, where: str) -> None:
     d = cfg.data
     if d.min_range >= d.max_range:
-        raise ConfigError(f"{where}key 'data.min_range': expected a value < data.max_range ({d.max_range}), got {d.min_range}")
+        raise ConfigError(
+            f"{where}key 'data.min_range': expected a value < data.max_range ({d.max_range}), got {d.min_range}"
+        )
     if d.kind == "victoria_park" and d.format == "mrclam":
         if d.detections != "file":
-            raise ConfigError(f"{where}key 'data.detections': an MRCLAM log has no laser scans, only its sightings; "
-                              f"expected 'file' with data.format mrclam, got {d.detections!r}")
+            raise ConfigError(
+                f"{where}key 'data.detections': an MRCLAM log has no laser scans, only its sightings; "
+                f"expected 'file' with data.format mrclam, got {d.detections!r}"
+            )
         if cfg.model.motion == "ackermann":
-            raise ConfigError(f"{where}key 'model.motion': an MRCLAM log's odometry is (v, omega) of a differential-drive "
-                              "robot, not the car's (speed, steering); expected unicycle (or random_walk, or your own "
-                              "model) with data.format mrclam, got 'ackermann'")
+            raise ConfigError(
+                f"{where}key 'model.motion': an MRCLAM log's odometry is (v, omega) of a differential-drive "
+                "robot, not the car's (speed, steering); expected unicycle (or random_walk, or your own "
+                "model) with data.format mrclam, got 'ackermann'"
+            )
     lines_in = d.detections == "laser_lines"
     if lines_in and cfg.model.measurement != "line":
-        raise ConfigError(f"{where}key 'model.measurement': data.detections laser_lines gives line segments "
-                          f"(rho, alpha); expected 'line', got {cfg.model.measurement!r}")
+        raise ConfigError(
+            f"{where}key 'model.measurement': data.detections laser_lines gives line segments "
+            f"(rho, alpha); expected 'line', got {cfg.model.measurement!r}"
+        )
     if cfg.model.measurement == "line" and not lines_in and (d.kind == "indoor" or d.detections == "laser"):
-        raise ConfigError(f"{where}key 'data.detections': model.measurement line takes line segments; expected "
-                          f"'laser_lines' with data.kind {d.kind!r}, got {d.detections!r}")
+        raise ConfigError(
+            f"{where}key 'data.detections': model.measurement line takes line segments; expected "
+            f"'laser_lines' with data.kind {d.kind!r}, got {d.detections!r}"
+        )
     if lines_in and d.kind == "simulated":
-        raise ConfigError(f"{where}key 'data.detections': the simulated park log has no raw scans; expected 'file' "
-                          "with data.kind simulated (or data.kind indoor for line segments), got 'laser_lines'")
+        raise ConfigError(
+            f"{where}key 'data.detections': the simulated park log has no raw scans; expected 'file' "
+            "with data.kind simulated (or data.kind indoor for line segments), got 'laser_lines'"
+        )
     mp = cfg.map
     if mp.manage and mp.p_false >= mp.p_detect:
-        raise ConfigError(f"{where}key 'map.p_false': expected a value < map.p_detect ({mp.p_detect}), got {mp.p_false}")
+        raise ConfigError(
+            f"{where}key 'map.p_false': expected a value < map.p_detect ({mp.p_detect}), got {mp.p_false}"
+        )
     if mp.manage and not mp.remove_probability < mp.birth_probability <= mp.max_probability:
-        raise ConfigError(f"{where}key 'map.birth_probability': expected map.remove_probability "
-                          f"({mp.remove_probability}) < map.birth_probability <= map.max_probability "
-                          f"({mp.max_probability}), got {mp.birth_probability}")
+        raise ConfigError(
+            f"{where}key 'map.birth_probability': expected map.remove_probability "
+            f"({mp.remove_probability}) < map.birth_probability <= map.max_probability "
+            f"({mp.max_probability}), got {mp.birth_probability}"
+        )
     if mp.manage and not mp.confirm_probability <= mp.max_probability:
-        raise ConfigError(f"{where}key 'map.confirm_probability': expected a value <= map.max_probability "
-                          f"({mp.max_probability}), got {mp.confirm_probability}")
+        raise ConfigError(
+            f"{where}key 'map.confirm_probability': expected a value <= map.max_probability "
+            f"({mp.max_probability}), got {mp.confirm_probability}"
+        )
     ind = cfg.indoor
     if ind.speed_min > ind.speed_max:
-        raise ConfigError(f"{where}key 'indoor.speed_min': expected a value <= indoor.speed_max ({ind.speed_max}), "
-                          f"got {ind.speed_min}")
+        raise ConfigError(
+            f"{where}key 'indoor.speed_min': expected a value <= indoor.speed_max ({ind.speed_max}), "
+            f"got {ind.speed_min}"
+        )
     if ind.pillar_radius_min > ind.pillar_radius_max:
-        raise ConfigError(f"{where}key 'indoor.pillar_radius_min': expected a value <= indoor.pillar_radius_max "
-                          f"({ind.pillar_radius_max}), got {ind.pillar_radius_min}")
+        raise ConfigError(
+            f"{where}key 'indoor.pillar_radius_min': expected a value <= indoor.pillar_radius_max "
+            f"({ind.pillar_radius_max}), got {ind.pillar_radius_min}"
+        )
     if cfg.noise.forgetting >= 1.0:
         raise ConfigError(f"{where}key 'noise.forgetting': expected a value < 1, got {cfg.noise.forgetting}")
     if cfg.nasrukf.process_forgetting >= 1.0:
-        raise ConfigError(f"{where}key 'nasrukf.process_forgetting': expected a value < 1, "
-                          f"got {cfg.nasrukf.process_forgetting}")
+        raise ConfigError(
+            f"{where}key 'nasrukf.process_forgetting': expected a value < 1, got {cfg.nasrukf.process_forgetting}"
+        )
     if cfg.nasrukf.adaptive_process and cfg.filter.method != "nasrukf":
-        raise ConfigError(f"{where}key 'nasrukf.adaptive_process': the adaptive process-noise estimate is "
-                          f"NASRUKF's, not filter.method {cfg.filter.method!r}'s; set it to false or use nasrukf")
+        raise ConfigError(
+            f"{where}key 'nasrukf.adaptive_process': the adaptive process-noise estimate is "
+            f"NASRUKF's, not filter.method {cfg.filter.method!r}'s; set it to false or use nasrukf"
+        )
     from .methods import get_method, method_names
 
     try:
@@ -250,16 +275,22 @@ def _check_consistency(cfg: Config, where: str) -> None:
         raise ConfigError(f"{where}{e}") from None
     if cfg.noise.adaptive and not method.adaptive_noise:
         adaptive = [m for m in method_names() if get_method(m).adaptive_noise]
-        raise ConfigError(f"{where}key 'noise.adaptive': the adaptive noise estimate is available for "
-                          f"filter.method {', '.join(adaptive)}, not {cfg.filter.method!r}; "
-                          "set noise.adaptive to false")
+        raise ConfigError(
+            f"{where}key 'noise.adaptive': the adaptive noise estimate is available for "
+            f"filter.method {', '.join(adaptive)}, not {cfg.filter.method!r}; "
+            "set noise.adaptive to false"
+        )
     if cfg.filter.estimate == "path" and method.kind != "particle":
-        raise ConfigError(f"{where}key 'filter.estimate': 'path' follows the particles' ancestry; filter.method "
-                          f"{cfg.filter.method!r} has no particles; use best (or mean)")
+        raise ConfigError(
+            f"{where}key 'filter.estimate': 'path' follows the particles' ancestry; filter.method "
+            f"{cfg.filter.method!r} has no particles; use best (or mean)"
+        )
     if cfg.smoother.enabled and cfg.filter.estimate != "path":
-        raise ConfigError(f"{where}key 'smoother.enabled': the smoother starts from the final best particle's "
-                          f"ancestral path, which a run records only with filter.estimate: path (got "
-                          f"{cfg.filter.estimate!r}); set filter.estimate to path")
+        raise ConfigError(
+            f"{where}key 'smoother.enabled': the smoother starts from the final best particle's "
+            f"ancestral path, which a run records only with filter.estimate: path (got "
+            f"{cfg.filter.estimate!r}); set filter.estimate to path"
+        )
     from .models import (
         AbstractMeasurementModel,
         AbstractMotionModel,
@@ -271,22 +302,30 @@ def _check_consistency(cfg: Config, where: str) -> None:
     try:
         motion = motion_model_class(cfg.model.motion)
         if cfg.model.motion_params and motion.from_config.__func__ is not AbstractMotionModel.from_config.__func__:
-            raise ValueError(f"key 'model.motion_params': the built-in model {cfg.model.motion!r} takes its "
-                             f"parameters from its own section; model.motion_params is for a model named by import path")
+            raise ValueError(
+                f"key 'model.motion_params': the built-in model {cfg.model.motion!r} takes its "
+                f"parameters from its own section; model.motion_params is for a model named by import path"
+            )
         motion.from_config(cfg)
         measurement = measurement_model_class(cfg.model.measurement)
-        if (cfg.model.measurement_params
-                and measurement.from_config.__func__ is not AbstractMeasurementModel.from_config.__func__):
-            raise ValueError(f"key 'model.measurement_params': the built-in model {cfg.model.measurement!r} takes "
-                             "its parameters from its own sections; model.measurement_params is for a model named "
-                             "by import path")
+        if (
+            cfg.model.measurement_params
+            and measurement.from_config.__func__ is not AbstractMeasurementModel.from_config.__func__
+        ):
+            raise ValueError(
+                f"key 'model.measurement_params': the built-in model {cfg.model.measurement!r} takes "
+                "its parameters from its own sections; model.measurement_params is for a model named "
+                "by import path"
+            )
         measurement.from_config(cfg)
         check_measurement_model(measurement, cfg.filter.method, cfg.smoother.enabled)
     except ValueError as e:
         raise ConfigError(f"{where}{e}") from None
     if cfg.filter.new_landmark < cfg.filter.gate:
-        raise ConfigError(f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
-                          f"got {cfg.filter.new_landmark}")
+        raise ConfigError(
+            f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
+            f"got {cfg.filter.new_landmark}"
+        )
 
 
 def config_from_dict(raw: Any, *, source: str | None = None) -> Config:
@@ -334,7 +373,7 @@ def config_key_info(dotted: str, where: str) -> tuple[Any, bool]:
             if i == len(parts) - 2:  # a parameter inside a mapping-valued key
                 return float, bool(fields[part].metadata.get("static", False))
         if not dataclasses.is_dataclass(tp):
-            raise ConfigError(f"{where}: key '{'.'.join(parts[:i + 1])}' is not a section (in '{dotted}')")
+            raise ConfigError(f"{where}: key '{'.'.join(parts[: i + 1])}' is not a section (in '{dotted}')")
         cls = tp
     raise AssertionError("unreachable")
 
@@ -347,7 +386,7 @@ def _set_path(raw: dict, dotted: str, value: Any, source: str) -> None:
         if node.get(part) is None:
             node[part] = {}
         if not isinstance(node[part], dict):
-            raise ConfigError(f"{source}: key '{'.'.join(parts[:i + 1])}' must be a mapping to set '{dotted}'")
+            raise ConfigError(f"{source}: key '{'.'.join(parts[: i + 1])}' must be a mapping to set '{dotted}'")
         node = node[part]
     node[parts[-1]] = value
 

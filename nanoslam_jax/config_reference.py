@@ -84,13 +84,29 @@ def config_sections(cls: type = Config) -> tuple[SectionDoc, ...]:
         if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             sub_hints = typing.get_type_hints(tp)
             sub_default = getattr(default, f.name)
-            keys = tuple(KeyDoc(f"{f.name}.{g.name}", type_name(sub_hints[g.name]), getattr(sub_default, g.name),
-                                _range(g.metadata), bool(g.metadata.get("static")), g.metadata.get("doc", ""))
-                         for g in dataclasses.fields(tp))
+            keys = tuple(
+                KeyDoc(
+                    f"{f.name}.{g.name}",
+                    type_name(sub_hints[g.name]),
+                    getattr(sub_default, g.name),
+                    _range(g.metadata),
+                    bool(g.metadata.get("static")),
+                    g.metadata.get("doc", ""),
+                )
+                for g in dataclasses.fields(tp)
+            )
             sections.append(SectionDoc(f.name, _summary(tp), keys))
         else:
-            top.append(KeyDoc(f.name, type_name(tp), getattr(default, f.name), _range(f.metadata),
-                              bool(f.metadata.get("static")), f.metadata.get("doc", "")))
+            top.append(
+                KeyDoc(
+                    f.name,
+                    type_name(tp),
+                    getattr(default, f.name),
+                    _range(f.metadata),
+                    bool(f.metadata.get("static")),
+                    f.metadata.get("doc", ""),
+                )
+            )
     return (SectionDoc("", _summary(cls), tuple(top)), *sections)
 
 
@@ -146,10 +162,18 @@ def reference_markdown(heading_level: int = 2) -> str:
     out = []
     for sec in config_sections():
         title = f"`{sec.name}`" if sec.name else "Top level"
-        out += [f"{hashes} {title}", "", sec.doc, "",
-                "| key | type | default | range | static | meaning |", "|---|---|---|---|---|---|"]
+        out += [
+            f"{hashes} {title}",
+            "",
+            sec.doc,
+            "",
+            "| key | type | default | range | static | meaning |",
+            "|---|---|---|---|---|---|",
+        ]
         for k in sec.keys:
-            out.append(f"| `{k.key}` | {_cell(k.type)} | `{_cell(_yaml_value(k.default))}` | {_cell(k.range)} | "
-                       f"{'yes' if k.static else 'no'} | {_cell(k.doc)} |")
+            out.append(
+                f"| `{k.key}` | {_cell(k.type)} | `{_cell(_yaml_value(k.default))}` | {_cell(k.range)} | "
+                f"{'yes' if k.static else 'no'} | {_cell(k.doc)} |"
+            )
         out.append("")
     return "\n".join(out)

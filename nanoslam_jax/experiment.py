@@ -25,12 +25,29 @@ from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
-from .filter import (Params, Static, adaptive_noise_summary, adaptive_process_summary, configured_noise,
-                     dead_reckoning, noise_estimates, reported_map, reported_trajectory, run_filter, settings_from_config,
-                     text_progress)
+from .filter import (
+    Params,
+    Static,
+    adaptive_noise_summary,
+    adaptive_process_summary,
+    configured_noise,
+    dead_reckoning,
+    noise_estimates,
+    reported_map,
+    reported_trajectory,
+    run_filter,
+    settings_from_config,
+    text_progress,
+)
 from .filter._scan import is_gaussian
-from .metrics import (error_over_time, evaluate, map_alignment_metrics, observable_landmarks, relative_gps,
-                      rmse_heading_deg)
+from .metrics import (
+    error_over_time,
+    evaluate,
+    map_alignment_metrics,
+    observable_landmarks,
+    relative_gps,
+    rmse_heading_deg,
+)
 from ._scoring import MapEstimate, companion_tracks, score_run
 from .smoother import smooth_filter_run, smoother_metrics
 
@@ -131,12 +148,20 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         features = read_feature_truth(directory)
     d = cfg.data
     try:
-        segments = make_segments(raw, min_range=d.min_range, max_range=d.max_range, k_max=d.k_max,
-                                 max_dr_per_segment=d.max_dr_per_segment, t_end=d.t_end)
+        segments = make_segments(
+            raw,
+            min_range=d.min_range,
+            max_range=d.max_range,
+            k_max=d.k_max,
+            max_dr_per_segment=d.max_dr_per_segment,
+            t_end=d.t_end,
+        )
     except ValueError as e:
         if d.detections == "laser_lines" and "no laser scan" in str(e):
-            raise ValueError(f"{e}: the front end found no line segment at least detector.min_line_length "
-                             f"({cfg.detector.min_line_length} m) long") from None
+            raise ValueError(
+                f"{e}: the front end found no line segment at least detector.min_line_length "
+                f"({cfg.detector.min_line_length} m) long"
+            ) from None
         raise
     lines = cfg.model.measurement == "line"  # a map of lines: scored against the true walls, not points
     features = features if lines else None
@@ -177,8 +202,19 @@ def sighting_map(poses: np.ndarray, segments: Segments) -> tuple[np.ndarray, np.
 
 
 #: Columns of ``map.csv`` (and, with ``filter.association: known``, :data:`MAP_ID_COLUMN` last).
-MAP_COLUMNS = ["x", "y", "cov_xx", "cov_xy", "cov_yy", "hits", "misses", "existence", "confirmed", "diameter",
-               "diameter_sd"]
+MAP_COLUMNS = [
+    "x",
+    "y",
+    "cov_xx",
+    "cov_xy",
+    "cov_yy",
+    "hits",
+    "misses",
+    "existence",
+    "confirmed",
+    "diameter",
+    "diameter_sd",
+]
 #: The last column of ``map.csv`` when landmarks carry the id of the detection that started them.
 MAP_ID_COLUMN = "id"
 
@@ -190,9 +226,18 @@ def map_table(lm) -> np.ndarray:
     act = np.asarray(lm.active)
     cov = np.asarray(lm.cov)[act]
     existence = 1.0 / (1.0 + np.exp(-np.asarray(lm.log_odds, float)[act]))
-    table = np.c_[np.asarray(lm.mean)[act], cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1], np.asarray(lm.hits)[act],
-                  np.asarray(lm.misses)[act], existence, np.asarray(lm.confirmed)[act],
-                  np.asarray(lm.diam)[act], np.sqrt(np.asarray(lm.diam_var)[act])]
+    table = np.c_[
+        np.asarray(lm.mean)[act],
+        cov[:, 0, 0],
+        cov[:, 0, 1],
+        cov[:, 1, 1],
+        np.asarray(lm.hits)[act],
+        np.asarray(lm.misses)[act],
+        existence,
+        np.asarray(lm.confirmed)[act],
+        np.asarray(lm.diam)[act],
+        np.sqrt(np.asarray(lm.diam_var)[act]),
+    ]
     if getattr(lm, "ident", None) is not None:
         table = np.c_[table, np.asarray(lm.ident)[act]]
     return table
@@ -214,8 +259,14 @@ def versions() -> dict:
     import equinox
     import optimistix
 
-    return {"nanoslam_jax": __version__, "jax": jax.__version__, "equinox": equinox.__version__,
-            "optimistix": optimistix.__version__, "numpy": np.__version__, "python": platform.python_version()}
+    return {
+        "nanoslam_jax": __version__,
+        "jax": jax.__version__,
+        "equinox": equinox.__version__,
+        "optimistix": optimistix.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+    }
 
 
 def adaptive_noise_report(static: Static, params: Params, state) -> tuple[dict, list[str]]:
@@ -229,8 +280,9 @@ def adaptive_noise_report(static: Static, params: Params, state) -> tuple[dict, 
     Returns:
         ``(metrics, warnings)`` as :func:`~nanoslam_jax.filter.adaptive_noise_summary` gives them.
     """
-    return adaptive_noise_summary(np.asarray(noise_estimates(state)), np.asarray(configured_noise(static, params)),
-                                  float(params.noise_floor))
+    return adaptive_noise_summary(
+        np.asarray(noise_estimates(state)), np.asarray(configured_noise(static, params)), float(params.noise_floor)
+    )
 
 
 def _write_csv(path: Path, header: list[str], rows: np.ndarray, fmt: str = "%.6f") -> None:
@@ -312,8 +364,10 @@ class RunResult:
         cfg = self.config
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        header = (f"# nanoslam-jax {__version__}, seed {cfg.seed}, "
-                  f"written {_dt.datetime.now().isoformat(timespec='seconds')}\n")
+        header = (
+            f"# nanoslam-jax {__version__}, seed {cfg.seed}, "
+            f"written {_dt.datetime.now().isoformat(timespec='seconds')}\n"
+        )
         (out / "config.yaml").write_text(header + yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
         t, est = self.times, self.trajectory
         cols, table = ["t", "x", "y", "phi", "mean_x", "mean_y", "mean_phi"], np.c_[t, est, self.mean_trajectory]
@@ -328,9 +382,12 @@ class RunResult:
             _write_csv(out / "map.csv", cols, self.landmarks, fmt="%.9g")
         (out / "metrics.json").write_text(json.dumps(_json_safe(self.metrics), indent=2) + "\n")
         if (cfg.output.plots if plots is None else plots) and self.finite:
-            mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=self.log.frame)
-            _plots(out, cfg, self.log, t, est, self.landmarks, self.ess, cfg.filter.n_particles, mk,
-                   self.dead_reckoning)
+            mk = dict(
+                rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=self.log.frame
+            )
+            _plots(
+                out, cfg, self.log, t, est, self.landmarks, self.ess, cfg.filter.n_particles, mk, self.dead_reckoning
+            )
         return out
 
 
@@ -359,9 +416,16 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
     seg = log.segments
     static, params = settings_from_config(cfg, seg.k_max)
     t = np.asarray(seg.time)
-    metrics: dict = {"method": cfg.filter.method, "seed": cfg.seed, "version": __version__, "data": log.source,
-                     "frame": log.frame, "n_segments": int(t.shape[0]),
-                     "versions": versions(), "command": " ".join(sys.argv)}
+    metrics: dict = {
+        "method": cfg.filter.method,
+        "seed": cfg.seed,
+        "version": __version__,
+        "data": log.source,
+        "frame": log.frame,
+        "n_segments": int(t.shape[0]),
+        "versions": versions(),
+        "command": " ".join(sys.argv),
+    }
     show = cfg.output.progress if progress is None else progress
 
     landmarks = None
@@ -380,8 +444,9 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
         if np.all(np.isfinite(dr_poses)) and len(log.raw.gps):
             dr = evaluate(t, dr_poses[:, :2], log.raw.gps, **mk)
             metrics.update({f"dr_{k}": dr[k] for k in ("rmse_fixed", "rmse_aligned", "final_error")})
-        run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk,
-                         progress=text_progress(cfg.name) if show else None)
+        run = run_filter(
+            static, params, seg, cfg.seed, chunk=cfg.output.chunk, progress=text_progress(cfg.name) if show else None
+        )
         o = run.outputs
         best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
         est = np.asarray(reported_trajectory(static.estimate, o, run.state))
@@ -400,13 +465,20 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
         has = np.asarray(o.n_associated) > 0
         metrics.update(
             landmark_overflow=int(run.state.overflow),
-            window_overflow_max=int(np.max(o.window_overflow)), resample_count=int(run.state.resample_count),
-            ess_mean=float(np.mean(o.ess)), ess_min=float(np.min(o.ess)),
+            window_overflow_max=int(np.max(o.window_overflow)),
+            resample_count=int(run.state.resample_count),
+            ess_mean=float(np.mean(o.ess)),
+            ess_min=float(np.min(o.ess)),
             nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,
-            proposal_capped=int(np.sum(o.n_capped)), proposal_nonfinite=int(np.sum(o.n_nonfinite)),
-            weight_resets=int(np.sum(o.weight_reset)), associations_per_scan=float(np.mean(o.n_associated)),
-            compile_s=run.compile_s, run_s=run.run_s, ms_per_scan=1e3 * run.run_s / max(len(t), 1),
-            n_particles=static.n_particles, capacity=static.capacity,
+            proposal_capped=int(np.sum(o.n_capped)),
+            proposal_nonfinite=int(np.sum(o.n_nonfinite)),
+            weight_resets=int(np.sum(o.weight_reset)),
+            associations_per_scan=float(np.mean(o.n_associated)),
+            compile_s=run.compile_s,
+            run_s=run.run_s,
+            ms_per_scan=1e3 * run.run_s / max(len(t), 1),
+            n_particles=static.n_particles,
+            capacity=static.capacity,
         )
         if static.adaptive_noise:
             noise_metrics, noise_warnings = adaptive_noise_report(static, params, run.state)
@@ -415,14 +487,17 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
                 metrics.setdefault("warnings", []).extend(noise_warnings)
         if static.adaptive_process:
             process_metrics, process_warnings = adaptive_process_summary(
-                np.asarray(run.state.process_scale), int(run.state.process_count), float(params.process_floor))
+                np.asarray(run.state.process_scale), int(run.state.process_count), float(params.process_floor)
+            )
             metrics.update(process_metrics)
             if process_warnings:
                 metrics.setdefault("warnings", []).extend(process_warnings)
 
     # JAX's own count of this run's tracing, lowering and compiling (or loading from the cache).
-    metrics["compilation"] = {**compile_stats().since(stats0).as_dict(),
-                              "cache_dir": jax.config.jax_compilation_cache_dir or None}
+    metrics["compilation"] = {
+        **compile_stats().since(stats0).as_dict(),
+        "cache_dir": jax.config.jax_compilation_cache_dir or None,
+    }
     lm = None
     if landmarks is not None:
         ids = landmarks[:, len(MAP_COLUMNS)] if landmarks.shape[1] > len(MAP_COLUMNS) else None
@@ -442,12 +517,26 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
         metrics.update(dr_survey_rmse=dr_map["rmse"], dr_survey_found=dr_map["n_found"])
         if np.isfinite(metrics.get("survey_rmse", np.nan)):
             metrics["survey_dr_over_slam"] = dr_map["rmse"] / max(metrics["survey_rmse"], 1e-12)
-    return RunResult(config=cfg, log=log, times=t, trajectory=est, mean_trajectory=mean, best_trajectory=best_pose,
-                     path_before_smoother=unsmoothed, dead_reckoning=dr_poses, landmarks=landmarks, ess=ess,
-                     outputs=outputs, state=state, metrics=metrics)
+    return RunResult(
+        config=cfg,
+        log=log,
+        times=t,
+        trajectory=est,
+        mean_trajectory=mean,
+        best_trajectory=best_pose,
+        path_before_smoother=unsmoothed,
+        dead_reckoning=dr_poses,
+        landmarks=landmarks,
+        ess=ess,
+        outputs=outputs,
+        state=state,
+        metrics=metrics,
+    )
 
 
-def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = None, progress: Optional[bool] = None) -> dict:
+def run_experiment(
+    cfg: Config, out_dir: str | Path, data_dir: Optional[str] = None, progress: Optional[bool] = None
+) -> dict:
     """Run ``cfg`` (:func:`execute`) and write its result directory (:meth:`RunResult.write`).
 
     Args:
@@ -465,7 +554,9 @@ def run_experiment(cfg: Config, out_dir: str | Path, data_dir: Optional[str] = N
     result = execute(cfg, data_dir, progress)
     out = result.write(out_dir)
     if not result.finite:
-        raise FloatingPointError(f"{cfg.name}: the estimate became non-finite; metrics written to {out / 'metrics.json'}")
+        raise FloatingPointError(
+            f"{cfg.name}: the estimate became non-finite; metrics written to {out / 'metrics.json'}"
+        )
     return result.metrics
 
 
@@ -473,29 +564,53 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
     from .plotting import plot_series, plot_trajectory
 
     gps = log.raw.gps
-    ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" and len(gps) else gps[:, 1:3]
+    ref = (
+        relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" and len(gps) else gps[:, 1:3]
+    )
     label = "GPS (relative frame)" if log.frame == "relative" else "truth"
     if cfg.model.measurement == "line":  # a map of lines (rho, alpha): no points to draw
         landmarks = None
     confirmed = None if landmarks is None else landmarks[:, MAP_COLUMNS.index("confirmed")] > 0
     # True landmarks in another frame than the path (a surveyed map, e.g. MRCLAM's) are not drawn.
     true_landmarks = log.raw.truth_landmarks if log.frame == "slam" and landmarks is not None else None
-    plot_trajectory(out / "trajectory.png", ref, [(cfg.filter.method, est[:, :2])],
-                    None if landmarks is None else landmarks[:, :2], true_landmarks,
-                    title=f"{cfg.name}: {cfg.filter.method}", reference_label=label, confirmed=confirmed)
+    plot_trajectory(
+        out / "trajectory.png",
+        ref,
+        [(cfg.filter.method, est[:, :2])],
+        None if landmarks is None else landmarks[:, :2],
+        true_landmarks,
+        title=f"{cfg.name}: {cfg.filter.method}",
+        reference_label=label,
+        confirmed=confirmed,
+    )
     if not len(gps):  # no GPS (e.g. MRCLAM): no error over time
         if ess is not None:
-            plot_series(out / "ess.png", [("ESS", t, ess)], "effective sample size", f"{cfg.name}: ESS",
-                        hline=cfg.filter.resample_threshold * n_particles)
+            plot_series(
+                out / "ess.png",
+                [("ESS", t, ess)],
+                "effective sample size",
+                f"{cfg.name}: ESS",
+                hline=cfg.filter.resample_threshold * n_particles,
+            )
         return
     te, err = error_over_time(t, est[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"])
     series = [(cfg.filter.method, te, err)]
     if cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):
         # The baseline: the vehicle model alone on the same log.
-        series.append(("dead reckoning", *error_over_time(t, dr_poses[:, :2], gps, rotation_deg=mk["rotation_deg"],
-                                                         frame=mk["frame"])))
-    plot_series(out / "error.png", series, "position error [m]", f"{cfg.name}: error against {label}",
-                logy=len(series) > 1)
+        series.append(
+            (
+                "dead reckoning",
+                *error_over_time(t, dr_poses[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"]),
+            )
+        )
+    plot_series(
+        out / "error.png", series, "position error [m]", f"{cfg.name}: error against {label}", logy=len(series) > 1
+    )
     if ess is not None:
-        plot_series(out / "ess.png", [("ESS", t, ess)], "effective sample size", f"{cfg.name}: ESS",
-                    hline=cfg.filter.resample_threshold * n_particles)
+        plot_series(
+            out / "ess.png",
+            [("ESS", t, ess)],
+            "effective sample size",
+            f"{cfg.name}: ESS",
+            hline=cfg.filter.resample_threshold * n_particles,
+        )

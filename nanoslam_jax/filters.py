@@ -122,8 +122,10 @@ def build(
         params = params._replace(motion=motion)
     if measurement is not None:
         if not isinstance(measurement, AbstractMeasurementModel):
-            raise TypeError(f"measurement: expected a nanoslam_jax.models.AbstractMeasurementModel, got "
-                            f"{type(measurement).__name__}")
+            raise TypeError(
+                f"measurement: expected a nanoslam_jax.models.AbstractMeasurementModel, got "
+                f"{type(measurement).__name__}"
+            )
         try:
             check_measurement_model(measurement, static.method, cfg.smoother.enabled)
         except ValueError as e:
@@ -131,5 +133,9 @@ def build(
         params = params._replace(measurement=measurement)
     _check_filter_method(static)
     static = dataclasses.replace(static, devices=1)
-    return Filter(static=static, params=params, init=functools.partial(_init, static, params),
-                  step=functools.partial(_step, static, params))
+    return Filter(
+        static=static,
+        params=params,
+        init=functools.partial(_init, static, params),
+        step=functools.partial(_step, static, params),
+    )

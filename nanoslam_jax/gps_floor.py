@@ -183,7 +183,7 @@ def _offset_fit(gt, ref, t, pose, keep, inside, window: float) -> tuple[tuple, f
         xy, phi = _pose_at(gt[idx] + q[2], t, pose)
         c, s = np.cos(phi), np.sin(phi)
         px, py = xy[:, 0] + c * q[0] - s * q[1], xy[:, 1] + s * q[0] + c * q[1]
-        th, tr = q[3:3 + nw][wid], q[3 + nw:].reshape(nw, 2)[wid]
+        th, tr = q[3 : 3 + nw][wid], q[3 + nw :].reshape(nw, 2)[wid]
         C, S = np.cos(th), np.sin(th)
         return np.concatenate([C * px - S * py + tr[:, 0] - ref[idx, 0], S * px + C * py + tr[:, 1] - ref[idx, 1]])
 
@@ -191,22 +191,30 @@ def _offset_fit(gt, ref, t, pose, keep, inside, window: float) -> tuple[tuple, f
     xy0, _ = _pose_at(gt[idx], t, pose)
     for k in range(nw):
         R, tr, _ = rigid_align(xy0[wid == k], ref[idx[wid == k]])
-        q0[3 + k], q0[3 + nw + 2 * k:5 + nw + 2 * k] = math.atan2(R[1, 0], R[0, 0]), tr
-    rms = lambda r: float(np.sqrt(np.mean(r[:idx.size] ** 2 + r[idx.size:] ** 2)))  # noqa: E731
+        q0[3 + k], q0[3 + nw + 2 * k : 5 + nw + 2 * k] = math.atan2(R[1, 0], R[0, 0]), tr
+    rms = lambda r: float(np.sqrt(np.mean(r[: idx.size] ** 2 + r[idx.size :] ** 2)))  # noqa: E731
     # Each residual depends on the offset, the shift and its own window's three parameters.
     rows = np.arange(2 * idx.size)
     w2 = np.concatenate([wid, wid])
     cols = np.concatenate([np.tile([0, 1, 2], rows.size), 3 + w2, 3 + nw + 2 * w2, 4 + nw + 2 * w2])
-    sparsity = coo_matrix((np.ones(cols.size), (np.concatenate([np.repeat(rows, 3), rows, rows, rows]), cols)),
-                          shape=(rows.size, q0.size))
+    sparsity = coo_matrix(
+        (np.ones(cols.size), (np.concatenate([np.repeat(rows, 3), rows, rows, rows]), cols)), shape=(rows.size, q0.size)
+    )
     sol = least_squares(resid, q0, x_scale="jac", jac_sparsity=sparsity)
     return (float(sol.x[0]), float(sol.x[1])), float(sol.x[2]), rms(sol.fun), rms(resid(q0))
 
 
 def estimate_gps_floor(
-    gps: np.ndarray, t: np.ndarray, pose: np.ndarray, *, rotation_deg: float = -35.4, jump_speed: float = 8.0,
-    source_rotation_deg: float = GPS_DAT_ROTATION_DEG, windows: Sequence[float] = (5.0, 10.0, 20.0, 60.0),
-    reference_window: float = 10.0, frame_windows: Sequence[float] = (30.0, 40.0, 60.0, 80.0, 120.0),
+    gps: np.ndarray,
+    t: np.ndarray,
+    pose: np.ndarray,
+    *,
+    rotation_deg: float = -35.4,
+    jump_speed: float = 8.0,
+    source_rotation_deg: float = GPS_DAT_ROTATION_DEG,
+    windows: Sequence[float] = (5.0, 10.0, 20.0, 60.0),
+    reference_window: float = 10.0,
+    frame_windows: Sequence[float] = (30.0, 40.0, 60.0, 80.0, 120.0),
     offset_window: float = 20.0,
 ) -> GpsFloor:
     """Estimate the GPS's share of the RMSE (see the module docstring).
@@ -239,15 +247,21 @@ def estimate_gps_floor(
     for w in sorted(set(windows) | {reference_window}):
         res, rot = _local_residuals(gt, ref, P, keep, inside, w)
         ok = np.isfinite(res)
-        local.append((float(w), float(np.sqrt(np.mean(res[ok] ** 2))), float(np.sqrt(np.mean(res[ok & keep] ** 2))),
-                      int(ok.sum())))
+        local.append(
+            (
+                float(w),
+                float(np.sqrt(np.mean(res[ok] ** 2))),
+                float(np.sqrt(np.mean(res[ok & keep] ** 2))),
+                int(ok.sum()),
+            )
+        )
         if w == reference_window:
             ref_rot = rot
     jumps = _jump_offsets(gt, ref, keep, inside)
     n_in, n_clean = int(inside.sum()), int((keep & inside).sum())
-    jump_rmse = float(np.sqrt(np.sum(jumps ** 2) / n_in))
+    jump_rmse = float(np.sqrt(np.sum(jumps**2) / n_in))
     clean = next(c for w, _, c, _ in local if w == reference_window)
-    aligned = float(np.sqrt(clean ** 2 * n_clean / n_in + jump_rmse ** 2))
+    aligned = float(np.sqrt(clean**2 * n_clean / n_in + jump_rmse**2))
     g = ref[inside]
     # What a frame rotated by `deg` about the first fix costs an exact path, RMS over the fixes.
     shift = lambda deg: float(np.sqrt(np.mean(np.sum((g @ rotation_matrix(deg).T - g) ** 2, axis=1))))  # noqa: E731
@@ -262,14 +276,26 @@ def estimate_gps_floor(
     fr = [f[4] for f in frame] or [math.nan]
     gaps = np.diff(gt[inside])
     return GpsFloor(
-        n_fixes=int(inside.sum()), n_jumps=int((~keep & inside).sum()), gaps_over_1s=int((gaps > 1.0).sum()),
+        n_fixes=int(inside.sum()),
+        n_jumps=int((~keep & inside).sum()),
+        gaps_over_1s=int((gaps > 1.0).sum()),
         longest_gap_s=float(gaps.max(initial=0.0)),
         jump_offset_median=float(np.median(jumps)) if jumps.size else math.nan,
-        jump_offset_max=float(jumps.max()) if jumps.size else math.nan, jump_rmse=jump_rmse, local_rms=tuple(local),
-        white_sigma=_white_sigma(gt, ref, P, keep, inside, ref_rot), antenna_offset=offset, clock_offset_s=clock,
-        offset_fit_rms=fit_rms, offset_fit_rms_without=fit_rms0, r_rms=float(np.sqrt(np.mean(np.sum(g ** 2, axis=1)))),
-        frame=tuple(frame), frame_rmse_1deg=shift(1.0), frame_rmse_2deg=shift(2.0), aligned_floor=aligned,
-        fixed_floor_low=float(math.hypot(min(fr), aligned)), fixed_floor_high=float(math.hypot(max(fr), aligned)),
+        jump_offset_max=float(jumps.max()) if jumps.size else math.nan,
+        jump_rmse=jump_rmse,
+        local_rms=tuple(local),
+        white_sigma=_white_sigma(gt, ref, P, keep, inside, ref_rot),
+        antenna_offset=offset,
+        clock_offset_s=clock,
+        offset_fit_rms=fit_rms,
+        offset_fit_rms_without=fit_rms0,
+        r_rms=float(np.sqrt(np.mean(np.sum(g**2, axis=1)))),
+        frame=tuple(frame),
+        frame_rmse_1deg=shift(1.0),
+        frame_rmse_2deg=shift(2.0),
+        aligned_floor=aligned,
+        fixed_floor_low=float(math.hypot(min(fr), aligned)),
+        fixed_floor_high=float(math.hypot(max(fr), aligned)),
         reference_window=float(reference_window),
     )
 
@@ -293,30 +319,38 @@ def gps_floor_of_log(cfg, log, segments: Optional[int] = None) -> GpsFloor:
     _, params = settings_from_config(cfg, seg.k_max)
     pose = np.asarray(jax.jit(dead_reckoning)(params, seg))
     gps = log.raw.gps if hasattr(log, "raw") else log.gps
-    return estimate_gps_floor(gps, np.asarray(seg.time), pose, rotation_deg=cfg.metrics.gps_rotation_deg,
-                              jump_speed=cfg.metrics.jump_speed)
+    return estimate_gps_floor(
+        gps, np.asarray(seg.time), pose, rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed
+    )
 
 
 def floor_markdown(f: GpsFloor) -> str:
     """The floor as a Markdown report."""
     lines = [
-        "# The GPS floor", "",
+        "# The GPS floor",
+        "",
         f"{f.n_fixes} GPS fixes in the span; {f.n_jumps} jumps ({100 * f.n_jumps / max(f.n_fixes, 1):.1f} %), "
         f"{f.jump_offset_median:.2f} m (median) and {f.jump_offset_max:.2f} m (largest) from the track of the "
         f"clean fixes; alone they add {f.jump_rmse:.2f} m to the RMSE of any path (both variants; not to the "
-        f"`*_clean` ones). {f.gaps_over_1s} gaps over 1 s, the longest {f.longest_gap_s:.1f} s.", "",
+        f"`*_clean` ones). {f.gaps_over_1s} gaps over 1 s, the longest {f.longest_gap_s:.1f} s.",
+        "",
         "| window W [s] | short-term GPS error, RMS all fixes [m] | RMS clean fixes [m] | fixes scored |",
         "|---|---|---|---|",
-        *[f"| {w:g} | {a:.3f} | {c:.3f} | {n} |" for w, a, c, n in f.local_rms], "",
-        f"White noise (second differences against DR): {f.white_sigma:.3f} m per axis.", "",
+        *[f"| {w:g} | {a:.3f} | {c:.3f} | {n} |" for w, a, c, n in f.local_rms],
+        "",
+        f"White noise (second differences against DR): {f.white_sigma:.3f} m per axis.",
+        "",
         f"Antenna offset from the laser (forward, left): ({f.antenna_offset[0]:.2f}, {f.antenna_offset[1]:.2f}) m; "
         f"GPS clock shift {f.clock_offset_s:+.3f} s; fit RMS {f.offset_fit_rms:.3f} m against "
-        f"{f.offset_fit_rms_without:.3f} m without them.", "",
+        f"{f.offset_fit_rms_without:.3f} m without them.",
+        "",
         f"The fixed frame: RMS distance of the fixes from the first fix {f.r_rms:.1f} m; a frame rotated by 1 deg "
-        f"moves them by {f.frame_rmse_1deg:.2f} m RMS, by 2 deg {f.frame_rmse_2deg:.2f} m.", "",
+        f"moves them by {f.frame_rmse_1deg:.2f} m RMS, by 2 deg {f.frame_rmse_2deg:.2f} m.",
+        "",
         "| DR fitted over the first T [s] | rotation off the fixed frame [deg] | translation [m] | its cost to an exact path in the fixed frame, RMS [m] |",
         "|---|---|---|---|",
-        *[f"| {T:g} | {d:+.2f} | ({tx:.2f}, {ty:.2f}) | {r:.2f} |" for T, d, tx, ty, r in f.frame], "",
+        *[f"| {T:g} | {d:+.2f} | ({tx:.2f}, {ty:.2f}) | {r:.2f} |" for T, d, tx, ty, r in f.frame],
+        "",
         f"**Floor of rmse_aligned** (short-term error of the clean fixes, W = {f.reference_window:g} s, and the jumps): "
         f"{f.aligned_floor:.2f} m. "
         f"**Floor of rmse_fixed** (with the cost of the smallest and the largest rotation fitted): "

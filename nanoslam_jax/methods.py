@@ -97,8 +97,9 @@ class Method:
         for k, v in (given or {}).items():
             if k not in out:
                 takes = ", ".join(sorted(out)) or "none"
-                raise ValueError(f"key 'filter.method_params.{k}': method {self.name!r} takes no parameter {k!r} "
-                                 f"(it takes: {takes})")
+                raise ValueError(
+                    f"key 'filter.method_params.{k}': method {self.name!r} takes no parameter {k!r} (it takes: {takes})"
+                )
             out[k] = float(v)
         return out
 
@@ -143,8 +144,10 @@ def get_method(name: str) -> Method:
         if not isinstance(obj, Method):
             raise ValueError(f"key 'filter.method': {name!r} is not a nanoslam_jax.methods.Method")
         return register(dataclasses.replace(obj, name=name), replace=True)
-    raise ValueError(f"key 'filter.method': {name!r} is not a registered method; expected one of "
-                     f"{', '.join(map(repr, _REGISTRY))} (or one by import path 'module:METHOD')")
+    raise ValueError(
+        f"key 'filter.method': {name!r} is not a registered method; expected one of "
+        f"{', '.join(map(repr, _REGISTRY))} (or one by import path 'module:METHOD')"
+    )
 
 
 # --------------------------------------------------------------------------- built-in methods
@@ -154,11 +157,24 @@ def _nano(static: "Static", params: "Params", mp: dict):
     from .proposals import NanoProposal
     from .quadrature import make_rule
 
-    rule = make_rule(static.quadrature, alpha=params.nano_alpha, beta=params.nano_beta, kappa=params.nano_kappa,
-                     order=static.gh_order)
-    return NanoProposal(rule, params.gamma, params.step, max_iter=static.max_iter, hessian=static.hessian,
-                        landmark_noise=static.landmark_noise, init=static.nano_init, solver=static.nano_solver,
-                        measurement=params.measurement)
+    rule = make_rule(
+        static.quadrature,
+        alpha=params.nano_alpha,
+        beta=params.nano_beta,
+        kappa=params.nano_kappa,
+        order=static.gh_order,
+    )
+    return NanoProposal(
+        rule,
+        params.gamma,
+        params.step,
+        max_iter=static.max_iter,
+        hessian=static.hessian,
+        landmark_noise=static.landmark_noise,
+        init=static.nano_init,
+        solver=static.nano_solver,
+        measurement=params.measurement,
+    )
 
 
 def _fastslam1(static, params, mp):
@@ -176,15 +192,21 @@ def _fastslam2(static, params, mp):
 def _ufastslam(static, params, mp):
     from .proposals._ufastslam import UnscentedProposal
 
-    return UnscentedProposal(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa,
-                             measurement=params.measurement)
+    return UnscentedProposal(
+        alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa, measurement=params.measurement
+    )
 
 
 def _iterated(static, params, mp):
     from .proposals._iterated import IteratedProposal
 
-    return IteratedProposal(solver=static.iterated_solver, max_iter=static.iterated_max_iter, tol=static.iterated_tol,
-                            landmark_noise=static.iterated_landmark_noise, measurement=params.measurement)
+    return IteratedProposal(
+        solver=static.iterated_solver,
+        max_iter=static.iterated_max_iter,
+        tol=static.iterated_tol,
+        landmark_noise=static.iterated_landmark_noise,
+        measurement=params.measurement,
+    )
 
 
 def _ekf_init(static, params, key):
@@ -214,15 +236,46 @@ def _nasrukf_step(static, params, state, seg, valid):
 # optimistix's least-squares solvers cannot run under shard_map (lineax compares the residual's
 # structure with its operator's, whose sharding differs there): such runs stay on one device.
 register(Method("dead_reckoning", kind="dead_reckoning", description="the motion model alone"))
-register(Method("nano", proposal=_nano, adaptive_noise=True, shardable=lambda s: s.nano_init != "gauss_newton",
-                description="NANO-SLAM: the KL-optimal Gaussian proposal by natural-gradient iteration"))
+register(
+    Method(
+        "nano",
+        proposal=_nano,
+        adaptive_noise=True,
+        shardable=lambda s: s.nano_init != "gauss_newton",
+        description="NANO-SLAM: the KL-optimal Gaussian proposal by natural-gradient iteration",
+    )
+)
 register(Method("fastslam1", proposal=_fastslam1, description="FastSLAM 1.0: the prior as proposal"))
-register(Method("fastslam2", proposal=_fastslam2, adaptive_noise=True,
-                description="FastSLAM 2.0: the linearised (EKF) proposal"))
-register(Method("ufastslam", proposal=_ufastslam, landmark_update="unscented", adaptive_noise=True,
-                description="Unscented FastSLAM: unscented proposal and landmark updates"))
-register(Method("iterated", proposal=_iterated, shardable=lambda s: False,
-                description="the iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal"))
+register(
+    Method(
+        "fastslam2", proposal=_fastslam2, adaptive_noise=True, description="FastSLAM 2.0: the linearised (EKF) proposal"
+    )
+)
+register(
+    Method(
+        "ufastslam",
+        proposal=_ufastslam,
+        landmark_update="unscented",
+        adaptive_noise=True,
+        description="Unscented FastSLAM: unscented proposal and landmark updates",
+    )
+)
+register(
+    Method(
+        "iterated",
+        proposal=_iterated,
+        shardable=lambda s: False,
+        description="the iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal",
+    )
+)
 register(Method("ekf_slam", kind="gaussian", init=_ekf_init, step=_ekf_step, description="EKF-SLAM"))
-register(Method("nasrukf", kind="gaussian", init=_nasrukf_init, step=_nasrukf_step, adaptive_noise=True,
-                description="NASRUKF FastSLAM: adaptive square-root UKF per feature"))
+register(
+    Method(
+        "nasrukf",
+        kind="gaussian",
+        init=_nasrukf_init,
+        step=_nasrukf_step,
+        adaptive_noise=True,
+        description="NASRUKF FastSLAM: adaptive square-root UKF per feature",
+    )
+)

@@ -394,8 +394,13 @@ MIN_SCANS_OBSERVABLE = 10
 
 
 def observable_landmarks(
-    true_landmarks: np.ndarray, truth_poses: np.ndarray, scan_times: np.ndarray, max_range: float,
-    fov_deg: float = 180.0, min_range: float = 0.0, min_scans: int = MIN_SCANS_OBSERVABLE,
+    true_landmarks: np.ndarray,
+    truth_poses: np.ndarray,
+    scan_times: np.ndarray,
+    max_range: float,
+    fov_deg: float = 180.0,
+    min_range: float = 0.0,
+    min_scans: int = MIN_SCANS_OBSERVABLE,
 ) -> np.ndarray:
     """Which true landmarks a filter could map: those inside the sensor footprint of the true pose
     at ``min_scans`` scans or more (a tree never or only fleetingly in view cannot be mapped, and a
@@ -447,7 +452,10 @@ def map_quality(est_landmarks: np.ndarray, true_landmarks: np.ndarray, radius: f
 
 
 def map_summary(
-    xy: np.ndarray, confirmed: np.ndarray, map_truth: np.ndarray | None, radius: float,
+    xy: np.ndarray,
+    confirmed: np.ndarray,
+    map_truth: np.ndarray | None,
+    radius: float,
     alignment: dict | None = None,
 ) -> dict:
     """What ``metrics.json`` (and a sweep's results) report of a map.
@@ -477,14 +485,22 @@ def map_summary(
             R = rotation_matrix(alignment["align_rotation_deg"])
             moved = est @ R.T + np.array([alignment["align_x"], alignment["align_y"]])
             quality = map_quality(moved, map_truth, radius)
-            out.update({f"map_{k}_aligned": quality[k] for k in
-                        ("n_found", "found_fraction", "n_spurious", "spurious_fraction", "rmse_matched")})
+            out.update(
+                {
+                    f"map_{k}_aligned": quality[k]
+                    for k in ("n_found", "found_fraction", "n_spurious", "spurious_fraction", "rmse_matched")
+                }
+            )
     return out
 
 
 def survey_summary(
-    xy: np.ndarray, confirmed: np.ndarray, true_xy: np.ndarray, radius: float,
-    ids: np.ndarray | None = None, true_ids: np.ndarray | None = None,
+    xy: np.ndarray,
+    confirmed: np.ndarray,
+    true_xy: np.ndarray,
+    radius: float,
+    ids: np.ndarray | None = None,
+    true_ids: np.ndarray | None = None,
 ) -> dict:
     """A map against surveyed landmarks in a frame of their own (a real log's survey, e.g. MRCLAM's):
     :func:`map_alignment_metrics` over the confirmed landmarks.
@@ -507,12 +523,19 @@ def survey_summary(
     conf = np.asarray(confirmed, bool)
     est = np.asarray(xy, dtype=float).reshape(-1, 2)[conf]
     geo = map_alignment_metrics(est, true_xy, match_radius=radius)
-    out = {"survey_rmse": geo["rmse"], "survey_found": geo["n_found"], "survey_spurious": geo["n_spurious"],
-           "survey_landmarks": geo["n_true"]}
+    out = {
+        "survey_rmse": geo["rmse"],
+        "survey_found": geo["n_found"],
+        "survey_spurious": geo["n_spurious"],
+        "survey_landmarks": geo["n_true"],
+    }
     if ids is not None:
         by_id = map_alignment_metrics(est, true_xy, np.asarray(ids).reshape(-1)[conf], true_ids, match_radius=radius)
-        out.update(survey_rmse_by_id=by_id["rmse"], survey_found_by_id=by_id["n_found"],
-                   survey_spurious_by_id=by_id["n_spurious"])
+        out.update(
+            survey_rmse_by_id=by_id["rmse"],
+            survey_found_by_id=by_id["n_found"],
+            survey_spurious_by_id=by_id["n_spurious"],
+        )
     return out
 
 
@@ -520,8 +543,9 @@ def _angle_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arctan2(R[1, 0], R[0, 0])))
 
 
-def _pair_transforms(est: np.ndarray, tru: np.ndarray, tol: float, max_pairs: int, min_pairs: int = 16,
-                     budget: int = 300_000) -> tuple[np.ndarray, np.ndarray]:
+def _pair_transforms(
+    est: np.ndarray, tru: np.ndarray, tol: float, max_pairs: int, min_pairs: int = 16, budget: int = 300_000
+) -> tuple[np.ndarray, np.ndarray]:
     """Candidate rigid transforms of ``est`` onto ``tru``, each mapping a pair of estimates onto a
     pair of true landmarks of about the same separation (within ``tol``), or with fewer than two
     points on a side, one point onto another (a translation).
@@ -544,7 +568,7 @@ def _pair_transforms(est: np.ndarray, tru: np.ndarray, tol: float, max_pairs: in
     de, dt = est[j] - est[i], tru[m] - tru[k]
     close = np.abs(np.hypot(*de.T)[:, None] - np.hypot(*dt.T)[None, :]) <= tol
     used = np.searchsorted(np.cumsum(close.sum(axis=1)), budget, side="right")
-    a, b = np.nonzero(close[:max(min_pairs, used)])
+    a, b = np.nonzero(close[: max(min_pairs, used)])
     theta = np.arctan2(dt[b, 1], dt[b, 0]) - np.arctan2(de[a, 1], de[a, 0])
     c, s = np.cos(theta), np.sin(theta)
     mid_e, mid_t = 0.5 * (est[i[a]] + est[j[a]]), 0.5 * (tru[k[b]] + tru[m[b]])
@@ -552,25 +576,33 @@ def _pair_transforms(est: np.ndarray, tru: np.ndarray, tol: float, max_pairs: in
     return theta, t
 
 
-def _score_transforms(est: np.ndarray, tree, theta: np.ndarray, t: np.ndarray, radius: float,
-                      chunk: int = 500_000) -> tuple[np.ndarray, np.ndarray]:
+def _score_transforms(
+    est: np.ndarray, tree, theta: np.ndarray, t: np.ndarray, radius: float, chunk: int = 500_000
+) -> tuple[np.ndarray, np.ndarray]:
     """Per candidate transform: how many moved estimates lie within ``radius`` of a true landmark
     (``tree``: a ``scipy.spatial.cKDTree`` of them), and the sum over the estimates of
     ``min(d^2, radius^2)`` (``d`` the distance to the nearest)."""
     n_in, cost = np.zeros(theta.size, dtype=np.int64), np.zeros(theta.size)
     step = max(1, chunk // max(1, est.shape[0]))
     for lo in range(0, theta.size, step):
-        c, s, tt = np.cos(theta[lo:lo + step]), np.sin(theta[lo:lo + step]), t[lo:lo + step]
+        c, s, tt = np.cos(theta[lo : lo + step]), np.sin(theta[lo : lo + step]), t[lo : lo + step]
         x = c[:, None] * est[None, :, 0] - s[:, None] * est[None, :, 1] + tt[:, 0:1]
         y = s[:, None] * est[None, :, 0] + c[:, None] * est[None, :, 1] + tt[:, 1:2]
         d, _ = tree.query(np.stack([x, y], axis=-1), distance_upper_bound=radius)
-        n_in[lo:lo + step] = np.isfinite(d).sum(axis=1)
-        cost[lo:lo + step] = np.minimum(d, radius).__pow__(2).sum(axis=1)
+        n_in[lo : lo + step] = np.isfinite(d).sum(axis=1)
+        cost[lo : lo + step] = np.minimum(d, radius).__pow__(2).sum(axis=1)
     return n_in, cost
 
 
-def _first_alignments(est: np.ndarray, tru: np.ndarray, radius: float, max_pairs: int, keep: int = 10,
-                      probe: int = 12, shortlist: int = 100) -> list[tuple[np.ndarray, np.ndarray]]:
+def _first_alignments(
+    est: np.ndarray,
+    tru: np.ndarray,
+    radius: float,
+    max_pairs: int,
+    keep: int = 10,
+    probe: int = 12,
+    shortlist: int = 100,
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """The ``keep`` best candidate alignments ``(R, t)`` of :func:`_pair_transforms`: scored on
     ``probe`` of the estimates first, then the ``shortlist`` best on all of them (most estimates
     within ``radius`` of a true landmark, then the smallest truncated squared distance)."""
@@ -600,8 +632,14 @@ def _assign(aligned: np.ndarray, tru: np.ndarray, radius: float) -> np.ndarray:
 
 
 def map_alignment_metrics(
-    est_xy: np.ndarray, true_xy: np.ndarray, est_ids: np.ndarray | None = None, true_ids: np.ndarray | None = None,
-    match_radius: float = 0.5, *, max_iter: int = 50, max_pairs: int = 400,
+    est_xy: np.ndarray,
+    true_xy: np.ndarray,
+    est_ids: np.ndarray | None = None,
+    true_ids: np.ndarray | None = None,
+    match_radius: float = 0.5,
+    *,
+    max_iter: int = 50,
+    max_pairs: int = 400,
 ) -> dict:
     """A map against surveyed landmarks in another frame: its RMSE after the best rigid alignment
     (rotation and translation, no scale; least squares, :func:`rigid_align`), the landmarks it
@@ -661,8 +699,10 @@ def map_alignment_metrics(
         est_ids = np.asarray(est_ids).reshape(-1).astype(np.int64)
         true_ids = np.arange(L) if true_ids is None else np.asarray(true_ids).reshape(-1).astype(np.int64)
         if est_ids.shape[0] != E or true_ids.shape[0] != L:
-            raise ValueError(f"est_ids must have E = {E} and true_ids L = {L} entries, got {est_ids.shape[0]} "
-                             f"and {true_ids.shape[0]}")
+            raise ValueError(
+                f"est_ids must have E = {E} and true_ids L = {L} entries, got {est_ids.shape[0]} "
+                f"and {true_ids.shape[0]}"
+            )
         if np.unique(true_ids).size != L:
             raise ValueError("true_ids: expected distinct ids")
         row_of = {int(k): r for r, k in enumerate(true_ids.tolist())}
@@ -763,8 +803,9 @@ def _paper_form(lines: np.ndarray, steep: np.ndarray) -> tuple[np.ndarray, np.nd
         return -num / den, lines[:, 0] / den
 
 
-def line_feature_errors(est_lines: np.ndarray, true_lines: np.ndarray, gate: float = 0.5, lever: float = 1.0,
-                        max_slope: float = 1.0) -> dict:
+def line_feature_errors(
+    est_lines: np.ndarray, true_lines: np.ndarray, gate: float = 0.5, lever: float = 1.0, max_slope: float = 1.0
+) -> dict:
     """Errors of estimated lines against true ones, all in normal form ``(rho, alpha)`` in the same frame.
 
     **Matching**: one-to-one (Hungarian, ``scipy.optimize.linear_sum_assignment``) minimising the
@@ -808,9 +849,17 @@ def line_feature_errors(est_lines: np.ndarray, true_lines: np.ndarray, gate: flo
         est_oriented = np.stack([tru[cols, 0] + rho_err[cols], tru[cols, 1] + alpha_err[cols]], axis=1)
         slope_e, icpt_e = _paper_form(est_oriented, steep[cols])
         slope_err[cols], icpt_err[cols] = slope_e - slope_t[cols], icpt_e - icpt_t[cols]
-    return {"match": match, "rho_error": rho_err, "alpha_error": alpha_err, "slope_error": slope_err,
-            "intercept_error": icpt_err, "steep": steep, "n_est": int(est.shape[0]), "n_true": int(n),
-            "n_matched": int(ok.sum())}
+    return {
+        "match": match,
+        "rho_error": rho_err,
+        "alpha_error": alpha_err,
+        "slope_error": slope_err,
+        "intercept_error": icpt_err,
+        "steep": steep,
+        "n_est": int(est.shape[0]),
+        "n_true": int(n),
+        "n_matched": int(ok.sum()),
+    }
 
 
 def arc_feature_errors(est_arcs: np.ndarray, true_arcs: np.ndarray, gate: float = 0.5) -> dict:
@@ -837,8 +886,14 @@ def arc_feature_errors(est_arcs: np.ndarray, true_arcs: np.ndarray, gate: float 
     centre, radius = np.full(tru.shape[0], np.nan), np.full(tru.shape[0], np.nan)
     centre[cols] = d[match[cols], cols]
     radius[cols] = est[match[cols], 2] - tru[cols, 2]
-    return {"match": match, "centre_error": centre, "radius_error": radius, "n_est": int(est.shape[0]),
-            "n_true": int(tru.shape[0]), "n_matched": int(cols.size)}
+    return {
+        "match": match,
+        "centre_error": centre,
+        "radius_error": radius,
+        "n_est": int(est.shape[0]),
+        "n_true": int(tru.shape[0]),
+        "n_matched": int(cols.size),
+    }
 
 
 def point_feature_errors(est_points: np.ndarray, true_points: np.ndarray, gate: float = 0.2) -> dict:
@@ -863,8 +918,13 @@ def point_feature_errors(est_points: np.ndarray, true_points: np.ndarray, gate: 
     cols = np.flatnonzero(match >= 0)
     err = np.full(tru.shape[0], np.nan)
     err[cols] = d[match[cols], cols]
-    return {"match": match, "error": err, "n_est": int(est.shape[0]), "n_true": int(tru.shape[0]),
-            "n_matched": int(cols.size)}
+    return {
+        "match": match,
+        "error": err,
+        "n_est": int(est.shape[0]),
+        "n_true": int(tru.shape[0]),
+        "n_matched": int(cols.size),
+    }
 
 
 def line_intersections(lines_a: np.ndarray, lines_b: np.ndarray) -> np.ndarray:
@@ -891,10 +951,18 @@ def _summary(errors: np.ndarray) -> tuple[float, float]:
 
 
 def feature_map_errors(
-    est_lines: np.ndarray, true_lines: np.ndarray, *, est_arcs: np.ndarray | None = None,
-    true_arcs: np.ndarray | None = None, corners: np.ndarray | None = None,
-    est_break_points: np.ndarray | None = None, true_break_points: np.ndarray | None = None,
-    line_gate: float = 0.5, lever: float = 1.0, max_slope: float = 1.0, arc_gate: float = 0.5,
+    est_lines: np.ndarray,
+    true_lines: np.ndarray,
+    *,
+    est_arcs: np.ndarray | None = None,
+    true_arcs: np.ndarray | None = None,
+    corners: np.ndarray | None = None,
+    est_break_points: np.ndarray | None = None,
+    true_break_points: np.ndarray | None = None,
+    line_gate: float = 0.5,
+    lever: float = 1.0,
+    max_slope: float = 1.0,
+    arc_gate: float = 0.5,
     point_gate: float = 0.2,
 ) -> dict:
     """The second paper's Table 1 for a map of lines (and arcs): line slope and intercept errors, arc
@@ -935,8 +1003,12 @@ def feature_map_errors(
     """
     lines = line_feature_errors(est_lines, true_lines, line_gate, lever, max_slope)
     summary: dict = {"n_lines": lines["n_true"], "n_lines_matched": lines["n_matched"]}
-    for name, key in (("line_slope", "slope_error"), ("line_intercept", "intercept_error"),
-                      ("line_rho", "rho_error"), ("line_alpha", "alpha_error")):
+    for name, key in (
+        ("line_slope", "slope_error"),
+        ("line_intercept", "intercept_error"),
+        ("line_rho", "rho_error"),
+        ("line_alpha", "alpha_error"),
+    ):
         summary[f"{name}_median"], summary[f"{name}_worst"] = _summary(lines[key])
     arcs = None
     if true_arcs is not None:
@@ -949,7 +1021,9 @@ def feature_map_errors(
         pairs = np.asarray(corners, dtype=np.int64).reshape(-1, 2)
         n_true = lines["n_true"]
         if pairs.size and (pairs.min() < 0 or pairs.max() >= n_true):
-            raise ValueError(f"corners: expected indices into the {n_true} true lines, got {pairs.min()}..{pairs.max()}")
+            raise ValueError(
+                f"corners: expected indices into the {n_true} true lines, got {pairs.min()}..{pairs.max()}"
+            )
         tru = _lines_np(true_lines)
         est = _lines_np(est_lines)
         true_xy = line_intersections(tru[pairs[:, 0]], tru[pairs[:, 1]])
@@ -964,8 +1038,9 @@ def feature_map_errors(
         summary["corner_median"], summary["corner_worst"] = _summary(err)
     breaks = None
     if true_break_points is not None:
-        breaks = point_feature_errors(np.zeros((0, 2)) if est_break_points is None else est_break_points,
-                                      true_break_points, point_gate)
+        breaks = point_feature_errors(
+            np.zeros((0, 2)) if est_break_points is None else est_break_points, true_break_points, point_gate
+        )
         summary["n_break_points"], summary["n_break_points_matched"] = breaks["n_true"], breaks["n_matched"]
         summary["break_point_median"], summary["break_point_worst"] = _summary(breaks["error"])
     return {"lines": lines, "arcs": arcs, "corners": corner, "break_points": breaks, "summary": summary}

@@ -41,11 +41,23 @@ def plot_trajectory(
         ax.plot(true_landmarks[:, 0], true_landmarks[:, 1], "o", mfc="none", ms=5, color="g", label="true landmarks")
     if landmarks is not None and len(landmarks):
         conf = np.ones(len(landmarks), bool) if confirmed is None else np.asarray(confirmed, bool)
-        ax.plot(landmarks[conf, 0], landmarks[conf, 1], "+", ms=4, color="k",
-                label=f"map ({int(conf.sum())} confirmed landmarks)")
+        ax.plot(
+            landmarks[conf, 0],
+            landmarks[conf, 1],
+            "+",
+            ms=4,
+            color="k",
+            label=f"map ({int(conf.sum())} confirmed landmarks)",
+        )
         if (~conf).any():
-            ax.plot(landmarks[~conf, 0], landmarks[~conf, 1], "+", ms=4, color="0.75",
-                    label=f"tentative ({int((~conf).sum())})")
+            ax.plot(
+                landmarks[~conf, 0],
+                landmarks[~conf, 1],
+                "+",
+                ms=4,
+                color="0.75",
+                label=f"tentative ({int((~conf).sum())})",
+            )
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -56,8 +68,15 @@ def plot_trajectory(
     plt.close(fig)
 
 
-def plot_series(path: Path, series: Sequence[tuple[str, np.ndarray, np.ndarray]], ylabel: str, title: str = "",
-                hline: Optional[float] = None, logy: bool = False, marker: str = "") -> None:
+def plot_series(
+    path: Path,
+    series: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    ylabel: str,
+    title: str = "",
+    hline: Optional[float] = None,
+    logy: bool = False,
+    marker: str = "",
+) -> None:
     """Time series, e.g. position error (Fig. 4), time per scan (Fig. 5) or ESS.
 
     Args:
@@ -111,7 +130,9 @@ def plot_trajectory_grid(
     for ax, (label, xy, lm) in zip(axes.flat, panels):
         ax.plot(reference[:, 0], reference[:, 1], ".", ms=1, color="0.6", label=reference_label)
         if true_landmarks is not None and len(true_landmarks):
-            ax.plot(true_landmarks[:, 0], true_landmarks[:, 1], "o", mfc="none", ms=4, color="g", label="true landmarks")
+            ax.plot(
+                true_landmarks[:, 0], true_landmarks[:, 1], "o", mfc="none", ms=4, color="g", label="true landmarks"
+            )
         ax.plot(xy[:, 0], xy[:, 1], "-", lw=0.8, color="C0", label="estimate")
         if lm is not None and len(lm):
             ax.plot(lm[:, 0], lm[:, 1], "+", ms=3, color="k", label=f"map ({len(lm)})")

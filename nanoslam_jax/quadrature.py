@@ -54,9 +54,7 @@ RULE_NAMES = ("cubature", "unscented", "gauss_hermite")
 CHOL_REL_JITTER = 1e-12
 
 
-def robust_cholesky(
-    cov: Float[ArrayLike, "n n"], rel_jitter: float = CHOL_REL_JITTER
-) -> Float[Array, "n n"]:
+def robust_cholesky(cov: Float[ArrayLike, "n n"], rel_jitter: float = CHOL_REL_JITTER) -> Float[Array, "n n"]:
     """Lower Cholesky factor of a (near-singular) covariance.
 
     The matrix is symmetrised, ``(cov + cov.T) / 2``, and ``eps * I`` is added with
@@ -270,9 +268,7 @@ def make_rule(
     raise ValueError(f"unknown quadrature rule {name!r}; expected one of {', '.join(map(repr, RULE_NAMES))}")
 
 
-def _deviations(
-    y: Float[Array, "m d"], mean: Float[Array, " d"], angle_index: int | None
-) -> Float[Array, "m d"]:
+def _deviations(y: Float[Array, "m d"], mean: Float[Array, " d"], angle_index: int | None) -> Float[Array, "m d"]:
     """``y - mean`` with the ``angle_index`` column (if any) wrapped to (-pi, pi]."""
     d = y - mean
     if angle_index is not None:

@@ -294,8 +294,9 @@ def _poses_at(
 # --------------------------------------------------------------------------- public API
 
 
-def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
-             unicycle: UnicycleConfig | None = None) -> RawLog:
+def simulate(
+    sim: SimConfig | None = None, vehicle: VehicleConfig | None = None, unicycle: UnicycleConfig | None = None
+) -> RawLog:
     """Simulate a Victoria Park-like log with ground truth (see the module docstring).
 
     Args:
@@ -326,8 +327,9 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
     sim = SimConfig() if sim is None else sim
     vehicle = VehicleConfig() if vehicle is None else vehicle
     if unicycle is not None:  # the car's model with no encoder offset moves the sensor as a unicycle does
-        vehicle = VehicleConfig(wheelbase=vehicle.wheelbase, encoder_offset=0.0,
-                                laser_a=unicycle.sensor_x, laser_b=unicycle.sensor_y)
+        vehicle = VehicleConfig(
+            wheelbase=vehicle.wheelbase, encoder_offset=0.0, laser_a=unicycle.sensor_x, laser_b=unicycle.sensor_y
+        )
     rng_tree, rng_prof, rng_ctrl, rng_det, rng_clut = (
         np.random.default_rng(s) for s in np.random.SeedSequence(sim.seed).spawn(5)
     )
@@ -354,14 +356,19 @@ def simulate(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
     dr_poses, alpha_true = _drive(path, ve_true, dt, vehicle, lookahead)
     u_true = np.stack([ve_true, alpha_true], axis=1)
     ve_log = ve_true + rng_ctrl.normal(0.0, 1.0, n_dr) * sim.sigma_v
-    alpha_log = alpha_true + rng_ctrl.normal(0.0, 1.0, n_dr) * math.radians(sim.sigma_alpha_deg) + math.radians(
-        sim.steering_bias_deg
+    alpha_log = (
+        alpha_true
+        + rng_ctrl.normal(0.0, 1.0, n_dr) * math.radians(sim.sigma_alpha_deg)
+        + math.radians(sim.steering_bias_deg)
     )
     dr = np.stack([dr_t, ve_log, alpha_log], axis=1)
     if unicycle is not None:
         omega_true = ve_true / vehicle.wheelbase * np.tan(alpha_true)
-        omega_log = (omega_true + rng_ctrl.normal(0.0, 1.0, n_dr) * math.radians(sim.sigma_omega_deg)
-                     + math.radians(sim.omega_bias_deg))
+        omega_log = (
+            omega_true
+            + rng_ctrl.normal(0.0, 1.0, n_dr) * math.radians(sim.sigma_omega_deg)
+            + math.radians(sim.omega_bias_deg)
+        )
         dr = np.stack([dr_t, ve_log, omega_log], axis=1)
 
     # ---- scan times: ~scan_rate Hz, random phase, jitter, never on a DR sample

@@ -172,20 +172,26 @@ class FeatureTruth(NamedTuple):
     break_points: Float[np.ndarray, "K 2"]
 
 
-def _feature_truth(walls: np.ndarray, wall_line: np.ndarray, corner_lines: np.ndarray, arcs: np.ndarray,
-                   break_points: np.ndarray) -> FeatureTruth:
+def _feature_truth(
+    walls: np.ndarray, wall_line: np.ndarray, corner_lines: np.ndarray, arcs: np.ndarray, break_points: np.ndarray
+) -> FeatureTruth:
     ids, first = np.unique(np.asarray(wall_line, dtype=np.int64), return_index=True)
     rho, alpha = hessian_lines(np.asarray(walls, dtype=np.float64).reshape(-1, 4)[first])
     row = np.searchsorted(ids, np.asarray(corner_lines, dtype=np.int64).reshape(-1, 2))
-    return FeatureTruth(np.stack([rho, alpha], axis=1).reshape(-1, 2), ids, row,
-                        np.asarray(arcs, dtype=np.float64).reshape(-1, 3),
-                        np.asarray(break_points, dtype=np.float64).reshape(-1, 2))
+    return FeatureTruth(
+        np.stack([rho, alpha], axis=1).reshape(-1, 2),
+        ids,
+        row,
+        np.asarray(arcs, dtype=np.float64).reshape(-1, 3),
+        np.asarray(break_points, dtype=np.float64).reshape(-1, 2),
+    )
 
 
 def feature_truth(world: IndoorWorld) -> FeatureTruth:
     """The true lines, corners, arcs and break points of a world (:class:`FeatureTruth`)."""
-    return _feature_truth(world.walls, world.wall_line, world.wall_line[world.corner_walls], world.pillars,
-                          world.breakpoints)
+    return _feature_truth(
+        world.walls, world.wall_line, world.wall_line[world.corner_walls], world.pillars, world.breakpoints
+    )
 
 
 def read_feature_truth(directory: str | os.PathLike) -> FeatureTruth | None:
@@ -214,9 +220,13 @@ def read_feature_truth(directory: str | os.PathLike) -> FeatureTruth | None:
     c = table("truth_corners.csv", ("line_a", "line_b"))
     a = table("truth_arcs.csv", ("xc", "yc", "radius"))
     b = table("truth_breakpoints.csv", ("x", "y"))
-    return _feature_truth(np.stack([w["x0"], w["y0"], w["x1"], w["y1"]], axis=1), w["line_id"],
-                          np.stack([c["line_a"], c["line_b"]], axis=1), np.stack([a["xc"], a["yc"], a["radius"]], 1),
-                          np.stack([b["x"], b["y"]], axis=1))
+    return _feature_truth(
+        np.stack([w["x0"], w["y0"], w["x1"], w["y1"]], axis=1),
+        w["line_id"],
+        np.stack([c["line_a"], c["line_b"]], axis=1),
+        np.stack([a["xc"], a["yc"], a["radius"]], 1),
+        np.stack([b["x"], b["y"]], axis=1),
+    )
 
 
 class IndoorPath(NamedTuple):
@@ -240,8 +250,9 @@ class IndoorPath(NamedTuple):
     total: float
     turn: float
 
-    def at(self, s: Float[np.ndarray, " m"]) -> tuple[Float[np.ndarray, "m 2"], Float[np.ndarray, " m"],
-                                                       Float[np.ndarray, " m"]]:
+    def at(
+        self, s: Float[np.ndarray, " m"]
+    ) -> tuple[Float[np.ndarray, "m 2"], Float[np.ndarray, " m"], Float[np.ndarray, " m"]]:
         """Point, heading (continuous over laps) and curvature at arc lengths ``s`` (any number of laps)."""
         s = np.asarray(s, dtype=np.float64)
         lap = np.floor(s / self.total)
@@ -307,8 +318,7 @@ def hessian_lines(segments: Float[np.ndarray, "W 4"]) -> tuple[Float[np.ndarray,
     return line[:, 0], line[:, 1] + 0.0  # + 0.0: no -0.0
 
 
-def slope_intercept_lines(segments: Float[np.ndarray, "W 4"]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                                         np.ndarray]:
+def slope_intercept_lines(segments: Float[np.ndarray, "W 4"]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The paper's line forms (eq. 14-15) of the lines through segments
     (:func:`~nanoslam_jax.models.slope_intercept_from_line`): ``y = a x + b``, or ``x = c`` for a vertical
     line.
@@ -320,8 +330,9 @@ def slope_intercept_lines(segments: Float[np.ndarray, "W 4"]) -> tuple[np.ndarra
     rho, alpha = hessian_lines(segments)
     form = slope_intercept_from_line(np.stack([rho, alpha], axis=1), max_slope=1e12)
     vertical = np.asarray(form.vertical)
-    a, b, c = (np.where(vertical == v, np.asarray(x), np.nan) for v, x in ((False, form.a), (False, form.b),
-                                                                             (True, form.c)))
+    a, b, c = (
+        np.where(vertical == v, np.asarray(x), np.nan) for v, x in ((False, form.a), (False, form.b), (True, form.c))
+    )
     return vertical, a, b, c
 
 
@@ -378,8 +389,10 @@ def reference_path(waypoints: np.ndarray, radius: np.ndarray) -> IndoorPath:
     free = np.where(free > -1e-9 * length, np.maximum(free, 0.0), free)
     if np.any(free < 0.0):
         i = int(np.argmin(free))
-        raise ValueError(f"indoor.turn_radius: the rounded corners at waypoints {i} and {(i + 1) % n} overlap "
-                         f"(edge {length[i]:.2f} m); lower indoor.turn_radius")
+        raise ValueError(
+            f"indoor.turn_radius: the rounded corners at waypoints {i} and {(i + 1) % n} overlap "
+            f"(edge {length[i]:.2f} m); lower indoor.turn_radius"
+        )
     s0, ln, st, hd, kp = [], [], [], [], []
     s, h = 0.0, float(h_out[0])
 
@@ -408,9 +421,15 @@ def reference_path(waypoints: np.ndarray, radius: np.ndarray) -> IndoorPath:
         else:
             add(free[i], w[i] + tan_len[i] * u, h, 0.0)
     keep = np.asarray(ln) > 0.0
-    return IndoorPath(s0=np.asarray(s0)[keep], length=np.asarray(ln)[keep], start=np.asarray(st)[keep],
-                      heading=np.asarray(hd)[keep], kappa=np.asarray(kp)[keep], total=float(s),
-                      turn=float(h - h_out[0]))
+    return IndoorPath(
+        s0=np.asarray(s0)[keep],
+        length=np.asarray(ln)[keep],
+        start=np.asarray(st)[keep],
+        heading=np.asarray(hd)[keep],
+        kappa=np.asarray(kp)[keep],
+        total=float(s),
+        turn=float(h - h_out[0]),
+    )
 
 
 # --------------------------------------------------------------------------- the world
@@ -477,9 +496,11 @@ def _cut_doors(outlines: list[_Outline], cfg: IndoorConfig, rng: np.random.Gener
                 placed = True
                 break
         if not placed:
-            raise ValueError(f"indoor.doors: cannot place {cfg.doors} doors {cfg.door_width} m wide "
-                             f"{_DOOR_MARGIN} m from corners and from each other; lower indoor.doors or "
-                             "indoor.door_width")
+            raise ValueError(
+                f"indoor.doors: cannot place {cfg.doors} doors {cfg.door_width} m wide "
+                f"{_DOOR_MARGIN} m from corners and from each other; lower indoor.doors or "
+                "indoor.door_width"
+            )
     walls, line, jambs, jamb_wall = [], [], [], []
     first_piece, last_piece = {}, {}
     for e, (o, i, a, b) in enumerate(edges):
@@ -504,8 +525,15 @@ def _cut_doors(outlines: list[_Outline], cfg: IndoorConfig, rng: np.random.Gener
             first_piece.setdefault(e, wid)
             last_piece[e] = wid
     edge_of = {(o, i): e for e, (o, i, _, _) in enumerate(edges)}
-    return (np.array(walls), np.array(line, dtype=np.int64), first_piece, last_piece, edge_of,
-            np.array(jambs).reshape(-1, 2), np.array(jamb_wall, dtype=np.int64))
+    return (
+        np.array(walls),
+        np.array(line, dtype=np.int64),
+        first_piece,
+        last_piece,
+        edge_of,
+        np.array(jambs).reshape(-1, 2),
+        np.array(jamb_wall, dtype=np.int64),
+    )
 
 
 def _corners(outlines, first_piece, last_piece, edge_of):
@@ -572,9 +600,11 @@ def _place_pillars(cfg: IndoorConfig, rng, outlines, walls, path: IndoorPath) ->
                 if len(kept) == cfg.pillars:
                     break
     if len(kept) < cfg.pillars:
-        raise ValueError(f"indoor.pillars: cannot place {cfg.pillars} pillars of radius up to "
-                         f"{cfg.pillar_radius_max} m {_PILLAR_WALL} m from the walls and {_PILLAR_PATH} m from the "
-                         f"path (placed {len(kept)}); lower indoor.pillars or indoor.pillar_radius_max")
+        raise ValueError(
+            f"indoor.pillars: cannot place {cfg.pillars} pillars of radius up to "
+            f"{cfg.pillar_radius_max} m {_PILLAR_WALL} m from the walls and {_PILLAR_PATH} m from the "
+            f"path (placed {len(kept)}); lower indoor.pillars or indoor.pillar_radius_max"
+        )
     return np.array(kept)
 
 
@@ -610,9 +640,11 @@ def _place_partitions(cfg: IndoorConfig, rng, outlines, walls, pillars, path: In
         if good.size:
             kept.append(seg[good[:1]])
     if len(kept) < cfg.partitions:
-        raise ValueError(f"indoor.partitions: cannot place {cfg.partitions} partitions {cfg.partition_length} m long "
-                         f"{_PATH_WALL} m from the walls, the path, the pillars and each other (placed {len(kept)}); "
-                         "lower indoor.partitions or indoor.partition_length")
+        raise ValueError(
+            f"indoor.partitions: cannot place {cfg.partitions} partitions {cfg.partition_length} m long "
+            f"{_PATH_WALL} m from the walls, the path, the pillars and each other (placed {len(kept)}); "
+            "lower indoor.partitions or indoor.partition_length"
+        )
     return np.concatenate(kept).reshape(-1, 4)
 
 
@@ -651,18 +683,39 @@ def build_world(cfg: IndoorConfig, rng: np.random.Generator) -> tuple[IndoorWorl
     wall_line = np.concatenate([wall_line, wall_line.max() + 1 + np.arange(parts.shape[0])])
     jambs = np.concatenate([jambs, parts.reshape(-1, 2)])
     jamb_wall = np.concatenate([jamb_wall, np.repeat(n_walls + np.arange(parts.shape[0]), 2)])
-    kinds = np.concatenate([np.full(jamb_wall.size - 2 * parts.shape[0], BREAK_DOOR, dtype=np.int64),
-                            np.full(2 * parts.shape[0], BREAK_FREE_END, dtype=np.int64)])
+    kinds = np.concatenate(
+        [
+            np.full(jamb_wall.size - 2 * parts.shape[0], BREAK_DOOR, dtype=np.int64),
+            np.full(2 * parts.shape[0], BREAK_FREE_END, dtype=np.int64),
+        ]
+    )
     track, _, _ = path.at(np.arange(0.0, path.total, 0.02))
-    gap = min(_point_segment_distance(track, walls).min(),
-              (np.hypot(track[:, None, 0] - pillars[None, :, 0], track[:, None, 1] - pillars[None, :, 1])
-               - pillars[None, :, 2]).min())
+    gap = min(
+        _point_segment_distance(track, walls).min(),
+        (
+            np.hypot(track[:, None, 0] - pillars[None, :, 0], track[:, None, 1] - pillars[None, :, 1])
+            - pillars[None, :, 2]
+        ).min(),
+    )
     if gap < 0.3:
-        raise ValueError(f"indoor.path_inset: the path passes {gap:.2f} m from a wall or pillar; raise "
-                         "indoor.path_inset or lower indoor.turn_radius")
-    world = IndoorWorld(template=template, walls=walls, wall_line=wall_line, pillars=pillars, corners=corners,
-                        corner_walls=corner_walls, corner_angle=corner_angle, breakpoints=jambs,
-                        breakpoint_wall=jamb_wall, breakpoint_kind=kinds, waypoints=waypoints, turn_radius=radius)
+        raise ValueError(
+            f"indoor.path_inset: the path passes {gap:.2f} m from a wall or pillar; raise "
+            "indoor.path_inset or lower indoor.turn_radius"
+        )
+    world = IndoorWorld(
+        template=template,
+        walls=walls,
+        wall_line=wall_line,
+        pillars=pillars,
+        corners=corners,
+        corner_walls=corner_walls,
+        corner_angle=corner_angle,
+        breakpoints=jambs,
+        breakpoint_wall=jamb_wall,
+        breakpoint_kind=kinds,
+        waypoints=waypoints,
+        turn_radius=radius,
+    )
     return world, path
 
 
@@ -670,9 +723,15 @@ def indoor_laser_world(world: IndoorWorld) -> LaserWorld:
     """The scene as :func:`~nanoslam_jax.simulate_laser.ray_cast` takes it: pillars as trees (circles),
     walls as wall segments (``segment_object`` the wall's row)."""
     n = world.walls.shape[0]
-    return LaserWorld(trees=world.pillars[:, :2], tree_radius=world.pillars[:, 2], segments=world.walls,
-                      segment_kind=np.full(n, KIND_WALL, dtype=np.int64), segment_object=np.arange(n),
-                      bush_centres=np.zeros((0, 2)), bush_radius=np.zeros(0))
+    return LaserWorld(
+        trees=world.pillars[:, :2],
+        tree_radius=world.pillars[:, 2],
+        segments=world.walls,
+        segment_kind=np.full(n, KIND_WALL, dtype=np.int64),
+        segment_object=np.arange(n),
+        bush_centres=np.zeros((0, 2)),
+        bush_radius=np.zeros(0),
+    )
 
 
 # --------------------------------------------------------------------------- driving
@@ -768,8 +827,9 @@ def _slip_mask(t: np.ndarray, cfg: IndoorConfig, rng: np.random.Generator) -> np
     return (i >= 0) & (t < (starts + ons)[np.maximum(i, 0)])
 
 
-def _pose_at(times: np.ndarray, t: np.ndarray, poses: np.ndarray, controls: np.ndarray, sensor: np.ndarray
-             ) -> np.ndarray:
+def _pose_at(
+    times: np.ndarray, t: np.ndarray, poses: np.ndarray, controls: np.ndarray, sensor: np.ndarray
+) -> np.ndarray:
     """Laser poses at ``times`` in the samples' span: the Euler step over the rest of the sample's period."""
     i = np.clip(np.searchsorted(t, times, side="right") - 1, 0, controls.shape[0] - 1)
     tau = times - t[i]
@@ -797,7 +857,8 @@ def simulate_indoor(cfg: IndoorConfig | None = None) -> IndoorLog:
     """
     cfg = IndoorConfig() if cfg is None else cfg
     rng_world, rng_drive, rng_odo, rng_laser, rng_det = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(5))
+        np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(5)
+    )
     world, path = build_world(cfg, rng_world)
     sensor = np.array([-cfg.sensor_ls, 0.0])
     dt = cfg.odom_period
@@ -810,8 +871,14 @@ def simulate_indoor(cfg: IndoorConfig | None = None) -> IndoorLog:
     p0 = centre[0] + np.array([c0 * sensor[0] - s0 * sensor[1], s0 * sensor[0] + c0 * sensor[1]])
     laser = _integrate(p0, float(theta[0]), controls, sensor, dt)  # (n + 1, 3)
     cth, sth = np.cos(laser[:, 2]), np.sin(laser[:, 2])
-    ref = np.stack([laser[:, 0] - (cth * sensor[0] - sth * sensor[1]),
-                    laser[:, 1] - (sth * sensor[0] + cth * sensor[1]), laser[:, 2]], axis=1)
+    ref = np.stack(
+        [
+            laser[:, 0] - (cth * sensor[0] - sth * sensor[1]),
+            laser[:, 1] - (sth * sensor[0] + cth * sensor[1]),
+            laser[:, 2],
+        ],
+        axis=1,
+    )
 
     # odometry: white noise whose standard deviation grows slip_factor-fold in slip episodes
     slip = _slip_mask(t, cfg, rng_odo)
@@ -849,28 +916,56 @@ def simulate_indoor(cfg: IndoorConfig | None = None) -> IndoorLog:
     si, pi = np.divmod(np.flatnonzero(counts.reshape(n_scan, n_p).ravel() >= 3), n_p)
     dxy = world.pillars[pi, :2] - scan_pose[si, :2]
     rng_true = np.hypot(dxy[:, 0], dxy[:, 1])
-    det = np.stack([scan_t[si], rng_true + rng_det.normal(0.0, cfg.range_noise, si.size),
-                    wrap_angle_np(np.arctan2(dxy[:, 1], dxy[:, 0]) - scan_pose[si, 2]
-                                  + rng_det.normal(0.0, 1.0, si.size) * cfg.range_noise / rng_true),
-                    np.maximum(2 * world.pillars[pi, 2] + rng_det.normal(0.0, cfg.range_noise, si.size), 0.0)],
-                   axis=1).reshape(-1, 4)
+    det = np.stack(
+        [
+            scan_t[si],
+            rng_true + rng_det.normal(0.0, cfg.range_noise, si.size),
+            wrap_angle_np(
+                np.arctan2(dxy[:, 1], dxy[:, 0])
+                - scan_pose[si, 2]
+                + rng_det.normal(0.0, 1.0, si.size) * cfg.range_noise / rng_true
+            ),
+            np.maximum(2 * world.pillars[pi, 2] + rng_det.normal(0.0, cfg.range_noise, si.size), 0.0),
+        ],
+        axis=1,
+    ).reshape(-1, 4)
 
     truth_t = np.concatenate([t, scan_t])
     truth_p = np.concatenate([laser[:n], scan_pose], axis=0)
     truth_t, first = np.unique(truth_t, return_index=True)
     truth_poses = np.concatenate([truth_t[:, None], truth_p[first]], axis=1)
     truth_poses[:, 3] = wrap_angle_np(truth_poses[:, 3])
-    raw = RawLog(dr=np.concatenate([t[:, None], logged], axis=1), detections=det,
-                 gps=np.concatenate([t[:, None], laser[:n, :2]], axis=1), truth_poses=truth_poses,
-                 truth_landmarks=world.pillars[:, :2].copy(), truth_diameters=2 * world.pillars[:, 2],
-                 source="simulated", detection_ids=pi.astype(np.int64), landmark_ids=np.arange(n_p))
+    raw = RawLog(
+        dr=np.concatenate([t[:, None], logged], axis=1),
+        detections=det,
+        gps=np.concatenate([t[:, None], laser[:n, :2]], axis=1),
+        truth_poses=truth_poses,
+        truth_landmarks=world.pillars[:, :2].copy(),
+        truth_diameters=2 * world.pillars[:, 2],
+        source="simulated",
+        detection_ids=pi.astype(np.int64),
+        landmark_ids=np.arange(n_p),
+    )
     ref_w = ref[:n].copy()
     ref_w[:, 2] = wrap_angle_np(ref_w[:, 2])
     laser_w = laser[:n].copy()
     laser_w[:, 2] = wrap_angle_np(laser_w[:, 2])
     scan_pose[:, 2] = wrap_angle_np(scan_pose[:, 2])
-    return IndoorLog(raw=raw, scans=scans, world=world, path=path, time=t, pose=ref_w, sensor_pose=laser_w,
-                     controls=controls, sigma=sigma, slip=slip, scan_pose=scan_pose, kind=kind, object_id=obj)
+    return IndoorLog(
+        raw=raw,
+        scans=scans,
+        world=world,
+        path=path,
+        time=t,
+        pose=ref_w,
+        sensor_pose=laser_w,
+        controls=controls,
+        sigma=sigma,
+        slip=slip,
+        scan_pose=scan_pose,
+        kind=kind,
+        object_id=obj,
+    )
 
 
 # --------------------------------------------------------------------------- files
@@ -879,8 +974,21 @@ def simulate_indoor(cfg: IndoorConfig | None = None) -> IndoorLog:
 TRUTH_FILES = {
     "truth_path.csv": ("time", "x", "y", "theta", "sensor_x", "sensor_y"),
     "truth_odometry.csv": ("time", "v", "omega", "sigma_v", "sigma_omega", "slip"),
-    "truth_walls.csv": ("wall_id", "line_id", "x0", "y0", "x1", "y1", "length", "rho", "alpha", "vertical", "a",
-                        "b", "c"),
+    "truth_walls.csv": (
+        "wall_id",
+        "line_id",
+        "x0",
+        "y0",
+        "x1",
+        "y1",
+        "length",
+        "rho",
+        "alpha",
+        "vertical",
+        "a",
+        "b",
+        "c",
+    ),
     "truth_arcs.csv": ("arc_id", "xc", "yc", "radius"),
     "truth_corners.csv": ("corner_id", "x", "y", "wall_a", "wall_b", "line_a", "line_b", "angle_deg"),
     "truth_breakpoints.csv": ("point_id", "x", "y", "wall_id", "line_id", "kind"),
@@ -890,8 +998,13 @@ TRUTH_FILES = {
 def _write_csv(path: Path, columns: tuple[str, ...], rows: list[list]) -> None:
     with open(path, "w") as f:
         f.write(",".join(columns) + "\n")
-        f.writelines(",".join(v if isinstance(v, str) else (f"{v:d}" if isinstance(v, (int, np.integer))
-                                                             else f"{v:.9f}") for v in row) + "\n" for row in rows)
+        f.writelines(
+            ",".join(
+                v if isinstance(v, str) else (f"{v:d}" if isinstance(v, (int, np.integer)) else f"{v:.9f}") for v in row
+            )
+            + "\n"
+            for row in rows
+        )
 
 
 def write_indoor_truth(directory: str | os.PathLike, log: IndoorLog) -> None:
@@ -900,24 +1013,60 @@ def write_indoor_truth(directory: str | os.PathLike, log: IndoorLog) -> None:
     w = log.world
     cols = TRUTH_FILES
     table = np.concatenate([log.time[:, None], log.pose, log.sensor_pose[:, :2]], axis=1)
-    np.savetxt(d / "truth_path.csv", table, delimiter=",", fmt="%.9f", header=",".join(cols["truth_path.csv"]),
-               comments="")
+    np.savetxt(
+        d / "truth_path.csv", table, delimiter=",", fmt="%.9f", header=",".join(cols["truth_path.csv"]), comments=""
+    )
     table = np.concatenate([log.time[:, None], log.controls, log.sigma, log.slip[:, None]], axis=1)
-    np.savetxt(d / "truth_odometry.csv", table, delimiter=",", fmt=["%.9f"] * 5 + ["%d"],
-               header=",".join(cols["truth_odometry.csv"]), comments="")
+    np.savetxt(
+        d / "truth_odometry.csv",
+        table,
+        delimiter=",",
+        fmt=["%.9f"] * 5 + ["%d"],
+        header=",".join(cols["truth_odometry.csv"]),
+        comments="",
+    )
     rho, alpha = hessian_lines(w.walls)
     vertical, a, b, c = slope_intercept_lines(w.walls)
     length = np.hypot(w.walls[:, 2] - w.walls[:, 0], w.walls[:, 3] - w.walls[:, 1])
-    _write_csv(d / "truth_walls.csv", cols["truth_walls.csv"],
-               [[i, int(w.wall_line[i]), *w.walls[i], length[i], rho[i], alpha[i], int(vertical[i]), a[i], b[i], c[i]]
-                for i in range(w.walls.shape[0])])
+    _write_csv(
+        d / "truth_walls.csv",
+        cols["truth_walls.csv"],
+        [
+            [i, int(w.wall_line[i]), *w.walls[i], length[i], rho[i], alpha[i], int(vertical[i]), a[i], b[i], c[i]]
+            for i in range(w.walls.shape[0])
+        ],
+    )
     _write_csv(d / "truth_arcs.csv", cols["truth_arcs.csv"], [[i, *p] for i, p in enumerate(w.pillars)])
-    _write_csv(d / "truth_corners.csv", cols["truth_corners.csv"],
-               [[i, *w.corners[i], int(ab[0]), int(ab[1]), int(w.wall_line[ab[0]]), int(w.wall_line[ab[1]]),
-                 w.corner_angle[i]] for i, ab in enumerate(w.corner_walls)])
-    _write_csv(d / "truth_breakpoints.csv", cols["truth_breakpoints.csv"],
-               [[i, *w.breakpoints[i], int(w.breakpoint_wall[i]), int(w.wall_line[w.breakpoint_wall[i]]),
-                 _BREAK_NAMES[int(w.breakpoint_kind[i])]] for i in range(w.breakpoints.shape[0])])
+    _write_csv(
+        d / "truth_corners.csv",
+        cols["truth_corners.csv"],
+        [
+            [
+                i,
+                *w.corners[i],
+                int(ab[0]),
+                int(ab[1]),
+                int(w.wall_line[ab[0]]),
+                int(w.wall_line[ab[1]]),
+                w.corner_angle[i],
+            ]
+            for i, ab in enumerate(w.corner_walls)
+        ],
+    )
+    _write_csv(
+        d / "truth_breakpoints.csv",
+        cols["truth_breakpoints.csv"],
+        [
+            [
+                i,
+                *w.breakpoints[i],
+                int(w.breakpoint_wall[i]),
+                int(w.wall_line[w.breakpoint_wall[i]]),
+                _BREAK_NAMES[int(w.breakpoint_kind[i])],
+            ]
+            for i in range(w.breakpoints.shape[0])
+        ],
+    )
 
 
 def simulate_indoor_to_dir(directory: str | os.PathLike, cfg: IndoorConfig | None = None) -> IndoorLog:
@@ -945,6 +1094,7 @@ def simulate_indoor_to_dir(directory: str | os.PathLike, cfg: IndoorConfig | Non
     write_laser(d / "LASER.txt", log.scans)
     write_indoor_truth(d, log)
     np.savez_compressed(d / "beam_truth.npz", kind=log.kind.astype(np.int8), object_id=log.object_id.astype(np.int16))
-    (d / "scenario.yaml").write_text(yaml.safe_dump({"indoor": dataclasses.asdict(cfg),
-                                                     "template": log.world.template}, sort_keys=False))
+    (d / "scenario.yaml").write_text(
+        yaml.safe_dump({"indoor": dataclasses.asdict(cfg), "template": log.world.template}, sort_keys=False)
+    )
     return log

@@ -57,12 +57,30 @@ from jaxtyping import Array, Bool, Float, Int
 from ._config_schema import SmootherConfig
 from .filter._params import Params
 from .filter import relative_priors
-from ._loop_closure import LoopClosureSettings, co_observed, find_duplicates, path_moved_by_copies, loop_closure_settings
+from ._loop_closure import (
+    LoopClosureSettings,
+    co_observed,
+    find_duplicates,
+    path_moved_by_copies,
+    loop_closure_settings,
+)
 from ._least_squares import _solve
 from .models import wrap_angle_np
 
-__all__ = ["LoopClosureSettings", "SmootherSettings", "Smoothed", "associate_path", "final_map", "held_landmarks",
-           "segment_motion", "smooth_filter_run", "smooth_path", "smooth_run", "smoother_map", "smoother_metrics"]
+__all__ = [
+    "LoopClosureSettings",
+    "SmootherSettings",
+    "Smoothed",
+    "associate_path",
+    "final_map",
+    "held_landmarks",
+    "segment_motion",
+    "smooth_filter_run",
+    "smooth_path",
+    "smooth_run",
+    "smoother_map",
+    "smoother_metrics",
+]
 
 #: The config's defaults (:class:`nanoslam_jax.config.SmootherConfig`), the one source of the settings' defaults.
 _DEFAULT = SmootherConfig()
@@ -115,12 +133,20 @@ class SmootherSettings(NamedTuple):
     @classmethod
     def from_config(cls, sc) -> "SmootherSettings":
         """From the config's ``smoother`` section (:class:`nanoslam_jax.config.SmootherConfig`)."""
-        return cls(odometry_scale=sc.odometry_scale, floor_xy=sc.floor_xy,
-                   floor_phi=float(np.deg2rad(sc.floor_phi_deg)), huber=sc.huber, max_iter=sc.max_iter, tol=sc.tol,
-                   loop_closure=loop_closure_settings(sc) if sc.loop_closure else None,
-                   loop_closure_rounds=sc.loop_closure_rounds,
-                   map_history=sc.map_history, map_history_radius=sc.map_history_radius,
-                   map_history_min=sc.map_history_min, map_history_below=sc.map_history_below)
+        return cls(
+            odometry_scale=sc.odometry_scale,
+            floor_xy=sc.floor_xy,
+            floor_phi=float(np.deg2rad(sc.floor_phi_deg)),
+            huber=sc.huber,
+            max_iter=sc.max_iter,
+            tol=sc.tol,
+            loop_closure=loop_closure_settings(sc) if sc.loop_closure else None,
+            loop_closure_rounds=sc.loop_closure_rounds,
+            map_history=sc.map_history,
+            map_history_radius=sc.map_history_radius,
+            map_history_min=sc.map_history_min,
+            map_history_below=sc.map_history_below,
+        )
 
 
 class Smoothed(NamedTuple):
@@ -172,8 +198,9 @@ def _whitened_d2(x, m, z, sigma_r: float, sigma_beta: float) -> np.ndarray:
     """Squared residual of detections ``z`` (range, bearing) of landmarks ``m`` seen from poses
     ``x``, whitened by the measurement noise; the arrays broadcast over their leading axes."""
     dx, dy = m[..., 0] - x[..., 0], m[..., 1] - x[..., 1]
-    return (((z[..., 0] - np.hypot(dx, dy)) / sigma_r) ** 2
-            + (wrap_angle_np(z[..., 1] - np.arctan2(dy, dx) + x[..., 2]) / sigma_beta) ** 2)
+    return ((z[..., 0] - np.hypot(dx, dy)) / sigma_r) ** 2 + (
+        wrap_angle_np(z[..., 1] - np.arctan2(dy, dx) + x[..., 2]) / sigma_beta
+    ) ** 2
 
 
 def associate_path(
@@ -198,7 +225,7 @@ def associate_path(
     best = np.full(len(seg), np.inf)
     idx = np.zeros(len(seg), int)
     for start in range(0, len(lm), 256):  # bounded memory: detections x 256 landmarks at a time
-        m = lm[start:start + 256]
+        m = lm[start : start + 256]
         d2 = _whitened_d2(x[:, None], m[None], zz[:, None], sigma_r, sigma_beta)
         j = np.argmin(d2, axis=1)
         d = d2[np.arange(len(seg)), j]
@@ -256,8 +283,11 @@ def smooth_path(
             lm_all = np.concatenate([lm_all, back])
             seg, det, lid = associate_path(path, lm_all, z, z_mask, sigma_r, sigma_beta, gate)
     zz = np.asarray(z)[seg, det].reshape(-1, 2)
-    cov = settings.odometry_scale * np.asarray(motion_cov, float) + np.diag(
-        [settings.floor_xy ** 2, settings.floor_xy ** 2, settings.floor_phi ** 2]) + 1e-12 * np.eye(3)
+    cov = (
+        settings.odometry_scale * np.asarray(motion_cov, float)
+        + np.diag([settings.floor_xy**2, settings.floor_xy**2, settings.floor_phi**2])
+        + 1e-12 * np.eye(3)
+    )
     w_odo = np.transpose(np.linalg.cholesky(np.linalg.inv(cov)), (0, 2, 1))  # whitened e = W e, W'W = cov^-1
     w_det = np.array([1.0 / sigma_r, 1.0 / sigma_beta])
     motion = np.asarray(motion_mean, float)
@@ -273,8 +303,7 @@ def smooth_path(
         for _ in range(settings.loop_closure_rounds):
             first = np.full(len(lm_out), np.inf)
             np.minimum.at(first, lid, t[seg])
-            parent, group = find_duplicates(lm_out, first, co_observed(seg, lid, len(lm_out)),
-                                            settings.loop_closure)
+            parent, group = find_duplicates(lm_out, first, co_observed(seg, lid, len(lm_out)), settings.loop_closure)
             while np.any(parent[parent] != parent):  # chains of copies end at the original
                 parent = parent[parent]
             kept = False
@@ -301,8 +330,19 @@ def smooth_path(
                     # Verification: a true loop closure lets the copies' detections fit a landmark
                     # as the others do once the path has moved; a false one leaves them outside the
                     # gate. A group that does not fit is dropped and the rest solved again.
-                    fit = np.min(_whitened_d2(sol[0][seg[joined]][:, None], sol[1][keep][None], zz[joined][:, None],
-                                              sigma_r, sigma_beta), axis=1) < gate
+                    fit = (
+                        np.min(
+                            _whitened_d2(
+                                sol[0][seg[joined]][:, None],
+                                sol[1][keep][None],
+                                zz[joined][:, None],
+                                sigma_r,
+                                sigma_beta,
+                            ),
+                            axis=1,
+                        )
+                        < gate
+                    )
                     if best is None or np.mean(fit) > np.mean(best[1]):
                         best = (sol, fit)
                     if np.mean(fit) >= settings.loop_closure.accept:
@@ -327,10 +367,19 @@ def smooth_path(
             lid, zz = live[lid], np.asarray(z)[seg, det].reshape(-1, 2)
             poses, lm_out, it, _, cost, converged = solve(poses, lm_out, seg, zz, lid)
             iterations += it
-    return Smoothed(poses=poses, landmarks=lm_out[owner], associated=int(len(seg)),
-                    detections=int(np.sum(z_mask)), iterations=iterations, initial_cost=float(initial_cost),
-                    cost=float(cost), converged=converged, seconds=time.perf_counter() - t0, merged=merged,
-                    rejected=rejected)
+    return Smoothed(
+        poses=poses,
+        landmarks=lm_out[owner],
+        associated=int(len(seg)),
+        detections=int(np.sum(z_mask)),
+        iterations=iterations,
+        initial_cost=float(initial_cost),
+        cost=float(cost),
+        converged=converged,
+        seconds=time.perf_counter() - t0,
+        merged=merged,
+        rejected=rejected,
+    )
 
 
 def final_map(state, index: int | None = None) -> Float[np.ndarray, "landmarks 2"]:
@@ -375,8 +424,9 @@ def held_landmarks(
     return np.asarray(out, float).reshape(-1, 2)
 
 
-def smoother_map(run, settings: SmootherSettings, index: int | None = None
-                 ) -> tuple[Float[np.ndarray, "landmarks 2"], Float[np.ndarray, "held 2"] | None]:
+def smoother_map(
+    run, settings: SmootherSettings, index: int | None = None
+) -> tuple[Float[np.ndarray, "landmarks 2"], Float[np.ndarray, "held 2"] | None]:
     """The landmarks a run's smoothing starts from: the final best particle's confirmed ones
     (:func:`final_map`) and, with ``settings.map_history``, those it held earlier but no longer
     (:func:`held_landmarks`; else ``None``): the ``landmarks`` and ``held`` of :func:`smooth_run`.
@@ -392,8 +442,9 @@ def smoother_map(run, settings: SmootherSettings, index: int | None = None
     return final, held_landmarks(run.history, final, index, settings.map_history_radius)
 
 
-def smooth_run(path, landmarks, segments, params: Params, settings: SmootherSettings, prior: str = "unscented",
-               held=None) -> Smoothed:
+def smooth_run(
+    path, landmarks, segments, params: Params, settings: SmootherSettings, prior: str = "unscented", held=None
+) -> Smoothed:
     """:func:`smooth_path` for a run: the log's detections and motion priors from ``segments`` and
     ``params`` (one run's hyperparameters), the association gate ``params.gate``.
 
@@ -407,13 +458,25 @@ def smooth_run(path, landmarks, segments, params: Params, settings: SmootherSett
         held: landmarks the run held earlier but not at its end (:func:`smoother_map`).
     """
     mean, cov = segment_motion(segments, params, prior)
-    return smooth_path(path, landmarks, np.asarray(segments.z), np.asarray(segments.z_mask), np.asarray(mean),
-                       np.asarray(cov), float(params.sigma_r), float(params.sigma_beta), float(params.gate), settings,
-                       np.asarray(segments.time), held)
+    return smooth_path(
+        path,
+        landmarks,
+        np.asarray(segments.z),
+        np.asarray(segments.z_mask),
+        np.asarray(mean),
+        np.asarray(cov),
+        float(params.sigma_r),
+        float(params.sigma_beta),
+        float(params.gate),
+        settings,
+        np.asarray(segments.time),
+        held,
+    )
 
 
-def smooth_filter_run(run, path, segments, params: Params, config, prior: str = "unscented",
-                      index: int | None = None) -> Smoothed:
+def smooth_filter_run(
+    run, path, segments, params: Params, config, prior: str = "unscented", index: int | None = None
+) -> Smoothed:
     """Smooth one run of :func:`~nanoslam_jax.filter.run_filter` (or member ``index`` of a
     :func:`~nanoslam_jax.filter.run_batch`): its final best particle's map (:func:`smoother_map`)
     and ``path``, with the settings of the config's ``smoother`` section ``config``.
@@ -442,10 +505,23 @@ def smoother_metrics(sm: Smoothed, config) -> tuple[dict, list[str]]:
     Returns:
         ``(metrics, warnings)``.
     """
-    m = dict(smoother_iterations=sm.iterations, smoother_converged=sm.converged, smoother_associated=sm.associated,
-             smoother_detections=sm.detections, smoother_cost_initial=sm.initial_cost, smoother_cost=sm.cost,
-             smoother_s=sm.seconds, smoother_merged=sm.merged, smoother_rejected=sm.rejected)
-    warn = [] if sm.converged else [
-        f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "
-        f"{config.max_iter}, smoother.tol {config.tol:g}); the smoothed path is reported as it stands"]
+    m = dict(
+        smoother_iterations=sm.iterations,
+        smoother_converged=sm.converged,
+        smoother_associated=sm.associated,
+        smoother_detections=sm.detections,
+        smoother_cost_initial=sm.initial_cost,
+        smoother_cost=sm.cost,
+        smoother_s=sm.seconds,
+        smoother_merged=sm.merged,
+        smoother_rejected=sm.rejected,
+    )
+    warn = (
+        []
+        if sm.converged
+        else [
+            f"smoother: stopped after {sm.iterations} iterations without converging (smoother.max_iter "
+            f"{config.max_iter}, smoother.tol {config.tol:g}); the smoothed path is reported as it stands"
+        ]
+    )
     return m, warn

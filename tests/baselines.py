@@ -19,14 +19,21 @@ def dead_reckoning_metrics(cfg, log) -> dict:
     driven by the logged controls from the origin), scored as the filter is."""
     _, params = settings_from_config(cfg, log.segments.k_max)
     poses = np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments)))
-    return evaluate(np.asarray(log.segments.time), poses[:, :2], log.raw.gps, frame=log.frame,
-                    rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+    return evaluate(
+        np.asarray(log.segments.time),
+        poses[:, :2],
+        log.raw.gps,
+        frame=log.frame,
+        rotation_deg=cfg.metrics.gps_rotation_deg,
+        jump_speed=cfg.metrics.jump_speed,
+    )
 
 
 def assert_beats_dead_reckoning(rmse: float, dr_rmse: float, factor: float, what: str = "") -> None:
     """``rmse`` must be at most ``dr_rmse / factor``."""
     assert rmse * factor <= dr_rmse, (
-        f"{what}: RMSE {rmse:.3f} m is not {factor}x better than dead reckoning's {dr_rmse:.3f} m on the same log")
+        f"{what}: RMSE {rmse:.3f} m is not {factor}x better than dead reckoning's {dr_rmse:.3f} m on the same log"
+    )
 
 
 def reported_map_quality(cfg, log, landmarks, metrics: dict) -> dict:
@@ -36,5 +43,10 @@ def reported_map_quality(cfg, log, landmarks, metrics: dict) -> dict:
     from nanoslam_jax.metrics import map_summary
 
     act = np.asarray(landmarks.active)
-    return map_summary(np.asarray(landmarks.mean)[act], np.asarray(landmarks.confirmed)[act], log.map_truth,
-                       cfg.metrics.map_radius, metrics)
+    return map_summary(
+        np.asarray(landmarks.mean)[act],
+        np.asarray(landmarks.confirmed)[act],
+        log.map_truth,
+        cfg.metrics.map_radius,
+        metrics,
+    )

@@ -28,8 +28,12 @@ def dead_reckoning_rmse(log, params) -> float:
 
 
 def float_leaves(tree):
-    return [np.asarray(a) for a in jax.tree.leaves(tree)
-            if not jnp.issubdtype(jnp.asarray(a).dtype, jax.dtypes.prng_key) and np.issubdtype(np.asarray(a).dtype, np.floating)]
+    return [
+        np.asarray(a)
+        for a in jax.tree.leaves(tree)
+        if not jnp.issubdtype(jnp.asarray(a).dtype, jax.dtypes.prng_key)
+        and np.issubdtype(np.asarray(a).dtype, np.floating)
+    ]
 
 
 def true_positions(log):
@@ -39,8 +43,9 @@ def true_positions(log):
     return np.stack([np.interp(t, tp[:, 0], tp[:, 1]), np.interp(t, tp[:, 0], tp[:, 2])], axis=1)
 
 
-def assert_tracks_truth_and_maps_trees(log, params, run, *, rmse: float, max_error: float, associations: float,
-                                       median: float, dr_factor: float = 5.0):
+def assert_tracks_truth_and_maps_trees(
+    log, params, run, *, rmse: float, max_error: float, associations: float, median: float, dr_factor: float = 5.0
+):
     """Everything finite; position RMSE and largest error against the truth below the bounds and
     ``dr_factor`` times below noise-free dead reckoning's RMSE on the same log; the reported
     estimate is the mean; at least 15 confirmed landmarks, >= 90 % of them within 1 m of a true
@@ -84,8 +89,16 @@ def assert_padding_is_noop(static, params, state, segments, chunk: int, pose):
         np.testing.assert_array_equal(np.asarray(out.best_pose), np.broadcast_to(np.asarray(pose), (chunk, 3)))
 
 
-def run_real_log_start(config_name: str, vp_dir, *, fixed: tuple[float, float], aligned: float, dr_factor: float,
-                       confirmed: tuple[int, int], what: str):
+def run_real_log_start(
+    config_name: str,
+    vp_dir,
+    *,
+    fixed: tuple[float, float],
+    aligned: float,
+    dr_factor: float,
+    confirmed: tuple[int, int],
+    what: str,
+):
     """Run ``configs/<config_name>`` over the real log's first 300 s and check it against GPS and
     against dead reckoning on the same span: everything finite, no overflow, detections
     associate, ``rmse_fixed`` inside the band ``fixed``, ``rmse_aligned`` below ``aligned``, at
@@ -97,8 +110,9 @@ def run_real_log_start(config_name: str, vp_dir, *, fixed: tuple[float, float], 
     from nanoslam_jax.filter import run_filter
     from nanoslam_jax.metrics import evaluate
 
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / config_name,
-                      [f"data.path={vp_dir}", "data.t_end=300"])
+    cfg = load_config(
+        Path(__file__).resolve().parents[1] / "configs" / config_name, [f"data.path={vp_dir}", "data.t_end=300"]
+    )
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
     run = run_filter(static, params, log.segments, 0, chunk=500)
@@ -107,8 +121,14 @@ def run_real_log_start(config_name: str, vp_dir, *, fixed: tuple[float, float], 
     o = run.outputs
     assert int(np.sum(o.n_nonfinite)) == 0 and int(run.state.overflow) == 0
     assert np.mean(o.n_associated) > 1.0
-    m = evaluate(np.asarray(log.segments.time), np.asarray(o.best_pose)[:, :2], log.raw.gps, frame=log.frame,
-                 rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+    m = evaluate(
+        np.asarray(log.segments.time),
+        np.asarray(o.best_pose)[:, :2],
+        log.raw.gps,
+        frame=log.frame,
+        rotation_deg=cfg.metrics.gps_rotation_deg,
+        jump_speed=cfg.metrics.jump_speed,
+    )
     assert fixed[0] < m["rmse_fixed"] < fixed[1] and m["rmse_aligned"] < aligned, m
     assert_beats_dead_reckoning(m["rmse_fixed"], dead_reckoning_metrics(cfg, log)["rmse_fixed"], dr_factor, what)
     lm = reported_map(run.state)

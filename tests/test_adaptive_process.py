@@ -73,8 +73,9 @@ def test_random_walk_basis_is_the_noise_of_each_piece():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model", [Ackermann(sigma_v=2e-3, sigma_alpha=1e-4), Unicycle(0.2, 0.05, 1e-4, 5e-5),
-                                   RandomWalk(3e-4, 5e-5)])
+@pytest.mark.parametrize(
+    "model", [Ackermann(sigma_v=2e-3, sigma_alpha=1e-4), Unicycle(0.2, 0.05, 1e-4, 5e-5), RandomWalk(3e-4, 5e-5)]
+)
 def test_basis_reproduces_the_unscented_time_update(model):
     """The linearised map Lambda -> Q_pose equals the covariance the square-root unscented time update
     adds with the noise S Lambda^(1/2), for a near-certain start pose and small noise (where the
@@ -91,8 +92,9 @@ def test_basis_reproduces_the_unscented_time_update(model):
     _, Sp, _, _ = pose_time_update(x, 1e-9 * jnp.eye(3), dt, u, mask, params, jnp.linalg.cholesky(lam))
     B = process_noise_basis(jnp.zeros((w, w, 3, 3)), x, dt, u, mask, model)
     added = np.asarray(Sp @ Sp.T)
-    np.testing.assert_allclose(np.einsum("ab,abij->ij", np.asarray(lam), np.asarray(B)), added,
-                               rtol=1e-4, atol=1e-6 * np.abs(added).max())
+    np.testing.assert_allclose(
+        np.einsum("ab,abij->ij", np.asarray(lam), np.asarray(B)), added, rtol=1e-4, atol=1e-6 * np.abs(added).max()
+    )
 
 
 @pytest.mark.slow
@@ -111,8 +113,9 @@ def test_update_inverts_the_basis_and_keeps_the_scale_positive_definite():
         np.testing.assert_allclose(np.asarray(got), lam + float(forgetting_weight(0.95, k)) * delta, rtol=1e-10)
     # d_0 = 1 with a change of -5 Lambda's worth: the scale would be -4 Lambda; it is held at 0.05 I.
     change = np.einsum("ab,abij->ij", -5 * lam, np.asarray(B))
-    got = np.asarray(adaptive_process_update(jnp.asarray(lam), 0, jnp.asarray(change), jnp.asarray(prior), B, 0.9,
-                                             0.05))
+    got = np.asarray(
+        adaptive_process_update(jnp.asarray(lam), 0, jnp.asarray(change), jnp.asarray(prior), B, 0.9, 0.05)
+    )
     np.testing.assert_allclose(got, got.T, atol=0)
     np.testing.assert_allclose(np.linalg.eigvalsh(got), 0.05, rtol=1e-10)
 
@@ -129,8 +132,9 @@ def _adaptive_random_walk(lam_true, lam0, steps, b, seed):
     x_true = np.cumsum(w, axis=0)
     z = x_true + rng.multivariate_normal(np.zeros(3), R, size=steps)
     Sj, Rj = jnp.asarray(S), jnp.asarray(R)
-    basis = process_noise_basis(jnp.zeros((3, 3, 3, 3)), jnp.zeros(3), jnp.array([dt]), jnp.zeros((1, 2)),
-                                jnp.array([True]), rw)
+    basis = process_noise_basis(
+        jnp.zeros((3, 3, 3, 3)), jnp.zeros(3), jnp.array([dt]), jnp.zeros((1, 2)), jnp.array([True]), rw
+    )
 
     def step(carry, zk):
         x, P, lam, k = carry
@@ -149,11 +153,14 @@ def _adaptive_random_walk(lam_true, lam0, steps, b, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("lam_true, lam0", [
-    (np.eye(3) / 3.0, np.eye(3)),  # the configured Q 3x too large
-    (3.0 * np.eye(3), np.eye(3)),  # 3x too small
-    (np.array([[0.6, 0.25, 0.0], [0.25, 0.5, 0.1], [0.0, 0.1, 1.5]]), np.eye(3)),  # correlated
-])
+@pytest.mark.parametrize(
+    "lam_true, lam0",
+    [
+        (np.eye(3) / 3.0, np.eye(3)),  # the configured Q 3x too large
+        (3.0 * np.eye(3), np.eye(3)),  # 3x too small
+        (np.array([[0.6, 0.25, 0.0], [0.25, 0.5, 0.1], [0.0, 0.1, 1.5]]), np.eye(3)),  # correlated
+    ],
+)
 def test_estimate_converges_to_the_process_noise_of_a_random_walk(lam_true, lam0):
     """20,000 steps with b = 0.999 (about 1,000 steps of memory); process noise comparable to the
     measurement noise. Measured: every element of the final Lambda within 7.2 % of Lambda_true's
@@ -168,9 +175,18 @@ def test_estimate_converges_to_the_process_noise_of_a_random_walk(lam_true, lam0
 # --------------------------------------------------------------------------- in NASRUKF
 
 
-SIM = ["sim.duration=120", "filter.method=nasrukf", "filter.capacity=256", "data.k_max=12", "output.progress=false",
-       "sim.clutter_rate=0", "sim.steering_bias_deg=0", "sim.sigma_v=0.3", "sim.sigma_alpha_deg=2.0",
-       "output.plots=false"]
+SIM = [
+    "sim.duration=120",
+    "filter.method=nasrukf",
+    "filter.capacity=256",
+    "data.k_max=12",
+    "output.progress=false",
+    "sim.clutter_rate=0",
+    "sim.steering_bias_deg=0",
+    "sim.sigma_v=0.3",
+    "sim.sigma_alpha_deg=2.0",
+    "output.plots=false",
+]
 
 
 @pytest.mark.slow
@@ -217,8 +233,14 @@ def _random_walk_log(sigma_xy, sigma_phi, seconds, rate, seed):
         rows += [[ti, ri, bi, 0.3] for ri, bi in zip(zr, zb)]
     dr = np.column_stack([np.concatenate([[0.0], t]), np.zeros(n + 1), np.zeros(n + 1)])
     truth = np.column_stack([np.concatenate([[0.0], t]), np.vstack([np.zeros(3), poses])])
-    return RawLog(dr=dr, detections=np.asarray(rows), gps=truth[:, :3], truth_poses=truth, truth_landmarks=trees,
-                  source="random walk")
+    return RawLog(
+        dr=dr,
+        detections=np.asarray(rows),
+        gps=truth[:, :3],
+        truth_poses=truth,
+        truth_landmarks=trees,
+        source="random walk",
+    )
 
 
 @pytest.mark.slow
@@ -234,10 +256,22 @@ def test_nasrukf_runs_the_random_walk_model_and_estimates_its_noise():
     raw = _random_walk_log(0.3, math.radians(3.0), 300.0, 10.0, seed=2)
     seg = make_segments(raw, max_range=8.0)
     f = math.sqrt(3.0)
-    cfg = load_config(None, ["filter.method=nasrukf", "model.motion=random_walk", f"random_walk.sigma_xy={0.3 * f}",
-                             f"random_walk.sigma_phi_deg={3.0 * f}", "noise.sigma_r=0.05", "noise.sigma_beta_deg=0.5",
-                             "nasrukf.adaptive_process=true", "nasrukf.process_forgetting=0.998",
-                             "filter.capacity=128", "data.max_range=8", "output.progress=false"])
+    cfg = load_config(
+        None,
+        [
+            "filter.method=nasrukf",
+            "model.motion=random_walk",
+            f"random_walk.sigma_xy={0.3 * f}",
+            f"random_walk.sigma_phi_deg={3.0 * f}",
+            "noise.sigma_r=0.05",
+            "noise.sigma_beta_deg=0.5",
+            "nasrukf.adaptive_process=true",
+            "nasrukf.process_forgetting=0.998",
+            "filter.capacity=128",
+            "data.max_range=8",
+            "output.progress=false",
+        ],
+    )
     static, params = settings_from_config(cfg, seg.k_max)
     run = run_filter(static, params, seg, 0, chunk=500)
     ratio = np.diag(np.asarray(run.state.process_scale)) * 3.0
@@ -255,13 +289,16 @@ def test_nasrukf_runs_the_random_walk_model_and_estimates_its_noise():
 # --------------------------------------------------------------------------- config and report
 
 
-@pytest.mark.parametrize("overrides, words", [
-    (["nasrukf.process_forgetting=1.0"], ["nasrukf.process_forgetting", "< 1"]),
-    (["nasrukf.process_forgetting=0"], ["nasrukf.process_forgetting", "> 0"]),
-    (["nasrukf.process_floor=0"], ["nasrukf.process_floor"]),
-    (["nasrukf.process_floor=1.5"], ["nasrukf.process_floor"]),
-    (["nasrukf.adaptive_process=true", "filter.method=nano"], ["nasrukf.adaptive_process", "nano"]),
-])
+@pytest.mark.parametrize(
+    "overrides, words",
+    [
+        (["nasrukf.process_forgetting=1.0"], ["nasrukf.process_forgetting", "< 1"]),
+        (["nasrukf.process_forgetting=0"], ["nasrukf.process_forgetting", "> 0"]),
+        (["nasrukf.process_floor=0"], ["nasrukf.process_floor"]),
+        (["nasrukf.process_floor=1.5"], ["nasrukf.process_floor"]),
+        (["nasrukf.adaptive_process=true", "filter.method=nano"], ["nasrukf.adaptive_process", "nano"]),
+    ],
+)
 def test_config_rejects_bad_process_noise_settings(overrides, words):
     with pytest.raises(ConfigError) as e:
         load_config(None, overrides)

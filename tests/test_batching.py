@@ -11,8 +11,11 @@ from nanoslam_jax._batching import batch_max, take_if
 
 
 def _tree(rng, *lead):
-    return {"mean": jnp.asarray(rng.normal(size=(*lead, 5, 2))), "active": jnp.asarray(rng.random((*lead, 5)) < 0.5),
-            "hits": jnp.asarray(rng.integers(0, 9, (*lead, 5)), jnp.int32)}
+    return {
+        "mean": jnp.asarray(rng.normal(size=(*lead, 5, 2))),
+        "active": jnp.asarray(rng.random((*lead, 5)) < 0.5),
+        "hits": jnp.asarray(rng.integers(0, 9, (*lead, 5)), jnp.int32),
+    }
 
 
 def _expected(flag, indices, tree):
@@ -58,7 +61,9 @@ def test_take_if_batched_with_unbatched_arguments():
     indices = jnp.asarray([1, 1, 3, 0, 2])
     flag = jnp.asarray([False, True, True, False])
     got = jax.vmap(take_if, (0, None, None))(flag, indices, tree)
-    want = _expected(flag, np.broadcast_to(indices, (4, 5)), {k: np.broadcast_to(v, (4, *v.shape)) for k, v in tree.items()})
+    want = _expected(
+        flag, np.broadcast_to(indices, (4, 5)), {k: np.broadcast_to(v, (4, *v.shape)) for k, v in tree.items()}
+    )
     _assert_tree_equal(got, want)
 
 

@@ -25,15 +25,31 @@ from nanoslam_jax import _cache
 from nanoslam_jax._cache import CACHE_ENV, compile_program, default_cache_dir, program_key
 
 # A small run that still compiles the whole filter program: FastSLAM 1.0 on 20 s of the simulated log.
-SMALL = ["--set", "filter.method=fastslam1", "--set", "filter.capacity=64", "--set", "filter.window=16",
-         "--set", "sim.duration=20", "--set", "output.plots=false", "--quiet"]
+SMALL = [
+    "--set",
+    "filter.method=fastslam1",
+    "--set",
+    "filter.capacity=64",
+    "--set",
+    "filter.window=16",
+    "--set",
+    "sim.duration=20",
+    "--set",
+    "output.plots=false",
+    "--quiet",
+]
 
 
 def _run(out: Path, cache: Path, *extra: str) -> dict:
     env = {**os.environ, CACHE_ENV: str(cache)}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    res = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(out), *SMALL, *extra],
-                         capture_output=True, text=True, env=env, timeout=600)
+    res = subprocess.run(
+        [sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(out), *SMALL, *extra],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert res.returncode == 0, res.stderr
     return json.loads((out / "metrics.json").read_text())
 
@@ -52,8 +68,14 @@ def runs(tmp_path_factory):
     second = _run(root / "second", cache)
     files_after_second = _files(cache)
     bypass = _run(root / "bypass", cache, "--no-cache")
-    return dict(root=root, cache=cache, first=first, second=second, bypass=bypass,
-                files=(files_after_first, files_after_second, _files(cache)))
+    return dict(
+        root=root,
+        cache=cache,
+        first=first,
+        second=second,
+        bypass=bypass,
+        files=(files_after_first, files_after_second, _files(cache)),
+    )
 
 
 @pytest.mark.slow
@@ -135,8 +157,13 @@ def test_unwritable_cache_directory_is_a_clear_error(tmp_path):
     blocker.write_text("not a directory")
     env = {**os.environ, CACHE_ENV: str(blocker / "jax")}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    res = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(tmp_path / "r"), *SMALL],
-                         capture_output=True, text=True, env=env, timeout=300)
+    res = subprocess.run(
+        [sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(tmp_path / "r"), *SMALL],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert res.returncode == 2
     assert "Traceback" not in res.stderr
     assert str(blocker / "jax") in res.stderr and CACHE_ENV in res.stderr and "--no-cache" in res.stderr
@@ -166,9 +193,22 @@ def test_sweep_no_cache_turns_the_sweep_files_cache_off(tmp_path, monkeypatch):
     monkeypatch.setattr(_runner, "run_sweep", fake_run_sweep)
     sweep = Path(__file__).resolve().parents[1] / "configs" / "sweep_example.yaml"
     for flag, expected in ((True, False), (False, True)):
-        args = argparse.Namespace(sweep=str(sweep), overrides=[], ray_address=None, workers=None, batch=None,
-                                  dry_run=False, out=str(tmp_path / "s"), resume=False, data=None, quiet=True,
-                                  backend=None, parallel=None, vectorize=None, no_cache=flag)
+        args = argparse.Namespace(
+            sweep=str(sweep),
+            overrides=[],
+            ray_address=None,
+            workers=None,
+            batch=None,
+            dry_run=False,
+            out=str(tmp_path / "s"),
+            resume=False,
+            data=None,
+            quiet=True,
+            backend=None,
+            parallel=None,
+            vectorize=None,
+            no_cache=flag,
+        )
         assert sweep_command(args) == 130
         assert seen["compile_cache"] is expected
 
@@ -215,10 +255,10 @@ def test_program_key_changes_with_static_shapes_dtypes_sources_and_versions(monk
     x, y = jnp.arange(4.0), (jnp.ones(4),)
     base = program_key(_toy, 3.0, (x, y))
     assert program_key(_toy, 3.0, (x, y)) == base
-    assert program_key(_toy, 4.0, (x, y)) != base                          # a static setting
-    assert program_key(_toy, 3.0, (jnp.arange(5.0), y)) != base            # a shape
-    assert program_key(_toy, 3.0, (x.astype(jnp.float32), y)) != base     # a dtype
-    assert program_key(_toy, 3.0, ((x, y),)) != base                       # the tree structure
+    assert program_key(_toy, 4.0, (x, y)) != base  # a static setting
+    assert program_key(_toy, 3.0, (jnp.arange(5.0), y)) != base  # a shape
+    assert program_key(_toy, 3.0, (x.astype(jnp.float32), y)) != base  # a dtype
+    assert program_key(_toy, 3.0, ((x, y),)) != base  # the tree structure
     # The package's sources and the installed versions (jax, jaxlib, equinox, ...) enter the key.
     _cache._environment_digest.cache_clear()
     real = _cache.Path.read_bytes
@@ -259,7 +299,7 @@ def _header(entry: Path) -> dict:
     data = entry.read_bytes()
     assert data.startswith(_cache._MAGIC)
     start = len(_cache._MAGIC) + 8
-    return json.loads(data[start:start + int.from_bytes(data[len(_cache._MAGIC):start], "big")])
+    return json.loads(data[start : start + int.from_bytes(data[len(_cache._MAGIC) : start], "big")])
 
 
 def _count_exports(monkeypatch) -> list:
@@ -315,11 +355,12 @@ def _rewrite_header(change):
     def damage(entry: Path, other: Path) -> None:
         data = entry.read_bytes()
         start = len(_cache._MAGIC) + 8
-        size = int.from_bytes(data[len(_cache._MAGIC):start], "big")
-        header = json.loads(data[start:start + size])
+        size = int.from_bytes(data[len(_cache._MAGIC) : start], "big")
+        header = json.loads(data[start : start + size])
         change(header)
         raw = json.dumps(header).encode()
-        entry.write_bytes(_cache._MAGIC + len(raw).to_bytes(8, "big") + raw + data[start + size:])
+        entry.write_bytes(_cache._MAGIC + len(raw).to_bytes(8, "big") + raw + data[start + size :])
+
     return damage
 
 
@@ -335,11 +376,20 @@ def _claim_other_inputs(h):
     h["in_tree"] = h["in_tree"].replace("*", "*, *", 1)
 
 
-@pytest.mark.parametrize("damage", [
-    lambda e, o: e.write_bytes(b"not a program"), lambda e, o: e.write_bytes(b""), _truncate,
-    _flip_a_program_byte, _another_programs_entry, _rewrite_header(_claim_a_function),
-    _rewrite_header(_claim_an_unimported_module), _rewrite_header(_claim_other_inputs),
-], ids=["garbage", "empty", "truncated", "flipped-byte", "other-program", "function", "unimported", "inputs"])
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda e, o: e.write_bytes(b"not a program"),
+        lambda e, o: e.write_bytes(b""),
+        _truncate,
+        _flip_a_program_byte,
+        _another_programs_entry,
+        _rewrite_header(_claim_a_function),
+        _rewrite_header(_claim_an_unimported_module),
+        _rewrite_header(_claim_other_inputs),
+    ],
+    ids=["garbage", "empty", "truncated", "flipped-byte", "other-program", "function", "unimported", "inputs"],
+)
 def test_a_damaged_entry_is_a_miss_traced_again_and_overwritten(toy_cache, monkeypatch, damage):
     x, y = jnp.arange(3.0), (jnp.ones(3) * 2,)
     model = _Model(gain=jnp.float64(0.5), name="m")
@@ -462,12 +512,17 @@ def test_release_programs_unmaps_compiled_filter_programs(monkeypatch):
     before = _cache.memory_maps()[0]
     runs = {}
     for method in ("fastslam1", "fastslam2"):
-        cfg = load_config(None, [f"filter.method={method}", "filter.capacity=64", "filter.window=16",
-                                 "sim.duration=10"])
+        cfg = load_config(
+            None, [f"filter.method={method}", "filter.capacity=64", "filter.window=16", "sim.duration=10"]
+        )
         log = load_log(cfg)
         static, params = settings_from_config(cfg, log.segments.k_max)
-        runs[method] = (static, params, log.segments,
-                        np.asarray(run_filter(static, params, log.segments, 0).outputs.best_pose))
+        runs[method] = (
+            static,
+            params,
+            log.segments,
+            np.asarray(run_filter(static, params, log.segments, 0).outputs.best_pose),
+        )
     grown = _cache.memory_maps()[0] - before
     assert grown > 100, f"two filter programs added only {grown} memory regions"
 

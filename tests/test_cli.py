@@ -27,9 +27,24 @@ from nanoslam_jax.metrics import evaluate
 ROOT = Path(__file__).resolve().parents[1]
 DR_CONFIG = ROOT / "configs" / "dead_reckoning.yaml"
 TRAJECTORY_HEADER = "t,x,y,phi,mean_x,mean_y,mean_phi"
-PROTOCOL_METRICS = ["rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean",
-                    "mean_error", "max_error", "final_error", "n_fixes"]
-SIM_FILES = ["inputs.dat", "measurements.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat", "truth_diameters.dat"]
+PROTOCOL_METRICS = [
+    "rmse_fixed",
+    "rmse_aligned",
+    "rmse_fixed_clean",
+    "rmse_aligned_clean",
+    "mean_error",
+    "max_error",
+    "final_error",
+    "n_fixes",
+]
+SIM_FILES = [
+    "inputs.dat",
+    "measurements.dat",
+    "gps.dat",
+    "truth_poses.dat",
+    "truth_landmarks.dat",
+    "truth_diameters.dat",
+]
 STAMPED = re.compile(r"^(?P<name>.+)-\d{8}-\d{6}$")
 
 
@@ -108,8 +123,9 @@ def test_console_script_help():
     assert "run" in r.stdout and "simulate" in r.stdout
 
 
-@pytest.mark.parametrize("command, options", [("run", ["--out", "--data", "--set"]),
-                                              ("simulate", ["--out", "--seed", "--set"])])
+@pytest.mark.parametrize(
+    "command, options", [("run", ["--out", "--data", "--set"]), ("simulate", ["--out", "--seed", "--set"])]
+)
 def test_subcommand_help(capsys, command, options):
     with pytest.raises(SystemExit) as e:
         main([command, "--help"])
@@ -131,16 +147,19 @@ def test_missing_or_unknown_command_is_a_usage_error(capsys):
 # --------------------------------------------------------------------------- errors, one line each
 
 
-@pytest.mark.parametrize("argv, fragments", [
-    (["run", "--set", "filter.n_partcles=3"], ["filter.n_partcles"]),
-    (["run", "--set", "filter.n_particles=0"], ["filter.n_particles"]),
-    (["run", "--set", "filter.n_particles=2.5"], ["filter.n_particles", "integer"]),
-    (["run", "--set", "filter.method=foo"], ["filter.method", "'nano'", "'dead_reckoning'"]),
-    (["run", "--set", "filter.n_particles"], ["key=value"]),
-    (["run", "no_such_config.yaml"], ["no_such_config.yaml"]),
-    (["simulate", "--out", "sim", "--set", "sim.n_tres=3"], ["sim.n_tres"]),
-    (["simulate", "--out", "sim", "--seed", "-1"], ["sim.seed"]),
-])
+@pytest.mark.parametrize(
+    "argv, fragments",
+    [
+        (["run", "--set", "filter.n_partcles=3"], ["filter.n_partcles"]),
+        (["run", "--set", "filter.n_particles=0"], ["filter.n_particles"]),
+        (["run", "--set", "filter.n_particles=2.5"], ["filter.n_particles", "integer"]),
+        (["run", "--set", "filter.method=foo"], ["filter.method", "'nano'", "'dead_reckoning'"]),
+        (["run", "--set", "filter.n_particles"], ["key=value"]),
+        (["run", "no_such_config.yaml"], ["no_such_config.yaml"]),
+        (["simulate", "--out", "sim", "--set", "sim.n_tres=3"], ["sim.n_tres"]),
+        (["simulate", "--out", "sim", "--seed", "-1"], ["sim.seed"]),
+    ],
+)
 def test_config_errors_exit_2_with_one_line(capsys, tmp_path, monkeypatch, argv, fragments):
     monkeypatch.chdir(tmp_path)
     rc, out, err = _call(capsys, argv)
@@ -205,8 +224,9 @@ def test_simulate_is_reproducible_and_seeded(sim_dir, tmp_path, capsys):
 
 
 def test_simulate_set_overrides_reach_the_simulator(tmp_path, capsys):
-    rc, _, _ = _call(capsys, ["simulate", "--out", tmp_path / "s", "--set", "sim.n_trees=40",
-                              "--set", "sim.duration=30"])
+    rc, _, _ = _call(
+        capsys, ["simulate", "--out", tmp_path / "s", "--set", "sim.n_trees=40", "--set", "sim.duration=30"]
+    )
     assert rc == 0
     raw = load_victoria_park(tmp_path / "s")
     assert raw.truth_landmarks.shape == (40, 2)
@@ -302,7 +322,8 @@ def test_default_run_reports_error_against_ground_truth(default_run):
     traj = _trajectory(d)
     assert traj[-1, 0] <= 30.0
     assert (d / "map.csv").read_text().splitlines()[0] == (
-        "x,y,cov_xx,cov_xy,cov_yy,hits,misses,existence,confirmed,diameter,diameter_sd")
+        "x,y,cov_xx,cov_xy,cov_yy,hits,misses,existence,confirmed,diameter,diameter_sd"
+    )
 
 
 @pytest.mark.slow

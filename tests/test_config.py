@@ -22,7 +22,9 @@ from nanoslam_jax.config import (
 ROOT = Path(__file__).resolve().parents[1]
 # Run configs; comparisons (table*.yaml), sweeps (sweep*.yaml) and studies (accuracy_vs_compute*.yaml)
 # have their own schemas and tests.
-CONFIGS = sorted(p for p in (ROOT / "configs").glob("*.yaml") if not p.name.startswith(("table", "sweep", "accuracy_vs_compute")))
+CONFIGS = sorted(
+    p for p in (ROOT / "configs").glob("*.yaml") if not p.name.startswith(("table", "sweep", "accuracy_vs_compute"))
+)
 
 
 def _write(path: Path, text: str) -> Path:
@@ -86,8 +88,16 @@ def test_missing_config_file_is_a_config_error(tmp_path):
 
 def test_set_overrides_the_file_and_the_default(tmp_path):
     p = _write(tmp_path / "c.yaml", "filter:\n  n_particles: 7\n")
-    cfg = load_config(p, ["filter.n_particles=20", "nano.quadrature=gauss_hermite", "noise.sigma_r=0.25",
-                          "map.manage=false", "data.t_end=30"])
+    cfg = load_config(
+        p,
+        [
+            "filter.n_particles=20",
+            "nano.quadrature=gauss_hermite",
+            "noise.sigma_r=0.25",
+            "map.manage=false",
+            "data.t_end=30",
+        ],
+    )
     assert cfg.filter.n_particles == 20
     assert cfg.nano.quadrature == "gauss_hermite"
     assert cfg.noise.sigma_r == 0.25
@@ -134,12 +144,15 @@ def _error(overrides=(), path=None) -> str:
     return str(e.value)
 
 
-@pytest.mark.parametrize("item, key", [
-    ("n_partcles=3", "n_partcles"),
-    ("filter.n_partcles=3", "filter.n_partcles"),
-    ("filtr.n_particles=3", "filtr.n_particles"),
-    ("nano.quadrature.order=3", "nano.quadrature"),
-])
+@pytest.mark.parametrize(
+    "item, key",
+    [
+        ("n_partcles=3", "n_partcles"),
+        ("filter.n_partcles=3", "filter.n_partcles"),
+        ("filtr.n_particles=3", "filtr.n_particles"),
+        ("nano.quadrature.order=3", "nano.quadrature"),
+    ],
+)
 def test_unknown_key_in_set_is_named(item, key):
     assert key in _error([item])
 
@@ -155,11 +168,14 @@ def test_setting_a_whole_section_is_rejected():
     assert "'filter'" in msg and "section" in msg
 
 
-@pytest.mark.parametrize("text, key", [
-    ("n_partcles: 3\n", "n_partcles"),
-    ("filter:\n  n_partcles: 3\n", "filter.n_partcles"),
-    ("nano:\n  quadratur: cubature\n", "nano.quadratur"),
-])
+@pytest.mark.parametrize(
+    "text, key",
+    [
+        ("n_partcles: 3\n", "n_partcles"),
+        ("filter:\n  n_partcles: 3\n", "filter.n_partcles"),
+        ("nano:\n  quadratur: cubature\n", "nano.quadratur"),
+    ],
+)
 def test_unknown_key_in_yaml_is_named_with_the_file(tmp_path, text, key):
     p = _write(tmp_path / "typo.yaml", text)
     msg = _error(path=p)
@@ -168,17 +184,20 @@ def test_unknown_key_in_yaml_is_named_with_the_file(tmp_path, text, key):
     assert "unknown" in msg
 
 
-@pytest.mark.parametrize("item, key, expected", [
-    ("filter.n_particles=abc", "filter.n_particles", "integer"),
-    ("filter.n_particles=2.5", "filter.n_particles", "integer"),
-    ("filter.n_particles=true", "filter.n_particles", "integer"),
-    ("noise.sigma_v=true", "noise.sigma_v", "number"),
-    ("noise.sigma_v=fast", "noise.sigma_v", "number"),
-    ("noise.sigma_v=.nan", "noise.sigma_v", "finite"),
-    ("map.manage=1", "map.manage", "true or false"),
-    ("name=3", "name", "string"),
-    ("data.path=[1, 2]", "data.path", "string"),
-])
+@pytest.mark.parametrize(
+    "item, key, expected",
+    [
+        ("filter.n_particles=abc", "filter.n_particles", "integer"),
+        ("filter.n_particles=2.5", "filter.n_particles", "integer"),
+        ("filter.n_particles=true", "filter.n_particles", "integer"),
+        ("noise.sigma_v=true", "noise.sigma_v", "number"),
+        ("noise.sigma_v=fast", "noise.sigma_v", "number"),
+        ("noise.sigma_v=.nan", "noise.sigma_v", "finite"),
+        ("map.manage=1", "map.manage", "true or false"),
+        ("name=3", "name", "string"),
+        ("data.path=[1, 2]", "data.path", "string"),
+    ],
+)
 def test_wrong_type_is_named(item, key, expected):
     msg = _error([item])
     assert f"'{key}'" in msg
@@ -196,18 +215,21 @@ def test_a_section_that_is_not_a_mapping_is_rejected(tmp_path):
     assert "'filter'" in msg and "mapping" in msg
 
 
-@pytest.mark.parametrize("item, key", [
-    ("filter.n_particles=0", "filter.n_particles"),
-    ("filter.n_particles=-4", "filter.n_particles"),
-    ("noise.sigma_r=-1", "noise.sigma_r"),
-    ("noise.sigma_v=0", "noise.sigma_v"),
-    ("noise.sigma_beta_deg=-0.5", "noise.sigma_beta_deg"),
-    ("filter.resample_threshold=1.5", "filter.resample_threshold"),
-    ("filter.resample_threshold=-0.1", "filter.resample_threshold"),
-    ("nano.gh_order=11", "nano.gh_order"),
-    ("seed=-1", "seed"),
-    ("data.t_end=0", "data.t_end"),
-])
+@pytest.mark.parametrize(
+    "item, key",
+    [
+        ("filter.n_particles=0", "filter.n_particles"),
+        ("filter.n_particles=-4", "filter.n_particles"),
+        ("noise.sigma_r=-1", "noise.sigma_r"),
+        ("noise.sigma_v=0", "noise.sigma_v"),
+        ("noise.sigma_beta_deg=-0.5", "noise.sigma_beta_deg"),
+        ("filter.resample_threshold=1.5", "filter.resample_threshold"),
+        ("filter.resample_threshold=-0.1", "filter.resample_threshold"),
+        ("nano.gh_order=11", "nano.gh_order"),
+        ("seed=-1", "seed"),
+        ("data.t_end=0", "data.t_end"),
+    ],
+)
 def test_out_of_range_is_named(item, key):
     msg = _error([item])
     assert f"'{key}'" in msg
@@ -215,8 +237,16 @@ def test_out_of_range_is_named(item, key):
 
 
 def test_range_boundaries_are_accepted():
-    cfg = load_config(None, ["filter.n_particles=1", "filter.resample_threshold=1.0", "filter.resample_threshold=0",
-                             "nano.step=1.0", "data.min_range=0"])
+    cfg = load_config(
+        None,
+        [
+            "filter.n_particles=1",
+            "filter.resample_threshold=1.0",
+            "filter.resample_threshold=0",
+            "nano.step=1.0",
+            "data.min_range=0",
+        ],
+    )
     assert cfg.filter.n_particles == 1 and cfg.filter.resample_threshold == 0.0
 
 
@@ -263,11 +293,14 @@ def test_top_level_scalar_is_rejected(tmp_path):
     assert "scalar.yaml" in msg and "mapping" in msg
 
 
-@pytest.mark.parametrize("items", [
-    ["data.min_range=40"],
-    ["data.min_range=30", "data.max_range=30"],
-    ["data.min_range=5", "data.max_range=2"],
-])
+@pytest.mark.parametrize(
+    "items",
+    [
+        ["data.min_range=40"],
+        ["data.min_range=30", "data.max_range=30"],
+        ["data.min_range=5", "data.max_range=2"],
+    ],
+)
 def test_min_range_must_be_below_max_range(items):
     msg = _error(items)
     assert "data.min_range" in msg and "data.max_range" in msg
@@ -278,12 +311,15 @@ def test_new_landmark_threshold_must_not_be_below_the_gate():
     assert "filter.new_landmark" in msg
 
 
-@pytest.mark.parametrize("items, key", [
-    (["map.p_false=0.9", "map.p_detect=0.8"], "map.p_false"),
-    (["map.birth_probability=0.01", "map.remove_probability=0.05"], "map.birth_probability"),
-    (["map.birth_probability=0.999", "map.max_probability=0.99"], "map.birth_probability"),
-    (["map.confirm_probability=0.999", "map.max_probability=0.99"], "map.confirm_probability"),
-])
+@pytest.mark.parametrize(
+    "items, key",
+    [
+        (["map.p_false=0.9", "map.p_detect=0.8"], "map.p_false"),
+        (["map.birth_probability=0.01", "map.remove_probability=0.05"], "map.birth_probability"),
+        (["map.birth_probability=0.999", "map.max_probability=0.99"], "map.birth_probability"),
+        (["map.confirm_probability=0.999", "map.max_probability=0.99"], "map.confirm_probability"),
+    ],
+)
 def test_inconsistent_landmark_management_is_named(items, key):
     msg = _error(items)
     assert f"'{key}'" in msg
@@ -294,15 +330,21 @@ def test_inconsistent_management_keys_are_accepted_with_management_off():
     assert cfg.map.p_false == 0.9
 
 
-@pytest.mark.parametrize("items, fragments", [
-    (["noise.forgetting=1.0"], ["noise.forgetting", "< 1"]),
-    (["noise.forgetting=0"], ["noise.forgetting", "> 0"]),
-    (["noise.adaptive_floor=1.5"], ["noise.adaptive_floor", "<= 1"]),
-    (["noise.adaptive=true", "filter.method=ekf_slam"], ["noise.adaptive", "ekf_slam", "nasrukf", "nano", "ufastslam"]),
-    (["noise.adaptive=true", "filter.method=fastslam1"], ["noise.adaptive", "fastslam1"]),
-    (["nasrukf.feature=line"], ["nasrukf.feature", "'point'", "'arc'"]),
-    (["nasrukf.new_feature_hits=0"], ["nasrukf.new_feature_hits", ">= 1"]),
-])
+@pytest.mark.parametrize(
+    "items, fragments",
+    [
+        (["noise.forgetting=1.0"], ["noise.forgetting", "< 1"]),
+        (["noise.forgetting=0"], ["noise.forgetting", "> 0"]),
+        (["noise.adaptive_floor=1.5"], ["noise.adaptive_floor", "<= 1"]),
+        (
+            ["noise.adaptive=true", "filter.method=ekf_slam"],
+            ["noise.adaptive", "ekf_slam", "nasrukf", "nano", "ufastslam"],
+        ),
+        (["noise.adaptive=true", "filter.method=fastslam1"], ["noise.adaptive", "fastslam1"]),
+        (["nasrukf.feature=line"], ["nasrukf.feature", "'point'", "'arc'"]),
+        (["nasrukf.new_feature_hits=0"], ["nasrukf.new_feature_hits", ">= 1"]),
+    ],
+)
 def test_adaptive_noise_and_nasrukf_keys_are_validated(items, fragments):
     msg = _error(items)
     for f in fragments:
@@ -334,9 +376,13 @@ def test_config_is_hashable_and_compares_by_value():
 
 
 def _all_configs():
-    return [Config(), load_config(), *(load_config(p) for p in CONFIGS),
-            load_config(None, ["filter.n_particles=3", "data.t_end=12.5", "data.path=/x/y"]),
-            load_config(None, ["filter.init_cov=1.0e-12", "metrics.gps_rotation_deg=-33.0", "sim.seed=7"])]
+    return [
+        Config(),
+        load_config(),
+        *(load_config(p) for p in CONFIGS),
+        load_config(None, ["filter.n_particles=3", "data.t_end=12.5", "data.path=/x/y"]),
+        load_config(None, ["filter.init_cov=1.0e-12", "metrics.gps_rotation_deg=-33.0", "sim.seed=7"]),
+    ]
 
 
 @pytest.mark.parametrize("cfg", _all_configs())
@@ -460,7 +506,9 @@ def test_dataset_help_says_where_to_get_the_files():
 
 
 def test_base_config_is_merged_section_by_section(tmp_path):
-    (tmp_path / "a.yaml").write_text("name: a\nnoise: {sigma_v: 1.5, sigma_r: 0.7}\nfilter: {method: nano, gate: 9.0}\n")
+    (tmp_path / "a.yaml").write_text(
+        "name: a\nnoise: {sigma_v: 1.5, sigma_r: 0.7}\nfilter: {method: nano, gate: 9.0}\n"
+    )
     (tmp_path / "b.yaml").write_text("base: a.yaml\nfilter: {method: fastslam2}\nnoise: {sigma_r: 0.2}\n")
     cfg = load_config(tmp_path / "b.yaml", ["filter.gate=7.0"])
     assert cfg.name == "b"  # named after its own file
@@ -490,4 +538,6 @@ def test_method_configs_differ_from_nano_only_in_method(method):
     assert other["name"] == f"victoria_park_{method}"
     for section in ("noise", "data", "vehicle", "metrics"):
         assert other[section] == nano[section]
-    assert {k: v for k, v in other["filter"].items() if k != "method"} == {k: v for k, v in nano["filter"].items() if k != "method"}
+    assert {k: v for k, v in other["filter"].items() if k != "method"} == {
+        k: v for k, v in nano["filter"].items() if k != "method"
+    }

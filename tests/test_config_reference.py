@@ -20,8 +20,11 @@ from nanoslam_jax.config_reference import reference_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The run configs (a compare spec has ``methods``, a sweep spec ``grid`` or ``random``).
-RUN_CONFIGS = sorted(p for p in (ROOT / "configs").glob("*.yaml")
-                     if not {"methods", "grid", "random"} & set(yaml.safe_load(p.read_text()) or {}))
+RUN_CONFIGS = sorted(
+    p
+    for p in (ROOT / "configs").glob("*.yaml")
+    if not {"methods", "grid", "random"} & set(yaml.safe_load(p.read_text()) or {})
+)
 
 
 def _leaves(cls=Config, prefix=""):

@@ -111,13 +111,17 @@ def test_update_touches_only_the_active_part():
     np.testing.assert_array_equal(mu[5:], mean[5:])
     np.testing.assert_array_equal(cov[5:, :], P[5:, :])
     np.testing.assert_array_equal(cov[:, 5:], P[:, 5:])
-    mu2, cov2 = ekf_slam_update(jnp.asarray(mean), jnp.asarray(P), jnp.asarray(z), 0, jnp.asarray(R), size=5, apply=False)
+    mu2, cov2 = ekf_slam_update(
+        jnp.asarray(mean), jnp.asarray(P), jnp.asarray(z), 0, jnp.asarray(R), size=5, apply=False
+    )
     np.testing.assert_array_equal(np.asarray(mu2), mean)
     np.testing.assert_array_equal(np.asarray(cov2), P)
 
 
-@pytest.mark.parametrize("n,block,size", [(300, 64, 0), (300, 64, 1), (300, 64, 65), (300, 128, 250),
-                                          (300, 128, 300), (300, 1000, 170), (50, 16, 50)])
+@pytest.mark.parametrize(
+    "n,block,size",
+    [(300, 64, 0), (300, 64, 1), (300, 64, 65), (300, 128, 250), (300, 128, 300), (300, 1000, 170), (50, 16, 50)],
+)
 def test_rank2_downdate_equals_dense(n, block, size):
     """The tiled update (clamped last tile included) equals P - v0 v0' - v1 v1' on the leading
     part and leaves the rest bit for bit."""
@@ -194,7 +198,9 @@ def test_prediction_equals_dense_joint_linearisation():
         y, A, B = step(y, jnp.asarray(u[i]), jnp.asarray(dt[i]))
         A, B = np.asarray(A), np.asarray(B)
         Pd = A @ Pd @ A.T + B @ Q @ B.T
-    mu, cov = ekf_slam_predict(jnp.asarray(mean), jnp.asarray(P), jnp.asarray(dt), jnp.asarray(u), jnp.asarray(mask), params)
+    mu, cov = ekf_slam_predict(
+        jnp.asarray(mean), jnp.asarray(P), jnp.asarray(dt), jnp.asarray(u), jnp.asarray(mask), params
+    )
     np.testing.assert_allclose(np.asarray(mu), np.asarray(y), atol=1e-12)
     np.testing.assert_allclose(np.asarray(cov), Pd, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(cov)[3:, 3:], P[3:, 3:])  # landmark block untouched
@@ -272,7 +278,9 @@ def test_capacity_does_not_change_results(sim, sim_run):
     np.testing.assert_allclose(np.asarray(la.mean), np.asarray(lb.mean)[:small], rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(la.cov), np.asarray(lb.cov)[:small], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(la.hits), np.asarray(lb.hits)[:small])
-    np.testing.assert_allclose(np.asarray(sa.cov), np.asarray(sb.cov)[:3 + 2 * small, :3 + 2 * small], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(sa.cov), np.asarray(sb.cov)[: 3 + 2 * small, : 3 + 2 * small], rtol=0, atol=1e-12
+    )
 
 
 @pytest.mark.slow
@@ -307,8 +315,15 @@ def test_victoria_park_first_300_s(vp_dir):
     Measured (deterministic): rmse_fixed 1.62 m, rmse_aligned 1.34 m, 96 confirmed landmarks.
     Bounds: a band around those (rounding on another CPU may change an association): fixed
     1.2-2.0 m, aligned < 1.7 m, at least 40x below dead reckoning; 70-130 confirmed landmarks."""
-    run = run_real_log_start("victoria_park_ekf_slam.yaml", vp_dir, fixed=(1.2, 2.0), aligned=1.7, dr_factor=40.0,
-                             confirmed=(70, 130), what="EKF-SLAM, first 300 s")
+    run = run_real_log_start(
+        "victoria_park_ekf_slam.yaml",
+        vp_dir,
+        fixed=(1.2, 2.0),
+        aligned=1.7,
+        dr_factor=40.0,
+        confirmed=(70, 130),
+        what="EKF-SLAM, first 300 s",
+    )
     P = np.asarray(run.state.cov)
     assert np.array_equal(P, P.T)
     n = 3 + 2 * int(run.state.count)

@@ -21,8 +21,15 @@ import pytest
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import (_scan, dead_reckoning, reported_map, run_batch, run_filter, settings_from_config,
-                                 stack_params)
+from nanoslam_jax.filter import (
+    _scan,
+    dead_reckoning,
+    reported_map,
+    run_batch,
+    run_filter,
+    settings_from_config,
+    stack_params,
+)
 from nanoslam_jax.metrics import evaluate
 
 # A capacity/window pair used by no other test module, so this module's first run really traces
@@ -157,8 +164,9 @@ def test_new_params_do_not_retrace(sim, runs, trace_counter):
     first = runs(0)
     n_traced = trace_counter["n"]
     assert n_traced >= 1  # the counter saw the first trace of this module's static settings
-    cfg2 = load_config(None, SIM_OVERRIDES + ["filter.gate=9.21", "filter.new_landmark=20.0", "nano.gamma=1e-3",
-                                              "noise.sigma_r=0.6"])
+    cfg2 = load_config(
+        None, SIM_OVERRIDES + ["filter.gate=9.21", "filter.new_landmark=20.0", "nano.gamma=1e-3", "noise.sigma_r=0.6"]
+    )
     static2, params2 = settings_from_config(cfg2, log.segments.k_max)
     assert static2 == static
     second = run_filter(static2, params2, log.segments, 0)
@@ -181,8 +189,9 @@ def test_no_detections_is_dead_reckoning(sim, runs, trace_counter):
     n_traced = trace_counter["n"]
     seg = log.segments._replace(z_mask=jnp.zeros_like(jnp.asarray(log.segments.z_mask)))
     a = lambda v: jnp.asarray(v, dtype=float)  # noqa: E731
-    quiet = params._replace(motion=eqx.tree_at(lambda m: (m.sigma_v, m.sigma_alpha), params.motion, (a(1e-9), a(1e-11))),
-                            init_cov=a(1e-24))
+    quiet = params._replace(
+        motion=eqx.tree_at(lambda m: (m.sigma_v, m.sigma_alpha), params.motion, (a(1e-9), a(1e-11))), init_cov=a(1e-24)
+    )
     run = run_filter(static, quiet, seg, 5)
     assert trace_counter["n"] == n_traced  # new Params values and segment values: no retrace
     assert_all_finite(run)
@@ -265,8 +274,14 @@ def test_victoria_park_paper_setting(vp_dir):
     fixed, aligned = [], []
     maps = jax.vmap(reported_map)(run.state)
     for i, seed in enumerate(seeds):
-        m = evaluate(t, np.asarray(o.best_pose[i])[:, :2], log.raw.gps, frame=log.frame,
-                     rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+        m = evaluate(
+            t,
+            np.asarray(o.best_pose[i])[:, :2],
+            log.raw.gps,
+            frame=log.frame,
+            rotation_deg=cfg.metrics.gps_rotation_deg,
+            jump_speed=cfg.metrics.jump_speed,
+        )
         assert m["rmse_fixed"] < 25.0, (seed, m)
         assert_beats_dead_reckoning(m["rmse_fixed"], dr, 5.0, f"seed {seed}")
         fixed.append(m["rmse_fixed"])
@@ -370,9 +385,12 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     eps = jnp.asarray(rng.normal(size=(n, 3)))
     # Rows 1 and 4 match the landmark the row before them started.
     ps = jnp.broadcast_to(jnp.array([0, 0, 0, 0, 3, 0, 0, 0]), (n, k))
-    bucketed = jax.jit(jax.vmap(
-        lambda x, P, d, ex, p, e, zm: rows_over_buckets(static, params, prop, x, P, R, d, ex, p, e, zm),
-        (0, 0, 0, 0, 0, 0, None)))
+    bucketed = jax.jit(
+        jax.vmap(
+            lambda x, P, d, ex, p, e, zm: rows_over_buckets(static, params, prop, x, P, R, d, ex, p, e, zm),
+            (0, 0, 0, 0, 0, 0, None),
+        )
+    )
     full = jax.jit(jax.vmap(lambda x, P, d, ex, p, e: row_work(static, params, prop, x, P, R, d, ex, p, e)))
     for n_real in (0, 1, 2, 3, 4, 5, 8):
         z_mask = jnp.arange(k) < n_real
@@ -417,9 +435,22 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets,
     z = jnp.stack([z1, z1 + jnp.array([0.3, 0.01]), jnp.array([20.0, -0.8])] + [jnp.zeros(2)] * 3)
     z_mask = jnp.arange(6) < 3
     pose = jnp.array([1.0, -2.0, 0.4])
-    out = jax.jit(lambda eps: particle_update(
-        static, params, make_proposal(static, params), pose, 1e-4 * jnp.eye(3), LandmarkMap.empty(16),
-        jnp.zeros(2), jnp.zeros((2, 2)), jnp.zeros(2, bool), z, z_mask, eps))(jnp.array([0.3, -1.2, 0.5]))
+    out = jax.jit(
+        lambda eps: particle_update(
+            static,
+            params,
+            make_proposal(static, params),
+            pose,
+            1e-4 * jnp.eye(3),
+            LandmarkMap.empty(16),
+            jnp.zeros(2),
+            jnp.zeros((2, 2)),
+            jnp.zeros(2, bool),
+            z,
+            z_mask,
+            eps,
+        )
+    )(jnp.array([0.3, -1.2, 0.5]))
     R = params.R
     m1, S1 = init_landmark(out.pose, z[0], R)
     m, S, llp = ekf_update_loglik(out.pose, z[1], m1, S1, R)
@@ -521,8 +552,12 @@ def test_least_squares_methods_are_not_split_over_devices():
     from nanoslam_jax.filter import shardable
 
     over = ["filter.n_particles=1000", "filter.split_devices=always"]
-    for extra, split in ((["filter.method=iterated"], False), (["filter.method=nano", "nano.init=gauss_newton"], False),
-                         (["filter.method=nano"], True), (["filter.method=fastslam2"], True)):
+    for extra, split in (
+        (["filter.method=iterated"], False),
+        (["filter.method=nano", "nano.init=gauss_newton"], False),
+        (["filter.method=nano"], True),
+        (["filter.method=fastslam2"], True),
+    ):
         cfg = load_config(None, over + extra)
         assert shardable(cfg.filter.method, cfg.nano.init) is split, extra
         static, _ = settings_from_config(cfg, 14)

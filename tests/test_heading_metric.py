@@ -13,13 +13,11 @@ from nanoslam_jax.experiment import execute
 from nanoslam_jax.metrics import heading_errors, rmse_heading_deg
 
 
-
 def test_heading_error_by_hand_across_the_cut():
     """Truth: 179 deg at t = 0, -179 deg (= 181) at t = 1, -170 at t = 2. Estimates: t = 0: -178
     (3 deg ahead across the cut), t = 0.5: -179.5 (truth 180: +0.5), t = 1: 178 (-3), t = 2: -170
     plus 360 (0), t = 3: outside the truth's span, left out."""
-    truth = np.array([[0.0, 0, 0, math.radians(179)], [1.0, 0, 0, math.radians(-179)],
-                      [2.0, 0, 0, math.radians(-170)]])
+    truth = np.array([[0.0, 0, 0, math.radians(179)], [1.0, 0, 0, math.radians(-179)], [2.0, 0, 0, math.radians(-170)]])
     t = np.array([0.0, 0.5, 1.0, 2.0, 3.0])
     est = np.radians([-178.0, -179.5, 178.0, 190.0, 0.0])
     tt, err = heading_errors(t, est, truth)

@@ -75,10 +75,10 @@ def test_segments_as_detections_match_true_walls(template, seed):
     np.testing.assert_array_equal(times, np.unique(rows[:, 0]))
     for i, t in enumerate(np.asarray(seg.time)):
         mine = rows[rows[:, 0] == t]
-        assert mask[i].sum() == mine.shape[0] and not mask[i, mine.shape[0]:].any()
-        np.testing.assert_array_equal(z[i, :mine.shape[0]], mine[:, 1:3])
-        np.testing.assert_array_equal(np.asarray(seg.diam)[i, :mine.shape[0]], mine[:, 3])
-        assert (z[i, mine.shape[0]:] == 0).all()
+        assert mask[i].sum() == mine.shape[0] and not mask[i, mine.shape[0] :].any()
+        np.testing.assert_array_equal(z[i, : mine.shape[0]], mine[:, 1:3])
+        np.testing.assert_array_equal(np.asarray(seg.diam)[i, : mine.shape[0]], mine[:, 3])
+        assert (z[i, mine.shape[0] :] == 0).all()
 
 
 def _map(means: np.ndarray, capacity: int = 16) -> LandmarkMap:
@@ -100,7 +100,7 @@ def test_window_range_bearing_unchanged():
     ref, idx_ref, over_ref = gather(lm, pos, 8, 12.0, None, None)
     got, idx, over = gather(lm, pos, 8, 12.0, None, RangeBearing())
     near = np.flatnonzero(np.hypot(pts[:, 0] - 1.5, pts[:, 1] + 2.0) < 12.0)
-    np.testing.assert_array_equal(np.asarray(idx_ref)[:near.size], near[:8])
+    np.testing.assert_array_equal(np.asarray(idx_ref)[: near.size], near[:8])
     assert int(over_ref) == max(near.size - 8, 0)
     for a, b in zip(jax.tree.leaves((ref, idx_ref, over_ref)), jax.tree.leaves((got, idx, over))):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -123,8 +123,8 @@ def test_window_searches_lines_by_perpendicular_distance():
     lm = _map(lines)
     _, idx, over = jax.jit(gather_window, static_argnums=(2, 4))(lm, jnp.asarray(pos), 8, radius, None, LineSegment())
     expected = np.flatnonzero(dist < radius)
-    np.testing.assert_array_equal(np.asarray(idx)[:expected.size], expected)
-    assert (np.asarray(idx)[expected.size:] == 16).all() and int(over) == 0
+    np.testing.assert_array_equal(np.asarray(idx)[: expected.size], expected)
+    assert (np.asarray(idx)[expected.size :] == 16).all() and int(over) == 0
     # the Euclidean distance to (rho, alpha) would pick other landmarks
     euclid = np.flatnonzero(np.hypot(lines[:, 0] - pos[0], lines[:, 1] - pos[1]) < radius)
     assert set(euclid) != set(expected)
@@ -144,8 +144,15 @@ def test_short_indoor_run_recovers_walls(tmp_path):
     """configs/indoor_lines.yaml on a short simulated room: the final map's lines lie within a few cm
     of the true walls, the metrics are feature_map_errors of that map computed here, and the same log
     written by the simulator and read with --data gives the same truth and a map as good."""
-    over = ["indoor.template=room", "indoor.seed=2", "indoor.duration=40", "indoor.scan_period=0.2", "seed=2",
-            "output.progress=false", "output.plots=false"]
+    over = [
+        "indoor.template=room",
+        "indoor.seed=2",
+        "indoor.duration=40",
+        "indoor.scan_period=0.2",
+        "seed=2",
+        "output.progress=false",
+        "output.plots=false",
+    ]
     cfg = load_config("configs/indoor_lines.yaml", over)
     res = execute(cfg, progress=False)
     m = res.metrics
@@ -164,7 +171,7 @@ def test_short_indoor_run_recovers_walls(tmp_path):
     assert m["line_intercept_median"] < 0.03 and m["line_slope_median"] < 0.01 and m["corner_median"] < 0.05
     # every matched wall within a few cm and a degree of its true line
     d = _line_distance(est, lines)
-    assert np.sort(d.min(axis=0))[:m["n_lines_matched"]].max() < 0.06
+    assert np.sort(d.min(axis=0))[: m["n_lines_matched"]].max() < 0.06
 
     # the same log from a directory (nanoslam simulate --scenario indoor), truth read from its files
     simulate_indoor_to_dir(tmp_path, cfg.indoor)
@@ -194,15 +201,20 @@ def test_indoor_log_carries_truth_and_line_segments():
     assert point_log.feature_truth is None and point_log.map_truth is not None
 
 
-@pytest.mark.parametrize("overrides,key", [
-    (["data.detections=laser_lines"], "model.measurement"),
-    (["data.kind=indoor", "model.measurement=line"], "data.detections"),
-    (["data.kind=simulated", "data.detections=laser_lines", "model.measurement=line"], "data.detections"),
-    (["data.format=mrclam", "data.detections=laser_lines", "model.measurement=line", "model.motion=unicycle"],
-     "data.detections"),
-    (["data.detections=lines"], "data.detections"),
-    (["data.kind=room"], "data.kind"),
-])
+@pytest.mark.parametrize(
+    "overrides,key",
+    [
+        (["data.detections=laser_lines"], "model.measurement"),
+        (["data.kind=indoor", "model.measurement=line"], "data.detections"),
+        (["data.kind=simulated", "data.detections=laser_lines", "model.measurement=line"], "data.detections"),
+        (
+            ["data.format=mrclam", "data.detections=laser_lines", "model.measurement=line", "model.motion=unicycle"],
+            "data.detections",
+        ),
+        (["data.detections=lines"], "data.detections"),
+        (["data.kind=room"], "data.kind"),
+    ],
+)
 def test_bad_keys_name_the_key(overrides, key):
     with pytest.raises(ConfigError, match=f"'{key}'"):
         load_config(None, overrides)
@@ -211,8 +223,9 @@ def test_bad_keys_name_the_key(overrides, key):
 @pytest.mark.slow
 def test_no_lines_is_a_clear_error():
     """A log whose scans give no segment as long as detector.min_line_length names the key."""
-    cfg = load_config("configs/indoor_lines.yaml", ["indoor.duration=2", "indoor.scan_period=1.0",
-                                                     "detector.min_line_length=50"])
+    cfg = load_config(
+        "configs/indoor_lines.yaml", ["indoor.duration=2", "indoor.scan_period=1.0", "detector.min_line_length=50"]
+    )
     with pytest.raises(ValueError, match="detector.min_line_length"):
         load_log(cfg)
 
@@ -220,8 +233,10 @@ def test_no_lines_is_a_clear_error():
 def test_raw_log_rows_are_lines():
     """The rows a line log holds: time, rho, alpha, length; make_segments keeps rho within the range
     limits (rho is the line's distance from the laser)."""
-    raw = RawLog(dr=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
-                 detections=np.array([[0.5, 0.1, 0.0, 1.0], [0.5, 2.0, 1.0, 2.0], [0.5, 12.0, -1.0, 3.0]]),
-                 gps=np.zeros((0, 3)))
+    raw = RawLog(
+        dr=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
+        detections=np.array([[0.5, 0.1, 0.0, 1.0], [0.5, 2.0, 1.0, 2.0], [0.5, 12.0, -1.0, 3.0]]),
+        gps=np.zeros((0, 3)),
+    )
     seg = make_segments(raw, min_range=0.2, max_range=10.0)
     np.testing.assert_array_equal(np.asarray(seg.z)[np.asarray(seg.z_mask)], [[2.0, 1.0]])

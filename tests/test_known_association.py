@@ -9,8 +9,13 @@ from nanoslam_jax.config import load_config
 from nanoslam_jax.data import make_segments
 from nanoslam_jax.simulate import simulate
 
-SETTINGS = ["sim.duration=40", "sim.clutter_rate=1.0", "filter.n_particles=6", "filter.association=known",
-            "output.plots=false"]
+SETTINGS = [
+    "sim.duration=40",
+    "sim.clutter_rate=1.0",
+    "filter.n_particles=6",
+    "filter.association=known",
+    "output.plots=false",
+]
 
 
 def test_segments_carry_the_detection_ids():
@@ -42,8 +47,14 @@ def test_known_association_maps_each_seen_tree_once(method):
 @pytest.mark.slow
 def test_known_and_nearest_differ_only_by_the_rule():
     """Without clutter and with trees far apart, the ids pick what nearest neighbour picks."""
-    base = ["sim.duration=30", "sim.clutter_rate=0", "sim.n_trees=60", "filter.n_particles=4", "map.manage=false",
-            "output.plots=false"]
+    base = [
+        "sim.duration=30",
+        "sim.clutter_rate=0",
+        "sim.n_trees=60",
+        "filter.n_particles=4",
+        "map.manage=false",
+        "output.plots=false",
+    ]
     near = ns.run(overrides=base)
     known = ns.run(overrides=base + ["filter.association=known"])
     assert known.landmarks.shape[0] <= near.landmarks.shape[0]

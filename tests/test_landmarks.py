@@ -86,8 +86,9 @@ def test_ekf_update_matches_hand_update(case):
     np.testing.assert_allclose(cov, cov.T, atol=0)
     assert np.all(np.linalg.eigvalsh(np.asarray(cov)) > 0)
     # Information form as a further cross-check: Sigma'^-1 = Sigma^-1 + G' R^-1 G.
-    np.testing.assert_allclose(np.linalg.inv(np.asarray(cov)), np.linalg.inv(S0) + G.T @ np.linalg.inv(R) @ G,
-                               rtol=1e-10)
+    np.testing.assert_allclose(
+        np.linalg.inv(np.asarray(cov)), np.linalg.inv(S0) + G.T @ np.linalg.inv(R) @ G, rtol=1e-10
+    )
 
 
 def test_ekf_update_consistent_detection_does_not_move():
@@ -100,14 +101,18 @@ def test_ekf_update_consistent_detection_does_not_move():
 # ----------------------------------------------------------------------------- init (eq. 16)
 
 
-@pytest.mark.parametrize("x,z", [(np.array([1.0, 2.0, 0.4]), np.array([7.0, -0.6])),
-                                 (np.array([-3.0, 0.5, -2.9]), np.array([15.0, 1.2])),
-                                 (np.array([0.0, 0.0, 3.0]), np.array([3.0, 0.3]))])
+@pytest.mark.parametrize(
+    "x,z",
+    [
+        (np.array([1.0, 2.0, 0.4]), np.array([7.0, -0.6])),
+        (np.array([-3.0, 0.5, -2.9]), np.array([15.0, 1.2])),
+        (np.array([0.0, 0.0, 3.0]), np.array([3.0, 0.3])),
+    ],
+)
 def test_init_landmark_is_inverse_model_with_eq16_cov(x, z):
     m, cov = init_landmark(jnp.asarray(x), jnp.asarray(z), jnp.asarray(R))
     m = np.asarray(m)
-    np.testing.assert_allclose(m, x[:2] + z[0] * np.array([math.cos(x[2] + z[1]), math.sin(x[2] + z[1])]),
-                               atol=1e-12)
+    np.testing.assert_allclose(m, x[:2] + z[0] * np.array([math.cos(x[2] + z[1]), math.sin(x[2] + z[1])]), atol=1e-12)
     np.testing.assert_allclose(g(x, m), z, atol=1e-12)  # the inverse model inverts g
     Gi = np.linalg.inv(Gm_hand(x, m))
     np.testing.assert_allclose(cov, Gi @ R @ Gi.T, rtol=1e-10, atol=1e-14)
@@ -173,8 +178,17 @@ def detection_at_d2(j, d2, direction):
 @pytest.fixture(scope="module")
 def assoc_fn():
     def fn(z, z_mask, sequential):
-        return associate(local_map(), jnp.asarray(X), jnp.asarray(P), z, z_mask, jnp.asarray(R), jnp.asarray(GATE),
-                         jnp.asarray(NEW), sequential)
+        return associate(
+            local_map(),
+            jnp.asarray(X),
+            jnp.asarray(P),
+            z,
+            z_mask,
+            jnp.asarray(R),
+            jnp.asarray(GATE),
+            jnp.asarray(NEW),
+            sequential,
+        )
 
     return {s: jax.jit(lambda z, m, s=s: fn(z, m, s)) for s in (True, False)}
 
@@ -182,11 +196,13 @@ def assoc_fn():
 @pytest.mark.parametrize("sequential", [True, False])
 @pytest.mark.slow
 def test_associate_match_new_drop(assoc_fn, sequential):
-    z = np.stack([
-        detection_at_d2(0, 1.0, [1.0, 0.3]),  # existing landmark 0 (d2 = 1 < gate)
-        np.array([20.0, -1.2]),  # far from everything: new landmark
-        detection_at_d2(1, 9.0, [0.2, 1.0]),  # between gate and new-landmark threshold: dropped
-    ])
+    z = np.stack(
+        [
+            detection_at_d2(0, 1.0, [1.0, 0.3]),  # existing landmark 0 (d2 = 1 < gate)
+            np.array([20.0, -1.2]),  # far from everything: new landmark
+            detection_at_d2(1, 9.0, [0.2, 1.0]),  # between gate and new-landmark threshold: dropped
+        ]
+    )
     a = assoc_fn[sequential](jnp.asarray(z), jnp.ones(K, bool))
     np.testing.assert_array_equal(a.slot, [0, -1, -1])
     np.testing.assert_array_equal(a.is_new, [False, True, False])
@@ -230,8 +246,7 @@ def test_sequential_two_detections_of_one_new_landmark(assoc_fn):
 
 def test_each_landmark_claimed_at_most_once(assoc_fn):
     """Two detections near landmark 0: sequential gives it to the first, non-sequential to the closer."""
-    z = np.stack([detection_at_d2(0, 2.0, [1.0, 0.0]), detection_at_d2(0, 0.5, [0.0, 1.0]),
-                  g(X, LANDMARKS[1])])
+    z = np.stack([detection_at_d2(0, 2.0, [1.0, 0.0]), detection_at_d2(0, 0.5, [0.0, 1.0]), g(X, LANDMARKS[1])])
     a = assoc_fn[True](jnp.asarray(z), jnp.ones(K, bool))
     assert int(a.slot[0]) == 0 and int(a.slot[1]) != 0 and int(a.slot[2]) == 1
     b = assoc_fn[False](jnp.asarray(z), jnp.ones(K, bool))
@@ -274,10 +289,8 @@ def test_association_over_the_window_prefix_equals_the_whole_window(sequential):
         a = rng.normal(size=(Wp, 2, 2))
         cov = a @ np.swapaxes(a, 1, 2) * 0.05 + 0.01 * np.eye(2)
         active = np.arange(Wp) < n
-        local = LandmarkMap.empty(Wp)._replace(mean=jnp.asarray(mean), cov=jnp.asarray(cov),
-                                               active=jnp.asarray(active))
-        z = np.stack([g(x, mean[rng.integers(0, max(n, 1))]) + rng.normal(size=2) * [0.3, 0.01]
-                      for _ in range(k)])
+        local = LandmarkMap.empty(Wp)._replace(mean=jnp.asarray(mean), cov=jnp.asarray(cov), active=jnp.asarray(active))
+        z = np.stack([g(x, mean[rng.integers(0, max(n, 1))]) + rng.normal(size=2) * [0.3, 0.01] for _ in range(k)])
         z[3] = [22.0, -1.0]  # a new landmark ...
         z[4] = z[3] + [0.1, 0.003]  # ... detected twice (sequential: the second matches slot W + 3)
         z_mask = jnp.asarray(rng.uniform(size=k) < 0.9).at[3].set(True).at[4].set(True)
@@ -317,8 +330,13 @@ def full_map(n_active, seed=0):
     active = np.zeros(CAP, bool)
     active[rng.permutation(CAP)[:n_active]] = True
     hits = rng.integers(1, 9, CAP) * active
-    return lm._replace(mean=jnp.asarray(mean), cov=jnp.asarray(cov), active=jnp.asarray(active),
-                       hits=jnp.asarray(hits, jnp.int32), misses=jnp.asarray(rng.integers(0, 3, CAP), jnp.int32))
+    return lm._replace(
+        mean=jnp.asarray(mean),
+        cov=jnp.asarray(cov),
+        active=jnp.asarray(active),
+        hits=jnp.asarray(hits, jnp.int32),
+        misses=jnp.asarray(rng.integers(0, 3, CAP), jnp.int32),
+    )
 
 
 def assert_maps_equal(a, b):
@@ -405,9 +423,15 @@ def test_window_overflow_counts_only_near_landmarks():
 def new_landmarks(means, is_new, covs=None):
     covs = np.broadcast_to(np.eye(2), (len(means), 2, 2)) if covs is None else covs
     return LandmarkMap.empty(len(means))._replace(
-        mean=jnp.asarray(means, float), cov=jnp.asarray(covs, float), active=jnp.asarray(is_new),
-        hits=jnp.asarray(is_new, jnp.int32), confirmed=jnp.asarray(is_new), log_odds=jnp.full(len(means), 2.5),
-        diam=jnp.full(len(means), 0.3), diam_var=jnp.full(len(means), 0.01))
+        mean=jnp.asarray(means, float),
+        cov=jnp.asarray(covs, float),
+        active=jnp.asarray(is_new),
+        hits=jnp.asarray(is_new, jnp.int32),
+        confirmed=jnp.asarray(is_new),
+        log_odds=jnp.full(len(means), 2.5),
+        diam=jnp.full(len(means), 0.3),
+        diam_var=jnp.full(len(means), 0.01),
+    )
 
 
 @pytest.mark.parametrize("contiguous", [False, True])
@@ -456,7 +480,9 @@ def test_scatter_window_writes_every_field_back():
     local = local._replace(misses=local.misses + 1, active=local.active.at[j].set(False))
     back = scatter(lm, local, idx)
     used = np.asarray(idx) < CAP
-    np.testing.assert_array_equal(np.asarray(back.misses)[np.asarray(idx)[used]], np.asarray(lm.misses)[np.asarray(idx)[used]] + 1)
+    np.testing.assert_array_equal(
+        np.asarray(back.misses)[np.asarray(idx)[used]], np.asarray(lm.misses)[np.asarray(idx)[used]] + 1
+    )
     assert not bool(back.active[int(idx[j])])
     assert int(np.sum(back.active)) == int(np.sum(lm.active)) - 1
     rest = np.ones(CAP, bool)
@@ -529,5 +555,6 @@ def test_free_slots_over_a_prefix_equal_numpy():
         expect = np.full(k, capacity)
         expect[: min(k, free.size)] = free[:k]
         for slots in (None, in_use + k, 512):
-            np.testing.assert_array_equal(np.asarray(free_slots(jnp.asarray(active), k, slots)), expect,
-                                          err_msg=f"{in_use} {slots}")
+            np.testing.assert_array_equal(
+                np.asarray(free_slots(jnp.asarray(active), k, slots)), expect, err_msg=f"{in_use} {slots}"
+            )

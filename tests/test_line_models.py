@@ -37,11 +37,34 @@ from nanoslam_jax.models import (
 )
 
 # the functions under test, compiled once per input shape (run eagerly, JAX compiles each operation)
-(beam_range_circle, beam_range_line, beam_range_slope_intercept, beam_range_vertical, line_from_slope_intercept,
- line_from_vertical, line_to_sensor, line_to_world, normalize_line, sensor_pose, slope_intercept_from_line) = (
-    jax.jit(f) for f in (beam_range_circle, beam_range_line, beam_range_slope_intercept, beam_range_vertical,
-                         line_from_slope_intercept, line_from_vertical, line_to_sensor, line_to_world, normalize_line,
-                         sensor_pose, slope_intercept_from_line))
+(
+    beam_range_circle,
+    beam_range_line,
+    beam_range_slope_intercept,
+    beam_range_vertical,
+    line_from_slope_intercept,
+    line_from_vertical,
+    line_to_sensor,
+    line_to_world,
+    normalize_line,
+    sensor_pose,
+    slope_intercept_from_line,
+) = (
+    jax.jit(f)
+    for f in (
+        beam_range_circle,
+        beam_range_line,
+        beam_range_slope_intercept,
+        beam_range_vertical,
+        line_from_slope_intercept,
+        line_from_vertical,
+        line_to_sensor,
+        line_to_world,
+        normalize_line,
+        sensor_pose,
+        slope_intercept_from_line,
+    )
+)
 
 # ---------------------------------------------------------------------------------------------
 # geometry written out here, independently of the package
@@ -127,8 +150,11 @@ def test_beam_range_to_a_line_equals_a_ray_cast_in_every_form(offset):
     icpt = p1[:, 1] - slope * p1[:, 0]
     hits = np.isfinite(want)
     assert 50 < hits.sum() < n - 50
-    for r, hit in (beam_range_line(pose, phi, lines, offset), beam_range_line(pose, phi, same_lines, offset),
-                   beam_range_slope_intercept(pose, phi, slope, icpt, offset)):
+    for r, hit in (
+        beam_range_line(pose, phi, lines, offset),
+        beam_range_line(pose, phi, same_lines, offset),
+        beam_range_slope_intercept(pose, phi, slope, icpt, offset),
+    ):
         np.testing.assert_array_equal(np.asarray(hit), hits)
         np.testing.assert_allclose(np.asarray(r), want, rtol=1e-9, atol=1e-9)  # inf where missed
     # the vertical form x = c (eq. 15), against the ray-cast to the line through (c, 0), (c, 1)
@@ -136,10 +162,17 @@ def test_beam_range_to_a_line_equals_a_ray_cast_in_every_form(offset):
     want = np.full(n, np.inf)
     for i in range(n):
         s, theta = _sensor(pose[i], off)
-        t = _ray_segment(s, np.array([math.cos(theta + phi[i]), math.sin(theta + phi[i])]), np.array([c[i], 0.0]),
-                         np.array([c[i], 1.0]))
+        t = _ray_segment(
+            s,
+            np.array([math.cos(theta + phi[i]), math.sin(theta + phi[i])]),
+            np.array([c[i], 0.0]),
+            np.array([c[i], 1.0]),
+        )
         want[i] = np.inf if t is None else t
-    for r, hit in (beam_range_vertical(pose, phi, c, offset), beam_range_line(pose, phi, line_from_vertical(c), offset)):
+    for r, hit in (
+        beam_range_vertical(pose, phi, c, offset),
+        beam_range_line(pose, phi, line_from_vertical(c), offset),
+    ):
         np.testing.assert_array_equal(np.asarray(hit), np.isfinite(want))
         np.testing.assert_allclose(np.asarray(r), want, rtol=1e-9, atol=1e-9)
 
@@ -153,8 +186,7 @@ def test_beam_range_to_a_circle_equals_a_ray_cast():
     want, inside = np.full(n, np.inf), np.zeros(n, bool)
     for i in range(n):
         s, theta = _sensor(pose[i], offset)
-        t = _ray_circle(s, np.array([math.cos(theta + phi[i]), math.sin(theta + phi[i])]), circle[i, :2],
-                        circle[i, 2])
+        t = _ray_circle(s, np.array([math.cos(theta + phi[i]), math.sin(theta + phi[i])]), circle[i, :2], circle[i, 2])
         want[i] = np.inf if t is None else t
         inside[i] = np.hypot(*(s - circle[i, :2])) < circle[i, 2]
     r, hit = beam_range_circle(pose, phi, circle, offset)
@@ -167,8 +199,12 @@ def test_beam_range_to_a_circle_equals_a_ray_cast():
 def test_beam_ranges_vectorise_over_beams_and_never_give_nan():
     """A whole scan at once: the nearest of a room's walls and a pillar on every beam, against the
     ray-cast beam by beam; beams parallel to a wall miss it (inf, not NaN)."""
-    walls = [(np.array([-2.0, -2.0]), np.array([6.0, -2.0])), (np.array([6.0, -2.0]), np.array([6.0, 4.0])),
-             (np.array([6.0, 4.0]), np.array([-2.0, 4.0])), (np.array([-2.0, 4.0]), np.array([-2.0, -2.0]))]
+    walls = [
+        (np.array([-2.0, -2.0]), np.array([6.0, -2.0])),
+        (np.array([6.0, -2.0]), np.array([6.0, 4.0])),
+        (np.array([6.0, 4.0]), np.array([-2.0, 4.0])),
+        (np.array([-2.0, 4.0]), np.array([-2.0, -2.0])),
+    ]
     pillar = np.array([3.0, 1.0, 0.4])
     pose = np.array([0.5, 0.2, 0.0])  # heading along the x axis: beams at 0 and +-90 deg parallel to walls
     phi = np.linspace(-np.pi / 2, np.pi / 2, 181)
@@ -198,8 +234,7 @@ def test_forms_convert_into_each_other():
     assert np.all(lines[:, 0] >= 0)
     # each line holds the points (x, a x + b)
     for x in (-3.0, 0.0, 4.0):
-        np.testing.assert_allclose(x * np.cos(lines[:, 1]) + (a * x + b) * np.sin(lines[:, 1]), lines[:, 0],
-                                   atol=1e-12)
+        np.testing.assert_allclose(x * np.cos(lines[:, 1]) + (a * x + b) * np.sin(lines[:, 1]), lines[:, 0], atol=1e-12)
     back = slope_intercept_from_line(lines)
     assert not np.asarray(back.vertical).any()
     np.testing.assert_allclose(back.a, a, rtol=1e-12, atol=1e-12)
@@ -242,8 +277,11 @@ def test_the_vertical_case_is_continuous_in_the_normal_form():
     vertical = turn == np.pi / 2
     a = np.where(vertical, 0.0, np.tan(turn))
     b = p[1] - a * p[0]
-    lines = np.where(vertical[:, None], np.asarray(line_from_vertical(np.full(turn.size, p[0]))),
-                     np.asarray(line_from_slope_intercept(a, b)))
+    lines = np.where(
+        vertical[:, None],
+        np.asarray(line_from_vertical(np.full(turn.size, p[0]))),
+        np.asarray(line_from_slope_intercept(a, b)),
+    )
     # the normal form of the line through p at that angle, written out here: n = (sin, -cos) of the
     # turn, turned to point away from the origin
     n = np.stack([np.sin(turn), -np.cos(turn)], -1)
@@ -274,10 +312,12 @@ def test_beam_range_jacobians_match_finite_differences():
     ok = np.asarray(hit_line & hit_circ & (r_line < 50))
     assert ok.sum() > 10
     pose, phi, line, circle = pose[ok], phi[ok], line[ok], circle[ok]
-    for f, arg in ((lambda p: beam_range_line(p, phi, line, offset)[0], pose),
-                   (lambda m: beam_range_line(pose, phi, m, offset)[0], line),
-                   (lambda p: beam_range_circle(p, phi, circle, offset)[0], pose),
-                   (lambda m: beam_range_circle(pose, phi, m, offset)[0], circle)):
+    for f, arg in (
+        (lambda p: beam_range_line(p, phi, line, offset)[0], pose),
+        (lambda m: beam_range_line(pose, phi, m, offset)[0], line),
+        (lambda p: beam_range_circle(p, phi, circle, offset)[0], pose),
+        (lambda m: beam_range_circle(pose, phi, m, offset)[0], circle),
+    ):
         f = jax.jit(f)
         grad = jax.jit(jax.grad(lambda a: jnp.sum(f(a))))(jnp.asarray(arg))  # rows independent: per-row gradients
         np.testing.assert_allclose(grad, _central_difference(f, arg), rtol=1e-5, atol=1e-6)
@@ -287,8 +327,9 @@ def test_beam_range_jacobians_match_finite_differences():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model", [LineSegment(sensor_x=-0.18), Circle(sensor_x=-0.18, sensor_y=0.05)],
-                         ids=["line", "circle"])
+@pytest.mark.parametrize(
+    "model", [LineSegment(sensor_x=-0.18), Circle(sensor_x=-0.18, sensor_y=0.05)], ids=["line", "circle"]
+)
 def test_model_jacobians_match_finite_differences_and_the_inverse_round_trips(model):
     rng = np.random.default_rng(5)
     n = 20
@@ -320,14 +361,14 @@ def test_line_segment_detection_and_visibility():
     distance and foot-point bearing from the sensor; visibility follows the foot point."""
     model = LineSegment(max_range=5.0, half_fov=math.radians(100), sensor_x=-0.18)
     wall = _normal_form(np.array([3.0, -5.0]), np.array([3.0, 5.0]))  # x = 3
-    poses = np.array([[1.0, 0.5, 0.0], [1.0, 0.5, math.pi / 2], [1.0, 0.5, 0.3], [1.0, 0.5, math.pi],
-                      [-4.0, 0.5, 0.0]])
+    poses = np.array([[1.0, 0.5, 0.0], [1.0, 0.5, math.pi / 2], [1.0, 0.5, 0.3], [1.0, 0.5, math.pi], [-4.0, 0.5, 0.0]])
     z = np.asarray(jax.jit(jax.vmap(model.h, (0, None)))(poses, wall))
     np.testing.assert_allclose(z[0], [3.0 - 0.82, 0.0], atol=1e-12)
     np.testing.assert_allclose(z[1], [2.0, -math.pi / 2], atol=1e-12)  # the sensor at (1, 0.32)
     # visible ahead; not behind; not beyond max_range
-    np.testing.assert_array_equal(jax.jit(jax.vmap(model.visible, (0, None)))(poses, wall),
-                                  [True, True, True, False, False])
+    np.testing.assert_array_equal(
+        jax.jit(jax.vmap(model.visible, (0, None)))(poses, wall), [True, True, True, False, False]
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -335,8 +376,14 @@ def test_line_segment_detection_and_visibility():
 
 
 def test_line_model_by_config_name_and_circles_refused_with_the_reason():
-    cfg = load_config(None, ["model.measurement=line", "model.measurement_params.sigma_rho=0.03",
-                             "model.measurement_params.sensor_x=-0.18"])
+    cfg = load_config(
+        None,
+        [
+            "model.measurement=line",
+            "model.measurement_params.sigma_rho=0.03",
+            "model.measurement_params.sensor_x=-0.18",
+        ],
+    )
     _, params = settings_from_config(cfg, 4)
     assert isinstance(params.measurement, LineSegment)
     np.testing.assert_allclose(params.R, np.diag([0.03**2, math.radians(1.0) ** 2]))
@@ -369,8 +416,13 @@ def _room_log(n_seg=180, dt=0.2, seed=0):
     for t in range(n_seg):
         for j in range(2):
             h = dt / 2
-            x = np.array([x[0] + v * h * math.cos(x[2] + omega * h / 2), x[1] + v * h * math.sin(x[2] + omega * h / 2),
-                          x[2] + omega * h])
+            x = np.array(
+                [
+                    x[0] + v * h * math.cos(x[2] + omega * h / 2),
+                    x[1] + v * h * math.sin(x[2] + omega * h / 2),
+                    x[2] + omega * h,
+                ]
+            )
             u[t, j] = [v + SIGMA_V * rng.normal(), omega + SIGMA_OMEGA * rng.normal()]
         truth[t] = x
     # the walls in the sensor frame, written out here: rho_s = rho - n . p, alpha_s = alpha - theta
@@ -385,9 +437,17 @@ def _room_log(n_seg=180, dt=0.2, seed=0):
         z[t, :n] = zt[seen] + rng.normal(size=(n, 2)) * [SIGMA_RHO, SIGMA_ALPHA]
         z[t, :n, 1] = _wrap(z[t, :n, 1])
         z_mask[t, :n] = True
-    seg = Segments(time=np.arange(1, n_seg + 1) * dt, dt=np.full((n_seg, 2), dt / 2), u=u,
-                   dr_mask=np.ones((n_seg, 2), bool), z=z, z_mask=z_mask, diam=np.zeros((n_seg, k_max)),
-                   is_scan=np.ones(n_seg, bool), z_id=np.full((n_seg, k_max), -1, np.int32))
+    seg = Segments(
+        time=np.arange(1, n_seg + 1) * dt,
+        dt=np.full((n_seg, 2), dt / 2),
+        u=u,
+        dr_mask=np.ones((n_seg, 2), bool),
+        z=z,
+        z_mask=z_mask,
+        diam=np.zeros((n_seg, k_max)),
+        is_scan=np.ones(n_seg, bool),
+        z_id=np.full((n_seg, k_max), -1, np.int32),
+    )
     return jax.tree.map(jnp.asarray, seg), truth
 
 
@@ -395,13 +455,26 @@ def _room_log(n_seg=180, dt=0.2, seed=0):
 @pytest.mark.parametrize("method", ["fastslam1", "ekf_slam"])
 def test_filter_with_line_landmarks_recovers_the_walls_of_a_room(method):
     seg, truth = _room_log()
-    cfg = load_config(None, [
-        f"filter.method={method}", "filter.n_particles=30", "model.motion=unicycle",
-        f"unicycle.sigma_v={SIGMA_V}", f"unicycle.sigma_omega_deg={math.degrees(SIGMA_OMEGA)}",
-        "model.measurement=line", f"model.measurement_params.sigma_rho={SIGMA_RHO}",
-        f"model.measurement_params.sigma_alpha={SIGMA_ALPHA}", "model.measurement_params.max_range=20",
-        f"model.measurement_params.half_fov={math.radians(80)}", "filter.capacity=16", "filter.window=16",
-        "filter.window_margin=1000", "filter.init_cov=1e-8", "map.occlusion=false"])
+    cfg = load_config(
+        None,
+        [
+            f"filter.method={method}",
+            "filter.n_particles=30",
+            "model.motion=unicycle",
+            f"unicycle.sigma_v={SIGMA_V}",
+            f"unicycle.sigma_omega_deg={math.degrees(SIGMA_OMEGA)}",
+            "model.measurement=line",
+            f"model.measurement_params.sigma_rho={SIGMA_RHO}",
+            f"model.measurement_params.sigma_alpha={SIGMA_ALPHA}",
+            "model.measurement_params.max_range=20",
+            f"model.measurement_params.half_fov={math.radians(80)}",
+            "filter.capacity=16",
+            "filter.window=16",
+            "filter.window_margin=1000",
+            "filter.init_cov=1e-8",
+            "map.occlusion=false",
+        ],
+    )
     static, params = settings_from_config(cfg, seg.k_max)
     run = run_filter(static, params, seg, 0)
     lm = jax.tree.map(np.asarray, reported_map(run.state))
@@ -421,13 +494,23 @@ def test_filter_with_line_landmarks_recovers_the_walls_of_a_room(method):
 
 def test_table1_metrics_give_the_offsets_built_into_a_map():
     # true walls y = 0.5 x + 1, y = -2 (horizontal), x = 5 (vertical), x = 0.2 y - 3 (steep)
-    true = np.stack([np.asarray(line_from_slope_intercept(0.5, 1.0)), np.asarray(line_from_slope_intercept(0.0, -2.0)),
-                     np.asarray(line_from_vertical(5.0)), _normal_form(np.array([-3.0, 0.0]), np.array([-2.8, 1.0]))])
+    true = np.stack(
+        [
+            np.asarray(line_from_slope_intercept(0.5, 1.0)),
+            np.asarray(line_from_slope_intercept(0.0, -2.0)),
+            np.asarray(line_from_vertical(5.0)),
+            _normal_form(np.array([-3.0, 0.0]), np.array([-2.8, 1.0])),
+        ]
+    )
     # estimates: slope and intercept offsets in the paper's form, listed in another order
-    est = np.stack([_normal_form(np.array([-3.01, 0.0]), np.array([-2.8 - 0.01 + 0.03, 1.0])),  # a' + 0.03, c - 0.01
-                    np.asarray(line_from_vertical(5.02)),  # c + 0.02
-                    np.asarray(line_from_slope_intercept(0.5 + 0.02, 1.0 - 0.015)),
-                    np.asarray(line_from_slope_intercept(0.0, -2.0 + 0.008)) * [-1, 1] + [0, np.pi]])  # rho < 0
+    est = np.stack(
+        [
+            _normal_form(np.array([-3.01, 0.0]), np.array([-2.8 - 0.01 + 0.03, 1.0])),  # a' + 0.03, c - 0.01
+            np.asarray(line_from_vertical(5.02)),  # c + 0.02
+            np.asarray(line_from_slope_intercept(0.5 + 0.02, 1.0 - 0.015)),
+            np.asarray(line_from_slope_intercept(0.0, -2.0 + 0.008)) * [-1, 1] + [0, np.pi],
+        ]
+    )  # rho < 0
     err = line_feature_errors(est, true)
     np.testing.assert_array_equal(err["match"], [2, 3, 1, 0])
     np.testing.assert_array_equal(err["steep"], [False, False, True, True])
@@ -449,8 +532,15 @@ def test_table1_metrics_give_the_offsets_built_into_a_map():
     np.testing.assert_allclose(pts["error"], [0.021, 0.02], atol=1e-12)
 
     # corners from the lines: y = -2 meets x = 5 at (5, -2); shift x = 5 by 0.02 -> (5.02, -2.0 + 0.008)
-    table = feature_map_errors(est, true, est_arcs=arcs_est, true_arcs=arcs_true, corners=[[1, 2], [0, 1]],
-                               est_break_points=breaks_est, true_break_points=breaks_true)
+    table = feature_map_errors(
+        est,
+        true,
+        est_arcs=arcs_est,
+        true_arcs=arcs_true,
+        corners=[[1, 2], [0, 1]],
+        est_break_points=breaks_est,
+        true_break_points=breaks_true,
+    )
     corners = table["corners"]
     np.testing.assert_allclose(corners["true"], [[5.0, -2.0], [-6.0, -2.0]], atol=1e-12)
     np.testing.assert_allclose(corners["error"][0], math.hypot(0.02, 0.008), atol=1e-12)

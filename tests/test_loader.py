@@ -167,28 +167,47 @@ def test_unknown_format(tmp_path):
     "files, pattern",
     [
         # wrong column count; the comment and blank line still count as lines
-        (dict(measurements_dat="# header\n\n1.0 5.0 1.0 0.1\n1.1 5.0 1.0\n"),
-         r"measurements\.dat line 4: expected 4 numeric columns \(time range bearing diameter\), got 3"),
-        (dict(inputs_dat="1.0 0.5 0.1 7\n1.1 0.5 0.1 7\n"),
-         r"inputs\.dat line 1: expected 3 numeric columns \(time speed steering\), got 4"),
-        (dict(gps_dat="0.9 1.0 2.0\n1.0 1.0 abc\n"),
-         r"gps\.dat line 2: expected 3 numeric columns .* non-numeric 'abc' in column 'y'"),
-        (dict(inputs_dat="1.0 0.5 0.1\n1.1 nan 0.1\n"),
-         r"inputs\.dat line 2: expected finite numbers, got nan in column 'speed'"),
-        (dict(measurements_dat="1.0 5.0 1.0 0.1\n\n1.1 inf 1.0 0.1\n"),
-         r"measurements\.dat line 3: expected finite numbers, got inf in column 'range'"),
-        (dict(inputs_dat="1.0 0.5 0.1\n1.1 0.5 0.1\n1.05 0.5 0.1\n"),
-         r"inputs\.dat line 3: dead-reckoning times must be strictly increasing, got 1\.05 after 1\.1 \(line 2\)"),
-        (dict(inputs_dat="1.0 0.5 0.1\n1.0 0.5 0.1\n"),
-         r"inputs\.dat line 2: dead-reckoning times must be strictly increasing"),
-        (dict(measurements_dat="1.0 5.0 1.0 0.1\n1.0 6.0 1.0 0.1\n0.9 5.0 1.0 0.1\n"),
-         r"measurements\.dat line 3: detection times must be non-decreasing"),
-        (dict(gps_dat="0.9 1.0 2.0\n0.9 1.0 2.0\n"),
-         r"gps\.dat line 2: GPS times must be strictly increasing"),
-        (dict(measurements_dat="1.0 5.0 1.0 0.1\n1.0 -0.5 1.0 0.1\n"),
-         r"measurements\.dat line 2: expected a range >= 0, got -0\.5"),
-        (dict(measurements_dat="# only a comment\n\n"),
-         r"measurements\.dat: no data rows; expected lines of time range bearing diameter"),
+        (
+            dict(measurements_dat="# header\n\n1.0 5.0 1.0 0.1\n1.1 5.0 1.0\n"),
+            r"measurements\.dat line 4: expected 4 numeric columns \(time range bearing diameter\), got 3",
+        ),
+        (
+            dict(inputs_dat="1.0 0.5 0.1 7\n1.1 0.5 0.1 7\n"),
+            r"inputs\.dat line 1: expected 3 numeric columns \(time speed steering\), got 4",
+        ),
+        (
+            dict(gps_dat="0.9 1.0 2.0\n1.0 1.0 abc\n"),
+            r"gps\.dat line 2: expected 3 numeric columns .* non-numeric 'abc' in column 'y'",
+        ),
+        (
+            dict(inputs_dat="1.0 0.5 0.1\n1.1 nan 0.1\n"),
+            r"inputs\.dat line 2: expected finite numbers, got nan in column 'speed'",
+        ),
+        (
+            dict(measurements_dat="1.0 5.0 1.0 0.1\n\n1.1 inf 1.0 0.1\n"),
+            r"measurements\.dat line 3: expected finite numbers, got inf in column 'range'",
+        ),
+        (
+            dict(inputs_dat="1.0 0.5 0.1\n1.1 0.5 0.1\n1.05 0.5 0.1\n"),
+            r"inputs\.dat line 3: dead-reckoning times must be strictly increasing, got 1\.05 after 1\.1 \(line 2\)",
+        ),
+        (
+            dict(inputs_dat="1.0 0.5 0.1\n1.0 0.5 0.1\n"),
+            r"inputs\.dat line 2: dead-reckoning times must be strictly increasing",
+        ),
+        (
+            dict(measurements_dat="1.0 5.0 1.0 0.1\n1.0 6.0 1.0 0.1\n0.9 5.0 1.0 0.1\n"),
+            r"measurements\.dat line 3: detection times must be non-decreasing",
+        ),
+        (dict(gps_dat="0.9 1.0 2.0\n0.9 1.0 2.0\n"), r"gps\.dat line 2: GPS times must be strictly increasing"),
+        (
+            dict(measurements_dat="1.0 5.0 1.0 0.1\n1.0 -0.5 1.0 0.1\n"),
+            r"measurements\.dat line 2: expected a range >= 0, got -0\.5",
+        ),
+        (
+            dict(measurements_dat="# only a comment\n\n"),
+            r"measurements\.dat: no data rows; expected lines of time range bearing diameter",
+        ),
         (dict(gps_dat=""), r"gps\.dat: no data rows"),
         (dict(truth_landmarks_dat="1 2\n3\n"), r"truth_landmarks\.dat line 2: expected 2 numeric columns"),
     ],
@@ -224,8 +243,9 @@ def test_mat_errors(tmp_path):
 def test_mat_gps_conversion(tmp_path):
     """(x, y) = R(-33 deg) (Lo_m + 67, La_m + 39) and t = (t_ms - 20967) / 1000."""
     directory = write_log(tmp_path)
-    scipy.io.savemat(directory / "aa3_gpsx.mat", dict(timeGps=[[20967], [21968]], Lo_m=[[-66.0], [-67.0]],
-                                                      La_m=[[-39.0], [-38.0]]))
+    scipy.io.savemat(
+        directory / "aa3_gpsx.mat", dict(timeGps=[[20967], [21968]], Lo_m=[[-66.0], [-67.0]], La_m=[[-39.0], [-38.0]])
+    )
     (directory / "gps.dat").unlink()
     gps = load_victoria_park(directory).gps
     c, s = np.cos(np.radians(33)), np.sin(np.radians(33))

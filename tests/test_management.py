@@ -30,9 +30,20 @@ def logit(p):
 
 
 #: Management settings of the hand computations below.
-MAP = dict(p_detect=0.8, p_false=0.2, birth_probability=0.5, confirm_probability=0.9, confirm_hits=3,
-           max_probability=0.99, remove_probability=0.1, tentative_scans=5, view_margin=2.0, view_margin_deg=5.0,
-           occlusion_width=0.3, use_tentative=False)
+MAP = dict(
+    p_detect=0.8,
+    p_false=0.2,
+    birth_probability=0.5,
+    confirm_probability=0.9,
+    confirm_hits=3,
+    max_probability=0.99,
+    remove_probability=0.1,
+    tentative_scans=5,
+    view_margin=2.0,
+    view_margin_deg=5.0,
+    occlusion_width=0.3,
+    use_tentative=False,
+)
 
 
 def settings(**extra):
@@ -50,9 +61,25 @@ def stepper(static, params):
 
     @jax.jit
     def step(lm, z, z_mask, diam, scan):
-        out = particle_update(static, params, proposal, pose, params.init_cov * jnp.eye(3), lm, jnp.zeros(1),
-                              jnp.zeros((1, 2)), jnp.zeros(1, bool), z, z_mask, jnp.zeros(3), True, None, None,
-                              diam, scan)
+        out = particle_update(
+            static,
+            params,
+            proposal,
+            pose,
+            params.init_cov * jnp.eye(3),
+            lm,
+            jnp.zeros(1),
+            jnp.zeros((1, 2)),
+            jnp.zeros(1, bool),
+            z,
+            z_mask,
+            jnp.zeros(3),
+            True,
+            None,
+            None,
+            diam,
+            scan,
+        )
         return out.landmarks
 
     def run(scans):
@@ -149,17 +176,37 @@ def test_occlusion_on_a_hand_built_scene():
     missed, B and D are not; without the occlusion rule all four are missed."""
     cfg, static, params = settings()
     mp = params.map
-    pts = {"A": (10.0, 0.0), "B": (20.0, 0.2), "C": (20 * math.cos(math.radians(14)), 20 * math.sin(math.radians(14))),
-           "D": (25 * math.cos(math.radians(-20)), 25 * math.sin(math.radians(-20)))}
+    pts = {
+        "A": (10.0, 0.0),
+        "B": (20.0, 0.2),
+        "C": (20 * math.cos(math.radians(14)), 20 * math.sin(math.radians(14))),
+        "D": (25 * math.cos(math.radians(-20)), 25 * math.sin(math.radians(-20))),
+    }
     local = LandmarkMap.empty(4)._replace(
-        mean=jnp.asarray(list(pts.values())), active=jnp.ones(4, bool), confirmed=jnp.ones(4, bool),
-        log_odds=jnp.full(4, 3.0), hits=jnp.full(4, 5, jnp.int32), diam=jnp.full(4, 0.3))
+        mean=jnp.asarray(list(pts.values())),
+        active=jnp.ones(4, bool),
+        confirmed=jnp.ones(4, bool),
+        log_odds=jnp.full(4, 3.0),
+        hits=jnp.full(4, 5, jnp.int32),
+        diam=jnp.full(4, 0.3),
+    )
     z, z_mask = detections((6.0, math.radians(-20.5)))
     # Geometry by hand: A's half-angle atan((0.15 + 0.3) / 10) = 2.6 deg covers B's 0.57 deg; the
     # detection's atan((0.15 + 0.3) / 6) = 4.3 deg covers D's 0.5 deg difference; nothing covers C.
     for occlusion, expect in ((True, [True, False, True, False]), (False, [True, True, True, True])):
-        out = manage_window(local, jnp.zeros(3), jnp.zeros(4, bool), jnp.asarray(z), jnp.asarray(z_mask),
-                            jnp.full(K, 0.3), jnp.asarray(True), 0, params.measurement, mp, occlusion)
+        out = manage_window(
+            local,
+            jnp.zeros(3),
+            jnp.zeros(4, bool),
+            jnp.asarray(z),
+            jnp.asarray(z_mask),
+            jnp.full(K, 0.3),
+            jnp.asarray(True),
+            0,
+            params.measurement,
+            mp,
+            occlusion,
+        )
         np.testing.assert_array_equal(np.asarray(out.misses), np.asarray(expect, int), err_msg=str(occlusion))
         np.testing.assert_allclose(out.log_odds, np.where(expect, 3.0 + math.log(0.2 / 0.8), 3.0), rtol=1e-12)
     # The rule itself: a nearer occluder at the same bearing hides; a farther one does not.
@@ -189,18 +236,21 @@ def test_management_over_the_window_prefix_equals_the_whole_window():
         active = np.arange(W) < n
         local = LandmarkMap.empty(W)._replace(
             mean=jnp.asarray(np.where(active[:, None], np.stack([r * np.cos(b), r * np.sin(b)], -1), 0.0)),
-            active=jnp.asarray(active), confirmed=jnp.asarray(active & (rng.random(W) < 0.7)),
+            active=jnp.asarray(active),
+            confirmed=jnp.asarray(active & (rng.random(W) < 0.7)),
             log_odds=jnp.asarray(np.where(active, rng.uniform(-1, 4, W), 0.0)),
             hits=jnp.asarray(np.where(active, rng.integers(1, 6, W), 0).astype(np.int32)),
             born=jnp.asarray(np.where(active, rng.integers(-10, 1, W), 0).astype(np.int32)),
-            diam=jnp.asarray(np.where(active, rng.uniform(0.1, 0.8, W), 0.0)))
+            diam=jnp.asarray(np.where(active, rng.uniform(0.1, 0.8, W), 0.0)),
+        )
         seen = jnp.asarray(active & (rng.random(W) < 0.2))
         z = jnp.asarray(np.stack([rng.uniform(2, 40, K), rng.uniform(-np.pi, np.pi, K)], -1))
         return local, seen, z, jnp.asarray(rng.random(K) < 0.8)
 
     def full(local, seen, z, z_mask):
-        return manage_window(local, jnp.zeros(3), seen, z, z_mask, jnp.full(K, 0.3), jnp.asarray(True), 0,
-                             params.measurement, mp, True)
+        return manage_window(
+            local, jnp.zeros(3), seen, z, z_mask, jnp.full(K, 0.3), jnp.asarray(True), 0, params.measurement, mp, True
+        )
 
     def prefix(local, seen, z, z_mask):
         manage = lambda loc, sn: full(loc, sn, z, z_mask)  # noqa: E731
@@ -209,18 +259,28 @@ def test_management_over_the_window_prefix_equals_the_whole_window():
     # Alone: buckets 16, 16, 32, 32, 64, 64; the batch (at most 32) takes the 32 branch.
     alone = [scene(n) for n in (1, 16, 17, 32, 33, 64)]
     batch = jax.tree.map(lambda *a: jnp.stack(a), *[scene(n) for n in (1, 5, 16, 17, 0, 30, 32, 2)])
-    for got, want in ((jax.jit(jax.vmap(prefix))(*batch), jax.vmap(full)(*batch)),
-                      *((jax.jit(prefix)(*sc), full(*sc)) for sc in alone)):
+    for got, want in (
+        (jax.jit(jax.vmap(prefix))(*batch), jax.vmap(full)(*batch)),
+        *((jax.jit(prefix)(*sc), full(*sc)) for sc in alone),
+    ):
         for f in ("log_odds", "misses", "confirmed", "active"):
             np.testing.assert_array_equal(np.asarray(getattr(got, f)), np.asarray(getattr(want, f)), err_msg=f)
     # The hand-built scene of test_occlusion_on_a_hand_built_scene in the first 4 of 64 slots.
-    pts = [(10.0, 0.0), (20.0, 0.2), (20 * math.cos(math.radians(14)), 20 * math.sin(math.radians(14))),
-           (25 * math.cos(math.radians(-20)), 25 * math.sin(math.radians(-20)))]
+    pts = [
+        (10.0, 0.0),
+        (20.0, 0.2),
+        (20 * math.cos(math.radians(14)), 20 * math.sin(math.radians(14))),
+        (25 * math.cos(math.radians(-20)), 25 * math.sin(math.radians(-20))),
+    ]
     first = np.arange(W) < 4
     local = LandmarkMap.empty(W)._replace(
-        mean=jnp.asarray(np.concatenate([pts, np.zeros((W - 4, 2))])), active=jnp.asarray(first),
-        confirmed=jnp.asarray(first), log_odds=jnp.asarray(np.where(first, 3.0, 0.0)),
-        hits=jnp.asarray(np.where(first, 5, 0).astype(np.int32)), diam=jnp.full(W, 0.3))
+        mean=jnp.asarray(np.concatenate([pts, np.zeros((W - 4, 2))])),
+        active=jnp.asarray(first),
+        confirmed=jnp.asarray(first),
+        log_odds=jnp.asarray(np.where(first, 3.0, 0.0)),
+        hits=jnp.asarray(np.where(first, 5, 0).astype(np.int32)),
+        diam=jnp.full(W, 0.3),
+    )
     z, z_mask = detections((6.0, math.radians(-20.5)))
     out = prefix(local, jnp.zeros(W, bool), jnp.asarray(z), jnp.asarray(z_mask))
     np.testing.assert_array_equal(np.asarray(out.misses)[:4], [1, 0, 1, 0])
@@ -233,13 +293,27 @@ def test_diameter_term_separates_two_trees_at_the_same_range_and_bearing():
     matches the second only with the diameter term (without it, the tie goes to the first slot)."""
     cfg, static, params = settings()
     local = LandmarkMap.empty(2)._replace(
-        mean=jnp.array([[10.0, 0.0], [10.0, 0.0]]), cov=jnp.broadcast_to(0.01 * jnp.eye(2), (2, 2, 2)),
-        active=jnp.ones(2, bool), diam=jnp.array([0.2, 0.5]), diam_var=jnp.full(2, 1e-4))
+        mean=jnp.array([[10.0, 0.0], [10.0, 0.0]]),
+        cov=jnp.broadcast_to(0.01 * jnp.eye(2), (2, 2, 2)),
+        active=jnp.ones(2, bool),
+        diam=jnp.array([0.2, 0.5]),
+        diam_var=jnp.full(2, 1e-4),
+    )
     z, z_mask = detections((10.0, 0.0))
     for use, slot in ((False, 0), (True, 1)):
-        a = associate(local, jnp.zeros(3), 1e-6 * jnp.eye(3), jnp.asarray(z), jnp.asarray(z_mask), params.R,
-                      params.gate, params.new_landmark, diam=jnp.array([0.5, 0.0, 0.0]), use_diameter=use,
-                      sigma_diameter=0.05)
+        a = associate(
+            local,
+            jnp.zeros(3),
+            1e-6 * jnp.eye(3),
+            jnp.asarray(z),
+            jnp.asarray(z_mask),
+            params.R,
+            params.gate,
+            params.new_landmark,
+            diam=jnp.array([0.5, 0.0, 0.0]),
+            use_diameter=use,
+            sigma_diameter=0.05,
+        )
         assert int(a.slot[0]) == slot, use
     # The distance to the 0.2 m tree carries (0.3)^2 / (1e-4 + 0.05^2) = 34.6 more.
     np.testing.assert_allclose(float(a.d2[0]), 0.0, atol=1e-9)
@@ -250,9 +324,20 @@ def test_diameter_estimates_converge_to_the_true_diameters():
     """On a simulated log (per-detection diameter noise 0.02 m), the confirmed landmarks matched to
     a true tree carry its diameter to well below the noise of one detection. The controls are exact
     here, so that the map lies on the true trees and every landmark can be matched to its tree."""
-    cfg = load_config(None, ["sim.duration=60", "filter.n_particles=4", "sim.sigma_v=0", "sim.sigma_alpha_deg=0",
-                             "sim.steering_bias_deg=0", "noise.sigma_v=0.05", "noise.sigma_alpha_deg=0.5",
-                             "noise.sigma_r=0.3", "noise.sigma_beta_deg=1"])
+    cfg = load_config(
+        None,
+        [
+            "sim.duration=60",
+            "filter.n_particles=4",
+            "sim.sigma_v=0",
+            "sim.sigma_alpha_deg=0",
+            "sim.steering_bias_deg=0",
+            "noise.sigma_v=0.05",
+            "noise.sigma_alpha_deg=0.5",
+            "noise.sigma_r=0.3",
+            "noise.sigma_beta_deg=1",
+        ],
+    )
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
     run = run_filter(static, params, log.segments, 0)
@@ -267,7 +352,7 @@ def test_diameter_estimates_converge_to_the_true_diameters():
     assert np.median(hits) >= 10
     assert np.median(err) < 0.01 and np.max(err) < 0.06  # one detection: 0.02 sd
     # the scalar filter's variance is sigma_diameter^2 / hits (the running mean)
-    np.testing.assert_allclose(lm.diam_var[sel][near], cfg.map.sigma_diameter ** 2 / hits, rtol=1e-9)
+    np.testing.assert_allclose(lm.diam_var[sel][near], cfg.map.sigma_diameter**2 / hits, rtol=1e-9)
 
 
 @pytest.mark.slow
@@ -287,10 +372,23 @@ def test_management_settings_are_traced():
     """Every management value is a traced hyperparameter: configurations differing only in them
     share the static settings (one compiled program) and give different runs."""
     a = load_config(None, ["sim.duration=30", "filter.n_particles=3"])
-    b = load_config(None, ["sim.duration=30", "filter.n_particles=3", "map.p_detect=0.6", "map.p_false=0.3",
-                           "map.confirm_hits=2", "map.tentative_scans=9", "map.use_tentative=true",
-                           "map.use_diameter=true", "map.sigma_diameter=0.1", "map.view_margin=1",
-                           "map.occlusion_width=0.5", "map.remove_probability=0.2"])
+    b = load_config(
+        None,
+        [
+            "sim.duration=30",
+            "filter.n_particles=3",
+            "map.p_detect=0.6",
+            "map.p_false=0.3",
+            "map.confirm_hits=2",
+            "map.tentative_scans=9",
+            "map.use_tentative=true",
+            "map.use_diameter=true",
+            "map.sigma_diameter=0.1",
+            "map.view_margin=1",
+            "map.occlusion_width=0.5",
+            "map.remove_probability=0.2",
+        ],
+    )
     log = load_log(a)
     (sa, pa), (sb, pb) = (settings_from_config(c, log.segments.k_max) for c in (a, b))
     assert sa == sb
@@ -319,8 +417,10 @@ def test_ekf_slam_clutter_only_confirms_nothing_and_removal_marginalises(method)
     """EKF-SLAM with management: a clutter-only log confirms no landmark, and every removed slot
     is an exact inactive slot of the joint Gaussian (mean 0, identity block, zero cross-covariance:
     the marginal of the others)."""
-    cfg = load_config(None, ["sim.duration=40", "sim.p_detect=0", "sim.clutter_rate=2", f"filter.method={method}",
-                             "filter.capacity=64"])
+    cfg = load_config(
+        None,
+        ["sim.duration=40", "sim.p_detect=0", "sim.clutter_rate=2", f"filter.method={method}", "filter.capacity=64"],
+    )
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
     run = run_filter(static, params, log.segments, 0)

@@ -40,9 +40,15 @@ FAST = (
 
 def _collect(*args: str) -> list[str]:
     files = sorted({node.split("::")[0] for node in SLOW + FAST})
-    proc = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
-                           *args, *files], check=False, capture_output=True, text=True, cwd=ROOT, timeout=600,
-                          env={**os.environ, "NANOSLAM_TYPECHECK": "0"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider", *args, *files],
+        check=False,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=600,
+        env={**os.environ, "NANOSLAM_TYPECHECK": "0"},
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return [line.split("[")[0] for line in proc.stdout.splitlines() if "::" in line]
 

@@ -51,8 +51,11 @@ class PlainRangeBearing(AbstractMeasurementModel):
 
     def visible(self, x, m):
         r, b = self.h(x, m)
-        return ((r > self.min_range + self.view_margin) & (r < self.max_range - self.view_margin)
-                & (jnp.abs(b) < self.half_fov - self.view_margin_angle))
+        return (
+            (r > self.min_range + self.view_margin)
+            & (r < self.max_range - self.view_margin)
+            & (jnp.abs(b) < self.half_fov - self.view_margin_angle)
+        )
 
 
 class Offset(AbstractMeasurementModel):
@@ -96,8 +99,18 @@ class Drift(AbstractMotionModel):
 
 
 def _sim_config(method, extra=()):
-    return load_config(None, ["data.kind=simulated", "sim.duration=25", f"filter.method={method}",
-                              "filter.n_particles=6", "map.occlusion=false", "output.plots=false", *extra])
+    return load_config(
+        None,
+        [
+            "data.kind=simulated",
+            "sim.duration=25",
+            f"filter.method={method}",
+            "filter.n_particles=6",
+            "map.occlusion=false",
+            "output.plots=false",
+            *extra,
+        ],
+    )
 
 
 def _plain_like(rb: RangeBearing) -> PlainRangeBearing:
@@ -135,8 +148,7 @@ def test_generic_innovation_information_equals_the_range_bearing_components():
     (zr, zb), (a00, a01, a11) = innovation_information(x, P, mean, cov, rb.R, rb)
     z_hat, s_inv = innovation_information(x, P, mean, cov, rb.R, _plain_like(rb))
     np.testing.assert_allclose(z_hat, np.stack([zr, zb], -1), atol=1e-12)
-    np.testing.assert_allclose(s_inv, np.stack([np.stack([a00, a01], -1), np.stack([a01, a11], -1)], -2),
-                               rtol=1e-9)
+    np.testing.assert_allclose(s_inv, np.stack([np.stack([a00, a01], -1), np.stack([a01, a11], -1)], -2), rtol=1e-9)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -164,9 +176,16 @@ def _linear_log(n_seg=40, dt=0.25, seed=1, per_scan=5):
             z[t, k] = LANDMARKS[j] - p + SIGMA * rng.normal(size=2)
             z_mask[t, k], z_id[t, k] = True, j
     seg = Segments(
-        time=np.arange(1, n_seg + 1) * dt, dt=np.full((n_seg, 2), dt / 2), u=np.repeat(u[:, None], 2, 1),
-        dr_mask=np.ones((n_seg, 2), bool), z=z, z_mask=z_mask, diam=np.zeros((n_seg, k_max)),
-        is_scan=np.ones(n_seg, bool), z_id=z_id)
+        time=np.arange(1, n_seg + 1) * dt,
+        dt=np.full((n_seg, 2), dt / 2),
+        u=np.repeat(u[:, None], 2, 1),
+        dr_mask=np.ones((n_seg, 2), bool),
+        z=z,
+        z_mask=z_mask,
+        diam=np.zeros((n_seg, k_max)),
+        is_scan=np.ones(n_seg, bool),
+        z_id=z_id,
+    )
     return jax.tree.map(jnp.asarray, seg)
 
 
@@ -186,7 +205,7 @@ def _kalman_filter(seg: Segments):
             H = np.zeros((2, n))
             H[:, :2] = -np.eye(2)
             if j in slot:
-                H[:, slot[j]:slot[j] + 2] = np.eye(2)
+                H[:, slot[j] : slot[j] + 2] = np.eye(2)
                 S = H @ cov @ H.T + SIGMA**2 * np.eye(2)
                 K = cov @ H.T @ np.linalg.inv(S)
                 mean = mean + K @ (zk - H @ mean)
@@ -199,14 +218,25 @@ def _kalman_filter(seg: Segments):
                 mean = np.concatenate([mean, mean[:2] + zk])
                 cross = G @ cov
                 cov = np.block([[cov, cross.T], [cross, cross @ G.T + SIGMA**2 * np.eye(2)]])
-    landmarks = {j: (mean[i:i + 2], cov[i:i + 2, i:i + 2]) for j, i in slot.items()}
+    landmarks = {j: (mean[i : i + 2], cov[i : i + 2, i : i + 2]) for j, i in slot.items()}
     return mean[:3], cov[:3, :3], landmarks
 
 
 def _linear_params(method, n_particles, seg, extra=()):
-    cfg = load_config(None, [f"filter.method={method}", f"filter.n_particles={n_particles}", "filter.association=known",
-                             "map.manage=false", f"filter.init_cov={INIT_COV}", "filter.capacity=8",
-                             "filter.estimate=mean", "filter.window=8", *extra])
+    cfg = load_config(
+        None,
+        [
+            f"filter.method={method}",
+            f"filter.n_particles={n_particles}",
+            "filter.association=known",
+            "map.manage=false",
+            f"filter.init_cov={INIT_COV}",
+            "filter.capacity=8",
+            "filter.estimate=mean",
+            "filter.window=8",
+            *extra,
+        ],
+    )
     static, params = settings_from_config(cfg, seg.k_max)
     return static, params._replace(motion=Drift(Q_XY, Q_PHI), measurement=Offset(SIGMA))
 
@@ -225,8 +255,8 @@ def test_ekf_slam_with_linear_models_equals_the_kalman_filter():
     active = np.asarray(run.state.landmarks.active)
     for s in np.flatnonzero(active):
         m, C = landmarks[int(ident[s])]
-        np.testing.assert_allclose(mean[3 + 2 * s:5 + 2 * s], m, atol=1e-8)
-        np.testing.assert_allclose(cov[3 + 2 * s:5 + 2 * s, 3 + 2 * s:5 + 2 * s], C, atol=1e-8)
+        np.testing.assert_allclose(mean[3 + 2 * s : 5 + 2 * s], m, atol=1e-8)
+        np.testing.assert_allclose(cov[3 + 2 * s : 5 + 2 * s, 3 + 2 * s : 5 + 2 * s], C, atol=1e-8)
 
 
 @pytest.mark.slow

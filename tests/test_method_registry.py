@@ -22,8 +22,15 @@ class InflatedPrior(AbstractProposal):
         return ProposalResult(x0, self.scale * P0, zero, zero)
 
 
-TOY = register(Method("toy_inflated_prior", proposal=lambda static, params, mp: InflatedPrior(mp["scale"]),
-                      defaults={"scale": 1.0}, description="the prior, its covariance scaled"), replace=True)
+TOY = register(
+    Method(
+        "toy_inflated_prior",
+        proposal=lambda static, params, mp: InflatedPrior(mp["scale"]),
+        defaults={"scale": 1.0},
+        description="the prior, its covariance scaled",
+    ),
+    replace=True,
+)
 
 BASE = ["sim.duration=20", "filter.n_particles=6", "output.plots=false"]
 
@@ -54,17 +61,31 @@ def test_toy_with_scale_one_is_fastslam1_and_the_scale_matters():
 @pytest.mark.slow
 def test_registered_method_runs_through_a_sweep(tmp_path):
     """A sweep over the toy's traced parameter: one program, the scale-1 row equals a single run."""
-    spec = sweep_from_dict({
-        "base": {"name": "toy", "data": {"kind": "simulated", "max_dr_per_segment": 2}, "sim": {"duration": 20},
-                 "filter": {"method": "toy_inflated_prior", "n_particles": 4, "capacity": 96, "window": 24}},
-        "grid": {"filter.method_params.scale": [1.0, 3.0]},
-        "run": {"batch": 2, "parallel": "single", "vectorize": "vmap"}, "plots": False,
-    }, source="toy-sweep.yaml")
+    spec = sweep_from_dict(
+        {
+            "base": {
+                "name": "toy",
+                "data": {"kind": "simulated", "max_dr_per_segment": 2},
+                "sim": {"duration": 20},
+                "filter": {"method": "toy_inflated_prior", "n_particles": 4, "capacity": 96, "window": 24},
+            },
+            "grid": {"filter.method_params.scale": [1.0, 3.0]},
+            "run": {"batch": 2, "parallel": "single", "vectorize": "vmap"},
+            "plots": False,
+        },
+        source="toy-sweep.yaml",
+    )
     run_sweep(spec, tmp_path / "sweep", progress=False)
     rows = read_results(tmp_path / "sweep" / "results.csv")
     assert len(rows) == 2 and all(r["status"] == "ok" for r in rows), rows
-    single = ns.run({"name": "toy", "data": {"kind": "simulated", "max_dr_per_segment": 2}, "sim": {"duration": 20},
-                     "filter": {"method": "toy_inflated_prior", "n_particles": 4, "capacity": 96, "window": 24},
-                     "output": {"plots": False}})
+    single = ns.run(
+        {
+            "name": "toy",
+            "data": {"kind": "simulated", "max_dr_per_segment": 2},
+            "sim": {"duration": 20},
+            "filter": {"method": "toy_inflated_prior", "n_particles": 4, "capacity": 96, "window": 24},
+            "output": {"plots": False},
+        }
+    )
     one = [r for r in rows if float(r["filter.method_params.scale"]) == 1.0][0]
     assert float(one["rmse_fixed"]) == pytest.approx(single.metrics["rmse_fixed"], rel=1e-6, abs=1e-9)

@@ -53,8 +53,9 @@ def _linear_fn(kind):
         residual = lambda x: z - H @ x  # noqa: E731
         if kind == "linearized":
             return linearized_gaussian(prior, residual, W, mask, project=lambda x: x)
-        q, _, _ = map_estimate(prior, residual, W, mask, solver=kind, max_iter=50, tol=1e-12,
-                               diff=jnp.subtract, project=lambda x: x)
+        q, _, _ = map_estimate(
+            prior, residual, W, mask, solver=kind, max_iter=50, tol=1e-12, diff=jnp.subtract, project=lambda x: x
+        )
         return q
 
     return jax.jit(fn)
@@ -79,7 +80,9 @@ def test_linear_proposals_are_kalman(kind, seed, k):
 
 @functools.lru_cache(maxsize=None)
 def _iterated_fn(solver, max_iter, landmark_noise):
-    return jax.jit(IteratedProposal(solver=solver, max_iter=max_iter, tol=1e-12, landmark_noise=landmark_noise).__call__)
+    return jax.jit(
+        IteratedProposal(solver=solver, max_iter=max_iter, tol=1e-12, landmark_noise=landmark_noise).__call__
+    )
 
 
 @pytest.mark.slow
@@ -177,11 +180,14 @@ def sim_log():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method,extra,bound", [
-    ("fastslam1", [], 1.0),
-    ("fastslam2", [], 1.0),
-    ("iterated", ["iterated.solver=levenberg_marquardt"], 1.0),
-])
+@pytest.mark.parametrize(
+    "method,extra,bound",
+    [
+        ("fastslam1", [], 1.0),
+        ("fastslam2", [], 1.0),
+        ("iterated", ["iterated.solver=levenberg_marquardt"], 1.0),
+    ],
+)
 def test_method_tracks_simulated_truth(sim_log, method, extra, bound):
     """Each method, 10 particles, two seeds vmapped in one program, on the embedded default's
     simulated log cut at 60 s (dead reckoning drifts to 5.18 m RMSE): a finite estimate within
@@ -215,10 +221,21 @@ def test_method_tracks_simulated_truth(sim_log, method, extra, bound):
     assert int(np.sum(run.state.overflow)) == 0
 
 
-_ADAPTIVE = SIM + ["filter.method=fastslam2", "filter.n_particles=4", "noise.adaptive=true", "noise.sigma_r=1.0",
-                   "noise.sigma_beta_deg=3.0", "noise.sigma_v=0.1", "noise.sigma_alpha_deg=0.5", "filter.gate=20",
-                   "filter.new_landmark=40", "sim.clutter_rate=0",
-                   "sim.sigma_v=0.1", "sim.sigma_alpha_deg=0.5", "sim.steering_bias_deg=0"]
+_ADAPTIVE = SIM + [
+    "filter.method=fastslam2",
+    "filter.n_particles=4",
+    "noise.adaptive=true",
+    "noise.sigma_r=1.0",
+    "noise.sigma_beta_deg=3.0",
+    "noise.sigma_v=0.1",
+    "noise.sigma_alpha_deg=0.5",
+    "filter.gate=20",
+    "filter.new_landmark=40",
+    "sim.clutter_rate=0",
+    "sim.sigma_v=0.1",
+    "sim.sigma_alpha_deg=0.5",
+    "sim.steering_bias_deg=0",
+]
 
 
 def _adaptive_run(extra=()):
@@ -245,8 +262,9 @@ def test_adaptive_noise_estimate_of_the_particles_converges_to_the_true_noise():
     m = evaluate(np.asarray(log.segments.time), np.asarray(run.outputs.best_pose)[:, :2], log.raw.gps, frame="slam")
     assert m["rmse_fixed"] < 0.5
     report, warnings = adaptive_noise_report(static, params, run.state)
-    np.testing.assert_allclose([report["noise_sigma_r_final"], np.radians(report["noise_sigma_beta_deg_final"])],
-                               truth, rtol=0.1)
+    np.testing.assert_allclose(
+        [report["noise_sigma_r_final"], np.radians(report["noise_sigma_beta_deg_final"])], truth, rtol=0.1
+    )
     assert report["noise_at_floor_range"] == report["noise_at_floor_bearing"] == 0.0 and warnings == []
 
 
@@ -258,13 +276,16 @@ def test_adaptive_noise_held_at_its_floor_is_reported_and_warned(tmp_path, capsy
     in ``metrics.json`` and on stderr."""
     cfg, log, static, params, run = _adaptive_run(["noise.adaptive_floor=0.5"])
     floor = np.sqrt(0.5) * np.array([1.0, np.radians(3.0)])
-    np.testing.assert_allclose(np.sqrt(np.asarray(run.state.particles.noise)), np.broadcast_to(floor, (4, 2)), rtol=1e-9)
+    np.testing.assert_allclose(
+        np.sqrt(np.asarray(run.state.particles.noise)), np.broadcast_to(floor, (4, 2)), rtol=1e-9
+    )
     report, warnings = adaptive_noise_report(static, params, run.state)
     assert report["noise_at_floor_range"] == report["noise_at_floor_bearing"] == 1.0
     assert len(warnings) == 2 and all("noise.adaptive_floor" in w and "100 %" in w for w in warnings)
     out = tmp_path / "run"
-    argv = ["run", "--quiet", "--out", str(out)] + sum([["--set", o] for o in _ADAPTIVE + ["noise.adaptive_floor=0.5",
-                                                                                             "output.plots=false"]], [])
+    argv = ["run", "--quiet", "--out", str(out)] + sum(
+        [["--set", o] for o in _ADAPTIVE + ["noise.adaptive_floor=0.5", "output.plots=false"]], []
+    )
     assert cli_main(argv) == 0
     err = capsys.readouterr().err
     assert err.count("nanoslam: warning: noise.adaptive:") == 2 and "range noise" in err and "bearing noise" in err
@@ -277,9 +298,11 @@ def test_adaptive_noise_held_at_its_floor_is_reported_and_warned(tmp_path, capsy
 
 
 def _write_compare(tmp_path, methods, extra=""):
-    text = ("name: tiny\nbase: null\nseeds: 2\ntiming_chunk: 40\n"
-            "set: [sim.duration=25, output.progress=false, filter.capacity=192, filter.window=40]\n"
-            f"methods:\n{methods}{extra}")
+    text = (
+        "name: tiny\nbase: null\nseeds: 2\ntiming_chunk: 40\n"
+        "set: [sim.duration=25, output.progress=false, filter.capacity=192, filter.window=40]\n"
+        f"methods:\n{methods}{extra}"
+    )
     p = tmp_path / "cmp.yaml"
     p.write_text(text)
     return p
@@ -289,14 +312,26 @@ def _write_compare(tmp_path, methods, extra=""):
 def test_compare_end_to_end(tmp_path, capsys):
     """``nanoslam compare`` writes the table (Markdown, CSV), the per-seed rows and Figures 3-5; the
     vmapped seeds equal single runs of the same seeds."""
-    spec = _write_compare(tmp_path, "  - {label: FastSLAM 2.0, set: [filter.method=fastslam2], paper_rmse: 1.5}\n"
-                                    "  - {label: DR, set: [filter.method=dead_reckoning]}\n")
+    spec = _write_compare(
+        tmp_path,
+        "  - {label: FastSLAM 2.0, set: [filter.method=fastslam2], paper_rmse: 1.5}\n"
+        "  - {label: DR, set: [filter.method=dead_reckoning]}\n",
+    )
     out = tmp_path / "out"
     assert cli_main(["compare", str(spec), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "| FastSLAM 2.0 | 2 |" in printed and "| DR | 1 |" in printed
-    for f in ("table1.md", "table1.csv", "runs.csv", "summary.json", "compare.yaml", "fig3_trajectories.png",
-              "fig4_error.png", "fig5_time.png", "configs/FastSLAM_2.0.yaml"):
+    for f in (
+        "table1.md",
+        "table1.csv",
+        "runs.csv",
+        "summary.json",
+        "compare.yaml",
+        "fig3_trajectories.png",
+        "fig4_error.png",
+        "fig5_time.png",
+        "configs/FastSLAM_2.0.yaml",
+    ):
         assert (out / f).is_file(), f
     rows = list(csv.DictReader(open(out / "runs.csv")))
     assert [(r["method"], r["seed"]) for r in rows] == [("FastSLAM 2.0", "0"), ("FastSLAM 2.0", "1"), ("DR", "0")]
@@ -318,13 +353,16 @@ def test_compare_end_to_end(tmp_path, capsys):
     assert [s["method"] for s in summary] == ["FastSLAM 2.0", "DR"]
 
 
-@pytest.mark.parametrize("methods,extra,needle", [
-    ("  - {label: A, set: [filter.method=warp]}\n", "", "filter.method"),
-    ("  - {label: A, set: [filter.method=nano]}\n  - {label: A, set: [filter.method=fastslam1]}\n", "", "unique"),
-    ("  - {label: A, sets: [filter.method=nano]}\n", "", "methods[0]"),
-    ("  - {label: A, set: [filter.method=nano]}\n", "seedz: 3\n", "seedz"),
-    ("  - {label: A, set: filter.method}\n", "", "methods[0].set"),
-])
+@pytest.mark.parametrize(
+    "methods,extra,needle",
+    [
+        ("  - {label: A, set: [filter.method=warp]}\n", "", "filter.method"),
+        ("  - {label: A, set: [filter.method=nano]}\n  - {label: A, set: [filter.method=fastslam1]}\n", "", "unique"),
+        ("  - {label: A, sets: [filter.method=nano]}\n", "", "methods[0]"),
+        ("  - {label: A, set: [filter.method=nano]}\n", "seedz: 3\n", "seedz"),
+        ("  - {label: A, set: filter.method}\n", "", "methods[0].set"),
+    ],
+)
 def test_compare_bad_spec_names_the_key(tmp_path, methods, extra, needle):
     spec = _write_compare(tmp_path, methods, extra)
     with pytest.raises(ConfigError) as e:

@@ -200,8 +200,12 @@ def test_range_bearing_component_jacobian_matches_closed_form():
     (r, b), J = jax.jit(range_bearing_jacobian_components)(xs[:, 0], xs[:, 1], xs[:, 2], ms[:, 0], ms[:, 1])
     rb = jax.vmap(range_bearing)(xs, ms)
     np.testing.assert_allclose(np.stack([r, b], -1), rb, rtol=1e-14, atol=1e-15)
-    np.testing.assert_allclose(np.stack(range_bearing_components(xs[:, 0], xs[:, 1], xs[:, 2], ms[:, 0], ms[:, 1]), -1),
-                               rb, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(
+        np.stack(range_bearing_components(xs[:, 0], xs[:, 1], xs[:, 2], ms[:, 0], ms[:, 1]), -1),
+        rb,
+        rtol=1e-14,
+        atol=1e-15,
+    )
     J = np.asarray(J)  # (2 outputs, 5 inputs, cases)
     for k in range(N_CASES):
         Gx_h, Gm_h = range_bearing_jacobians_by_hand(xs[k], ms[k])

@@ -70,12 +70,14 @@ def test_unicycle_step_and_jacobians():
     eps = 1e-6
     for i in range(3):
         e = jnp.zeros(3).at[i].set(eps)
-        np.testing.assert_allclose(np.asarray((m.step(x + e, u, dt) - m.step(x - e, u, dt)) / (2 * eps)),
-                                   np.asarray(F[:, i]), atol=1e-8)
+        np.testing.assert_allclose(
+            np.asarray((m.step(x + e, u, dt) - m.step(x - e, u, dt)) / (2 * eps)), np.asarray(F[:, i]), atol=1e-8
+        )
     for i in range(2):
         e = jnp.zeros(2).at[i].set(eps)
-        np.testing.assert_allclose(np.asarray((m.step(x, u + e, dt) - m.step(x, u - e, dt)) / (2 * eps)),
-                                   np.asarray(G[:, i]), atol=1e-8)
+        np.testing.assert_allclose(
+            np.asarray((m.step(x, u + e, dt) - m.step(x, u - e, dt)) / (2 * eps)), np.asarray(G[:, i]), atol=1e-8
+        )
 
 
 @pytest.mark.parametrize("kind", ["unscented", "linearized"])
@@ -83,13 +85,14 @@ def test_unicycle_step_and_jacobians():
 def test_random_walk_prior_adds_dt_times_the_noise(kind):
     """With no motion, the prior's mean stays and its covariance grows by dt diag(s_xy^2, s_xy^2, s_phi^2)
     per piece: exactly, for both priors (the model is linear)."""
-    _, params = settings_from_config(load_config(None, ["model.motion=random_walk", "random_walk.sigma_xy=0.3",
-                                                        "random_walk.sigma_phi_deg=4"]), 4)
+    _, params = settings_from_config(
+        load_config(None, ["model.motion=random_walk", "random_walk.sigma_xy=0.3", "random_walk.sigma_phi_deg=4"]), 4
+    )
     x, P = jnp.array([2.0, 1.0, 3.0]), jnp.diag(jnp.array([0.04, 0.01, 0.002]))
     dt = jnp.array([0.1, 0.2, 0.05, 0.0])
     mask = jnp.array([True, True, True, False])
     m, C = predict(x, P, dt, jnp.zeros((4, 2)), mask, params, kind)
-    q = 0.35 * np.array([0.3 ** 2, 0.3 ** 2, math.radians(4) ** 2])
+    q = 0.35 * np.array([0.3**2, 0.3**2, math.radians(4) ** 2])
     np.testing.assert_allclose(np.asarray(m), np.asarray(x), atol=1e-12)
     np.testing.assert_allclose(np.asarray(C), np.asarray(P) + np.diag(q), atol=1e-12)
 
@@ -143,7 +146,8 @@ def test_model_written_in_a_test_module_equals_the_builtin_car():
 def test_model_named_by_import_path_runs_through_the_cli(tmp_path):
     """A model in a file outside the package, named in YAML by import path with its parameters,
     runs through ``nanoslam run`` and gives the built-in car's numbers."""
-    (tmp_path / "my_robot.py").write_text(textwrap.dedent('''
+    (tmp_path / "my_robot.py").write_text(
+        textwrap.dedent("""
         import math
         from typing import ClassVar
         import equinox as eqx
@@ -163,15 +167,27 @@ def test_model_named_by_import_path_runs_through_the_cli(tmp_path):
 
             def noise_sqrt(self, dt):
                 return jnp.diag(jnp.stack([self.sigma_v, self.sigma_alpha]))
-        '''))
+        """)
+    )
     common = ["--set", "sim.duration=20", "--set", "filter.n_particles=4", "--quiet", "--set", "output.plots=false"]
     env = {**__import__("os").environ, "PYTHONPATH": str(tmp_path)}
-    mine = ["--set", "model.motion=my_robot:Car", "--set", "model.motion_params.sigma_v=0.5",
-            "--set", f"model.motion_params.sigma_alpha={math.radians(6.0)}"]
+    mine = [
+        "--set",
+        "model.motion=my_robot:Car",
+        "--set",
+        "model.motion_params.sigma_v=0.5",
+        "--set",
+        f"model.motion_params.sigma_alpha={math.radians(6.0)}",
+    ]
     out = {}
     for name, extra in (("mine", mine), ("builtin", [])):
-        subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", "run", *common, *extra, "--out",
-                        str(tmp_path / name)], check=True, env=env, capture_output=True, text=True)
+        subprocess.run(
+            [sys.executable, "-m", "nanoslam_jax.cli", "run", *common, *extra, "--out", str(tmp_path / name)],
+            check=True,
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         out[name] = np.loadtxt(tmp_path / name / "trajectory.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(out["mine"], out["builtin"], atol=2e-6)
     # the TUM export beside it: time x y z qx qy qz qw, heading as a yaw quaternion
@@ -193,15 +209,35 @@ def test_bad_model_names_are_config_errors(tmp_path):
 def test_simulated_differential_drive_log_slam_beats_dead_reckoning():
     """The simulator drives a differential-drive robot (logged controls v, omega with noise and a
     turn-rate bias); NANO-SLAM with the unicycle model is at least 5x better than dead reckoning."""
-    result = ns.run(overrides=["model.motion=unicycle", "unicycle.sensor_x=0.3", "unicycle.sigma_v=0.5",
-                               "unicycle.sigma_omega_deg=10", "sim.duration=120", "sim.sigma_v=0.1",
-                               "sim.sigma_omega_deg=1", "sim.omega_bias_deg=1", "output.plots=false"], seed=1)
+    result = ns.run(
+        overrides=[
+            "model.motion=unicycle",
+            "unicycle.sensor_x=0.3",
+            "unicycle.sigma_v=0.5",
+            "unicycle.sigma_omega_deg=10",
+            "sim.duration=120",
+            "sim.sigma_v=0.1",
+            "sim.sigma_omega_deg=1",
+            "sim.omega_bias_deg=1",
+            "output.plots=false",
+        ],
+        seed=1,
+    )
     m = result.metrics
     assert m["dr_rmse_fixed"] > 5.0  # the bias makes dead reckoning drift
     assert m["rmse_fixed"] * 5 <= m["dr_rmse_fixed"], m
     # the logged controls are the unicycle's: integrating the true ones gives the truth
-    cfg = load_config(None, ["model.motion=unicycle", "unicycle.sensor_x=0.3", "sim.duration=30", "sim.sigma_v=0",
-                             "sim.sigma_omega_deg=0", "sim.omega_bias_deg=0"])
+    cfg = load_config(
+        None,
+        [
+            "model.motion=unicycle",
+            "unicycle.sensor_x=0.3",
+            "sim.duration=30",
+            "sim.sigma_v=0",
+            "sim.sigma_omega_deg=0",
+            "sim.omega_bias_deg=0",
+        ],
+    )
     raw = simulate_config(cfg)
     model = Unicycle(sensor_x=0.3)
     x = jnp.zeros(3)
@@ -234,7 +270,7 @@ def test_cache_never_serves_a_program_compiled_for_another_model(tmp_path):
     compilation cache: the second run traces the new code (its trajectory differs), and a third run
     of the unchanged new code is served from the cache with the second's numbers."""
     env = {**__import__("os").environ, "PYTHONPATH": str(tmp_path), "NANOSLAM_CACHE_DIR": str(tmp_path / "cache")}
-    source = textwrap.dedent('''
+    source = textwrap.dedent("""
         from typing import ClassVar
         import equinox as eqx
         import jax.numpy as jnp
@@ -244,15 +280,29 @@ def test_cache_never_serves_a_program_compiled_for_another_model(tmp_path):
             def rates(self, u):
                 return jnp.asarray(u)[:2] * SCALE
         SCALE = {scale}
-        ''')
-    args = ["--set", "model.motion=robot_model:Robot", "--set", "sim.duration=15", "--set", "filter.n_particles=3",
-            "--set", "output.plots=false", "--quiet"]
+        """)
+    args = [
+        "--set",
+        "model.motion=robot_model:Robot",
+        "--set",
+        "sim.duration=15",
+        "--set",
+        "filter.n_particles=3",
+        "--set",
+        "output.plots=false",
+        "--quiet",
+    ]
     paths = []
     for i, scale in enumerate((1.0, 1.05, 1.05)):
         (tmp_path / "robot_model.py").write_text(source.format(scale=scale))
         out = tmp_path / f"run{i}"
-        subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", "run", *args, "--out", str(out)], check=True,
-                       env=env, capture_output=True, text=True)
+        subprocess.run(
+            [sys.executable, "-m", "nanoslam_jax.cli", "run", *args, "--out", str(out)],
+            check=True,
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         paths.append(np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1))
     assert np.abs(paths[1] - paths[0]).max() > 1e-3  # the changed code ran
     np.testing.assert_array_equal(paths[2], paths[1])

@@ -22,23 +22,30 @@ MRCLAM_CFG = ["data.kind=victoria_park", "data.format=mrclam", "model.motion=uni
 def write_dataset(d: Path, measurements: str | None = None) -> Path:
     """A small dataset: robots 1-2 (barcodes 5, 14), landmarks 6-8 (barcodes 72, 27, 54)."""
     d.mkdir(parents=True, exist_ok=True)
-    (d / "Barcodes.dat").write_text(HEADER + "# Subject #    Barcode #\n  1 \t 5\n  2 \t 14\n\n  6 \t 72\n"
-                                    "  7 \t 27\n  8 \t 54\n")
-    (d / "Landmark_Groundtruth.dat").write_text(HEADER + "  6 \t 1.5 \t 2.0 \t 0.001 \t 0.001\n"
-                                                "  8 \t -3.25 \t 0.5 \t 0.001 \t 0.002\n"
-                                                "  7 \t 4.0 \t -1.0 \t 0.001 \t 0.001\n")
+    (d / "Barcodes.dat").write_text(
+        HEADER + "# Subject #    Barcode #\n  1 \t 5\n  2 \t 14\n\n  6 \t 72\n  7 \t 27\n  8 \t 54\n"
+    )
+    (d / "Landmark_Groundtruth.dat").write_text(
+        HEADER + "  6 \t 1.5 \t 2.0 \t 0.001 \t 0.001\n"
+        "  8 \t -3.25 \t 0.5 \t 0.001 \t 0.002\n"
+        "  7 \t 4.0 \t -1.0 \t 0.001 \t 0.001\n"
+    )
     # times out of order (1001.0 before 1000.5 in the file) and repeated (1002.0 twice: the last holds)
-    (d / "Robot1_Odometry.dat").write_text(HEADER + "1001.0 \t 0.2 \t 0.1\n1000.5 \t 0.1 \t 0.0\n"
-                                           "1002.0 \t 0.9 \t 0.9\n1002.0 \t 0.3 \t -0.2   # a comment\n"
-                                           "1003.0 \t 0.0 \t 0.0\n")
+    (d / "Robot1_Odometry.dat").write_text(
+        HEADER + "1001.0 \t 0.2 \t 0.1\n1000.5 \t 0.1 \t 0.0\n"
+        "1002.0 \t 0.9 \t 0.9\n1002.0 \t 0.3 \t -0.2   # a comment\n"
+        "1003.0 \t 0.0 \t 0.0\n"
+    )
     if measurements is None:
-        measurements = ("1000.25 \t 72 \t 1.0 \t 0.1\n"   # before the first odometry sample: dropped
-                        "1001.5 \t 27 \t 2.0 \t 0.2\n"
-                        "1001.5 \t 5 \t 3.0 \t 0.0\n"     # robot 1 (subject 1): dropped
-                        "1001.5 \t 72 \t 2.5 \t -0.3\n"
-                        "1001.0 \t 54 \t 4.0 \t 3.5\n"    # earlier than the rows above; bearing wrapped
-                        "1002.5 \t 14 \t 1.0 \t 0.0\n"    # robot 2: dropped
-                        "1002.5 \t 54 \t 1.25 \t -0.5\n")
+        measurements = (
+            "1000.25 \t 72 \t 1.0 \t 0.1\n"  # before the first odometry sample: dropped
+            "1001.5 \t 27 \t 2.0 \t 0.2\n"
+            "1001.5 \t 5 \t 3.0 \t 0.0\n"  # robot 1 (subject 1): dropped
+            "1001.5 \t 72 \t 2.5 \t -0.3\n"
+            "1001.0 \t 54 \t 4.0 \t 3.5\n"  # earlier than the rows above; bearing wrapped
+            "1002.5 \t 14 \t 1.0 \t 0.0\n"  # robot 2: dropped
+            "1002.5 \t 54 \t 1.25 \t -0.5\n"
+        )
     (d / "Robot1_Measurement.dat").write_text(HEADER + measurements)
     return d
 
@@ -51,8 +58,11 @@ def test_loader_maps_barcodes_sorts_and_drops(tmp_path):
     # odometry: t0 = 1000.5 (the first odometry time), sorted, the last of the rows at 1002.0 kept
     np.testing.assert_allclose(raw.dr, [[0.0, 0.1, 0.0], [0.5, 0.2, 0.1], [1.5, 0.3, -0.2], [2.5, 0.0, 0.0]])
     # measurements: sorted by time, equal times in file order, robots and the early row dropped
-    np.testing.assert_allclose(raw.detections, [[0.5, 4.0, 3.5 - 2 * math.pi, 0.0], [1.0, 2.0, 0.2, 0.0],
-                                                [1.0, 2.5, -0.3, 0.0], [2.0, 1.25, -0.5, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(
+        raw.detections,
+        [[0.5, 4.0, 3.5 - 2 * math.pi, 0.0], [1.0, 2.0, 0.2, 0.0], [1.0, 2.5, -0.3, 0.0], [2.0, 1.25, -0.5, 0.0]],
+        atol=1e-12,
+    )
     np.testing.assert_array_equal(raw.detection_ids, [2, 1, 0, 2])  # subjects 8, 7, 6, 8 -> ids 2, 1, 0, 2
     np.testing.assert_array_equal(raw.landmark_ids, [0, 2, 1])  # file order of Landmark_Groundtruth.dat
     np.testing.assert_allclose(raw.truth_landmarks, [[1.5, 2.0], [-3.25, 0.5], [4.0, -1.0]])
@@ -74,24 +84,48 @@ def test_loader_without_sightings(tmp_path):
     assert raw.detections.shape == (0, 4) and raw.detection_ids.shape == (0,)
 
 
-@pytest.mark.parametrize("name, text, message", [
-    ("Robot1_Measurement.dat", "1001.0 \t 27 \t 2.0 \t 0.2\n1001.5 \t 72 \t 2.0\n",
-     r"Robot1_Measurement\.dat line 4: expected 4 numeric columns \(time barcode range bearing\), got 3"),
-    ("Robot1_Measurement.dat", "1001.0 \t 27 \t 2.0 \t 0.2\n1001.5 \t 72 \t two \t 0.1\n",
-     r"Robot1_Measurement\.dat line 4: expected 4 numeric columns .*non-numeric 'two' in column 'range'"),
-    ("Robot1_Measurement.dat", "1001.0 \t 27.5 \t 2.0 \t 0.2\n",
-     r"Robot1_Measurement\.dat line 3: expected a whole number >= 0 in column 'barcode', got 27\.5"),
-    ("Robot1_Measurement.dat", "1001.0 \t 27 \t -2.0 \t 0.2\n",
-     r"Robot1_Measurement\.dat line 3: expected a range >= 0"),
-    ("Robot1_Odometry.dat", "1000.0 \t 0.1 \t 0.0\n1001.0 \t nan \t 0.0\n",
-     r"Robot1_Odometry\.dat line 4: expected finite numbers, got nan in column 'v'"),
-    ("Robot1_Odometry.dat", "# only comments\n", r"Robot1_Odometry\.dat: no data rows"),
-    ("Barcodes.dat", "1 \t 5\n6 \t 72\n7 \t 72\n",
-     r"Barcodes\.dat line 5: barcode 72 appears again \(first on line 4\)"),
-    ("Landmark_Groundtruth.dat", "6 \t 1.0 \t 2.0 \t 0.0 \t 0.0\n2 \t 1.0 \t 2.0 \t 0.0 \t 0.0\n",
-     r"Landmark_Groundtruth\.dat line 4: expected a whole number >= 6 \(a landmark; subjects 1-5 are the robots\) "
-     r"in column 'subject', got 2$"),
-])
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        (
+            "Robot1_Measurement.dat",
+            "1001.0 \t 27 \t 2.0 \t 0.2\n1001.5 \t 72 \t 2.0\n",
+            r"Robot1_Measurement\.dat line 4: expected 4 numeric columns \(time barcode range bearing\), got 3",
+        ),
+        (
+            "Robot1_Measurement.dat",
+            "1001.0 \t 27 \t 2.0 \t 0.2\n1001.5 \t 72 \t two \t 0.1\n",
+            r"Robot1_Measurement\.dat line 4: expected 4 numeric columns .*non-numeric 'two' in column 'range'",
+        ),
+        (
+            "Robot1_Measurement.dat",
+            "1001.0 \t 27.5 \t 2.0 \t 0.2\n",
+            r"Robot1_Measurement\.dat line 3: expected a whole number >= 0 in column 'barcode', got 27\.5",
+        ),
+        (
+            "Robot1_Measurement.dat",
+            "1001.0 \t 27 \t -2.0 \t 0.2\n",
+            r"Robot1_Measurement\.dat line 3: expected a range >= 0",
+        ),
+        (
+            "Robot1_Odometry.dat",
+            "1000.0 \t 0.1 \t 0.0\n1001.0 \t nan \t 0.0\n",
+            r"Robot1_Odometry\.dat line 4: expected finite numbers, got nan in column 'v'",
+        ),
+        ("Robot1_Odometry.dat", "# only comments\n", r"Robot1_Odometry\.dat: no data rows"),
+        (
+            "Barcodes.dat",
+            "1 \t 5\n6 \t 72\n7 \t 72\n",
+            r"Barcodes\.dat line 5: barcode 72 appears again \(first on line 4\)",
+        ),
+        (
+            "Landmark_Groundtruth.dat",
+            "6 \t 1.0 \t 2.0 \t 0.0 \t 0.0\n2 \t 1.0 \t 2.0 \t 0.0 \t 0.0\n",
+            r"Landmark_Groundtruth\.dat line 4: expected a whole number >= 6 \(a landmark; subjects 1-5 are the robots\) "
+            r"in column 'subject', got 2$",
+        ),
+    ],
+)
 def test_malformed_file_names_file_and_line(tmp_path, name, text, message):
     d = write_dataset(tmp_path / "ds")
     (d / name).write_text(HEADER + text)
@@ -159,8 +193,9 @@ def test_dead_reckoning_map_recovers_landmarks_from_exact_sightings():
     x, y, phi = v / w * np.sin(w * times), v / w * (1 - np.cos(w * times)), w * times
     ids = np.arange(times.size) % 3
     dx, dy = landmarks[ids, 0] - x, landmarks[ids, 1] - y
-    det = np.column_stack([times, np.hypot(dx, dy), np.angle(np.exp(1j * (np.arctan2(dy, dx) - phi))),
-                           np.zeros_like(times)])
+    det = np.column_stack(
+        [times, np.hypot(dx, dy), np.angle(np.exp(1j * (np.arctan2(dy, dx) - phi))), np.zeros_like(times)]
+    )
     ids[5] = -1  # unknown: left out
     det[5, 1:3] = (7.0, 1.0)
     raw = RawLog(dr=dr, detections=det, gps=np.zeros((0, 3)), detection_ids=ids)
@@ -269,8 +304,9 @@ def test_real_log_through_the_config(mrclam_dir, tmp_path):
     the result directory still written)."""
     from nanoslam_jax.experiment import load_log, run_experiment
 
-    cfg = load_config(None, MRCLAM_CFG + ["data.robot=2", "data.t_end=60", "filter.method=dead_reckoning",
-                                          "output.progress=false"])
+    cfg = load_config(
+        None, MRCLAM_CFG + ["data.robot=2", "data.t_end=60", "filter.method=dead_reckoning", "output.progress=false"]
+    )
     log = load_log(cfg, str(mrclam_dir))
     seg = log.segments
     assert log.raw.gps.shape == (0, 3) and "robot 2" in log.source
@@ -292,7 +328,7 @@ def write_simulated_dataset(d: Path, seed: int = 3) -> tuple[Path, np.ndarray]:
     rng = np.random.default_rng(seed)
     d.mkdir(parents=True, exist_ok=True)
     start, heading = np.array([1.5, -0.5]), 0.6
-    v, w = 0.3, 0.12                                 # a circle of radius 2.5 m, 52 s a lap
+    v, w = 0.3, 0.12  # a circle of radius 2.5 m, 52 s a lap
     t = np.arange(0.0, 160.0, 0.05)
     # the truth in the robot's start frame, then moved into the survey's frame
     x, y, phi = v / w * np.sin(w * t), v / w * (1 - np.cos(w * t)), w * t
@@ -301,20 +337,24 @@ def write_simulated_dataset(d: Path, seed: int = 3) -> tuple[Path, np.ndarray]:
     R = rotation_matrix(math.degrees(heading))
     survey = lm_local @ R.T + start
     barcodes = 60 + 3 * np.arange(8)  # subjects 6-13; subjects 1-5 are the robots
-    (d / "Barcodes.dat").write_text(HEADER + "".join(f"{k + 1} \t {b}\n" for k, b in
-                                                     enumerate([5, 14, 41, 32, 23, *barcodes])))
-    (d / "Landmark_Groundtruth.dat").write_text(HEADER + "".join(
-        f"{k + 6} \t {p[0]:.6f} \t {p[1]:.6f} \t 0.001 \t 0.001\n" for k, p in enumerate(survey)))
+    (d / "Barcodes.dat").write_text(
+        HEADER + "".join(f"{k + 1} \t {b}\n" for k, b in enumerate([5, 14, 41, 32, 23, *barcodes]))
+    )
+    (d / "Landmark_Groundtruth.dat").write_text(
+        HEADER + "".join(f"{k + 6} \t {p[0]:.6f} \t {p[1]:.6f} \t 0.001 \t 0.001\n" for k, p in enumerate(survey))
+    )
     # odometry: a 0.005 rad/s bias on the turn rate and white noise
     odo = np.column_stack([t, v + rng.normal(0, 0.01, t.size), w + 0.005 + rng.normal(0, 0.01, t.size)])
     (d / "Robot1_Odometry.dat").write_text(HEADER + "".join(f"{a:.3f} \t {b:.5f} \t {c:.5f}\n" for a, b, c in odo))
     rows = []
-    for k in range(0, t.size, 4):                    # 5 camera frames a second
+    for k in range(0, t.size, 4):  # 5 camera frames a second
         dx, dy = lm_local[:, 0] - x[k], lm_local[:, 1] - y[k]
         r, b = np.hypot(dx, dy), np.angle(np.exp(1j * (np.arctan2(dy, dx) - phi[k])))
         for j in np.flatnonzero((r < 9.0) & (np.abs(b) < math.radians(33))):
-            rows.append(f"{t[k]:.3f} \t {barcodes[j]} \t {r[j] + rng.normal(0, 0.02):.5f} \t "
-                        f"{b[j] + rng.normal(0, math.radians(0.5)):.5f}\n")
+            rows.append(
+                f"{t[k]:.3f} \t {barcodes[j]} \t {r[j] + rng.normal(0, 0.02):.5f} \t "
+                f"{b[j] + rng.normal(0, math.radians(0.5)):.5f}\n"
+            )
     (d / "Robot1_Measurement.dat").write_text(HEADER + "".join(rows))
     return d, survey
 
@@ -332,26 +372,44 @@ def test_slam_on_a_simulated_mrclam_log_scores_its_map(tmp_path):
 
     d, survey = write_simulated_dataset(tmp_path / "ds")
     config = Path(__file__).resolve().parents[1] / "configs" / "mrclam.yaml"
-    common = ["output.progress=false", "output.plots=false", "unicycle.sigma_v=0.02", "unicycle.sigma_omega_deg=3",
-              "noise.sigma_r=0.05", "noise.sigma_beta_deg=1"]
+    common = [
+        "output.progress=false",
+        "output.plots=false",
+        "unicycle.sigma_v=0.02",
+        "unicycle.sigma_omega_deg=3",
+        "noise.sigma_r=0.05",
+        "noise.sigma_beta_deg=1",
+    ]
     results = {}
     for method in ("ekf_slam", "fastslam1"):
         for assoc in ("known", "nearest"):
-            r = ns.run(config, data=str(d), seed=16, overrides=common + [f"filter.method={method}",
-                                                                       f"filter.association={assoc}"])
+            r = ns.run(
+                config,
+                data=str(d),
+                seed=16,
+                overrides=common + [f"filter.method={method}", f"filter.association={assoc}"],
+            )
             m = r.metrics
             results[method, assoc] = m
             assert m["survey_landmarks"] == 8 and m["survey_found"] == 8 and m["survey_spurious"] == 0, (method, assoc)
             assert m["survey_rmse"] < 0.05 and m["survey_dr_over_slam"] >= 5.0, (method, assoc, m["survey_rmse"])
             assert m["dr_survey_rmse"] > 0.2  # the biased turn rate bends the dead-reckoned path
             if assoc == "known":  # the ids of the map are the barcodes' landmarks: pairing by id agrees
-                assert m["survey_found_by_id"] == 8 and m["survey_rmse_by_id"] == pytest.approx(m["survey_rmse"], rel=1e-3)
+                assert m["survey_found_by_id"] == 8 and m["survey_rmse_by_id"] == pytest.approx(
+                    m["survey_rmse"], rel=1e-3
+                )
                 assert r.landmarks.shape[1] == 12 and set(r.landmarks[:, -1].astype(int)) == set(range(8))
             else:
                 assert "survey_rmse_by_id" not in m
-    raw = {"base": str(config), "set": common + ["filter.method=ekf_slam"], "seeds": [16], "plots": False,
-           "metric": "survey_rmse", "shapes": {"filter.association": ["known", "nearest"]},
-           "run": {"compile_cache": False}}
+    raw = {
+        "base": str(config),
+        "set": common + ["filter.method=ekf_slam"],
+        "seeds": [16],
+        "plots": False,
+        "metric": "survey_rmse",
+        "shapes": {"filter.association": ["known", "nearest"]},
+        "run": {"compile_cache": False},
+    }
     run_sweep(sweep_from_dict(raw, source="test"), tmp_path / "sweep", data_dir=str(d), progress=False)
     with open(tmp_path / "sweep" / "results.csv") as f:
         rows = {row["filter.association"]: row for row in csv.DictReader(f)}

@@ -65,7 +65,7 @@ def kalman(x0, P0, H, Rk, z, mask):
     Hs = H[mask].reshape(-1, 3)
     Rs = np.zeros((Hs.shape[0], Hs.shape[0]))
     for i, r in enumerate(Rk[mask]):
-        Rs[2 * i:2 * i + 2, 2 * i:2 * i + 2] = r
+        Rs[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = r
     S = Hs @ P0 @ Hs.T + Rs
     K = P0 @ Hs.T @ np.linalg.inv(S)
     x = x0 + K @ (z[mask].reshape(-1) - Hs @ x0)
@@ -79,8 +79,9 @@ def _linear_ng_fn(rule, max_iter, solver):
 
     def fn(x0, L0, P0, H, W, z, mask, gamma):
         residual = lambda x: z - H @ x  # noqa: E731  (k, 2), not wrapped
-        return natural_gradient_gaussian(Gaussian(x0, L0, P0), residual, W, mask, RULES[rule], gamma=gamma,
-                                         max_iter=max_iter, solver=solver)
+        return natural_gradient_gaussian(
+            Gaussian(x0, L0, P0), residual, W, mask, RULES[rule], gamma=gamma, max_iter=max_iter, solver=solver
+        )
 
     return jax.jit(fn)
 
@@ -229,8 +230,13 @@ def nonlinear_case(seed, k=4, sigma_r=0.2, sigma_beta_deg=2.0, r_min=2.0, r_max=
     sb = np.radians(sigma_beta_deg)
     R = np.diag([sigma_r**2, sb**2])
     dx = lm - x_true[:2]
-    z = np.stack([np.hypot(dx[:, 0], dx[:, 1]) + sigma_r * rng.normal(size=k),
-                  wrap(np.arctan2(dx[:, 1], dx[:, 0]) - x_true[2] + sb * rng.normal(size=k))], 1)
+    z = np.stack(
+        [
+            np.hypot(dx[:, 0], dx[:, 1]) + sigma_r * rng.normal(size=k),
+            wrap(np.arctan2(dx[:, 1], dx[:, 0]) - x_true[2] + sb * rng.normal(size=k)),
+        ],
+        1,
+    )
     return x0, P0, lm, z, R
 
 
@@ -249,14 +255,26 @@ def _nano_fn(rule, max_iter, hessian, solver, init):
     rules = {"cubature": Cubature(), "gh5": GaussHermite(5)}
 
     def fn(x0, P0, det, R, gamma):
-        return NanoProposal(rules[rule], gamma, jnp.asarray(1.0), max_iter=max_iter, hessian=hessian,
-                            solver=solver, init=init)(x0, P0, det, R)
+        return NanoProposal(
+            rules[rule], gamma, jnp.asarray(1.0), max_iter=max_iter, hessian=hessian, solver=solver, init=init
+        )(x0, P0, det, R)
 
     return jax.jit(fn)
 
 
-def nano(x0, P0, det, R, *, rule="cubature", gamma=1e-14, max_iter=50, hessian="gauss_newton", solver="optimistix",
-         init="prior"):
+def nano(
+    x0,
+    P0,
+    det,
+    R,
+    *,
+    rule="cubature",
+    gamma=1e-14,
+    max_iter=50,
+    hessian="gauss_newton",
+    solver="optimistix",
+    init="prior",
+):
     """A jitted NanoProposal (one compilation per static setting and detection count)."""
     return _nano_fn(rule, max_iter, hessian, solver, init)(x0, P0, det, R, gamma)
 
@@ -356,15 +374,18 @@ def published_cases(n_cases=24, k=6, start_sigma=None):
     from nanoslam_jax.filter import settings_from_config
 
     # The published setting (sigma_v 2 m/s, sigma_alpha 6 deg, sigma_r 1 m, sigma_beta 3 deg).
-    _, params = settings_from_config(load_config(None, ["noise.sigma_v=2", "noise.sigma_alpha_deg=6",
-                                                        "noise.sigma_r=1", "noise.sigma_beta_deg=3"]), k)
+    _, params = settings_from_config(
+        load_config(None, ["noise.sigma_v=2", "noise.sigma_alpha_deg=6", "noise.sigma_r=1", "noise.sigma_beta_deg=3"]),
+        k,
+    )
     steps = 8
     if start_sigma is None:
         P_start = 1e-8 * np.eye(3)
     else:
         P_start = np.diag(np.square([start_sigma[0], start_sigma[0], start_sigma[1]]))
-    prior_fn = jax.jit(lambda x, u: predict(x, P_start, jnp.full(steps, 0.025), u, jnp.ones(steps, bool), params,
-                                            "unscented"))
+    prior_fn = jax.jit(
+        lambda x, u: predict(x, P_start, jnp.full(steps, 0.025), u, jnp.ones(steps, bool), params, "unscented")
+    )
     rng = np.random.default_rng(11)
     cases = []
     for _ in range(n_cases):
@@ -435,7 +456,7 @@ def ekf_pose_update(x0, P0, lm, z, Rk):
     nu = rb_residual_np(x0, lm, z).reshape(-1)
     Rs = np.zeros((2 * k, 2 * k))
     for i in range(k):
-        Rs[2 * i:2 * i + 2, 2 * i:2 * i + 2] = Rk[i]
+        Rs[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = Rk[i]
     S = Gx @ P0 @ Gx.T + Rs
     K = P0 @ Gx.T @ np.linalg.inv(S)
     x = x0 + K @ nu
@@ -507,7 +528,8 @@ def test_gauss_newton_map_nonlinear_stationary(seed):
     prior = Gaussian(jnp.asarray(x0), jnp.asarray(np.linalg.inv(P0)), jnp.asarray(P0))
     W = np.broadcast_to(np.linalg.inv(R), (4, 2, 2))
     out = jax.jit(lambda p, d, w: gauss_newton_map(p, range_bearing_residuals(d), w, d.mask, max_iter=30))(
-        prior, det, jnp.asarray(W))
+        prior, det, jnp.asarray(W)
+    )
     check_map_stationary(x0, P0, lm, z, R, np.asarray(out.mean), np.asarray(out.precision), rtol=1e-8)
 
 

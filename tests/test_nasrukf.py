@@ -19,8 +19,16 @@ import pytest
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import apply_overrides, config_from_dict, load_config
 from nanoslam_jax.experiment import adaptive_noise_report, load_log
-from nanoslam_jax.filter import (NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS, LandmarkMap, NasrukfState, _nasrukf, fuse_poses,
-                                 run_filter, settings_from_config)
+from nanoslam_jax.filter import (
+    NOISE_ARC_SUMMARY_KEYS,
+    NOISE_SUMMARY_KEYS,
+    LandmarkMap,
+    NasrukfState,
+    _nasrukf,
+    fuse_poses,
+    run_filter,
+    settings_from_config,
+)
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step
 from gaussian_slam_checks import (
@@ -143,12 +151,15 @@ def test_pose_time_update_equals_the_dense_ukf_of_pose_and_start_pose():
     C = np.zeros((6, 6))
     C[:, :3] = np.concatenate([chol(P), chol(P)])
     for i in np.flatnonzero(mask):
+
         def move(p, w, i=i):
             return jnp.concatenate([vehicle_step(p[:3], jnp.asarray(u[i]) + w, dt[i], params.motion.vehicle), p[3:]])
+
         y, Py = dense_transform(y, Py, move, Q, angles=(2, 5), C=C)
         C = None
-    xp, S, T, D = jax.jit(_nasrukf.pose_time_update)(jnp.asarray(x), jnp.asarray(chol(P)), jnp.asarray(dt), jnp.asarray(u),
-                                                      jnp.asarray(mask), params)
+    xp, S, T, D = jax.jit(_nasrukf.pose_time_update)(
+        jnp.asarray(x), jnp.asarray(chol(P)), jnp.asarray(dt), jnp.asarray(u), jnp.asarray(mask), params
+    )
     Pn = np.asarray(S @ S.T)
     np.testing.assert_allclose(np.asarray(xp), y[:3], atol=1e-9)
     np.testing.assert_allclose(Pn, Py[:3, :3], atol=1e-9)
@@ -165,14 +176,16 @@ def test_feature_time_update_is_the_joint_gaussian_of_the_moved_pose():
     rng = np.random.default_rng(5)
     x, P = np.array([0.0, 1.0, 0.5]), random_spd(rng, 3, 0.3)
     dt, u, mask = np.full(3, 0.025), np.array([[2.0, 0.2]] * 3), np.ones(3, bool)
-    _, S, T, D = _nasrukf.pose_time_update(jnp.asarray(x), jnp.asarray(chol(P)), jnp.asarray(dt), jnp.asarray(u),
-                                           jnp.asarray(mask), params)
+    _, S, T, D = _nasrukf.pose_time_update(
+        jnp.asarray(x), jnp.asarray(chol(P)), jnp.asarray(dt), jnp.asarray(u), jnp.asarray(mask), params
+    )
     Pn, cross = np.asarray(S @ S.T), np.asarray(T @ S @ S.T)  # Cov(x), Cov(x_start, x)
     A = rng.normal(size=(4, 2, 3))
     Cc = np.stack([random_spd(rng, 2, 0.5) for _ in range(4)])
     book = LandmarkMap.empty(4)._replace(active=jnp.ones(4, bool), hits=jnp.ones(4, jnp.int32))
-    feats = _nasrukf.NasrukfFeatures(mean=jnp.zeros((4, 2)), gain=jnp.asarray(A), sqrt=jnp.asarray(np.linalg.cholesky(Cc)),
-                                     landmarks=book)
+    feats = _nasrukf.NasrukfFeatures(
+        mean=jnp.zeros((4, 2)), gain=jnp.asarray(A), sqrt=jnp.asarray(np.linalg.cholesky(Cc)), landmarks=book
+    )
     out = _nasrukf.propagate_features(feats, T, D)
     g, s = np.asarray(out.gain), np.asarray(out.sqrt)
     for i in range(4):
@@ -268,10 +281,23 @@ def test_adaptive_noise_estimate_converges_to_the_true_noise():
     1.0 m and 3 deg (control noise at its true value, no clutter, wide gates so that the gate does
     not truncate the residuals). Measured after 60 s (910 residuals, b = 0.99): 0.295 m, 1.035 deg.
     Bounds: within 10 % of the truth."""
-    cfg = load_config(None, SIM + ["noise.adaptive=true", "noise.sigma_r=1.0", "noise.sigma_beta_deg=3.0",
-                                   "noise.sigma_v=0.1", "noise.sigma_alpha_deg=0.5", "filter.gate=20",
-                                   "filter.new_landmark=40", "sim.clutter_rate=0",
-                                   "sim.sigma_v=0.1", "sim.sigma_alpha_deg=0.5", "sim.steering_bias_deg=0"])
+    cfg = load_config(
+        None,
+        SIM
+        + [
+            "noise.adaptive=true",
+            "noise.sigma_r=1.0",
+            "noise.sigma_beta_deg=3.0",
+            "noise.sigma_v=0.1",
+            "noise.sigma_alpha_deg=0.5",
+            "filter.gate=20",
+            "filter.new_landmark=40",
+            "sim.clutter_rate=0",
+            "sim.sigma_v=0.1",
+            "sim.sigma_alpha_deg=0.5",
+            "sim.steering_bias_deg=0",
+        ],
+    )
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
     run = run_filter(static, params, log.segments, 0, chunk=CHUNK)
@@ -321,12 +347,24 @@ def test_sweep_over_nasrukf_hyperparameters_equals_single_runs(tmp_path):
     noise and arc features, where the three noise estimates ended too (the diameter's included)."""
     from nanoslam_jax.sweep import read_results, run_sweep, sweep_from_dict
 
-    base = {"data": {"kind": "simulated", "max_dr_per_segment": 2}, "sim": {"duration": 20},
-            "noise": {"sigma_v": 0.3, "sigma_alpha_deg": 1.5, "sigma_r": 0.5, "sigma_beta_deg": 2.0, "adaptive": True},
-            "filter": {"method": "nasrukf", "capacity": 96, "window": 24}, "nasrukf": {"feature": "arc"}}
-    spec = sweep_from_dict({"name": "nasrukf-sweep", "base": base, "seeds": 1, "plots": False,
-                            "grid": {"nasrukf.new_feature_hits": [1, 3], "filter.gate": [5.991, 9.0]},
-                            "run": {"batch": 4, "parallel": "single", "vectorize": "vmap"}}, source="test")
+    base = {
+        "data": {"kind": "simulated", "max_dr_per_segment": 2},
+        "sim": {"duration": 20},
+        "noise": {"sigma_v": 0.3, "sigma_alpha_deg": 1.5, "sigma_r": 0.5, "sigma_beta_deg": 2.0, "adaptive": True},
+        "filter": {"method": "nasrukf", "capacity": 96, "window": 24},
+        "nasrukf": {"feature": "arc"},
+    }
+    spec = sweep_from_dict(
+        {
+            "name": "nasrukf-sweep",
+            "base": base,
+            "seeds": 1,
+            "plots": False,
+            "grid": {"nasrukf.new_feature_hits": [1, 3], "filter.gate": [5.991, 9.0]},
+            "run": {"batch": 4, "parallel": "single", "vectorize": "vmap"},
+        },
+        source="test",
+    )
     run_sweep(spec, tmp_path / "sweep", progress=False)
     rows = read_results(tmp_path / "sweep" / "results.csv")
     assert len(rows) == 4 and all(r["status"] == "ok" for r in rows), rows
@@ -355,5 +393,12 @@ def test_victoria_park_first_300_s(vp_dir):
     Measured (deterministic): rmse_fixed 3.21 m, rmse_aligned 1.67 m, 94 confirmed features.
     Bounds: a band around those (rounding on another CPU may change an association): fixed
     2.5-4.0 m, aligned < 2.1 m, at least 25x below dead reckoning; 70-130 confirmed features."""
-    run_real_log_start("victoria_park_nasrukf.yaml", vp_dir, fixed=(2.5, 4.0), aligned=2.1, dr_factor=25.0,
-                       confirmed=(70, 130), what="NASRUKF, first 300 s")
+    run_real_log_start(
+        "victoria_park_nasrukf.yaml",
+        vp_dir,
+        fixed=(2.5, 4.0),
+        aligned=2.1,
+        dr_factor=25.0,
+        confirmed=(70, 130),
+        what="NASRUKF, first 300 s",
+    )

@@ -71,8 +71,9 @@ def test_path_runs_record_the_genealogy_without_changing_the_filter(sim_runs):
     assert all(np.array_equal(a, ident) for r, a in zip(np.asarray(o.resampled), np.asarray(o.ancestors)) if not r)
 
     path = reported_trajectory("path", o, run.state)
-    np.testing.assert_array_equal(path, carried_forward(np.asarray(o.poses), np.asarray(o.ancestors),
-                                                        int(run.state.best)))
+    np.testing.assert_array_equal(
+        path, carried_forward(np.asarray(o.poses), np.asarray(o.ancestors), int(run.state.best))
+    )
     # Systematic resampling keeps the best particle, so the path ends at the last best pose.
     np.testing.assert_array_equal(path[-1], np.asarray(o.best_pose)[-1])
     assert np.abs(path[:, :2] - np.asarray(o.best_pose)[:, :2]).max() > 1e-3
@@ -129,5 +130,6 @@ def test_sweep_member_follows_the_path_inside_its_program(sim_runs):
 
     log, static, params, alone, _ = sim_runs
     out = jax.jit(_batch._member, static_argnums=0)(static, params, 5, log.segments)
-    np.testing.assert_allclose(np.asarray(out.path_pose), reported_trajectory("path", alone.outputs, alone.state),
-                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(out.path_pose), reported_trajectory("path", alone.outputs, alone.state), rtol=0, atol=1e-9
+    )

@@ -19,24 +19,42 @@ ROOT = Path(__file__).resolve().parents[1]
 BEST = ROOT / "configs" / "victoria_park_best.yaml"
 #: A short simulated log and a small filter. FastSLAM 1.0: the proposal does not matter to the
 #: scoring, and it compiles fastest (each test compiles a run's and a sweep batch's program).
-SIM = ["data.kind=simulated", "sim.duration=20", "data.max_dr_per_segment=2", "filter.capacity=96", "filter.window=24",
-       "filter.n_particles=4", "filter.method=fastslam1", "output.progress=false", "output.plots=false",
-       "filter.row_buckets=never"]
+SIM = [
+    "data.kind=simulated",
+    "sim.duration=20",
+    "data.max_dr_per_segment=2",
+    "filter.capacity=96",
+    "filter.window=24",
+    "filter.n_particles=4",
+    "filter.method=fastslam1",
+    "output.progress=false",
+    "output.plots=false",
+    "filter.row_buckets=never",
+]
 
 # Five seeds by hand; seed 3 failed. Its error counts as +inf: sorted 1, 2, 3, 5, inf.
 TABLE = [
     {"seed": 0, "status": "ok", "reason": "", "rmse_fixed": 3.0, "n_landmarks": 10, "map_found_fraction": 0.9},
     {"seed": 1, "status": "ok", "reason": "", "rmse_fixed": 1.0, "n_landmarks": 12, "map_found_fraction": 0.8},
     {"seed": 2, "status": "ok", "reason": "", "rmse_fixed": 2.0, "n_landmarks": 14, "map_found_fraction": 0.7},
-    {"seed": 3, "status": "failed", "reason": "non-finite estimate from segment 7 (t = 1.50 s)", "rmse_fixed": "",
-     "n_landmarks": 99, "map_found_fraction": ""},
+    {
+        "seed": 3,
+        "status": "failed",
+        "reason": "non-finite estimate from segment 7 (t = 1.50 s)",
+        "rmse_fixed": "",
+        "n_landmarks": 99,
+        "map_found_fraction": "",
+    },
     {"seed": 4, "status": "ok", "reason": "", "rmse_fixed": 5.0, "n_landmarks": 16, "map_found_fraction": 0.6},
 ]
 
 
 def test_a_failed_seed_is_counted_named_and_the_worst():
-    s = summarize_runs(TABLE, ["rmse_fixed", "n_landmarks", "map_found_fraction"],
-                       stats=("median", "q1", "q3", "min", "max", "worst", "best"))
+    s = summarize_runs(
+        TABLE,
+        ["rmse_fixed", "n_landmarks", "map_found_fraction"],
+        stats=("median", "q1", "q3", "min", "max", "worst", "best"),
+    )
     assert (s["n_runs"], s["n_ok"], s["n_failed"], s["failed_seeds"]) == (5, 4, 1, "3")
     assert s["reasons"] == "non-finite estimate from segment 7 (t = 1.50 s)"
     # the error: over 1, 2, 3, 5, inf (positions 1 and 3 of 0..4), not over the four that finished
@@ -79,8 +97,9 @@ def test_compare_sweep_and_study_summarise_by_the_same_rule():
     res = MethodResult(MethodSpec("NANO", ("filter.method=nano",)), "nano", rows=[dict(r) for r in TABLE])
     c = summarise(res)
     point = ConfigPoint("c0000", {}, None)
-    csv_rows = [{"config_id": "c0000", "run_id": f"c0000-s{r['seed']}", **{k: str(v) for k, v in r.items()}}
-                for r in TABLE]
+    csv_rows = [
+        {"config_id": "c0000", "run_id": f"c0000-s{r['seed']}", **{k: str(v) for k, v in r.items()}} for r in TABLE
+    ]
     w = summarize(csv_rows, [point], {"c0000": "g0"}, ["rmse_fixed", "n_landmarks"])[0]
     st = summarize_points([{"method": "NANO", "particles": "4", **r} for r in csv_rows], ["rmse_fixed"])[0]
     assert c["rmse_fixed_median"] == w["rmse_fixed_median"] == st["rmse_fixed_median"] == 3.0
@@ -95,8 +114,17 @@ def test_compare_sweep_and_study_summarise_by_the_same_rule():
 def test_a_sweep_goal_max_counts_a_failure_as_minus_inf():
     from nanoslam_jax.sweep import ConfigPoint, summarize
 
-    rows = [{"config_id": "c0000", "run_id": f"c0000-s{r['seed']}", "seed": str(r["seed"]), "status": r["status"],
-             "reason": r["reason"], "ess_mean": str(r["n_landmarks"])} for r in TABLE]
+    rows = [
+        {
+            "config_id": "c0000",
+            "run_id": f"c0000-s{r['seed']}",
+            "seed": str(r["seed"]),
+            "status": r["status"],
+            "reason": r["reason"],
+            "ess_mean": str(r["n_landmarks"]),
+        }
+        for r in TABLE
+    ]
     w = summarize(rows, [ConfigPoint("c0000", {}, None)], {}, ["ess_mean"], {"ess_mean": "max"})[0]
     assert w["ess_mean_min"] == -math.inf and w["ess_mean_median"] == 12.0  # -inf, 10, 12, 14, 16
 
@@ -113,8 +141,18 @@ def test_smoother_settings_default_to_the_config():
 
 # --------------------------------------------------------------------------- the commands on a log
 
-KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error", "n_landmarks",
-        "n_confirmed", "map_found_fraction", "map_found_fraction_aligned", "map_spurious_fraction")
+KEYS = (
+    "rmse_fixed",
+    "rmse_aligned",
+    "rmse_fixed_clean",
+    "rmse_aligned_clean",
+    "final_error",
+    "n_landmarks",
+    "n_confirmed",
+    "map_found_fraction",
+    "map_found_fraction_aligned",
+    "map_spurious_fraction",
+)
 
 
 def _csv(path: Path) -> list[dict]:
@@ -128,9 +166,19 @@ def _compare(tmp_path: Path, base, overrides: list[str], seeds: int, chunk: int)
     from nanoslam_jax.compare import load_compare_spec, run_compare
 
     f = tmp_path / "cmp.yaml"
-    f.write_text(yaml.safe_dump({"name": "one", "base": None if base is None else str(base), "seeds": seeds,
-                                 "first_seed": 0, "set": overrides, "timing_chunk": chunk,
-                                 "methods": [{"label": "FastSLAM 1.0", "set": ["filter.method=fastslam1"]}]}))
+    f.write_text(
+        yaml.safe_dump(
+            {
+                "name": "one",
+                "base": None if base is None else str(base),
+                "seeds": seeds,
+                "first_seed": 0,
+                "set": overrides,
+                "timing_chunk": chunk,
+                "methods": [{"label": "FastSLAM 1.0", "set": ["filter.method=fastslam1"]}],
+            }
+        )
+    )
     run_compare(load_compare_spec(f), tmp_path / "cmp", plots=False, stream=io.StringIO())
     return _csv(tmp_path / "cmp" / "runs.csv")
 
@@ -139,8 +187,15 @@ def _sweep(tmp_path: Path, cfg, seeds: list[int]) -> list[dict]:
     from nanoslam_jax.config import config_to_dict
     from nanoslam_jax.sweep import run_sweep, sweep_from_dict
 
-    spec = sweep_from_dict({"name": "one", "base": config_to_dict(cfg), "seeds": seeds, "plots": False,
-                            "run": {"vectorize": "map", "parallel": "single", "compile_cache": False}})
+    spec = sweep_from_dict(
+        {
+            "name": "one",
+            "base": config_to_dict(cfg),
+            "seeds": seeds,
+            "plots": False,
+            "run": {"vectorize": "map", "parallel": "single", "compile_cache": False},
+        }
+    )
     run_sweep(spec, tmp_path / "sweep", progress=False)
     return sorted(_csv(tmp_path / "sweep" / "results.csv"), key=lambda r: int(r["seed"]))
 
@@ -163,14 +218,32 @@ def test_run_compare_sweep_and_study_give_the_same_score(tmp_path, monkeypatch):
     sweep_row = _sweep(tmp_path, cfg, [0])[0]
 
     study_file = tmp_path / "study.yaml"
-    study_file.write_text(yaml.safe_dump({
-        "name": "one", "base": None, "set": SIM, "first_seed": 0, "particles": {4: 1},
-        "run": {"vectorize": "map", "parallel": "single", "compile_cache": False},
-        "methods": [{"label": "FastSLAM 1.0", "set": ["filter.method=fastslam1"]}]}))
+    study_file.write_text(
+        yaml.safe_dump(
+            {
+                "name": "one",
+                "base": None,
+                "set": SIM,
+                "first_seed": 0,
+                "particles": {4: 1},
+                "run": {"vectorize": "map", "parallel": "single", "compile_cache": False},
+                "methods": [{"label": "FastSLAM 1.0", "set": ["filter.method=fastslam1"]}],
+            }
+        )
+    )
     # the study's timing process (a fresh interpreter) is not what this test is about
-    monkeypatch.setattr(study_runner, "_time_point", lambda spec, pt, *a: {
-        "point_id": pt.point_id, "method": pt.label, "particles": pt.particles, "seed": pt.seeds[0],
-        "status": "failed", "reason": "not timed in this test"})
+    monkeypatch.setattr(
+        study_runner,
+        "_time_point",
+        lambda spec, pt, *a: {
+            "point_id": pt.point_id,
+            "method": pt.label,
+            "particles": pt.particles,
+            "seed": pt.seeds[0],
+            "status": "failed",
+            "reason": "not timed in this test",
+        },
+    )
     res = run_study(load_study(study_file), tmp_path / "study", plots=False, progress=False)
     study_row = _csv(tmp_path / "study" / "runs.csv")[0]
 

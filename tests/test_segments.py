@@ -1,6 +1,5 @@
 """Tests of the segment builder against hand-computed layouts and the real log's counts."""
 
-
 import numpy as np
 import pytest
 
@@ -53,14 +52,17 @@ def test_tiny_log_split_into_extra_segments(tiny):
     """max_dr_per_segment=3: the 1.38 -> 2.3 gap (8 pieces) becomes segments ending at 1.6, 1.9, 2.3."""
     seg = make_segments(tiny, max_range=30.0, max_dr_per_segment=3)
     assert np.allclose(seg.time, [0.5, 1.15, 1.38, 1.6, 1.9, 2.3], rtol=0, atol=1e-12)
-    assert_pieces(seg, [
-        [],                                    # before t0: the pose stays at the origin
-        [(0, 0.1), (1, 0.05)],                 # 1.0 -> 1.15
-        [(1, 0.05), (2, 0.1), (3, 0.08)],      # 1.15 -> 1.38: exactly 3 pieces, no split
-        [(3, 0.02), (4, 0.1), (5, 0.1)],       # 1.38 -> 1.6 (extra)
-        [(6, 0.1), (7, 0.1), (8, 0.1)],        # 1.6 -> 1.9 (extra)
-        [(9, 0.1), (10, 0.3)],                 # 1.9 -> 2.3: the last sample holds past 2.0
-    ])
+    assert_pieces(
+        seg,
+        [
+            [],  # before t0: the pose stays at the origin
+            [(0, 0.1), (1, 0.05)],  # 1.0 -> 1.15
+            [(1, 0.05), (2, 0.1), (3, 0.08)],  # 1.15 -> 1.38: exactly 3 pieces, no split
+            [(3, 0.02), (4, 0.1), (5, 0.1)],  # 1.38 -> 1.6 (extra)
+            [(6, 0.1), (7, 0.1), (8, 0.1)],  # 1.6 -> 1.9 (extra)
+            [(9, 0.1), (10, 0.3)],  # 1.9 -> 2.3: the last sample holds past 2.0
+        ],
+    )
     assert seg.k_max == 2
     z = np.zeros((6, 2, 2))
     z[0, 0] = (10.0, 0.0)
@@ -81,12 +83,15 @@ def test_tiny_log_split_into_extra_segments(tiny):
 def test_tiny_log_without_split(tiny):
     seg = make_segments(tiny, max_range=30.0, max_dr_per_segment=12)
     assert np.allclose(seg.time, [0.5, 1.15, 1.38, 2.3], rtol=0, atol=1e-12)
-    assert_pieces(seg, [
-        [],
-        [(0, 0.1), (1, 0.05)],
-        [(1, 0.05), (2, 0.1), (3, 0.08)],
-        [(3, 0.02), (4, 0.1), (5, 0.1), (6, 0.1), (7, 0.1), (8, 0.1), (9, 0.1), (10, 0.3)],
-    ])
+    assert_pieces(
+        seg,
+        [
+            [],
+            [(0, 0.1), (1, 0.05)],
+            [(1, 0.05), (2, 0.1), (3, 0.08)],
+            [(3, 0.02), (4, 0.1), (5, 0.1), (6, 0.1), (7, 0.1), (8, 0.1), (9, 0.1), (10, 0.3)],
+        ],
+    )
     assert seg.dt.shape == (4, 12) and seg.u.shape == (4, 12, 2)
 
 
@@ -130,8 +135,15 @@ def test_scan_on_a_dr_sample_gives_no_zero_length_piece():
 
 def test_summary(tiny):
     summary = segment_summary(make_segments(tiny, max_range=30.0, max_dr_per_segment=3))
-    assert summary == dict(n_segments=6, n_detections=4, n_scans_with_detections=3,
-                           max_detections_per_scan=2, max_pieces=3, k_max=2, dr_per_segment=3)
+    assert summary == dict(
+        n_segments=6,
+        n_detections=4,
+        n_scans_with_detections=3,
+        max_detections_per_scan=2,
+        max_pieces=3,
+        k_max=2,
+        dr_per_segment=3,
+    )
 
 
 # --------------------------------------------------------------------------- the real log

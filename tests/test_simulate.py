@@ -18,8 +18,15 @@ from nanoslam_jax.config import SimConfig, VehicleConfig
 from nanoslam_jax.models import VehicleParams, range_bearing, vehicle_step
 from nanoslam_jax.simulate import PATH_CLEARANCE, TREE_SPACING, simulate, simulate_to_dir
 
-EXACT = dict(sigma_r=0.0, sigma_beta_deg=0.0, sigma_v=0.0, sigma_alpha_deg=0.0, steering_bias_deg=0.0,
-             p_detect=1.0, clutter_rate=0.0)
+EXACT = dict(
+    sigma_r=0.0,
+    sigma_beta_deg=0.0,
+    sigma_v=0.0,
+    sigma_alpha_deg=0.0,
+    steering_bias_deg=0.0,
+    p_detect=1.0,
+    clutter_rate=0.0,
+)
 
 
 def sim_cfg(**kw) -> SimConfig:
@@ -266,8 +273,14 @@ def test_write_and_load_round_trip(tmp_path):
     loader = pytest.importorskip("nanoslam_jax.data._loader")
     sim = sim_cfg(duration=30.0)
     raw = simulate_to_dir(tmp_path / "sim", sim)
-    for name in ("inputs.dat", "measurements.dat", "gps.dat", "truth_poses.dat", "truth_landmarks.dat",
-                 "truth_diameters.dat"):
+    for name in (
+        "inputs.dat",
+        "measurements.dat",
+        "gps.dat",
+        "truth_poses.dat",
+        "truth_landmarks.dat",
+        "truth_diameters.dat",
+    ):
         assert (tmp_path / "sim" / name).is_file(), name
     # the file convention: bearing + pi/2
     meas = np.loadtxt(tmp_path / "sim" / "measurements.dat")

@@ -33,9 +33,12 @@ CLEAN = dict(range_noise=0.0, dropout=0.0, spurious=0.0)
 @pytest.fixture(scope="module")
 def clean_logs():
     """A short noise-free log of each template."""
-    return {t: simulate_indoor(IndoorConfig(seed=i + 3, template=t, duration=12.0, sigma_v=0.0, sigma_omega_deg=0.0,
-                                            **CLEAN))
-            for i, t in enumerate(TEMPLATES)}
+    return {
+        t: simulate_indoor(
+            IndoorConfig(seed=i + 3, template=t, duration=12.0, sigma_v=0.0, sigma_omega_deg=0.0, **CLEAN)
+        )
+        for i, t in enumerate(TEMPLATES)
+    }
 
 
 def _cast(pose, angles, walls, pillars, max_range):
@@ -99,8 +102,16 @@ def test_truth_geometry_is_consistent(clean_logs, template):
         assert w.wall_line[a] != w.wall_line[b]
         for s in (w.walls[a], w.walls[b]):
             assert min(np.linalg.norm(s[:2] - p), np.linalg.norm(s[2:] - p)) < 1e-9
-        ua = w.walls[a, :2] - w.walls[a, 2:] if np.linalg.norm(w.walls[a, 2:] - p) < 1e-9 else w.walls[a, 2:] - w.walls[a, :2]
-        ub = w.walls[b, 2:] - w.walls[b, :2] if np.linalg.norm(w.walls[b, :2] - p) < 1e-9 else w.walls[b, :2] - w.walls[b, 2:]
+        ua = (
+            w.walls[a, :2] - w.walls[a, 2:]
+            if np.linalg.norm(w.walls[a, 2:] - p) < 1e-9
+            else w.walls[a, 2:] - w.walls[a, :2]
+        )
+        ub = (
+            w.walls[b, 2:] - w.walls[b, :2]
+            if np.linalg.norm(w.walls[b, :2] - p) < 1e-9
+            else w.walls[b, :2] - w.walls[b, 2:]
+        )
         between = math.degrees(math.acos(np.dot(ua, ub) / np.linalg.norm(ua) / np.linalg.norm(ub)))
         assert min(abs(ang - between), abs(ang - (360 - between))) < 1e-6
     # break points lie on their wall, at one of its ends; the two jambs of a door are door_width apart on one line
@@ -118,7 +129,10 @@ def test_truth_geometry_is_consistent(clean_logs, template):
     np.testing.assert_array_equal(w.wall_line[w.breakpoint_wall[0::2]], w.wall_line[w.breakpoint_wall[1::2]])
     # every wall end is a corner or a break point
     marks = np.concatenate([w.corners, w.breakpoints])
-    assert np.min(np.hypot(ends[:, None, 0] - marks[None, :, 0], ends[:, None, 1] - marks[None, :, 1]), axis=1).max() < 1e-9
+    assert (
+        np.min(np.hypot(ends[:, None, 0] - marks[None, :, 0], ends[:, None, 1] - marks[None, :, 1]), axis=1).max()
+        < 1e-9
+    )
     # line parameters: both ends on the line in either form; pieces of one wall share it
     rho, alpha = hessian_lines(w.walls)
     for x, y in (w.walls[:, :2].T, w.walls[:, 2:].T):
@@ -174,10 +188,15 @@ def test_odometry_integrates_to_the_truth_path(clean_logs):
     # the reference point (Ls ahead of the laser) lies on the desired path, at low speed
     track, _, _ = log.path.at(np.linspace(0.0, log.path.total, 200001))
     moved = log.pose[:, :2]
-    d = np.min(np.hypot(moved[::20, None, 0] - track[None, ::10, 0], moved[::20, None, 1] - track[None, ::10, 1]), axis=1)
+    d = np.min(
+        np.hypot(moved[::20, None, 0] - track[None, ::10, 0], moved[::20, None, 1] - track[None, ::10, 1]), axis=1
+    )
     assert d.max() < log.path.total / 20000  # the sampling of the track, not the vehicle, sets this bound
-    np.testing.assert_allclose(log.pose[:, :2] - log.sensor_pose[:, :2],
-                               cfg.sensor_ls * np.stack([np.cos(log.pose[:, 2]), np.sin(log.pose[:, 2])], 1), atol=1e-12)
+    np.testing.assert_allclose(
+        log.pose[:, :2] - log.sensor_pose[:, :2],
+        cfg.sensor_ls * np.stack([np.cos(log.pose[:, 2]), np.sin(log.pose[:, 2])], 1),
+        atol=1e-12,
+    )
     v, omega = log.controls.T
     # the Euler step's second-order term makes v exceed the reference point's speed by up to 0.2 %
     assert (v[log.time < cfg.static_time] == 0).all() and v.max() <= 1.002 * cfg.speed_max and v.min() >= 0
@@ -223,8 +242,9 @@ def test_front_end_recovers_the_truth_walls(clean_logs, template):
     log = clean_logs[template]
     scans, w = log.scans, log.world
     pick = np.arange(0, scans.n_scans, 30)
-    feats = extract_features(LaserScans(scans.time[pick], scans.ranges[pick], scans.angles, scans.max_range),
-                             DetectorConfig())
+    feats = extract_features(
+        LaserScans(scans.time[pick], scans.ranges[pick], scans.angles, scans.max_range), DetectorConfig()
+    )
     rho, alpha = hessian_lines(w.walls)
     ln = feats.lines
     pure = shared = seen_total = seen_found = 0
@@ -232,7 +252,7 @@ def test_front_end_recovers_the_truth_walls(clean_logs, template):
         lr, la = _sensor_line(rho, alpha, log.scan_pose[k])
         found = set()
         for q in np.flatnonzero(ln.scan == j):
-            hit = log.object_id[k, ln.first_beam[q]:ln.last_beam[q] + 1]
+            hit = log.object_id[k, ln.first_beam[q] : ln.last_beam[q] + 1]
             walls = np.unique(w.wall_line[hit[hit >= 0]])
             wall = np.bincount(hit[hit >= 0]).argmax()  # the wall most of its beams hit
             found.add(int(w.wall_line[wall]))
@@ -269,15 +289,32 @@ def test_front_end_recovers_the_truth_walls(clean_logs, template):
 
 def test_cli_writes_the_documented_files(tmp_path):
     out = tmp_path / "indoor"
-    assert main(["simulate", "--scenario", "indoor", "--out", str(out), "--seed", "4", "--set", "indoor.duration=3",
-                 "--set", "indoor.template=corridor"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--scenario",
+                "indoor",
+                "--out",
+                str(out),
+                "--seed",
+                "4",
+                "--set",
+                "indoor.duration=3",
+                "--set",
+                "indoor.template=corridor",
+            ]
+        )
+        == 0
+    )
     for name, cols in TRUTH_FILES.items():
         assert (out / name).read_text().splitlines()[0] == ",".join(cols)
     cfg = IndoorConfig(seed=4, duration=3.0, template="corridor")
     log = simulate_indoor(cfg)
     walls = np.genfromtxt(out / "truth_walls.csv", delimiter=",", names=True)
-    np.testing.assert_allclose(np.stack([walls["x0"], walls["y0"], walls["x1"], walls["y1"]], 1), log.world.walls,
-                               atol=1e-8)
+    np.testing.assert_allclose(
+        np.stack([walls["x0"], walls["y0"], walls["x1"], walls["y1"]], 1), log.world.walls, atol=1e-8
+    )
     corners = np.genfromtxt(out / "truth_corners.csv", delimiter=",", names=True)
     np.testing.assert_allclose(np.stack([corners["x"], corners["y"]], 1), log.world.corners, atol=1e-8)
     arcs = np.genfromtxt(out / "truth_arcs.csv", delimiter=",", names=True, ndmin=1)
@@ -310,23 +347,40 @@ def test_detect_runs_on_an_indoor_log(tmp_path, capsys):
     assert "line" in text and "corner" in text
 
 
-@pytest.mark.parametrize("override, key", [
-    ("indoor.bogus=1", "indoor.bogus"),
-    ("indoor.speed_max=-0.3", "indoor.speed_max"),
-    ("indoor.template=cave", "indoor.template"),
-    ("indoor.slip_fraction=1.5", "indoor.slip_fraction"),
-    ("indoor.laser_beams=2.5", "indoor.laser_beams"),
-    ("indoor.speed_min=0.6", "indoor.speed_min"),
-    ("indoor.pillar_radius_min=0.5", "indoor.pillar_radius_min"),
-])
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("indoor.bogus=1", "indoor.bogus"),
+        ("indoor.speed_max=-0.3", "indoor.speed_max"),
+        ("indoor.template=cave", "indoor.template"),
+        ("indoor.slip_fraction=1.5", "indoor.slip_fraction"),
+        ("indoor.laser_beams=2.5", "indoor.laser_beams"),
+        ("indoor.speed_min=0.6", "indoor.speed_min"),
+        ("indoor.pillar_radius_min=0.5", "indoor.pillar_radius_min"),
+    ],
+)
 def test_bad_keys_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         load_config(None, [override])
 
 
 def test_world_that_cannot_hold_the_doors_names_the_key(tmp_path, capsys):
-    assert main(["simulate", "--scenario", "indoor", "--out", str(tmp_path), "--set", "indoor.doors=40",
-                 "--set", "indoor.duration=1"]) == 2
+    assert (
+        main(
+            [
+                "simulate",
+                "--scenario",
+                "indoor",
+                "--out",
+                str(tmp_path),
+                "--set",
+                "indoor.doors=40",
+                "--set",
+                "indoor.duration=1",
+            ]
+        )
+        == 2
+    )
     assert "indoor.doors" in capsys.readouterr().err
 
 

@@ -28,16 +28,16 @@ def test_structured_solve_equals_a_dense_solve():
     for t in range(T):  # odometry factor t ties pose t-1 (if any) and pose t
         for _ in range(3):
             r = np.zeros(n)
-            r[3 * t:3 * t + 3] = rng.normal(size=3)
+            r[3 * t : 3 * t + 3] = rng.normal(size=3)
             if t:
-                r[3 * t - 3:3 * t] = rng.normal(size=3)
+                r[3 * t - 3 : 3 * t] = rng.normal(size=3)
             rows.append(r)
     for _ in range(4 * T):  # detections: one pose, one landmark
         t, j = rng.integers(T), rng.integers(M)
         for _ in range(2):
             r = np.zeros(n)
-            r[3 * t:3 * t + 3] = rng.normal(size=3)
-            r[nP + 2 * j:nP + 2 * j + 2] = rng.normal(size=2)
+            r[3 * t : 3 * t + 3] = rng.normal(size=3)
+            r[nP + 2 * j : nP + 2 * j + 2] = rng.normal(size=2)
             rows.append(r)
     J = np.array(rows)
     H = J.T @ J
@@ -87,7 +87,8 @@ def test_association_along_the_path_finds_each_detections_tree():
     for t, j in zip(ts, js):
         dx, dy = p["trees"][j] - p["truth"][t, :2]
         d2 = ((p["z"][t, j, 0] - np.hypot(dx, dy)) / p["sr"]) ** 2 + (
-            _wrap(p["z"][t, j, 1] - np.arctan2(dy, dx) + p["truth"][t, 2]) / p["sb"]) ** 2
+            _wrap(p["z"][t, j, 1] - np.arctan2(dy, dx) + p["truth"][t, 2]) / p["sb"]
+        ) ** 2
         assert d2 >= 13.8
 
 
@@ -106,7 +107,7 @@ def test_least_squares_optimum_equals_scipys():
     ts, js = np.nonzero(p["mask"])
 
     def residuals(v):
-        P, L = v[:3 * T].reshape(T, 3), v[3 * T:].reshape(M, 2)
+        P, L = v[: 3 * T].reshape(T, 3), v[3 * T :].reshape(M, 2)
         a = np.r_[[np.zeros(3)], P[:-1]]
         c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
         d = P - a
@@ -116,10 +117,11 @@ def test_least_squares_optimum_equals_scipys():
         det = np.c_[p["z"][ts, js, 0] - np.hypot(dx, dy), _wrap(p["z"][ts, js, 1] - np.arctan2(dy, dx) + P[ts, 2])]
         return np.r_[(odo * w).ravel(), (det / [p["sr"], p["sb"]]).ravel()]
 
-    ref = scipy.optimize.least_squares(residuals, np.r_[p["start"].ravel(), p["lm0"].ravel()], xtol=1e-14, ftol=1e-14,
-                                       gtol=1e-14)
-    np.testing.assert_allclose(got.poses, ref.x[:3 * T].reshape(T, 3), atol=1e-6)
-    np.testing.assert_allclose(got.landmarks, ref.x[3 * T:].reshape(M, 2), atol=1e-6)
+    ref = scipy.optimize.least_squares(
+        residuals, np.r_[p["start"].ravel(), p["lm0"].ravel()], xtol=1e-14, ftol=1e-14, gtol=1e-14
+    )
+    np.testing.assert_allclose(got.poses, ref.x[: 3 * T].reshape(T, 3), atol=1e-6)
+    np.testing.assert_allclose(got.landmarks, ref.x[3 * T :].reshape(M, 2), atol=1e-6)
     assert got.cost == pytest.approx(ref.cost, rel=1e-8)
     # and it is closer to the truth than where it started
     assert np.abs(got.poses[:, :2] - p["truth"][:, :2]).max() < np.abs(p["start"][:, :2] - p["truth"][:, :2]).max()
@@ -134,8 +136,21 @@ def test_huber_bounds_a_wrong_detection():
     kw = dict(odometry_scale=1.0, floor_xy=0.0, floor_phi=0.0, max_iter=100, tol=1e-10)
 
     def shift(huber):
-        runs = [smooth_path(p["truth"], p["trees"], z, p["mask"], p["motion"], p["cov"], p["sr"], p["sb"], 1e6,
-                            SmootherSettings(huber=huber, **kw)) for z in (p["z"], bad)]
+        runs = [
+            smooth_path(
+                p["truth"],
+                p["trees"],
+                z,
+                p["mask"],
+                p["motion"],
+                p["cov"],
+                p["sr"],
+                p["sb"],
+                1e6,
+                SmootherSettings(huber=huber, **kw),
+            )
+            for z in (p["z"], bad)
+        ]
         assert all(r.converged for r in runs)
         return np.abs(runs[1].poses[:, :2] - runs[0].poses[:, :2]).max()
 
@@ -145,8 +160,16 @@ def test_huber_bounds_a_wrong_detection():
 def test_loop_closure_settings_from_the_config():
     from nanoslam_jax.smoother import LoopClosureSettings
 
-    cfg = load_config(None, ["filter.estimate=path", "smoother.enabled=true", "smoother.loop_closure_window=70",
-                             "smoother.loop_closure_max_turn_deg=10", "smoother.loop_closure_min_inliers=8"])
+    cfg = load_config(
+        None,
+        [
+            "filter.estimate=path",
+            "smoother.enabled=true",
+            "smoother.loop_closure_window=70",
+            "smoother.loop_closure_max_turn_deg=10",
+            "smoother.loop_closure_min_inliers=8",
+        ],
+    )
     lc = SmootherSettings.from_config(cfg.smoother).loop_closure
     assert isinstance(lc, LoopClosureSettings)
     assert (lc.window, lc.min_inliers) == (70.0, 8) and lc.max_turn == pytest.approx(np.deg2rad(10))
@@ -165,8 +188,13 @@ def test_smoother_needs_the_path_estimate():
 def test_sweeps_take_a_smoothed_base_but_not_the_smoothers_keys():
     from nanoslam_jax.sweep import sweep_from_dict
 
-    spec = sweep_from_dict({"base": {"filter": {"estimate": "path"}, "smoother": {"enabled": True}}, "seeds": 1,
-                            "grid": {"filter.gate": [5.991]}})
+    spec = sweep_from_dict(
+        {
+            "base": {"filter": {"estimate": "path"}, "smoother": {"enabled": True}},
+            "seeds": 1,
+            "grid": {"filter.gate": [5.991]},
+        }
+    )
     assert spec.base["smoother"]["enabled"]
     with pytest.raises(ConfigError, match="smoother.floor_xy.*cannot be swept.*experiments/smoother_tuning.py"):
         sweep_from_dict({"seeds": 1, "shapes": {"smoother.floor_xy": [0.1, 0.2]}})
@@ -180,8 +208,22 @@ def test_run_with_the_smoother_on_a_simulated_log(tmp_path):
     from nanoslam_jax.cli import main
 
     out = tmp_path / "run"
-    main(["run", "--out", str(out), "--quiet", "--set", "sim.duration=120", "--set", "filter.estimate=path",
-          "--set", "smoother.enabled=true", "--set", "output.plots=false"])
+    main(
+        [
+            "run",
+            "--out",
+            str(out),
+            "--quiet",
+            "--set",
+            "sim.duration=120",
+            "--set",
+            "filter.estimate=path",
+            "--set",
+            "smoother.enabled=true",
+            "--set",
+            "output.plots=false",
+        ]
+    )
     m = json.loads((out / "metrics.json").read_text())
     assert m["smoother_converged"] and m["smoother_iterations"] >= 1
     assert m["smoother_associated"] > 0.8 * m["smoother_detections"]
@@ -196,9 +238,26 @@ def test_a_smoother_that_does_not_converge_is_warned_about(tmp_path, capsys):
     from nanoslam_jax.cli import main
 
     out = tmp_path / "run"
-    main(["run", "--out", str(out), "--quiet", "--set", "sim.duration=30", "--set", "filter.estimate=path",
-          "--set", "smoother.enabled=true", "--set", "smoother.max_iter=1", "--set", "smoother.tol=1e-12",
-          "--set", "output.plots=false"])
+    main(
+        [
+            "run",
+            "--out",
+            str(out),
+            "--quiet",
+            "--set",
+            "sim.duration=30",
+            "--set",
+            "filter.estimate=path",
+            "--set",
+            "smoother.enabled=true",
+            "--set",
+            "smoother.max_iter=1",
+            "--set",
+            "smoother.tol=1e-12",
+            "--set",
+            "output.plots=false",
+        ]
+    )
     m = json.loads((out / "metrics.json").read_text())
     assert not m["smoother_converged"] and m["smoother_iterations"] == 1
     assert any("smoother: stopped after 1 iterations" in w for w in m["warnings"])
@@ -242,14 +301,38 @@ def _mapped_twice(drift=(8.0, -5.0, np.deg2rad(6.0)), duplicate=True, seed=1):
         path[lap:, 2] = _wrap(truth[lap:, 2] + drift[2])
         copies = trees[mask[lap:].any(0)] @ R.T + drift[:2]
         lm = np.r_[lm, copies + rng.normal(size=copies.shape) * 0.1]
-    return dict(truth=truth, trees=trees, path=path, lm=lm, z=z, mask=mask, motion=motion, cov=cov, sr=sr, sb=sb,
-                time=np.arange(T, dtype=float), copies=len(lm) - seen1.sum())
+    return dict(
+        truth=truth,
+        trees=trees,
+        path=path,
+        lm=lm,
+        z=z,
+        mask=mask,
+        motion=motion,
+        cov=cov,
+        sr=sr,
+        sb=sb,
+        time=np.arange(T, dtype=float),
+        copies=len(lm) - seen1.sum(),
+    )
 
 
 def _smooth(q, lm=None, held=None, **kw):
     """:func:`smooth_path` over one of the logs above (``lm``: another map; ``kw``: settings)."""
-    return smooth_path(q["path"], q["lm"] if lm is None else lm, q["z"], q["mask"], q["motion"], q["cov"], q["sr"],
-                       q["sb"], 13.8, SmootherSettings(**{"loop_closure": None, **kw}), q["time"], held)
+    return smooth_path(
+        q["path"],
+        q["lm"] if lm is None else lm,
+        q["z"],
+        q["mask"],
+        q["motion"],
+        q["cov"],
+        q["sr"],
+        q["sb"],
+        13.8,
+        SmootherSettings(**{"loop_closure": None, **kw}),
+        q["time"],
+        held,
+    )
 
 
 def _rmse(s, truth):
@@ -310,12 +393,12 @@ def test_held_landmarks_are_the_trees_the_final_map_lost():
 
     mean = np.zeros((3, 4, 2))
     held = np.zeros((3, 4), bool)
-    mean[0, :3] = [[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]   # three trees at the first chunk
+    mean[0, :3] = [[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]]  # three trees at the first chunk
     held[0, :3] = True
-    mean[1, :2] = [[0.3, 0.0], [10.5, 0.0]]                  # the first two moved a little, the third lost
-    mean[1, 3] = [20.4, 0.0]                                  # ... and mapped again in another slot
+    mean[1, :2] = [[0.3, 0.0], [10.5, 0.0]]  # the first two moved a little, the third lost
+    mean[1, 3] = [20.4, 0.0]  # ... and mapped again in another slot
     held[1] = [True, True, False, True]
-    mean[2, 0] = [0.2, 0.0]                                   # the end: only the first is left
+    mean[2, 0] = [0.2, 0.0]  # the end: only the first is left
     held[2, 0] = True
     final = mean[2][held[2]]
     got = held_landmarks(MapHistory(mean, held), final, radius=1.0)
@@ -338,8 +421,11 @@ def _drifting_away(drift, onset=300, seed=1):
     f = np.clip((np.arange(T) - onset) / (T - 1 - onset), 0, 1)
     th = f * drift[2]
     c, s = np.cos(th), np.sin(th)
-    path = np.c_[c * truth[:, 0] - s * truth[:, 1] + f * drift[0], s * truth[:, 0] + c * truth[:, 1] + f * drift[1],
-                 _wrap(truth[:, 2] + th)]
+    path = np.c_[
+        c * truth[:, 0] - s * truth[:, 1] + f * drift[0],
+        s * truth[:, 0] + c * truth[:, 1] + f * drift[1],
+        _wrap(truth[:, 2] + th),
+    ]
     far = np.nonzero(np.hypot(*(path[:, :2] - truth[:, :2]).T) > 2.0)[0]
     copies = []
     for j in np.nonzero(once["mask"][far].any(0))[0]:

@@ -27,8 +27,9 @@ qr_factor = jax.jit(_srukf.qr_factor)
 def sr_update(x, P, h, z, R, z_angles=()):
     L = np.linalg.cholesky(P)
     pred = _srukf.predict_measurement(jnp.asarray(x), jnp.asarray(L), h, RULE, z_angles)
-    xn, Ln, _, Sz = _srukf.measurement_update(jnp.asarray(x), jnp.asarray(L), pred, jnp.asarray(z),
-                                              jnp.asarray(np.linalg.cholesky(R)), (), z_angles)
+    xn, Ln, _, Sz = _srukf.measurement_update(
+        jnp.asarray(x), jnp.asarray(L), pred, jnp.asarray(z), jnp.asarray(np.linalg.cholesky(R)), (), z_angles
+    )
     return np.asarray(xn), np.asarray(Ln), np.asarray(Sz)
 
 
@@ -92,8 +93,14 @@ def test_qr_factor_rejects_too_few_columns():
 
 def f_nonlinear(x, w):
     """A strongly nonlinear 4-D map with 2-D non-additive noise (component 2 an angle)."""
-    return jnp.stack([x[0] + jnp.cos(x[2] + w[1]) * (1.0 + x[3] + w[0]), x[1] + jnp.sin(x[2]) * x[3] ** 2,
-                      x[2] + 0.3 * jnp.sin(x[0]) + w[1], x[3] * jnp.exp(-0.2 * x[1]) + 0.5 * w[0] * w[1]])
+    return jnp.stack(
+        [
+            x[0] + jnp.cos(x[2] + w[1]) * (1.0 + x[3] + w[0]),
+            x[1] + jnp.sin(x[2]) * x[3] ** 2,
+            x[2] + 0.3 * jnp.sin(x[0]) + w[1],
+            x[3] * jnp.exp(-0.2 * x[1]) + 0.5 * w[0] * w[1],
+        ]
+    )
 
 
 def h_nonlinear(x):
@@ -111,7 +118,8 @@ def test_srukf_transform_equals_the_standard_ukf(seed):
     Q = random_spd(rng, 2, 0.3)
     mean_ref, cov_ref = dense_transform(x, P, f_nonlinear, Q, angles=(2,))
     mean, L = jax.jit(_srukf.srukf_transform, static_argnums=(2, 5))(
-        jnp.asarray(x), jnp.asarray(np.linalg.cholesky(P)), f_nonlinear, jnp.asarray(np.linalg.cholesky(Q)), RULE, (2,))
+        jnp.asarray(x), jnp.asarray(np.linalg.cholesky(P)), f_nonlinear, jnp.asarray(np.linalg.cholesky(Q)), RULE, (2,)
+    )
     np.testing.assert_allclose(np.asarray(mean), mean_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(np.asarray(L) @ np.asarray(L).T, cov_ref, rtol=0, atol=1e-9)
 
@@ -146,9 +154,13 @@ def test_linear_model_square_root_ukf_equals_kalman_filter():
     K = Pp_ref @ H.T @ np.linalg.inv(S)
     xu_ref, Pu_ref = xp_ref + K @ (z - H @ xp_ref), Pp_ref - K @ S @ K.T
 
-    xp, Lp = _srukf.srukf_transform(jnp.asarray(x), jnp.asarray(np.linalg.cholesky(P)),
-                                    lambda a, w: jnp.asarray(F) @ a + jnp.asarray(G) @ w,
-                                    jnp.asarray(np.linalg.cholesky(Q)), RULE)
+    xp, Lp = _srukf.srukf_transform(
+        jnp.asarray(x),
+        jnp.asarray(np.linalg.cholesky(P)),
+        lambda a, w: jnp.asarray(F) @ a + jnp.asarray(G) @ w,
+        jnp.asarray(np.linalg.cholesky(Q)),
+        RULE,
+    )
     np.testing.assert_allclose(np.asarray(xp), xp_ref, atol=1e-10)
     np.testing.assert_allclose(np.asarray(Lp @ Lp.T), Pp_ref, atol=1e-10)
     xu_d, Pu_d = dense_update(np.asarray(xp), np.asarray(Lp @ Lp.T), lambda a: jnp.asarray(H) @ a, z, R)
@@ -177,7 +189,8 @@ def test_noise_estimate_is_the_exponentially_weighted_mean():
     nu, pred = rng.normal(size=(k0, 2)) * [0.7, 0.05], np.abs(rng.normal(size=(k0, 2))) * [0.1, 1e-4]
     use = rng.random(k0) < 0.7
     rows, last, count = jax.jit(_srukf.adaptive_noise_rows)(
-        jnp.array([5.0, 1.0]), jnp.asarray(0), jnp.asarray(nu), jnp.asarray(pred), jnp.asarray(use), b, jnp.zeros(2))
+        jnp.array([5.0, 1.0]), jnp.asarray(0), jnp.asarray(nu), jnp.asarray(pred), jnp.asarray(use), b, jnp.zeros(2)
+    )
     samples = (nu**2 - pred)[use]
     w = b ** np.arange(len(samples))[::-1]
     ref = w @ samples / w.sum()
@@ -203,12 +216,14 @@ def test_noise_estimate_equals_the_papers_cholupdates_diagonal():
         Rss = (1 - d) * R + d * np.outer(np.abs(nu), np.abs(nu))
         Rs = Rss - d * (wc[:, None] * dz).T @ dz
         assert np.all(np.linalg.eigvalsh(Rs) > 0)  # the paper's downdates succeed here
-        out = _srukf.adaptive_noise_update(jnp.diag(jnp.asarray(R)), k, jnp.asarray(nu), jnp.asarray(wc @ dz**2), 0.97,
-                                           jnp.zeros(2))
+        out = _srukf.adaptive_noise_update(
+            jnp.diag(jnp.asarray(R)), k, jnp.asarray(nu), jnp.asarray(wc @ dz**2), 0.97, jnp.zeros(2)
+        )
         np.testing.assert_allclose(np.asarray(out), np.diag(Rs), rtol=1e-12)
 
 
 def test_noise_estimate_floor():
-    out = _srukf.adaptive_noise_update(jnp.array([1.0, 1.0]), 0, jnp.array([0.1, 0.1]), jnp.array([0.5, 0.0]), 0.9,
-                                       jnp.array([0.05, 0.001]))
+    out = _srukf.adaptive_noise_update(
+        jnp.array([1.0, 1.0]), 0, jnp.array([0.1, 0.1]), jnp.array([0.5, 0.0]), 0.9, jnp.array([0.05, 0.001])
+    )
     np.testing.assert_allclose(np.asarray(out), [0.05, 0.01])  # d_0 = 1: 0.1^2 - 0.5 floored, 0.1^2

@@ -27,8 +27,7 @@ from nanoslam_jax.filter import particle_devices
 from nanoslam_jax.config import ConfigError
 from nanoslam_jax.gps_floor import estimate_gps_floor
 from nanoslam_jax.metrics import rotation_matrix
-from nanoslam_jax.study import (
-    equal_time, expand_study, load_study, paired_comparison, summarize_points, summary_stats)
+from nanoslam_jax.study import equal_time, expand_study, load_study, paired_comparison, summarize_points, summary_stats
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "configs" / "accuracy_vs_compute.yaml"
@@ -82,44 +81,64 @@ def test_quick_variant_seeds_and_methods_overrides(tmp_path):
     particle_methods = [m for m in q["methods"] if m not in ("EKF-SLAM", "NASRUKF")]
     assert len(pts) == len(particle_methods) * len(q["particles"]) + 2
     assert {(p.label, p.particles): len(p.seeds) for p in pts if p.particles} == {
-        (m, n): s for m in particle_methods for n, s in q["particles"].items()}
+        (m, n): s for m in particle_methods for n, s in q["particles"].items()
+    }
     assert quick.segments == q["segments"] and quick.timing.repeats == q["timing"]["repeats"]
     assert quick.name.endswith("-quick")
 
     two = load_study(STUDY, quick=True, seeds=2, only=["NANO-SLAM", "EKF-SLAM"])
     f = yaml.safe_load(STUDY.read_text())["first_seed"]
     assert [(p.label, p.particles, p.seeds) for p in expand_study(two)] == [
-        ("EKF-SLAM", None, (f,)), ("NANO-SLAM", 10, (f, f + 1)), ("NANO-SLAM", 100, (f, f + 1))]
+        ("EKF-SLAM", None, (f,)),
+        ("NANO-SLAM", 10, (f, f + 1)),
+        ("NANO-SLAM", 100, (f, f + 1)),
+    ]
     # --methods narrows what runs, not the study: the comparison stays (it pairs whatever points
     # the directory holds, e.g. after a --resume with the other methods)
     assert two.paired.reference == "NANO-SLAM" and set(two.paired.against) == {"UFastSLAM", "FastSLAM 2.0"}
     assert load_study(STUDY, quick=True, only=["NANO-SLAM"], counts=[10]).paired == two.paired
 
-    own = _write(tmp_path / "own.yaml", {
-        "base": str(ROOT / "configs" / "victoria_park_nano.yaml"), "first_seed": 5, "particles": {10: 3, 20: 2},
-        "methods": [{"label": "A", "set": ["filter.method=fastslam1"], "particles": {40: 1}},
-                    {"label": "B", "set": ["filter.method=nano"]}]})
+    own = _write(
+        tmp_path / "own.yaml",
+        {
+            "base": str(ROOT / "configs" / "victoria_park_nano.yaml"),
+            "first_seed": 5,
+            "particles": {10: 3, 20: 2},
+            "methods": [
+                {"label": "A", "set": ["filter.method=fastslam1"], "particles": {40: 1}},
+                {"label": "B", "set": ["filter.method=nano"]},
+            ],
+        },
+    )
     assert [(p.point_id, p.seeds) for p in expand_study(load_study(own))] == [
-        ("B_N0010", (5, 6, 7)), ("B_N0020", (5, 6)), ("A_N0040", (5,))]
+        ("B_N0010", (5, 6, 7)),
+        ("B_N0020", (5, 6)),
+        ("A_N0040", (5,)),
+    ]
     # --particles keeps only those counts (a method's own counts too), with the same point ids
     assert [(p.point_id, p.seeds) for p in expand_study(load_study(own, counts=[20, 40]))] == [
-        ("B_N0020", (5, 6)), ("A_N0040", (5,))]
+        ("B_N0020", (5, 6)),
+        ("A_N0040", (5,)),
+    ]
     assert [p.point_id for p in expand_study(load_study(own, counts=[10]))] == ["B_N0010"]
     for bad in ([7], [], [10, 30]):
         with pytest.raises(ConfigError, match=r"--particles: expected particle counts of the study \[10, 20, 40\]"):
             load_study(own, counts=bad)
 
 
-@pytest.mark.parametrize("change, fragment", [
-    ({"particles": {10: 0}}, "particles.10"),
-    ({"particles": [10, 100]}, "'particles'"),
-    ({"bogus": 1}, "bogus"),
-    ({"paired": {"reference": "NANO", "against": ["UFastSLAM"]}}, "paired.reference"),
-    ({"timing": {"repeats": 0}}, "timing.repeats"),
-    ({"run": {"batch": "many"}}, "run.batch"),
-    ({"methods": [{"label": "X", "set": ["filter.method=dead_reckoning"]}]}, "dead_reckoning"),
-    ({"methods": [{"label": "X", "set": ["filter.n_particle=3"]}]}, "filter.n_particle"),
-])
+@pytest.mark.parametrize(
+    "change, fragment",
+    [
+        ({"particles": {10: 0}}, "particles.10"),
+        ({"particles": [10, 100]}, "'particles'"),
+        ({"bogus": 1}, "bogus"),
+        ({"paired": {"reference": "NANO", "against": ["UFastSLAM"]}}, "paired.reference"),
+        ({"timing": {"repeats": 0}}, "timing.repeats"),
+        ({"run": {"batch": "many"}}, "run.batch"),
+        ({"methods": [{"label": "X", "set": ["filter.method=dead_reckoning"]}]}, "dead_reckoning"),
+        ({"methods": [{"label": "X", "set": ["filter.n_particle=3"]}]}, "filter.n_particle"),
+    ],
+)
 def test_invalid_study_files_name_the_file_and_key(tmp_path, change, fragment):
     raw = yaml.safe_load(STUDY.read_text())
     raw["base"] = str(ROOT / "configs" / "victoria_park_nano.yaml")
@@ -137,8 +156,11 @@ def test_a_method_not_registered_is_named(tmp_path, monkeypatch):
     import nanoslam_jax.methods as methods
 
     monkeypatch.delitem(methods._REGISTRY, "nano")
-    raw = {"base": str(ROOT / "configs" / "victoria_park_fastslam1.yaml"), "particles": {10: 2},
-           "methods": [{"label": "New", "set": ["filter.method=nano"]}]}
+    raw = {
+        "base": str(ROOT / "configs" / "victoria_park_fastslam1.yaml"),
+        "particles": {10: 2},
+        "methods": [{"label": "New", "set": ["filter.method=nano"]}],
+    }
     with pytest.raises(ConfigError, match="'New'.*filter.method.*'nano' is not a registered method"):
         load_study(_write(tmp_path / "new.yaml", raw))
 
@@ -161,21 +183,41 @@ def test_quick_and_methods_errors(tmp_path, capsys):
 
 
 def _row(method, particles, seed, fixed, aligned=None, status="ok"):
-    return {"method": method, "particles": particles, "seed": seed, "status": status, "rmse_fixed": fixed,
-            "rmse_aligned": fixed if aligned is None else aligned, "n_landmarks": 100 + seed}
+    return {
+        "method": method,
+        "particles": particles,
+        "seed": seed,
+        "status": status,
+        "rmse_fixed": fixed,
+        "rmse_aligned": fixed if aligned is None else aligned,
+        "n_landmarks": 100 + seed,
+    }
 
 
 def test_summary_medians_quartiles_and_worst_seed_by_hand():
     rows = [_row("A", 10, s, v) for s, v in enumerate([4.0, 1.0, 3.0, 2.0, 10.0])]
     rows += [_row("A", 100, 0, 2.0), _row("A", 100, 1, 1.0), _row("A", 100, 2, 9.0, status="failed")]
     rows += [_row("E", None, 0, 3.5)]
-    s = {(r["method"], r["particles"]): r for r in summarize_points(rows, ["rmse_fixed"], {("A", 10): {"seconds_per_log": 2.5}})}
+    s = {
+        (r["method"], r["particles"]): r
+        for r in summarize_points(rows, ["rmse_fixed"], {("A", 10): {"seconds_per_log": 2.5}})
+    }
     a = s[("A", 10)]  # sorted 1 2 3 4 10: median 3, q1 2, q3 4 (linear), worst 10
-    assert (a["rmse_fixed_median"], a["rmse_fixed_q1"], a["rmse_fixed_q3"], a["rmse_fixed_worst"], a["rmse_fixed_best"]) == (
-        3.0, 2.0, 4.0, 10.0, 1.0)
+    assert (
+        a["rmse_fixed_median"],
+        a["rmse_fixed_q1"],
+        a["rmse_fixed_q3"],
+        a["rmse_fixed_worst"],
+        a["rmse_fixed_best"],
+    ) == (3.0, 2.0, 4.0, 10.0, 1.0)
     assert a["seeds"] == 5 and a["n_ok"] == 5 and a["seconds_per_log"] == 2.5 and a["n_landmarks_median"] == 102
     b = s[("A", 100)]  # 1, 2, inf: median 2, q1 1.5, q3 between 2 and inf -> inf, worst inf
-    assert (b["rmse_fixed_median"], b["rmse_fixed_q1"], b["rmse_fixed_q3"], b["rmse_fixed_worst"]) == (2.0, 1.5, math.inf, math.inf)
+    assert (b["rmse_fixed_median"], b["rmse_fixed_q1"], b["rmse_fixed_q3"], b["rmse_fixed_worst"]) == (
+        2.0,
+        1.5,
+        math.inf,
+        math.inf,
+    )
     assert b["n_failed"] == 1 and b["n_landmarks_median"] == 100.5
     assert s[("E", None)]["rmse_fixed_median"] == 3.5 and "seconds_per_log" not in s[("E", None)]
     # values read back from a CSV (strings) give the same statistics
@@ -198,18 +240,28 @@ def test_paired_comparison_by_hand():
     assert r["median_ref"] == 5.0 and r["median_other"] == 5.0 and r["ratio"] == 1.0
 
     # a failed run loses to a finished one; two failed runs tie; differences only where both finished
-    rows = [_row("N", 10, 0, 1.0), _row("N", 10, 1, 5.0, status="failed"), _row("N", 10, 2, 3.0, status="failed"),
-            _row("U", 10, 0, 2.0), _row("U", 10, 1, 4.0), _row("U", 10, 2, 1.0, status="failed")]
+    rows = [
+        _row("N", 10, 0, 1.0),
+        _row("N", 10, 1, 5.0, status="failed"),
+        _row("N", 10, 2, 3.0, status="failed"),
+        _row("U", 10, 0, 2.0),
+        _row("U", 10, 1, 4.0),
+        _row("U", 10, 2, 1.0, status="failed"),
+    ]
     r = paired_comparison(rows, "N", "U", 10, "rmse_fixed")
     assert (r["wins"], r["losses"], r["ties"], r["n_diff"], r["median_diff"]) == (1, 1, 1, 1, -1.0)
     assert math.isnan(r["diff_low"]) and r["sign_p"] == 1.0
 
 
 def test_equal_time_interpolates_in_log_seconds_by_hand():
-    summary = [{"method": "U", "particles": n, "rmse_fixed_median": m, "seconds_per_log": t}
-               for n, m, t in [(10, 8.0, 1.0), (100, 6.0, 10.0), (1000, 4.0, 100.0)]]
-    summary += [{"method": "N", "particles": 10, "rmse_fixed_median": 5.0, "seconds_per_log": math.sqrt(10.0)},
-                {"method": "N", "particles": 1000, "rmse_fixed_median": 3.0, "seconds_per_log": 400.0}]
+    summary = [
+        {"method": "U", "particles": n, "rmse_fixed_median": m, "seconds_per_log": t}
+        for n, m, t in [(10, 8.0, 1.0), (100, 6.0, 10.0), (1000, 4.0, 100.0)]
+    ]
+    summary += [
+        {"method": "N", "particles": 10, "rmse_fixed_median": 5.0, "seconds_per_log": math.sqrt(10.0)},
+        {"method": "N", "particles": 1000, "rmse_fixed_median": 3.0, "seconds_per_log": 400.0},
+    ]
     r = equal_time(summary, "N", "U", 10, "rmse_fixed")
     # sqrt(10) s is half-way between 1 s and 10 s in log time: U's median there is 7
     assert r["median_other_at_time"] == pytest.approx(7.0) and r["diff"] == pytest.approx(-2.0)
@@ -233,8 +285,9 @@ def test_gps_floor_recovers_a_known_frame_offset_noise_and_jumps():
     delta, offset, lag, sigma = 1.5, np.array([0.6, -0.4]), 0.1, 0.1  # what the floor must find
     gt = np.arange(0.0, 599.0, 0.2)
     x, y, ph = (np.interp(gt - lag, t, pose[:, k]) for k in range(3))  # the GPS lags by `lag`
-    ant = np.stack([x + np.cos(ph) * offset[0] - np.sin(ph) * offset[1],
-                    y + np.sin(ph) * offset[0] + np.cos(ph) * offset[1]], 1)
+    ant = np.stack(
+        [x + np.cos(ph) * offset[0] - np.sin(ph) * offset[1], y + np.sin(ph) * offset[0] + np.cos(ph) * offset[1]], 1
+    )
     # gps.dat frame: the fixed frame (rotation -35.4 + 33 = -2.4 deg from it) is off by delta
     g = ant @ rotation_matrix(2.4 + delta).T + np.array([40.0, -7.0]) + sigma * rng.standard_normal(ant.shape)
     jumps = np.arange(200, g.shape[0], 500)
@@ -243,7 +296,7 @@ def test_gps_floor_recovers_a_known_frame_offset_noise_and_jumps():
     # real log), which no window fit scores
     m = 1800
     g[m] += np.array([0.0, 100.0])
-    fixes = np.delete(np.column_stack([gt, g]), np.r_[m - 10:m, m + 1:m + 22], axis=0)
+    fixes = np.delete(np.column_stack([gt, g]), np.r_[m - 10 : m, m + 1 : m + 22], axis=0)
     f = estimate_gps_floor(fixes, t, pose, rotation_deg=-35.4)
 
     assert f.n_jumps == len(jumps) + 1 and f.jump_offset_median == pytest.approx(5.0, abs=0.3)
@@ -282,12 +335,33 @@ def quick_study(tmp_path_factory):
     smallest particle count with 2 seeds each, run as a user runs it (a fresh process). (Each
     point compiles twice, once for its batch and once for its timing process: ~15 s each.)"""
     out = tmp_path_factory.mktemp("study") / "quick"
-    argv = ["compare", str(STUDY), "--quick", "--seeds", "2", "--methods", "NANO-SLAM", "UFastSLAM",
-            "--particles", str(QUICK_N), "--parallel", "single", "--out", str(out)]  # single: no batch padded to the device count
-    for s in SIM + ["filter.row_buckets=never"]:  # row buckets: the same results (to rounding), compiled once instead of thrice
+    argv = [
+        "compare",
+        str(STUDY),
+        "--quick",
+        "--seeds",
+        "2",
+        "--methods",
+        "NANO-SLAM",
+        "UFastSLAM",
+        "--particles",
+        str(QUICK_N),
+        "--parallel",
+        "single",
+        "--out",
+        str(out),
+    ]  # single: no batch padded to the device count
+    for s in SIM + [
+        "filter.row_buckets=never"
+    ]:  # row buckets: the same results (to rounding), compiled once instead of thrice
         argv += ["--set", s]
-    proc = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", *argv], capture_output=True, text=True,
-                          cwd=ROOT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "nanoslam_jax.cli", *argv],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return out, argv, proc
 
@@ -300,7 +374,8 @@ def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
     counts = [QUICK_N]
     runs = _csv(out / "runs.csv")
     assert sorted((r["method"], int(r["particles"]), int(r["seed"])) for r in runs) == sorted(
-        (m, n, s) for m in ("NANO-SLAM", "UFastSLAM") for n in counts for s in (first, first + 1))
+        (m, n, s) for m in ("NANO-SLAM", "UFastSLAM") for n in counts for s in (first, first + 1)
+    )
     assert all(r["status"] == "ok" for r in runs)
     # each point's medians are those of its sweep's own results.csv; seconds per log from its timing row
     timing = {r["point_id"]: r for r in _csv(out / "timing.csv")}
@@ -316,13 +391,15 @@ def test_quick_variant_runs_end_to_end_on_a_simulated_log(quick_study):
         assert t["status"] == "ok" and 1 <= int(t["timing_runs"]) <= q["timing"]["repeats"]
         assert float(s["seconds_per_log"]) == float(t["seconds_per_log"]) > 0
         cores = available_cores()  # the timing process splits the particles as `nanoslam run` does
-        assert int(t["devices"]) == (particle_devices("auto", int(s["particles"]), cores * DEVICES_PER_CORE)
-                                     if cores > 1 else 1)
+        assert int(t["devices"]) == (
+            particle_devices("auto", int(s["particles"]), cores * DEVICES_PER_CORE) if cores > 1 else 1
+        )
         times = [float(x) for x in t["runs_s"].split(";")]
         assert float(t["seconds_per_log"]) == pytest.approx(np.median(times), abs=1e-4)
     paired = _csv(out / "paired.csv")
     assert {(int(r["particles"]), r["other"], r["metric"]) for r in paired} == {
-        (n, "UFastSLAM", m) for n in counts for m in ("rmse_fixed", "rmse_aligned")}
+        (n, "UFastSLAM", m) for n in counts for m in ("rmse_fixed", "rmse_aligned")
+    }
     for r in paired:
         assert int(r["wins"]) + int(r["losses"]) + int(r["ties"]) == int(r["pairs"]) == 2
     assert (out / "accuracy_vs_compute.png").stat().st_size > 10_000
@@ -338,8 +415,9 @@ def test_a_resumed_study_reuses_every_point(quick_study):
         from nanoslam_jax.study import run_study
 
         run_study(load_study(STUDY, tuple(SIM), quick=True), out)
-    proc = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", *argv, "--resume"], capture_output=True, text=True,
-                          cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-m", "nanoslam_jax.cli", *argv, "--resume"], capture_output=True, text=True, cwd=ROOT
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stderr.count("runs finished before") == 2 and proc.stderr.count("measured before") == 2
     assert {p: (out / p).read_bytes() for p in ("runs.csv", "timing.csv")} == before
@@ -347,8 +425,9 @@ def test_a_resumed_study_reuses_every_point(quick_study):
     # comparison included.
     before["paired.csv"] = (out / "paired.csv").read_bytes()
     one = [a for a in argv if a != "NANO-SLAM"]
-    proc = subprocess.run([sys.executable, "-m", "nanoslam_jax.cli", *one, "--resume"], capture_output=True, text=True,
-                          cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-m", "nanoslam_jax.cli", *one, "--resume"], capture_output=True, text=True, cwd=ROOT
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stderr.count("runs finished before") == 1
     assert {p: (out / p).read_bytes() for p in ("runs.csv", "timing.csv", "paired.csv")} == before

@@ -37,8 +37,16 @@ from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.filter import run_filter, settings_from_config
 from nanoslam_jax.sweep import _batch, _plan
 from nanoslam_jax.sweep import (
-    TIMING_COLUMNS, expand, load_log_data, load_sweep, make_tasks, plan_groups, read_results, run_sweep,
-    sample_random, sweep_from_dict,
+    TIMING_COLUMNS,
+    expand,
+    load_log_data,
+    load_sweep,
+    make_tasks,
+    plan_groups,
+    read_results,
+    run_sweep,
+    sample_random,
+    sweep_from_dict,
 )
 from nanoslam_jax.sweep._batch import BatchOutput, BatchTask, _score, log_key
 
@@ -55,9 +63,14 @@ BASE = {
 }
 GRID = {"filter.gate": [4.0, 5.991], "filter.new_landmark": [13.816, 20.0]}
 #: 4 grid configurations + 2 random ones, 2 seeds: 12 runs in 3 batches of 4.
-MAIN = {"base": BASE, "seeds": 2, "grid": GRID,
-        "random": {"n": 2, "seed": 3, "combine": "union", "params": {"noise.sigma_r": {"low": 0.3, "high": 0.9}}},
-        "run": {"batch": 4, "parallel": "single", "vectorize": "vmap"}, "plots": False}
+MAIN = {
+    "base": BASE,
+    "seeds": 2,
+    "grid": GRID,
+    "random": {"n": 2, "seed": 3, "combine": "union", "params": {"noise.sigma_r": {"low": 0.3, "high": 0.9}}},
+    "run": {"batch": 4, "parallel": "single", "vectorize": "vmap"},
+    "plots": False,
+}
 #: The grid part only: 8 runs in 2 batches of 4 (the same program; the same ids c0000-c0003).
 SMALL = {**{k: v for k, v in MAIN.items() if k != "random"}}
 
@@ -116,14 +129,20 @@ def main_sweep(tmp_path_factory):
 
 def test_grid_expansion_is_the_cartesian_product_with_seeds():
     grid = {"filter.gate": [3.0, 4.0, 5.0], "filter.new_landmark": [14.0, 20.0], "noise.sigma_r": [0.5, 1.0]}
-    spec = spec_of({"base": {**BASE, "seed": 5}, "grid": grid, "seeds": 3,
-                    "shapes": {"filter.n_particles": [4, 8]}})
+    spec = spec_of({"base": {**BASE, "seed": 5}, "grid": grid, "seeds": 3, "shapes": {"filter.n_particles": [4, 8]}})
     points, runs, skipped = expand(spec)
     assert not skipped
     assert len(points) == 2 * 3 * 2 * 2 and len(runs) == len(points) * 3
     expected = [(n, *c) for n in (4, 8) for c in itertools.product(*grid.values())]
-    got = [(p.values["filter.n_particles"], p.values["filter.gate"], p.values["filter.new_landmark"],
-            p.values["noise.sigma_r"]) for p in points]
+    got = [
+        (
+            p.values["filter.n_particles"],
+            p.values["filter.gate"],
+            p.values["filter.new_landmark"],
+            p.values["noise.sigma_r"],
+        )
+        for p in points
+    ]
     assert got == expected  # shapes outermost, then the grid in file order, last key fastest
     assert [p.config_id for p in points] == [f"c{i:04d}" for i in range(len(points))]
     # Seeds: base seed 5 and the next two, configuration-major; ids are unique.
@@ -138,8 +157,11 @@ def test_grid_expansion_is_the_cartesian_product_with_seeds():
 
 
 def test_random_samples_are_reproducible_within_bounds_and_combined_as_documented():
-    params = {"noise.sigma_r": {"low": 0.1, "high": 10.0, "log": True}, "filter.p0": {"low": 0.01, "high": 0.2},
-              "filter.resample_threshold": {"choice": [0.25, 0.5, 0.75]}}
+    params = {
+        "noise.sigma_r": {"low": 0.1, "high": 10.0, "log": True},
+        "filter.p0": {"low": 0.01, "high": 0.2},
+        "filter.resample_threshold": {"choice": [0.25, 0.5, 0.75]},
+    }
     rand = {"n": 4000, "seed": 11, "params": params}
     spec = spec_of({"base": BASE, "random": rand})
     samples = sample_random(spec.random)
@@ -152,12 +174,15 @@ def test_random_samples_are_reproducible_within_bounds_and_combined_as_documente
     assert r.min() >= 0.1 and r.max() <= 10.0 and p0.min() >= 0.01 and p0.max() <= 0.2
     assert set(thr) == {0.25, 0.5, 0.75} and abs(thr.count(0.5) / 4000 - 1 / 3) < 0.03
     # Log-uniform: log10 uniform on [-1, 1] (median near 1, a quarter below 10^-0.5); uniform p0.
-    assert abs(np.median(np.log10(r))) < 0.06 and abs(np.mean(r < 10 ** -0.5) - 0.25) < 0.03
+    assert abs(np.median(np.log10(r))) < 0.06 and abs(np.mean(r < 10**-0.5) - 0.25) < 0.03
     assert abs(np.mean(p0) - 0.105) < 0.004
     # The documented sampler: numpy default_rng(seed), keys in file order for each sample in turn.
     rng = np.random.default_rng(11)
-    first = {"noise.sigma_r": math.exp(rng.uniform(math.log(0.1), math.log(10.0))),
-             "filter.p0": rng.uniform(0.01, 0.2), "filter.resample_threshold": [0.25, 0.5, 0.75][int(rng.integers(3))]}
+    first = {
+        "noise.sigma_r": math.exp(rng.uniform(math.log(0.1), math.log(10.0))),
+        "filter.p0": rng.uniform(0.01, 0.2),
+        "filter.resample_threshold": [0.25, 0.5, 0.75][int(rng.integers(3))],
+    }
     assert samples[0] == first
     # The configurations carry the samples (validated, in sample order).
     points, runs, _ = expand(spec_of({"base": BASE, "random": {**rand, "n": 20}}))
@@ -172,7 +197,8 @@ def test_random_samples_are_reproducible_within_bounds_and_combined_as_documente
     assert [p.values["noise.sigma_r"] for p in union[:4]] == [0.5] * 4  # grid points keep the base value
     assert {p.values["noise.sigma_r"] for p in prod} == {p.values["noise.sigma_r"] for p in union[4:]}
     assert [(p.values["filter.gate"], p.values["filter.new_landmark"]) for p in prod[::3]] == list(
-        itertools.product(*GRID.values()))
+        itertools.product(*GRID.values())
+    )
 
 
 def test_invalid_sweeps_name_the_file_and_key(tmp_path):
@@ -184,8 +210,9 @@ def test_invalid_sweeps_name_the_file_and_key(tmp_path):
     assert "test-sweep.yaml" in (m := err({"base": BASE, "grid": {"filter.gatee": [1.0]}})) and "filter.gatee" in m
     assert "shapes" in err({"base": BASE, "grid": {"filter.n_particles": [4, 8]}})
     assert "grid" in err({"base": BASE, "shapes": {"filter.gate": [4.0, 5.0]}})
-    assert "random.params.noise.sigma_r" in err({"base": BASE, "random": {"n": 2, "params": {
-        "noise.sigma_r": {"low": 2.0, "high": 1.0}}}})
+    assert "random.params.noise.sigma_r" in err(
+        {"base": BASE, "random": {"n": 2, "params": {"noise.sigma_r": {"low": 2.0, "high": 1.0}}}}
+    )
     assert "seeds" in err({"base": BASE, "seeds": 0})
     assert "'seed' cannot be swept" in err({"base": BASE, "grid": {"seed": [1, 2]}})
     assert "unknown key 'grdi'" in err({"base": BASE, "grdi": {}})
@@ -193,8 +220,13 @@ def test_invalid_sweeps_name_the_file_and_key(tmp_path):
     m = err({"base": BASE, "grid": {"filter.gate": [-1.0]}})
     assert "filter.gate=-1.0" in m and "key 'filter.gate'" in m
     # ... and with skip_invalid such configurations are dropped and reported.
-    spec = spec_of({"base": BASE, "grid": {"filter.gate": [5.0, 15.0], "filter.new_landmark": [10.0, 20.0]},
-                    "run": {"skip_invalid": True}})
+    spec = spec_of(
+        {
+            "base": BASE,
+            "grid": {"filter.gate": [5.0, 15.0], "filter.new_landmark": [10.0, 20.0]},
+            "run": {"skip_invalid": True},
+        }
+    )
     points, _, skipped = expand(spec)
     assert len(points) == 3 and len(skipped) == 1 and "filter.new_landmark" in skipped[0][1]
     # A sweep file: the base is relative to it; errors name the file.
@@ -262,9 +294,27 @@ def test_sweep_compiles_once_per_shape_and_writes_its_results(main_sweep, trace_
     rows = read_results(out / "results.csv")
     assert len(rows) == 12 and all(r["status"] == "ok" for r in rows)
     header = next(csv.reader(open(out / "results.csv")))
-    for col in ("run_id", "config_id", "group", "filter.gate", "filter.new_landmark", "noise.sigma_r", "seed", "status",
-                "reason", "rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "final_error", "n_landmarks",
-                "landmark_overflow", "resample_count", "ess_mean", "run_s", "compile_s"):
+    for col in (
+        "run_id",
+        "config_id",
+        "group",
+        "filter.gate",
+        "filter.new_landmark",
+        "noise.sigma_r",
+        "seed",
+        "status",
+        "reason",
+        "rmse_fixed",
+        "rmse_aligned",
+        "rmse_fixed_clean",
+        "final_error",
+        "n_landmarks",
+        "landmark_overflow",
+        "resample_count",
+        "ess_mean",
+        "run_s",
+        "compile_s",
+    ):
         assert col in header
     # The best configuration: the lowest median rmse_aligned over the seeds, as a loadable config.
     med = {}
@@ -275,7 +325,10 @@ def test_sweep_compiles_once_per_shape_and_writes_its_results(main_sweep, trace_
     best = load_config(out / "best.yaml")
     bp = next(p for p in expand(spec_of(MAIN))[0] if p.config_id == best_id)
     assert (best.filter.gate, best.filter.new_landmark, best.noise.sigma_r) == (
-        bp.values["filter.gate"], bp.values["filter.new_landmark"], bp.values["noise.sigma_r"])
+        bp.values["filter.gate"],
+        bp.values["filter.new_landmark"],
+        bp.values["noise.sigma_r"],
+    )
     summary = list(csv.DictReader(open(out / "summary.csv")))
     assert len(summary) == 6
     s = next(x for x in summary if x["config_id"] == best_id)
@@ -354,7 +407,9 @@ def test_resume_skips_finished_runs_and_reproduces_the_rows(main_sweep, tmp_path
     with pytest.raises(ConfigError, match="seeds"):
         run_sweep(spec_of(MAIN, seeds=3), out, resume=True, progress=False)
     done = []
-    res = run_sweep(spec, out, resume=True, progress=False, on_batch=lambda rows: done.extend(r["run_id"] for r in rows))
+    res = run_sweep(
+        spec, out, resume=True, progress=False, on_batch=lambda rows: done.extend(r["run_id"] for r in rows)
+    )
     assert res.n_skipped == 4 and res.n_new == 8 and sorted(done) == sorted(set(done))
     assert not set(done) & {r["run_id"] for r in first}
     assert rows_by_id(out / "results.csv") == rows_by_id(out_full / "results.csv")
@@ -369,9 +424,13 @@ def test_failed_runs_are_recorded_and_the_sweep_goes_on(tmp_path, trace_counter,
     # gate 0.01, new_landmark 0.02: (nearly) every detection starts a landmark, which overflows the
     # capacity of 96 on this log; (5.991, 0.02) is invalid (new_landmark < gate) and skipped:
     # 5 configurations x 2 seeds in 3 batches of 4 (the program of the other tests).
-    raw = {**MAIN, "random": None, "seeds": 2,
-           "grid": {"filter.gate": [0.01, 5.991], "filter.new_landmark": [0.02, 13.816, 20.0]},
-           "run": {"batch": 4, "parallel": "single", "vectorize": "vmap", "skip_invalid": True}}
+    raw = {
+        **MAIN,
+        "random": None,
+        "seeds": 2,
+        "grid": {"filter.gate": [0.01, 5.991], "filter.new_landmark": [0.02, 13.816, 20.0]},
+        "run": {"batch": 4, "parallel": "single", "vectorize": "vmap", "skip_invalid": True},
+    }
     res = run_sweep(spec_of(raw), tmp_path / "a", progress=False)
     rows = {r["run_id"]: r for r in read_results(tmp_path / "a" / "results.csv")}
     assert len(rows) == 10 and res.groups[0].batch == 4
@@ -415,14 +474,37 @@ def test_a_non_finite_estimate_fails_the_run():
     pose[0, :, 0] = np.linspace(0, 5, n)
     pose[0, 4:, 1] = np.nan
     z = np.zeros((1, n))
-    out = BatchOutput(pose, pose, z + 4, z, z + 1, z, z, z, z.astype(bool), np.array([0]),
-                      np.array([1]), np.zeros((1, 8, 2)), np.zeros((1, 8), bool), np.zeros((1, 8), bool))
+    out = BatchOutput(
+        pose,
+        pose,
+        z + 4,
+        z,
+        z + 1,
+        z,
+        z,
+        z,
+        z.astype(bool),
+        np.array([0]),
+        np.array([1]),
+        np.zeros((1, 8, 2)),
+        np.zeros((1, 8), bool),
+        np.zeros((1, 8), bool),
+    )
     t = np.arange(n) * 0.5
     gps = np.c_[t, np.linspace(0, 5, n), np.zeros(n)]
     from nanoslam_jax.data import Segments
 
-    seg = Segments(t, np.zeros((n, 1)), np.zeros((n, 1, 2)), np.zeros((n, 1), bool), np.zeros((n, 2, 2)),
-                   np.zeros((n, 2), bool), np.zeros((n, 2)), np.ones(n, bool), np.full((n, 2), -1))
+    seg = Segments(
+        t,
+        np.zeros((n, 1)),
+        np.zeros((n, 1, 2)),
+        np.zeros((n, 1), bool),
+        np.zeros((n, 2, 2)),
+        np.zeros((n, 2), bool),
+        np.zeros((n, 2)),
+        np.ones(n, bool),
+        np.full((n, 2), -1),
+    )
     log = _batch.LogData(seg, gps, "slam", None, "test")
     from nanoslam_jax.config import MetricsConfig
 
@@ -444,8 +526,9 @@ def test_cli_end_to_end(main_sweep, tmp_path, capsys):
     from nanoslam_jax.cli import main
 
     spec_file = tmp_path / "tiny.yaml"
-    spec_file.write_text(yaml.safe_dump({**MAIN, "run": {"batch": 4, "parallel": "single"}, "plots": True},
-                                        sort_keys=False))
+    spec_file.write_text(
+        yaml.safe_dump({**MAIN, "run": {"batch": 4, "parallel": "single"}, "plots": True}, sort_keys=False)
+    )
     out = tmp_path / "cli"
     assert main(["sweep", str(spec_file), "--out", str(out), "--vectorize", "map", "--quiet"]) == 0
     printed = capsys.readouterr().out
@@ -571,10 +654,19 @@ def test_adaptive_noise_sweep_records_where_the_estimates_ended(main_sweep, tmp_
     noise, which every particle's estimate, free, falls below (measured: 0.27 m), so it must end
     there; with 0.01 (0.1 m, 0.4 deg) the estimates are free."""
     assert "noise_at_floor_range" not in next(csv.reader(open(main_sweep[0] / "results.csv")))
-    base = {**BASE, "filter": {**BASE["filter"], "method": "fastslam2", "capacity": 192, "window": 40},
-            "noise": {**BASE["noise"], "sigma_r": 1.0, "sigma_beta_deg": 4.0, "adaptive": True}, "map": {"manage": True}}
-    raw = {"base": base, "seeds": 1, "grid": {"noise.adaptive_floor": [0.01, 1.0]}, "plots": False,
-           "run": {"batch": 2, "parallel": "single", "vectorize": "vmap"}}
+    base = {
+        **BASE,
+        "filter": {**BASE["filter"], "method": "fastslam2", "capacity": 192, "window": 40},
+        "noise": {**BASE["noise"], "sigma_r": 1.0, "sigma_beta_deg": 4.0, "adaptive": True},
+        "map": {"manage": True},
+    }
+    raw = {
+        "base": base,
+        "seeds": 1,
+        "grid": {"noise.adaptive_floor": [0.01, 1.0]},
+        "plots": False,
+        "run": {"batch": 2, "parallel": "single", "vectorize": "vmap"},
+    }
     run_sweep(spec_of(raw), tmp_path / "adaptive", progress=False)
     rows = {float(r["noise.adaptive_floor"]): r for r in read_results(tmp_path / "adaptive" / "results.csv")}
     free, held = rows[0.01], rows[1.0]

@@ -100,7 +100,7 @@ def batch_kalman(x0, P0, z, m, Sig):
     H = np.concatenate([A_LIN] * k)
     N = np.zeros((2 * k, 2 * k))
     for i in range(k):
-        N[2 * i:2 * i + 2, 2 * i:2 * i + 2] = B_LIN @ Sig[i] @ B_LIN.T + R
+        N[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = B_LIN @ Sig[i] @ B_LIN.T + R
     nu = (z - (x0 @ A_LIN.T + m @ B_LIN.T + C_LIN)).ravel()
     S = H @ P0 @ H.T + N
     K = P0 @ H.T @ np.linalg.inv(S)
@@ -121,8 +121,19 @@ def test_linear_model_equals_batch_kalman(k, ut, angles):
     """
     rng, x0, P0, m, Sig = rotation_free_case(k, k)
     z = x0 @ A_LIN.T + m @ B_LIN.T + C_LIN + rng.normal(size=(k, 2)) * [1.0, 0.05]
-    x, P = _seq_jit(jnp.asarray(x0), jnp.asarray(P0), h_lin, jnp.asarray(z), jnp.asarray(m), jnp.asarray(Sig),
-                    jnp.ones(k, bool), jnp.asarray(R), *ut, z_angle_index=angles[0], x_angle_index=angles[1])
+    x, P = _seq_jit(
+        jnp.asarray(x0),
+        jnp.asarray(P0),
+        h_lin,
+        jnp.asarray(z),
+        jnp.asarray(m),
+        jnp.asarray(Sig),
+        jnp.ones(k, bool),
+        jnp.asarray(R),
+        *ut,
+        z_angle_index=angles[0],
+        x_angle_index=angles[1],
+    )
     x_ref, P_ref = batch_kalman(x0, P0, z, m, Sig)
     scale = np.abs(P0).max()
     np.testing.assert_allclose(x, x_ref, rtol=0, atol=1e-10 * (1 + np.abs(x_ref).max()))
@@ -140,17 +151,38 @@ def test_masked_rows_are_no_ops():
     z = h_np(x0, m) + rng.normal(size=(3, 2)) * [0.5, 0.02]
     args = dict(h=range_bearing, R=jnp.asarray(R), alpha=0.9, beta=2.0, kappa=0.0)
     keep = np.array([0, 2])
-    x2, P2 = _seq_jit(jnp.asarray(x0), jnp.asarray(P0), z=jnp.asarray(z[keep]), m_mean=jnp.asarray(m[keep]),
-                      m_cov=jnp.asarray(Sig[keep]), mask=jnp.ones(2, bool), **args)
+    x2, P2 = _seq_jit(
+        jnp.asarray(x0),
+        jnp.asarray(P0),
+        z=jnp.asarray(z[keep]),
+        m_mean=jnp.asarray(m[keep]),
+        m_cov=jnp.asarray(Sig[keep]),
+        mask=jnp.ones(2, bool),
+        **args,
+    )
     z_bad, m_bad, S_bad = z.copy(), m.copy(), Sig.copy()
     z_bad[1], m_bad[1], S_bad[1] = np.nan, 1e9, -np.eye(2)
-    x3, P3 = _seq_jit(jnp.asarray(x0), jnp.asarray(P0), z=jnp.asarray(z_bad), m_mean=jnp.asarray(m_bad),
-                      m_cov=jnp.asarray(S_bad), mask=jnp.array([True, False, True]), **args)
+    x3, P3 = _seq_jit(
+        jnp.asarray(x0),
+        jnp.asarray(P0),
+        z=jnp.asarray(z_bad),
+        m_mean=jnp.asarray(m_bad),
+        m_cov=jnp.asarray(S_bad),
+        mask=jnp.array([True, False, True]),
+        **args,
+    )
     np.testing.assert_allclose(x3, x2, rtol=1e-14, atol=1e-14)
     np.testing.assert_allclose(P3, P2, rtol=1e-14, atol=1e-16)
     # All rows masked: the prior, exactly.
-    x0_, P0_ = _seq_jit(jnp.asarray(x0), jnp.asarray(P0), z=jnp.asarray(z_bad), m_mean=jnp.asarray(m_bad),
-                        m_cov=jnp.asarray(S_bad), mask=jnp.zeros(3, bool), **args)
+    x0_, P0_ = _seq_jit(
+        jnp.asarray(x0),
+        jnp.asarray(P0),
+        z=jnp.asarray(z_bad),
+        m_mean=jnp.asarray(m_bad),
+        m_cov=jnp.asarray(S_bad),
+        mask=jnp.zeros(3, bool),
+        **args,
+    )
     np.testing.assert_array_equal(x0_, x0)
     np.testing.assert_array_equal(P0_, P0)
 
@@ -160,15 +192,23 @@ def test_proposal_module_no_detections_and_nonfinite_fallback():
     _, x0, P0, m, Sig = rotation_free_case(3, 2)
     z = h_np(x0, m)
     prop = UnscentedProposal(*PUBLISHED)
-    out = eqx.filter_jit(prop)(jnp.asarray(x0), jnp.asarray(P0), Detections(jnp.asarray(z), jnp.asarray(m), jnp.asarray(Sig),
-                                                                      jnp.zeros(2, bool)), jnp.asarray(R))
+    out = eqx.filter_jit(prop)(
+        jnp.asarray(x0),
+        jnp.asarray(P0),
+        Detections(jnp.asarray(z), jnp.asarray(m), jnp.asarray(Sig), jnp.zeros(2, bool)),
+        jnp.asarray(R),
+    )
     np.testing.assert_array_equal(out.mean, x0)
     np.testing.assert_array_equal(out.cov, P0)
     assert int(out.result) == 0 and int(out.iterations) == 0
     bad = Sig.copy()
     bad[0] = np.nan
-    out = eqx.filter_jit(prop)(jnp.asarray(x0), jnp.asarray(P0), Detections(jnp.asarray(z), jnp.asarray(m), jnp.asarray(bad),
-                                                                      jnp.ones(2, bool)), jnp.asarray(R))
+    out = eqx.filter_jit(prop)(
+        jnp.asarray(x0),
+        jnp.asarray(P0),
+        Detections(jnp.asarray(z), jnp.asarray(m), jnp.asarray(bad), jnp.ones(2, bool)),
+        jnp.asarray(R),
+    )
     assert int(out.result) == 2
     np.testing.assert_array_equal(out.mean, x0)
     np.testing.assert_array_equal(out.cov, P0)
@@ -312,8 +352,20 @@ def test_proposal_bearings_and_heading_across_pi():
     z = h_np(x0, m) + np.array([[0.3, 0.015], [-0.2, -0.02], [0.1, -0.012]])
     xf, zf = flipped(x0, z)
     assert np.all(np.abs(zf[:, 1]) > 3.0) and np.any(zf[:, 1] > 0) and np.any(zf[:, 1] < 0)
-    run = lambda x, zz: _seq_jit(jnp.asarray(x), jnp.asarray(P0), range_bearing, jnp.asarray(zz),  # noqa: E731
-                                 jnp.asarray(m), jnp.asarray(Sig), jnp.ones(3, bool), jnp.asarray(R), *PUBLISHED)
+
+    def run(x, zz):
+        return _seq_jit(
+            jnp.asarray(x),
+            jnp.asarray(P0),
+            range_bearing,
+            jnp.asarray(zz),
+            jnp.asarray(m),
+            jnp.asarray(Sig),
+            jnp.ones(3, bool),
+            jnp.asarray(R),
+            *PUBLISHED,
+        )
+
     xa, Pa = run(x0, z)
     xb, Pb = run(xf, zf)
     np.testing.assert_allclose(xb[:2], xa[:2], rtol=0, atol=1e-12)
@@ -427,8 +479,14 @@ def test_real_log_first_scans_finite(vp_dir):
             assert np.all(np.isfinite(leaf))
     assert int(np.sum(o.n_nonfinite)) == 0 and not np.any(o.weight_reset)
     assert int(run.state.overflow) == 0
-    m = evaluate(np.asarray(log.segments.time), np.asarray(o.best_pose)[:, :2], log.raw.gps, frame=log.frame,
-                 rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed)
+    m = evaluate(
+        np.asarray(log.segments.time),
+        np.asarray(o.best_pose)[:, :2],
+        log.raw.gps,
+        frame=log.frame,
+        rotation_deg=cfg.metrics.gps_rotation_deg,
+        jump_speed=cfg.metrics.jump_speed,
+    )
     dr = dead_reckoning_metrics(cfg, log)
     assert dr["rmse_fixed"] > 80.0
     assert m["rmse_fixed"] < 3.5 and m["rmse_aligned"] < 2.5, m

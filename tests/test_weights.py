@@ -55,19 +55,46 @@ def hand_loglik(x, P, z, R):
 
 
 def scene(sets, confirmed=(True, True)):
-    cfg = load_config(None, ["filter.capacity=8", "filter.window=4", "filter.prior_cov=carry",
-                             "noise.sigma_r=0.5", "noise.sigma_beta_deg=2"] + sets)
+    cfg = load_config(
+        None,
+        [
+            "filter.capacity=8",
+            "filter.window=4",
+            "filter.prior_cov=carry",
+            "noise.sigma_r=0.5",
+            "noise.sigma_beta_deg=2",
+        ]
+        + sets,
+    )
     static, params = settings_from_config(cfg, K)
     lm = LandmarkMap.empty(8)._replace(
-        mean=jnp.zeros((8, 2)).at[:2].set(LM_MEAN), cov=jnp.broadcast_to(jnp.eye(2), (8, 2, 2)).at[:2].set(LM_COV),
-        active=jnp.arange(8) < 2, confirmed=jnp.zeros(8, bool).at[:2].set(jnp.asarray(confirmed)),
-        hits=jnp.full(8, 5, jnp.int32), log_odds=jnp.full(8, 3.0))
+        mean=jnp.zeros((8, 2)).at[:2].set(LM_MEAN),
+        cov=jnp.broadcast_to(jnp.eye(2), (8, 2, 2)).at[:2].set(LM_COV),
+        active=jnp.arange(8) < 2,
+        confirmed=jnp.zeros(8, bool).at[:2].set(jnp.asarray(confirmed)),
+        hits=jnp.full(8, 5, jnp.int32),
+        log_odds=jnp.full(8, 3.0),
+    )
     # The two mapped trees seen 0.2 m / 1 deg off their prediction, and a tree nowhere near the map.
-    z = np.stack([g(POSE, LM_MEAN[0]) + [0.2, math.radians(1.0)], g(POSE, LM_MEAN[1]) - [0.15, math.radians(0.8)],
-                  [20.0, -1.2]])
-    out = jax.jit(lambda: particle_update(
-        static, params, make_proposal(static, params), jnp.asarray(POSE), jnp.asarray(POSE_COV), lm,
-        jnp.zeros(2), jnp.zeros((2, 2)), jnp.zeros(2, bool), jnp.asarray(z), jnp.ones(K, bool), jnp.zeros(3)))()
+    z = np.stack(
+        [g(POSE, LM_MEAN[0]) + [0.2, math.radians(1.0)], g(POSE, LM_MEAN[1]) - [0.15, math.radians(0.8)], [20.0, -1.2]]
+    )
+    out = jax.jit(
+        lambda: particle_update(
+            static,
+            params,
+            make_proposal(static, params),
+            jnp.asarray(POSE),
+            jnp.asarray(POSE_COV),
+            lm,
+            jnp.zeros(2),
+            jnp.zeros((2, 2)),
+            jnp.zeros(2, bool),
+            jnp.asarray(z),
+            jnp.ones(K, bool),
+            jnp.zeros(3),
+        )
+    )()
     assert int(out.n_associated) == 2 and int(out.n_new) == 1
     return cfg, params, z, out
 
@@ -90,7 +117,9 @@ def test_fastslam2_weight_at_the_proposal_or_at_the_prior(weight):
     proposal, the marginal weight the same formula at the prior; the two differ."""
     cfg, params, z, out = scene(["filter.method=fastslam2", f"filter.weight={weight}"])
     R = np.asarray(params.R)
-    Rk = np.stack([R + rb_jacobian_landmark(POSE, m) @ c @ rb_jacobian_landmark(POSE, m).T for m, c in zip(LM_MEAN, LM_COV)])
+    Rk = np.stack(
+        [R + rb_jacobian_landmark(POSE, m) @ c @ rb_jacobian_landmark(POSE, m).T for m, c in zip(LM_MEAN, LM_COV)]
+    )
     x_p, P_p = ekf_pose_update(POSE, POSE_COV, LM_MEAN, z[:2], Rk)
     np.testing.assert_allclose(np.asarray(out.pose_cov), P_p, rtol=1e-9, atol=1e-14)  # the proposal itself
     at = {"product": (x_p, P_p), "marginal": (POSE, POSE_COV)}
@@ -104,8 +133,9 @@ def test_fastslam2_weight_at_the_proposal_or_at_the_prior(weight):
 def test_a_tentative_landmark_weighs_as_new_unless_tentative_landmarks_are_used(use_tentative):
     """The second landmark tentative: its detection weighs log p0 (as a new landmark), or with
     map.use_tentative its Gaussian likelihood like a confirmed one."""
-    cfg, params, z, out = scene(["filter.method=fastslam1", f"map.use_tentative={str(use_tentative).lower()}"],
-                                confirmed=(True, False))
+    cfg, params, z, out = scene(
+        ["filter.method=fastslam1", f"map.use_tentative={str(use_tentative).lower()}"], confirmed=(True, False)
+    )
     R = np.asarray(params.R)
     lp0 = math.log(cfg.filter.p0)
     if use_tentative:

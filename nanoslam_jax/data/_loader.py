@@ -98,8 +98,9 @@ def _data_rows(path: Path) -> tuple[list[str], list[int]]:
     return rows, numbers
 
 
-def _parse_rows_slowly(path: Path, table: _Table, rows: list[str],
-                       numbers: list[int]) -> Float[np.ndarray, "n columns"]:
+def _parse_rows_slowly(
+    path: Path, table: _Table, rows: list[str], numbers: list[int]
+) -> Float[np.ndarray, "n columns"]:
     """Parse rows one by one; raise on the first bad one (the fall-back of :func:`_parse_table`).
 
     Args:
@@ -146,8 +147,9 @@ def _parse_table(path: Path, table: _Table) -> tuple[Float[np.ndarray, "n column
     return data, np.asarray(numbers)
 
 
-def _validate(data: Float[np.ndarray, "n columns"], table: _Table, path: Path,
-              numbers: np.ndarray, unit: str = "line") -> None:
+def _validate(
+    data: Float[np.ndarray, "n columns"], table: _Table, path: Path, numbers: np.ndarray, unit: str = "line"
+) -> None:
     """Check finiteness, time order and (for detections) non-negative ranges.
 
     Args:
@@ -161,8 +163,10 @@ def _validate(data: Float[np.ndarray, "n columns"], table: _Table, path: Path,
     if bad.size:
         i = bad[0]
         j = int(np.flatnonzero(~np.isfinite(data[i]))[0])
-        raise LogFormatError(f"{path} {unit} {numbers[i]}: expected finite numbers, "
-                             f"got {float(data[i, j])} in column '{table.columns[j]}'")
+        raise LogFormatError(
+            f"{path} {unit} {numbers[i]}: expected finite numbers, "
+            f"got {float(data[i, j])} in column '{table.columns[j]}'"
+        )
     if table.order is not None:
         step = np.diff(data[:, 0])
         bad = np.flatnonzero(step <= 0 if table.order == "increasing" else step < 0)
@@ -171,13 +175,15 @@ def _validate(data: Float[np.ndarray, "n columns"], table: _Table, path: Path,
             rule = "strictly increasing" if table.order == "increasing" else "non-decreasing"
             raise LogFormatError(
                 f"{path} {unit} {numbers[i]}: {table.what} times must be {rule}, got {float(data[i, 0])!r} "
-                f"after {float(data[i - 1, 0])!r} ({unit} {numbers[i - 1]})")
+                f"after {float(data[i - 1, 0])!r} ({unit} {numbers[i - 1]})"
+            )
     if "range" in table.columns:
         bad = np.flatnonzero(data[:, table.columns.index("range")] < 0)
         if bad.size:
             i = bad[0]
-            raise LogFormatError(f"{path} {unit} {numbers[i]}: expected a range >= 0, "
-                                 f"got {float(data[i, table.columns.index('range')])}")
+            raise LogFormatError(
+                f"{path} {unit} {numbers[i]}: expected a range >= 0, got {float(data[i, table.columns.index('range')])}"
+            )
 
 
 def _read_ascii(path: Path, table: _Table) -> Float[np.ndarray, "n columns"]:
@@ -245,12 +251,15 @@ def _find_file(directory: Path, candidates: list[str], format: str) -> Path:
     for name in candidates:
         if (directory / name).is_file():
             return directory / name
-    raise FileNotFoundError(f"{directory}: {' or '.join(candidates)} not found (format={format!r}); "
-                            f"a Victoria Park log directory holds {_EXPECTED_FILES}")
+    raise FileNotFoundError(
+        f"{directory}: {' or '.join(candidates)} not found (format={format!r}); "
+        f"a Victoria Park log directory holds {_EXPECTED_FILES}"
+    )
 
 
-def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "ascii", "mat"] = "auto",
-                       detections: bool = True) -> RawLog:
+def load_victoria_park(
+    directory: str | os.PathLike, format: Literal["auto", "ascii", "mat"] = "auto", detections: bool = True
+) -> RawLog:
     """Load a Victoria Park-format log directory.
 
     Detection bearings are converted to the vehicle frame (file bearing minus pi/2, wrapped to
@@ -296,8 +305,11 @@ def load_victoria_park(directory: str | os.PathLike, format: Literal["auto", "as
         det[:, 2] = wrap_angle_np(det[:, 2] - np.pi / 2)
 
     truth = {}
-    for key, table in (("truth_poses", _TRUTH_POSES), ("truth_landmarks", _TRUTH_LANDMARKS),
-                       ("truth_diameters", _TRUTH_DIAMETERS)):
+    for key, table in (
+        ("truth_poses", _TRUTH_POSES),
+        ("truth_landmarks", _TRUTH_LANDMARKS),
+        ("truth_diameters", _TRUTH_DIAMETERS),
+    ):
         if (directory / table.name).is_file():
             truth[key] = _read_ascii(directory / table.name, table)
     if "truth_diameters" in truth:
@@ -314,8 +326,10 @@ def _as_table(data: np.ndarray, table: _Table) -> Float[np.ndarray, "n columns"]
     """
     data = np.array(data, dtype=np.float64)
     if data.ndim != 2 or data.shape[1] != len(table.columns):
-        raise ValueError(f"{table.name}: expected an (n, {len(table.columns)}) array "
-                         f"({' '.join(table.columns)}), got shape {data.shape}")
+        raise ValueError(
+            f"{table.name}: expected an (n, {len(table.columns)}) array "
+            f"({' '.join(table.columns)}), got shape {data.shape}"
+        )
     return data
 
 
@@ -338,9 +352,14 @@ def write_victoria_park(directory: str | os.PathLike, raw: RawLog) -> None:
     directory = Path(directory)
     detections = _as_table(raw.detections, _MEASUREMENTS)
     detections[:, 2] += np.pi / 2
-    tables = [(_INPUTS, raw.dr), (_MEASUREMENTS, detections), (_GPS, raw.gps),
-              (_TRUTH_POSES, raw.truth_poses), (_TRUTH_LANDMARKS, raw.truth_landmarks),
-              (_TRUTH_DIAMETERS, None if raw.truth_diameters is None else np.reshape(raw.truth_diameters, (-1, 1)))]
+    tables = [
+        (_INPUTS, raw.dr),
+        (_MEASUREMENTS, detections),
+        (_GPS, raw.gps),
+        (_TRUTH_POSES, raw.truth_poses),
+        (_TRUTH_LANDMARKS, raw.truth_landmarks),
+        (_TRUTH_DIAMETERS, None if raw.truth_diameters is None else np.reshape(raw.truth_diameters, (-1, 1))),
+    ]
     arrays = [(table, _as_table(data, table)) for table, data in tables if data is not None]
     directory.mkdir(parents=True, exist_ok=True)
     for table, data in arrays:

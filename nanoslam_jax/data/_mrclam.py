@@ -28,8 +28,14 @@ from ..models._angles import wrap_angle_np
 from ._loader import LogFormatError, _data_rows, _parse_table, _Table, _validate
 from ._types import RawLog
 
-__all__ = ["MRCLAM_ROBOTS", "MRCLAM_FIRST_LANDMARK", "load_mrclam", "unicycle_poses", "SightingMap",
-           "dead_reckoning_map"]
+__all__ = [
+    "MRCLAM_ROBOTS",
+    "MRCLAM_FIRST_LANDMARK",
+    "load_mrclam",
+    "unicycle_poses",
+    "SightingMap",
+    "dead_reckoning_map",
+]
 
 #: The robot numbers of an MRCLAM dataset (subjects 1-5 of ``Barcodes.dat``).
 MRCLAM_ROBOTS = (1, 2, 3, 4, 5)
@@ -39,8 +45,7 @@ MRCLAM_FIRST_LANDMARK = 6
 
 _BARCODES = _Table("Barcodes.dat", ("subject", "barcode"), None, "barcode")
 _LANDMARKS = _Table("Landmark_Groundtruth.dat", ("subject", "x", "y", "sd_x", "sd_y"), None, "landmark")
-_EXPECTED_FILES = ("Barcodes.dat, Landmark_Groundtruth.dat and RobotN_Odometry.dat, RobotN_Measurement.dat "
-                   "for N = 1..5")
+_EXPECTED_FILES = "Barcodes.dat, Landmark_Groundtruth.dat and RobotN_Odometry.dat, RobotN_Measurement.dat for N = 1..5"
 
 
 def _odometry_table(robot: int) -> _Table:
@@ -51,8 +56,9 @@ def _measurement_table(robot: int) -> _Table:
     return _Table(f"Robot{robot}_Measurement.dat", ("time", "barcode", "range", "bearing"), None, "measurement")
 
 
-def _read(directory: Path, table: _Table, allow_empty: bool = False
-          ) -> tuple[Float[np.ndarray, "n columns"], np.ndarray, Path]:
+def _read(
+    directory: Path, table: _Table, allow_empty: bool = False
+) -> tuple[Float[np.ndarray, "n columns"], np.ndarray, Path]:
     """Parse and validate (finite numbers, ranges >= 0) one file; returns the rows, their 1-based
     line numbers and the path. Without data rows: an error, or no rows with ``allow_empty``."""
     path = directory / table.name
@@ -65,16 +71,19 @@ def _read(directory: Path, table: _Table, allow_empty: bool = False
     return data, lines, path
 
 
-def _integer_column(data: np.ndarray, column: int, table: _Table, path: Path, lines: np.ndarray,
-                    lo: int = 0, note: str = "") -> Int[np.ndarray, " n"]:
+def _integer_column(
+    data: np.ndarray, column: int, table: _Table, path: Path, lines: np.ndarray, lo: int = 0, note: str = ""
+) -> Int[np.ndarray, " n"]:
     """Column ``column`` of ``data`` as integers; raises naming the line of the first value that is
     not a whole number >= ``lo`` (``note``: why, for the message)."""
     values = data[:, column]
     bad = np.flatnonzero((values != np.round(values)) | (values < lo))
     if bad.size:
         i = bad[0]
-        raise LogFormatError(f"{path} line {lines[i]}: expected a whole number >= {lo}{note} in column "
-                             f"'{table.columns[column]}', got {float(values[i]):g}")
+        raise LogFormatError(
+            f"{path} line {lines[i]}: expected a whole number >= {lo}{note} in column "
+            f"'{table.columns[column]}', got {float(values[i]):g}"
+        )
     return values.astype(np.int64)
 
 
@@ -84,8 +93,10 @@ def _unique_column(values: np.ndarray, table: _Table, column: int, path: Path, l
     if np.any(counts > 1):
         value = unique[np.argmax(counts > 1)]
         rows = np.flatnonzero(values == value)
-        raise LogFormatError(f"{path} line {lines[rows[1]]}: {table.columns[column]} {value} appears again "
-                             f"(first on line {lines[rows[0]]}); expected each {table.columns[column]} once")
+        raise LogFormatError(
+            f"{path} line {lines[rows[1]]}: {table.columns[column]} {value} appears again "
+            f"(first on line {lines[rows[0]]}); expected each {table.columns[column]} once"
+        )
 
 
 def _barcode_subjects(directory: Path) -> dict[int, int]:
@@ -101,14 +112,16 @@ def _barcode_subjects(directory: Path) -> dict[int, int]:
 def _surveyed_landmarks(directory: Path) -> tuple[Float[np.ndarray, "l 2"], Int[np.ndarray, " l"]]:
     """``Landmark_Groundtruth.dat`` as ``(xy, landmark ids)``, in file order."""
     data, lines, path = _read(directory, _LANDMARKS)
-    subjects = _integer_column(data, 0, _LANDMARKS, path, lines, lo=MRCLAM_FIRST_LANDMARK,
-                               note=" (a landmark; subjects 1-5 are the robots)")
+    subjects = _integer_column(
+        data, 0, _LANDMARKS, path, lines, lo=MRCLAM_FIRST_LANDMARK, note=" (a landmark; subjects 1-5 are the robots)"
+    )
     _unique_column(subjects, _LANDMARKS, 0, path, lines)
     return data[:, 1:3].copy(), subjects - MRCLAM_FIRST_LANDMARK
 
 
-def load_mrclam(directory: str | os.PathLike, robot: int = 1, *,
-                unknown_barcodes: Literal["drop", "error"] = "drop") -> RawLog:
+def load_mrclam(
+    directory: str | os.PathLike, robot: int = 1, *, unknown_barcodes: Literal["drop", "error"] = "drop"
+) -> RawLog:
     """Load one robot's log of an MRCLAM dataset directory.
 
     * **Clock.** Times are seconds since ``t0``, the robot's first odometry time; its odometry and
@@ -155,8 +168,9 @@ def load_mrclam(directory: str | os.PathLike, robot: int = 1, *,
     robot = int(robot)
     directory = Path(directory)
     if not directory.is_dir():
-        raise FileNotFoundError(f"{directory}: MRCLAM dataset directory not found; expected a directory holding "
-                                f"{_EXPECTED_FILES}")
+        raise FileNotFoundError(
+            f"{directory}: MRCLAM dataset directory not found; expected a directory holding {_EXPECTED_FILES}"
+        )
     subject_of = _barcode_subjects(directory)
     truth_xy, truth_ids = _surveyed_landmarks(directory)
 
@@ -173,19 +187,29 @@ def load_mrclam(directory: str | os.PathLike, robot: int = 1, *,
     unknown = np.flatnonzero(subjects < 0)
     if unknown.size and unknown_barcodes == "error":
         i = unknown[0]
-        raise LogFormatError(f"{path} line {lines[i]}: barcode {barcodes[i]} is not listed in "
-                             f"{directory / _BARCODES.name}; expected one of {sorted(subject_of)}")
+        raise LogFormatError(
+            f"{path} line {lines[i]}: barcode {barcodes[i]} is not listed in "
+            f"{directory / _BARCODES.name}; expected one of {sorted(subject_of)}"
+        )
     keep = (subjects >= MRCLAM_FIRST_LANDMARK) & (meas[:, 0] >= t0)
     meas, ids = meas[keep], subjects[keep] - MRCLAM_FIRST_LANDMARK
     order = np.argsort(meas[:, 0], kind="stable")
     meas, ids = meas[order], ids[order]
     detections = np.column_stack([meas[:, 0] - t0, meas[:, 2], wrap_angle_np(meas[:, 3]), np.zeros(len(meas))])
-    return RawLog(dr=dr, detections=detections, gps=np.zeros((0, 3)), truth_landmarks=truth_xy,
-                  source=f"{directory} (robot {robot})", detection_ids=ids, landmark_ids=truth_ids)
+    return RawLog(
+        dr=dr,
+        detections=detections,
+        gps=np.zeros((0, 3)),
+        truth_landmarks=truth_xy,
+        source=f"{directory} (robot {robot})",
+        detection_ids=ids,
+        landmark_ids=truth_ids,
+    )
 
 
-def unicycle_poses(dr: Float[np.ndarray, "n 3"], times: Float[np.ndarray, " m"],
-                   start: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Float[np.ndarray, "m 3"]:
+def unicycle_poses(
+    dr: Float[np.ndarray, "n 3"], times: Float[np.ndarray, " m"], start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+) -> Float[np.ndarray, "m 3"]:
     """Dead reckoning of a unicycle: the poses ``(x, y, phi)`` at ``times``, integrated exactly.
 
     Sample ``i`` holds its controls ``(v_i, omega_i)`` over ``[t_i, t_{i+1})`` (the last one for

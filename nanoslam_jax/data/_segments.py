@@ -10,7 +10,7 @@ intermediate DR sample times. Everything is built with ``searchsorted`` and gath
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 from jaxtyping import Bool, Float, Int
@@ -20,8 +20,9 @@ from ._types import RawLog, Segments
 __all__ = ["make_segments", "segment_summary"]
 
 
-def _check_inputs(raw: RawLog, min_range: float, max_range: float, k_max: Optional[int],
-                  max_dr_per_segment: int) -> None:
+def _check_inputs(
+    raw: RawLog, min_range: float, max_range: float, k_max: Optional[int], max_dr_per_segment: int
+) -> None:
     """Raise ``ValueError`` on arguments or a log that :func:`make_segments` cannot cut."""
     if not min_range < max_range:
         raise ValueError(f"data.min_range ({min_range}) must be below data.max_range ({max_range})")
@@ -36,8 +37,9 @@ def _check_inputs(raw: RawLog, min_range: float, max_range: float, k_max: Option
         raise ValueError(f"log {raw.source!r}: dead-reckoning times must be strictly increasing")
 
 
-def _segment_layout(t: Float[np.ndarray, " n_dr"], scan_times: Float[np.ndarray, " scans"],
-                    max_pieces: int) -> dict[str, np.ndarray]:
+def _segment_layout(
+    t: Float[np.ndarray, " n_dr"], scan_times: Float[np.ndarray, " scans"], max_pieces: int
+) -> dict[str, np.ndarray]:
     """Where each output segment starts and ends and which DR samples it integrates.
 
     Args:
@@ -73,9 +75,9 @@ def _segment_layout(t: Float[np.ndarray, " n_dr"], scan_times: Float[np.ndarray,
     return dict(scan=scan, is_scan=is_scan, time=time, lo=lo, hi=hi, first=first, count=count)
 
 
-def _dr_pieces(dr: Float[np.ndarray, "n_dr 3"], layout: dict[str, np.ndarray], max_pieces: int
-               ) -> tuple[Float[np.ndarray, "segments dr"], Float[np.ndarray, "segments dr 2"],
-                          Bool[np.ndarray, "segments dr"]]:
+def _dr_pieces(
+    dr: Float[np.ndarray, "n_dr 3"], layout: dict[str, np.ndarray], max_pieces: int
+) -> tuple[Float[np.ndarray, "segments dr"], Float[np.ndarray, "segments dr 2"], Bool[np.ndarray, "segments dr"]]:
     """The padded DR pieces ``(dt, u, dr_mask)`` of every segment.
 
     Args:
@@ -94,11 +96,20 @@ def _dr_pieces(dr: Float[np.ndarray, "n_dr 3"], layout: dict[str, np.ndarray], m
     return dt, u, mask
 
 
-def _detections(ranges_bearings: Float[np.ndarray, "m 4"], scan_of_det: Int[np.ndarray, " m"],
-                scan_times: Float[np.ndarray, " scans"], segment_of_scan: Int[np.ndarray, " scans"],
-                n_segments: int, k_max: Optional[int], range_rule: str
-                ) -> tuple[Float[np.ndarray, "segments k_max 2"], Bool[np.ndarray, "segments k_max"],
-                           Float[np.ndarray, "segments k_max"], Int[np.ndarray, "segments k_max"]]:
+def _detections(
+    ranges_bearings: Float[np.ndarray, "m 4"],
+    scan_of_det: Int[np.ndarray, " m"],
+    scan_times: Float[np.ndarray, " scans"],
+    segment_of_scan: Int[np.ndarray, " scans"],
+    n_segments: int,
+    k_max: Optional[int],
+    range_rule: str,
+) -> tuple[
+    Float[np.ndarray, "segments k_max 2"],
+    Bool[np.ndarray, "segments k_max"],
+    Float[np.ndarray, "segments k_max"],
+    Int[np.ndarray, "segments k_max"],
+]:
     """The padded detections ``(z, z_mask, diam, z_id)`` of every segment, file order kept within a scan.
 
     Args:
@@ -122,7 +133,8 @@ def _detections(ranges_bearings: Float[np.ndarray, "m 4"], scan_of_det: Int[np.n
         raise ValueError(
             f"data.k_max={k_max} is too small: the scan at t={scan_times[worst]:.3f} s has {counts[worst]} "
             f"detections with {range_rule} (the most in any scan is {most}); raise data.k_max to at "
-            f"least {most} or set it to null")
+            f"least {most} or set it to null"
+        )
     order = np.argsort(scan_of_det, kind="stable")
     scans = scan_of_det[order]
     slot = np.arange(scans.size) - (np.cumsum(counts) - counts)[scans]
@@ -133,9 +145,15 @@ def _detections(ranges_bearings: Float[np.ndarray, "m 4"], scan_of_det: Int[np.n
     return z[..., :2], z_mask, z[..., 2], np.where(z_mask, z[..., 3], -1).astype(np.int32)
 
 
-def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.0,
-                  k_max: Optional[int] = None, max_dr_per_segment: int = 12,
-                  t_end: Optional[float] = None) -> Segments:
+def make_segments(
+    raw: RawLog,
+    *,
+    min_range: float = 0.0,
+    max_range: float = 30.0,
+    k_max: Optional[int] = None,
+    max_dr_per_segment: int = 12,
+    t_end: Optional[float] = None,
+) -> Segments:
     """Cut a log into fixed-shape segments, one per laser scan (plus splits of long gaps).
 
     Every distinct detection time is a scan and gets a segment, even when the range filter
@@ -180,11 +198,28 @@ def make_segments(raw: RawLog, *, min_range: float = 0.0, max_range: float = 30.
     if t_end is not None:
         ids = ids[raw.detections[:, 0] <= t_end]
     rows = np.c_[det[keep, 1:4], ids[keep]]
-    z, z_mask, diam, z_id = _detections(rows, scan_of_det[keep], scan_times, np.flatnonzero(layout["is_scan"]),
-                                        layout["time"].size, k_max, f"{min_range} <= range < {max_range} m")
+    z, z_mask, diam, z_id = _detections(
+        rows,
+        scan_of_det[keep],
+        scan_times,
+        np.flatnonzero(layout["is_scan"]),
+        layout["time"].size,
+        k_max,
+        f"{min_range} <= range < {max_range} m",
+    )
     # Numpy arrays: the segments live on the host until a run transfers them (jax arrays under jit).
-    return Segments(time=layout["time"], dt=dt, u=u, dr_mask=dr_mask, z=z, z_mask=z_mask,  # type: ignore[arg-type]
-                    diam=diam, is_scan=layout["is_scan"], z_id=z_id)  # type: ignore[arg-type]
+    fields: dict[str, Any] = dict(
+        time=layout["time"],
+        dt=dt,
+        u=u,
+        dr_mask=dr_mask,
+        z=z,
+        z_mask=z_mask,
+        diam=diam,
+        is_scan=layout["is_scan"],
+        z_id=z_id,
+    )
+    return Segments(**fields)
 
 
 def segment_summary(seg: Segments) -> dict[str, int]:

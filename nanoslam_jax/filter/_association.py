@@ -37,7 +37,11 @@ class Association(NamedTuple):
 
 
 def predicted_measurements(
-    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots 2"], cov: Float[Array, "slots 2 2"], R: Float[Array, "2 2"],
+    x: Float[Array, "3"],
+    P: Float[Array, "3 3"],
+    mean: Float[Array, "slots 2"],
+    cov: Float[Array, "slots 2 2"],
+    R: Float[Array, "2 2"],
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "slots 2"], Float[Array, "slots 2 2"]]:
     """Predicted detection and innovation covariance ``Gx P Gx' + Gm Sigma Gm' + R`` of each slot
@@ -50,7 +54,11 @@ def predicted_measurements(
 
 
 def innovation_information(
-    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots 2"], cov: Float[Array, "slots 2 2"], R: Float[Array, "2 2"],
+    x: Float[Array, "3"],
+    P: Float[Array, "3 3"],
+    mean: Float[Array, "slots 2"],
+    cov: Float[Array, "slots 2 2"],
+    R: Float[Array, "2 2"],
     model: AbstractMeasurementModel | None = None,
 ):
     """:func:`predicted_measurements` and the inverse of ``S``.
@@ -68,8 +76,11 @@ def innovation_information(
     (zr, zb), J = range_bearing_jacobian_components(x[0], x[1], x[2], mean[:, 0], mean[:, 1])
 
     def s(a, b):  # (Gx P Gx' + Gm cov Gm' + R)[a, b]
-        return (sum(J[a][i] * J[b][j] * P[i, j] for i in range(3) for j in range(3))
-                + sum(J[a][3 + i] * J[b][3 + j] * cov[:, i, j] for i in range(2) for j in range(2)) + R[a, b])
+        return (
+            sum(J[a][i] * J[b][j] * P[i, j] for i in range(3) for j in range(3))
+            + sum(J[a][3 + i] * J[b][3 + j] * cov[:, i, j] for i in range(2) for j in range(2))
+            + R[a, b]
+        )
 
     s00, s01, s11 = computed_once((s(0, 0), s(0, 1), s(1, 1)))  # else each entry of S^-1 recomputes all three
     det = s00 * s11 - s01 * s01
@@ -133,11 +144,13 @@ def associate(
     id_term = None
     if ids is not None:
         if local.ident is None:
-            raise ValueError("association by landmark id needs a map with the ident field (LandmarkMap.empty(..., "
-                             "ident=True))")
+            raise ValueError(
+                "association by landmark id needs a map with the ident field (LandmarkMap.empty(..., ident=True))"
+            )
         id_term = (ids, jnp.concatenate([local.ident, ids]))
-    return nearest_neighbours(z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term,
-                              id_term, model)
+    return nearest_neighbours(
+        z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term, id_term, model
+    )
 
 
 def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
@@ -159,6 +172,7 @@ def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
         def branch(loc):
             a = associate(jax.tree.map(lambda f: f[:b], loc), *args, **kwargs)
             return a._replace(slot=jnp.where(a.slot >= b, a.slot - b + w, a.slot))
+
         return branch
 
     return jax.lax.switch(index, [prefix(b) for b in sizes], local)
@@ -228,6 +242,7 @@ def nearest_neighbours(
             d2 = quad_form(nu, s_inv)
             return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
     else:
+
         def distances(zk, dk):
             nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)
             d2 = nr * (a00 * nr + a01 * nb) + nb * (a01 * nr + a11 * nb)
@@ -259,8 +274,12 @@ def nearest_neighbours(
         new = mk & (best > new_landmark)
         # One-hot updates (element-wise, fused) rather than scatters.
         avail = (avail & ~((slots == j) & matched)) | ((slots == window + k) & new)
-        return (avail, slot.at[k].set(jnp.where(matched, j, -1)), is_new.at[k].set(new),
-                d2_best.at[k].set(jnp.where(mk, best, jnp.inf)))
+        return (
+            avail,
+            slot.at[k].set(jnp.where(matched, j, -1)),
+            is_new.at[k].set(new),
+            d2_best.at[k].set(jnp.where(mk, best, jnp.inf)),
+        )
 
     # Only up to the last real detection: the count does not depend on the particle, so under
     # vmap this stays one loop of that many steps (a scan's mean is ~5 detections, k_max 14).

@@ -110,10 +110,19 @@ def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSl
     diag = jnp.concatenate([jnp.full((3,), params.init_cov, dtype=float), jnp.ones(2 * c)])
     zero = jnp.zeros((), jnp.int32)
     # The bookkeeping of an empty map; its mean and covariance are placeholders of one element.
-    book = LandmarkMap.empty(c, ident=static.association == "known")._replace(mean=jnp.zeros((1, 2)),
-                                                                              cov=jnp.zeros((1, 2, 2)))
-    return EkfSlamState(mean=jnp.zeros(n), cov=jnp.diag(diag), landmarks=book, count=zero, key=key,
-                        resample_count=zero, overflow=zero, scan=zero)
+    book = LandmarkMap.empty(c, ident=static.association == "known")._replace(
+        mean=jnp.zeros((1, 2)), cov=jnp.zeros((1, 2, 2))
+    )
+    return EkfSlamState(
+        mean=jnp.zeros(n),
+        cov=jnp.diag(diag),
+        landmarks=book,
+        count=zero,
+        key=key,
+        resample_count=zero,
+        overflow=zero,
+        scan=zero,
+    )
 
 
 class _Carry(NamedTuple):
@@ -137,14 +146,19 @@ def _diameter_terms(book: LandmarkMap, d: Float[Array, ""], params: Params) -> F
 
 
 def _batch_association(
-    mean: Float[Array, " n"], cov: Float[Array, "n n"], seg: Segments, z_mask: Bool[Array, " k"],
-    book: LandmarkMap, params: Params,
+    mean: Float[Array, " n"],
+    cov: Float[Array, "n n"],
+    seg: Segments,
+    z_mask: Bool[Array, " k"],
+    book: LandmarkMap,
+    params: Params,
 ) -> tuple[Int[Array, " k"], Bool[Array, " k"], Bool[Array, " k"]]:
     """Non-sequential association with the existing landmarks (the closest claimant wins)."""
     k_max = z_mask.shape[0]
     terms = jax.vmap(_diameter_terms, (None, 0, None))(book, seg.diam, params)
     d2 = jax.vmap(association_distances, (None, None, 0, None, None, 0, None))(
-        mean, cov, seg.z, params.R, book.active, terms, params.measurement)
+        mean, cov, seg.z, params.R, book.active, terms, params.measurement
+    )
     j = jnp.argmin(d2, axis=1)
     best = jnp.min(d2, axis=1)
     matched = z_mask & (best < params.gate)
@@ -174,7 +188,11 @@ def _remove(mean, cov, book: LandmarkMap, remove: Bool[Array, " capacity"]):
 
 
 def ekf_slam_step(
-    static: Static, params: Params, state: EkfSlamState, seg: Segments, valid: Bool[Array, ""] | bool = True,
+    static: Static,
+    params: Params,
+    state: EkfSlamState,
+    seg: Segments,
+    valid: Bool[Array, ""] | bool = True,
 ) -> tuple[EkfSlamState, StepOutput]:
     """Advance EKF-SLAM through one segment: prediction, the scan's detections in order, then
     landmark management.
@@ -255,7 +273,10 @@ def ekf_slam_step(
         # Sequential: a landmark is claimed once per scan; a new one can be matched next.
         available = (c.available & ~claimed) | created if static.sequential else c.available
         return _Carry(
-            mean=mean, cov=cov, available=available, book=book,
+            mean=mean,
+            cov=cov,
+            available=available,
+            book=book,
             seen=(c.seen | claimed) & ~created,
             count=jnp.maximum(c.count, jnp.where(add, free + 1, 0)),
             n_associated=c.n_associated + matched.astype(jnp.int32),
@@ -274,10 +295,20 @@ def ekf_slam_step(
         old = book0.active
         full = book._replace(mean=landmark_means(mean), cov=landmark_blocks(cov, capacity), active=old)
         radius = params.max_range + params.window_margin
-        local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius,
-                                      model=params.measurement)
-        local = manage_window(local, mean[:3], c.seen.at[idx].get(mode="fill", fill_value=False), seg.z, z_mask,
-                              seg.diam, valid & seg.is_scan, state.scan, params.measurement, mp, static.occlusion)
+        local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius, model=params.measurement)
+        local = manage_window(
+            local,
+            mean[:3],
+            c.seen.at[idx].get(mode="fill", fill_value=False),
+            seg.z,
+            z_mask,
+            seg.diam,
+            valid & seg.is_scan,
+            state.scan,
+            params.measurement,
+            mp,
+            static.occlusion,
+        )
         managed = drop_stale(scatter_window(full, local, idx), state.scan, mp)
         remove = old & ~managed.active
         created = book.active & ~old
@@ -288,16 +319,29 @@ def ekf_slam_step(
     diag = jnp.diagonal(cov)
     finite = jnp.all(jnp.isfinite(mean)) & jnp.all(jnp.isfinite(diag))
     new_state = EkfSlamState(
-        mean=mean, cov=cov, landmarks=book, count=count, key=state.key,
-        resample_count=state.resample_count, overflow=state.overflow + c.overflow,
+        mean=mean,
+        cov=cov,
+        landmarks=book,
+        count=count,
+        key=state.key,
+        resample_count=state.resample_count,
+        overflow=state.overflow + c.overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
     )
     record = StepOutput(
-        best_pose=x, mean_pose=x, ess=jnp.ones((), dtype=x.dtype), resampled=jnp.zeros((), bool),
+        best_pose=x,
+        mean_pose=x,
+        ess=jnp.ones((), dtype=x.dtype),
+        resampled=jnp.zeros((), bool),
         n_landmarks=jnp.sum(book.active).astype(jnp.int32),
-        n_confirmed=jnp.sum(book.active & book.confirmed).astype(jnp.int32), iterations=jnp.zeros((), dtype=x.dtype),
-        n_capped=zero, n_nonfinite=(~finite).astype(jnp.int32),
-        n_associated=c.n_associated.astype(x.dtype), n_new=c.n_new.astype(x.dtype),
-        window_overflow=zero, overflow=c.overflow, weight_reset=jnp.zeros((), bool),
+        n_confirmed=jnp.sum(book.active & book.confirmed).astype(jnp.int32),
+        iterations=jnp.zeros((), dtype=x.dtype),
+        n_capped=zero,
+        n_nonfinite=(~finite).astype(jnp.int32),
+        n_associated=c.n_associated.astype(x.dtype),
+        n_new=c.n_new.astype(x.dtype),
+        window_overflow=zero,
+        overflow=c.overflow,
+        weight_reset=jnp.zeros((), bool),
     )
     return new_state, record

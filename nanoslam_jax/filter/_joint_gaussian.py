@@ -86,8 +86,12 @@ def ekf_slam_predict(
 
 
 def slot_innovations(
-    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
-    usable: Bool[Array, " capacity"], model: AbstractMeasurementModel | None = None,
+    mean: Float[Array, " n"],
+    cov: Float[Array, "n n"],
+    z: Float[Array, "2"],
+    R: Float[Array, "2 2"],
+    usable: Bool[Array, " capacity"],
+    model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "capacity 2"], Float[Array, "capacity 2 2"]]:
     """Innovation and innovation covariance of detection ``z`` against every landmark slot.
 
@@ -119,8 +123,12 @@ def slot_innovations(
 
 
 def association_distances(
-    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], R: Float[Array, "2 2"],
-    available: Bool[Array, " capacity"], diam_term: Float[Array, " capacity"] | float = 0.0,
+    mean: Float[Array, " n"],
+    cov: Float[Array, "n n"],
+    z: Float[Array, "2"],
+    R: Float[Array, "2 2"],
+    available: Bool[Array, " capacity"],
+    diam_term: Float[Array, " capacity"] | float = 0.0,
     model: AbstractMeasurementModel | None = None,
 ) -> Float[Array, " capacity"]:
     """Squared Mahalanobis distance of ``z`` to every available landmark (inf elsewhere), plus
@@ -135,7 +143,10 @@ BLOCK = 128
 
 
 def rank2_downdate(
-    cov: Float[Array, "n n"], v0: Float[Array, " n"], v1: Float[Array, " n"], size: Int[Array, ""] | int | None = None,
+    cov: Float[Array, "n n"],
+    v0: Float[Array, " n"],
+    v1: Float[Array, " n"],
+    size: Int[Array, ""] | int | None = None,
     block: int = BLOCK,
 ) -> Float[Array, "n n"]:
     """``cov - (v0 v0' + v1 v1')`` on the leading ``size x size`` part of ``cov``.
@@ -173,8 +184,13 @@ def rank2_downdate(
 
 
 def ekf_slam_update(
-    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
-    R: Float[Array, "2 2"], size: Int[Array, ""] | int | None = None, apply: Bool[Array, ""] | bool = True,
+    mean: Float[Array, " n"],
+    cov: Float[Array, "n n"],
+    z: Float[Array, "2"],
+    slot: Int[Array, ""] | int,
+    R: Float[Array, "2 2"],
+    size: Int[Array, ""] | int | None = None,
+    apply: Bool[Array, ""] | bool = True,
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """EKF update of the joint state with detection ``z`` of landmark ``slot``.
@@ -222,8 +238,13 @@ def ekf_slam_update(
 
 
 def ekf_slam_augment(
-    mean: Float[Array, " n"], cov: Float[Array, "n n"], z: Float[Array, "2"], slot: Int[Array, ""] | int,
-    R: Float[Array, "2 2"], apply: Bool[Array, ""] | bool = True, model: AbstractMeasurementModel | None = None,
+    mean: Float[Array, " n"],
+    cov: Float[Array, "n n"],
+    z: Float[Array, "2"],
+    slot: Int[Array, ""] | int,
+    R: Float[Array, "2 2"],
+    apply: Bool[Array, ""] | bool = True,
+    model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Add a landmark from detection ``z`` in (free) slot ``slot``, with full cross-covariances.
 
@@ -259,10 +280,11 @@ def ekf_slam_augment(
     return mean, cov
 
 
-
-
 def ekf_slam_marginalise(
-    mean: Float[Array, " n"], cov: Float[Array, "n n"], slot: Int[Array, ""] | int, apply: Bool[Array, ""] | bool = True,
+    mean: Float[Array, " n"],
+    cov: Float[Array, "n n"],
+    slot: Int[Array, ""] | int,
+    apply: Bool[Array, ""] | bool = True,
 ) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Remove landmark ``slot`` from the joint Gaussian (marginalise it out) and free its slot.
 

@@ -56,7 +56,11 @@ def first_true(mask: Bool[Array, " n"], size: int) -> tuple[Int[Array, " size"],
 
 
 def gather_window(
-    lm: LandmarkMap, position: Float[Array, "2"], window: int, radius: Float[Array, ""], slots: int | None = None,
+    lm: LandmarkMap,
+    position: Float[Array, "2"],
+    window: int,
+    radius: Float[Array, ""],
+    slots: int | None = None,
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[LandmarkMap, Int[Array, " window"], Int[Array, ""]]:
     """The local map of one particle.
@@ -87,8 +91,7 @@ def gather_window(
     if slots < capacity:
         idx = jnp.where(idx < slots, idx, capacity)  # unused window slots point at ``capacity``
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
-    local = local._replace(active=idx < capacity,
-                           cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(2)))
+    local = local._replace(active=idx < capacity, cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(2)))
     return local, idx, jnp.maximum(n_near - window, 0)
 
 
@@ -152,8 +155,9 @@ def update_slots(
         hits=lm.hits.at[slots].add(1, mode="drop"),
     )
     if diam is not None:
-        lm = lm._replace(diam=lm.diam.at[slots].set(diam, mode="drop"),
-                         diam_var=lm.diam_var.at[slots].set(diam_var, mode="drop"))
+        lm = lm._replace(
+            diam=lm.diam.at[slots].set(diam, mode="drop"), diam_var=lm.diam_var.at[slots].set(diam_var, mode="drop")
+        )
     return lm
 
 
@@ -174,7 +178,10 @@ def free_slots(active: Bool[Array, " capacity"], k: int, slots: int | None = Non
 
 
 def add_landmarks(
-    lm: LandmarkMap, new: LandmarkMap, is_new: Bool[Array, " k"], contiguous: bool = False,
+    lm: LandmarkMap,
+    new: LandmarkMap,
+    is_new: Bool[Array, " k"],
+    contiguous: bool = False,
     free: Int[Array, " k"] | None = None,
 ) -> tuple[LandmarkMap, Int[Array, ""]]:
     """Place new landmarks in free slots, in order.
@@ -222,7 +229,11 @@ def init_landmark(
 
 
 def ekf_update_loglik(
-    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"],
+    x: Float[Array, "3"],
+    z: Float[Array, "2"],
+    mean: Float[Array, "2"],
+    cov: Float[Array, "2 2"],
+    R: Float[Array, "2 2"],
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form), and the
@@ -239,7 +250,11 @@ def ekf_update_loglik(
 
 
 def ekf_update(
-    x: Float[Array, "3"], z: Float[Array, "2"], mean: Float[Array, "2"], cov: Float[Array, "2 2"], R: Float[Array, "2 2"],
+    x: Float[Array, "3"],
+    z: Float[Array, "2"],
+    mean: Float[Array, "2"],
+    cov: Float[Array, "2 2"],
+    R: Float[Array, "2 2"],
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""

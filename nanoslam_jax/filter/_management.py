@@ -152,12 +152,20 @@ def manage_window(
     log_odds = jnp.minimum(log_odds, mp.log_odds_max)
     confirmed = local.confirmed | confirm_rule(log_odds, local.hits, mp)
     keep = (log_odds >= mp.log_odds_remove) & (confirmed | fresh(local.born, scan, mp))
-    return local._replace(log_odds=log_odds, misses=local.misses + missed.astype(jnp.int32), confirmed=confirmed,
-                          active=local.active & keep)
+    return local._replace(
+        log_odds=log_odds,
+        misses=local.misses + missed.astype(jnp.int32),
+        confirmed=confirmed,
+        active=local.active & keep,
+    )
 
 
-def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, " window"], n_local: Int[Array, ""],
-                         manage: Callable[[LandmarkMap, Bool[Array, " b"]], LandmarkMap]) -> LandmarkMap:
+def manage_window_prefix(
+    local: LandmarkMap,
+    seen: Bool[Array, " window"],
+    n_local: Int[Array, ""],
+    manage: Callable[[LandmarkMap, Bool[Array, " b"]], LandmarkMap],
+) -> LandmarkMap:
     """:func:`manage_window` (as ``manage(local, seen)``) over the smallest prefix of the window
     that holds its ``n_local`` landmarks: 16, 32 or all slots (``lax.switch``).
 
@@ -175,6 +183,7 @@ def manage_window_prefix(local: LandmarkMap, seen: Bool[Array, " window"], n_loc
         def branch(loc, sn):
             head = manage(jax.tree.map(lambda a: a[:b], loc), sn[:b])
             return jax.tree.map(lambda h, a: a.at[:b].set(h), head, loc)
+
         return branch
 
     return jax.lax.switch(index, [prefix(b) for b in sizes], local, seen)
@@ -228,8 +237,15 @@ def new_landmarks(
     log_odds = jnp.minimum(mp.log_odds_birth + extra_hits * mp.log_odds_hit, mp.log_odds_max)
     confirmed = confirm_rule(log_odds, hits, mp) if manage else jnp.ones(k, bool)
     return LandmarkMap(
-        mean=mean, cov=cov, active=is_new, hits=hits, misses=jnp.zeros(k, jnp.int32),
-        log_odds=jnp.broadcast_to(log_odds, (k,)).astype(mean.dtype), confirmed=confirmed & is_new,
-        born=jnp.full(k, scan, jnp.int32), diam=diam, diam_var=diam_var,
+        mean=mean,
+        cov=cov,
+        active=is_new,
+        hits=hits,
+        misses=jnp.zeros(k, jnp.int32),
+        log_odds=jnp.broadcast_to(log_odds, (k,)).astype(mean.dtype),
+        confirmed=confirmed & is_new,
+        born=jnp.full(k, scan, jnp.int32),
+        diam=diam,
+        diam_var=diam_var,
         ident=None if ident is None else ident.astype(jnp.int32),
     )

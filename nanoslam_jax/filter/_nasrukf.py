@@ -227,10 +227,16 @@ def init_feature(
 
 
 def association_information(
-    x: Float[Array, "3"], P: Float[Array, "3 3"], mean: Float[Array, "slots f"], gain: Float[Array, "slots f 3"],
-    sqrt: Float[Array, "slots f f"], R: Float[Array, "2 2"],
-) -> tuple[tuple[Float[Array, " slots"], Float[Array, " slots"]],
-           tuple[Float[Array, " slots"], Float[Array, " slots"], Float[Array, " slots"]]]:
+    x: Float[Array, "3"],
+    P: Float[Array, "3 3"],
+    mean: Float[Array, "slots f"],
+    gain: Float[Array, "slots f 3"],
+    sqrt: Float[Array, "slots f f"],
+    R: Float[Array, "2 2"],
+) -> tuple[
+    tuple[Float[Array, " slots"], Float[Array, " slots"]],
+    tuple[Float[Array, " slots"], Float[Array, " slots"], Float[Array, " slots"]],
+]:
     """Predicted range and bearing of each slot's centre and the entries of its inverse innovation
     covariance ``J P J' + Gm C Gm' + R``, ``J = Gx + Gm gain`` (joint state linearised, autodiff)."""
     c = mean[:, :2]
@@ -292,7 +298,11 @@ class _Rows(NamedTuple):
 
 
 def nasrukf_step(
-    static: Static, params: Params, state: NasrukfState, seg: Segments, valid: Bool[Array, ""] | bool = True,
+    static: Static,
+    params: Params,
+    state: NasrukfState,
+    seg: Segments,
+    valid: Bool[Array, ""] | bool = True,
 ) -> tuple[NasrukfState, StepOutput]:
     """Advance NASRUKF FastSLAM through one segment (see the module docstring).
 
@@ -310,8 +320,9 @@ def nasrukf_step(
         pose, ``ess = 1``).
     """
     if not is_range_bearing(params.measurement):
-        raise ValueError(f"model.measurement: NASRUKF runs range-bearing models only, not "
-                         f"{type(params.measurement).__name__}")
+        raise ValueError(
+            f"model.measurement: NASRUKF runs range-bearing models only, not {type(params.measurement).__name__}"
+        )
     valid = jnp.asarray(valid)
     capacity, K = static.capacity, seg.z.shape[0]
     W = min(static.window, capacity)
@@ -350,12 +361,17 @@ def nasrukf_step(
     z_hat, s_inv = association_information(x0, P0, mean, gain, sqrt, jnp.diag(noise[:2]))
     mp = params.map
     var_d = jnp.square(mp.sigma_diameter)
-    diam_term = (seg.diam, jnp.concatenate([local.landmarks.diam, seg.diam]),
-                 1.0 / (jnp.concatenate([local.landmarks.diam_var, jnp.full(K, var_d)]) + var_d), mp.use_diameter)
+    diam_term = (
+        seg.diam,
+        jnp.concatenate([local.landmarks.diam, seg.diam]),
+        1.0 / (jnp.concatenate([local.landmarks.diam_var, jnp.full(K, var_d)]) + var_d),
+        mp.use_diameter,
+    )
     known = static.association == "known"
     id_term = (seg.z_id, jnp.concatenate([local.landmarks.ident, seg.z_id])) if known else None
-    assoc = nearest_neighbours(z_hat, s_inv, in_window, seg.z, z_mask, params.gate, params.new_landmark,
-                               static.sequential, diam_term, id_term)
+    assoc = nearest_neighbours(
+        z_hat, s_inv, in_window, seg.z, z_mask, params.gate, params.new_landmark, static.sequential, diam_term, id_term
+    )
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
     provisional = matched & ~existing
@@ -364,20 +380,32 @@ def nasrukf_step(
     ps = jnp.clip(assoc.slot - W, 0, K - 1)
 
     # 4. The matched joint states' measurement updates, with the adaptive noise estimate first.
-    rows = _Rows(jax.vmap(lambda m: jnp.concatenate([x0, m]))(mean[slot]),
-                 jax.vmap(joint_sqrt, (None, 0, 0))(S0, gain[slot], sqrt[slot]))
+    rows = _Rows(
+        jax.vmap(lambda m: jnp.concatenate([x0, m]))(mean[slot]),
+        jax.vmap(joint_sqrt, (None, 0, 0))(S0, gain[slot], sqrt[slot]),
+    )
     pred: SigmaMeasurement = jax.vmap(predict_measurement, (0, 0, None, None, None))(
-        rows.x, rows.L, measure, _rule(params), (1,))
+        rows.x, rows.L, measure, _rule(params), (1,)
+    )
     if static.adaptive_noise:
         nu0 = z - pred.z_hat
         nu0 = nu0.at[:, 1].set(wrap_angle(nu0[:, 1]))
         row_noise, noise, noise_count = adaptive_noise_rows(
-            noise, state.noise_count, nu0, jax.vmap(SigmaMeasurement.variance)(pred), matched, params.forgetting,
-            params.noise_floor * configured_noise(static, params))
+            noise,
+            state.noise_count,
+            nu0,
+            jax.vmap(SigmaMeasurement.variance)(pred),
+            matched,
+            params.forgetting,
+            params.noise_floor * configured_noise(static, params),
+        )
     else:
         row_noise, noise_count = jnp.broadcast_to(noise, (K,) + noise.shape), state.noise_count
-    post = _Rows(*jax.vmap(measurement_update, (0, 0, 0, 0, 0, None, None))(
-        rows.x, rows.L, pred, z, jax.vmap(jnp.diag)(jnp.sqrt(row_noise)), (2,), (1,))[:2])
+    post = _Rows(
+        *jax.vmap(measurement_update, (0, 0, 0, 0, 0, None, None))(
+            rows.x, rows.L, pred, z, jax.vmap(jnp.diag)(jnp.sqrt(row_noise)), (2,), (1,)
+        )[:2]
+    )
 
     # 5. Fusion of the pose estimates of the features with enough data, 6. feedback.
     hits_before = jnp.where(existing, local.landmarks.hits[ws], 1)
@@ -391,10 +419,12 @@ def nasrukf_step(
         Pi = mmt(post.L[:, :3, :3], post.L[:, :3, :3])
         w = fuse.astype(x0.dtype)
         change = jnp.sum(w[:, None, None] * (dx[:, :, None] * dx[:, None, :] + Pi - P0), axis=0) / jnp.maximum(
-            jnp.sum(w), 1.0)
+            jnp.sum(w), 1.0
+        )
         updated = jnp.any(fuse)
-        new_scale = adaptive_process_update(process_scale, process_count, change, S0, basis, params.process_forgetting,
-                                            params.process_floor)
+        new_scale = adaptive_process_update(
+            process_scale, process_count, change, S0, basis, params.process_forgetting, params.process_floor
+        )
         process_scale = jnp.where(updated, new_scale, process_scale)
         process_count = process_count + updated.astype(process_count.dtype)
         basis = jnp.where(updated, jnp.zeros_like(basis), basis)
@@ -407,10 +437,15 @@ def nasrukf_step(
     upd_d, upd_dv = diameter_update(d_old, dv_old, seg.diam, mp.sigma_diameter)
     lms = feats.landmarks
     feats = feats._replace(
-        mean=feats.mean.at[target].set(upd[0], mode="drop"), gain=feats.gain.at[target].set(upd[1], mode="drop"),
+        mean=feats.mean.at[target].set(upd[0], mode="drop"),
+        gain=feats.gain.at[target].set(upd[1], mode="drop"),
         sqrt=feats.sqrt.at[target].set(upd[2], mode="drop"),
-        landmarks=lms._replace(hits=lms.hits.at[target].add(1, mode="drop"), diam=lms.diam.at[target].set(upd_d, mode="drop"),
-                               diam_var=lms.diam_var.at[target].set(upd_dv, mode="drop")))
+        landmarks=lms._replace(
+            hits=lms.hits.at[target].add(1, mode="drop"),
+            diam=lms.diam.at[target].set(upd_d, mode="drop"),
+            diam_var=lms.diam_var.at[target].set(upd_dv, mode="drop"),
+        ),
+    )
 
     # Existence of the window's features at the fused pose (a removed feature frees its slot).
     if static.manage:
@@ -418,8 +453,19 @@ def nasrukf_step(
         win = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), book)
         win = win._replace(active=in_window & win.active)
         seen = jnp.zeros(W, bool).at[jnp.where(existing, ws, W)].set(True, mode="drop")
-        win = manage_window(win, x_g, seen, seg.z, z_mask, seg.diam, valid & seg.is_scan, state.scan, params.measurement, mp,
-                            static.occlusion)
+        win = manage_window(
+            win,
+            x_g,
+            seen,
+            seg.z,
+            z_mask,
+            seg.diam,
+            valid & seg.is_scan,
+            state.scan,
+            params.measurement,
+            mp,
+            static.occlusion,
+        )
         book = drop_stale(jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), book, win), state.scan, mp)
         feats = feats._replace(landmarks=book)  # its mean and cov are not used
 
@@ -428,12 +474,23 @@ def nasrukf_step(
     pt = jnp.where(provisional, ps, K)
     extra = jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop")
     new_book = new_landmarks(
-        mean=ini[0][:, :2], cov=jnp.broadcast_to(jnp.eye(2), (K, 2, 2)), is_new=is_new, extra_hits=extra,
-        diam=seg.diam.at[pt].set(upd_d, mode="drop"), diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
-        scan=state.scan, mp=mp, manage=static.manage, ident=seg.z_id if known else None)
+        mean=ini[0][:, :2],
+        cov=jnp.broadcast_to(jnp.eye(2), (K, 2, 2)),
+        is_new=is_new,
+        extra_hits=extra,
+        diam=seg.diam.at[pt].set(upd_d, mode="drop"),
+        diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
+        scan=state.scan,
+        mp=mp,
+        manage=static.manage,
+        ident=seg.z_id if known else None,
+    )
     new = NasrukfFeatures(
-        mean=ini[0].at[pt].set(upd[0], mode="drop"), gain=ini[1].at[pt].set(upd[1], mode="drop"),
-        sqrt=ini[2].at[pt].set(upd[2], mode="drop"), landmarks=new_book)
+        mean=ini[0].at[pt].set(upd[0], mode="drop"),
+        gain=ini[1].at[pt].set(upd[1], mode="drop"),
+        sqrt=ini[2].at[pt].set(upd[2], mode="drop"),
+        landmarks=new_book,
+    )
     free, _ = first_true(~feats.landmarks.active, K)
     free = free[jnp.clip(jnp.cumsum(is_new) - 1, 0, K - 1)]
     room = free < capacity
@@ -445,24 +502,39 @@ def nasrukf_step(
     # A padding segment leaves the state exactly as it was.
     keep = lambda new_value, old: jax.tree.map(lambda a, b: jnp.where(valid, a, b), new_value, old)  # noqa: E731
     new_state = NasrukfState(
-        pose=keep(x_g, state.pose), pose_sqrt=keep(S_g, state.pose_sqrt), features=keep(feats, state.features),
-        noise=keep(noise, state.noise), noise_count=keep(noise_count, state.noise_count),
-        process_scale=keep(process_scale, state.process_scale), process_count=keep(process_count, state.process_count),
+        pose=keep(x_g, state.pose),
+        pose_sqrt=keep(S_g, state.pose_sqrt),
+        features=keep(feats, state.features),
+        noise=keep(noise, state.noise),
+        noise_count=keep(noise_count, state.noise_count),
+        process_scale=keep(process_scale, state.process_scale),
+        process_count=keep(process_count, state.process_count),
         process_basis=keep(basis, state.process_basis),
-        count=jnp.where(valid, jnp.sum(feats.landmarks.active), state.count).astype(jnp.int32), key=state.key,
-        resample_count=state.resample_count, overflow=state.overflow + overflow,
+        count=jnp.where(valid, jnp.sum(feats.landmarks.active), state.count).astype(jnp.int32),
+        key=state.key,
+        resample_count=state.resample_count,
+        overflow=state.overflow + overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
     )
     x = new_state.pose
     zero = jnp.zeros((), jnp.int32)
     finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(new_state.pose_sqrt))
     record = StepOutput(
-        best_pose=x, mean_pose=x, ess=jnp.ones((), x.dtype), resampled=jnp.zeros((), bool),
+        best_pose=x,
+        mean_pose=x,
+        ess=jnp.ones((), x.dtype),
+        resampled=jnp.zeros((), bool),
         n_landmarks=new_state.count.astype(jnp.int32),
-        n_confirmed=jnp.sum(new_state.features.landmarks.active & new_state.features.landmarks.confirmed).astype(jnp.int32),
-        iterations=jnp.zeros((), x.dtype), n_capped=zero,
-        n_nonfinite=(~finite).astype(jnp.int32), n_associated=jnp.sum(matched).astype(x.dtype),
-        n_new=added.astype(x.dtype), window_overflow=jnp.maximum(n_near - W, 0).astype(jnp.int32),
-        overflow=overflow, weight_reset=jnp.zeros((), bool),
+        n_confirmed=jnp.sum(new_state.features.landmarks.active & new_state.features.landmarks.confirmed).astype(
+            jnp.int32
+        ),
+        iterations=jnp.zeros((), x.dtype),
+        n_capped=zero,
+        n_nonfinite=(~finite).astype(jnp.int32),
+        n_associated=jnp.sum(matched).astype(x.dtype),
+        n_new=added.astype(x.dtype),
+        window_overflow=jnp.maximum(n_near - W, 0).astype(jnp.int32),
+        overflow=overflow,
+        weight_reset=jnp.zeros((), bool),
     )
     return new_state, record

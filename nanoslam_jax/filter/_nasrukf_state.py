@@ -113,11 +113,23 @@ def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> N
     c, f, w = static.capacity, feature_dim(static), params.motion.noise_dim
     zero = jnp.zeros((), jnp.int32)
     features = NasrukfFeatures(
-        mean=jnp.zeros((c, f)), gain=jnp.zeros((c, f, 3)), sqrt=jnp.broadcast_to(jnp.eye(f), (c, f, f)),
-        landmarks=LandmarkMap.empty(c, ident=static.association == "known"))
+        mean=jnp.zeros((c, f)),
+        gain=jnp.zeros((c, f, 3)),
+        sqrt=jnp.broadcast_to(jnp.eye(f), (c, f, f)),
+        landmarks=LandmarkMap.empty(c, ident=static.association == "known"),
+    )
     return NasrukfState(
-        pose=jnp.zeros(3), pose_sqrt=jnp.sqrt(jnp.asarray(params.init_cov, float)) * jnp.eye(3), features=features,
-        noise=configured_noise(static, params), noise_count=zero, process_scale=jnp.eye(w), process_count=zero,
-        process_basis=jnp.zeros((w, w, 3, 3)), count=zero, key=key, resample_count=zero,
-        overflow=zero, scan=zero,
+        pose=jnp.zeros(3),
+        pose_sqrt=jnp.sqrt(jnp.asarray(params.init_cov, float)) * jnp.eye(3),
+        features=features,
+        noise=configured_noise(static, params),
+        noise_count=zero,
+        process_scale=jnp.eye(w),
+        process_count=zero,
+        process_basis=jnp.zeros((w, w, 3, 3)),
+        count=zero,
+        key=key,
+        resample_count=zero,
+        overflow=zero,
+        scan=zero,
     )

@@ -192,10 +192,11 @@ class Params(NamedTuple):
 
     def _range_bearing(self) -> RangeBearing:
         if not is_range_bearing(self.measurement):
-            raise AttributeError(f"the measurement model {type(self.measurement).__name__} is not range-bearing: "
-                                 "it has no sigma_r or sigma_beta")
+            raise AttributeError(
+                f"the measurement model {type(self.measurement).__name__} is not range-bearing: "
+                "it has no sigma_r or sigma_beta"
+            )
         return self.measurement
-
 
 
 #: Detection-row counts the per-row work (proposal, weight, landmark updates) may run over (then
@@ -247,41 +248,78 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
     """
     f, n, nz = cfg.filter, cfg.nano, cfg.noise
     static = Static(
-        method=f.method, n_particles=f.n_particles, capacity=f.capacity, window=f.window, k_max=k_max,
-        prior=f.prior, prior_cov=f.prior_cov, sequential=f.sequential, association=f.association,
+        method=f.method,
+        n_particles=f.n_particles,
+        capacity=f.capacity,
+        window=f.window,
+        k_max=k_max,
+        prior=f.prior,
+        prior_cov=f.prior_cov,
+        sequential=f.sequential,
+        association=f.association,
         weight=f.weight,
-        resampler=f.resampler, estimate=f.estimate, manage=cfg.map.manage, occlusion=cfg.map.occlusion,
+        resampler=f.resampler,
+        estimate=f.estimate,
+        manage=cfg.map.manage,
+        occlusion=cfg.map.occlusion,
         quadrature=n.quadrature,
-        gh_order=n.gh_order, hessian=n.hessian, max_iter=n.max_iter, landmark_noise=n.landmark_noise,
-        nano_init=n.init, nano_solver=n.solver,
+        gh_order=n.gh_order,
+        hessian=n.hessian,
+        max_iter=n.max_iter,
+        landmark_noise=n.landmark_noise,
+        nano_init=n.init,
+        nano_solver=n.solver,
         landmark_update=get_method(f.method).landmark_update,
-        iterated_solver=cfg.iterated.solver, iterated_max_iter=cfg.iterated.max_iter, iterated_tol=cfg.iterated.tol,
-        iterated_landmark_noise=cfg.iterated.landmark_noise, row_buckets=row_buckets(f.row_buckets, f.n_particles),
+        iterated_solver=cfg.iterated.solver,
+        iterated_max_iter=cfg.iterated.max_iter,
+        iterated_tol=cfg.iterated.tol,
+        iterated_landmark_noise=cfg.iterated.landmark_noise,
+        row_buckets=row_buckets(f.row_buckets, f.n_particles),
         devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(f.method, n.init)),
         adaptive_noise=nz.adaptive,
-        nasrukf_feature=cfg.nasrukf.feature, adaptive_process=cfg.nasrukf.adaptive_process,
+        nasrukf_feature=cfg.nasrukf.feature,
+        adaptive_process=cfg.nasrukf.adaptive_process,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     mp = cfg.map
     map_params = MapParams(
         log_odds_hit=a(math.log(mp.p_detect / mp.p_false)),
         log_odds_miss=a(math.log1p(-mp.p_detect) - math.log1p(-mp.p_false) if mp.p_detect < 1.0 else -math.inf),
-        log_odds_birth=a(_logit(mp.birth_probability)), log_odds_confirm=a(_logit(mp.confirm_probability)),
-        confirm_hits=a(mp.confirm_hits), tentative_scans=a(mp.tentative_scans),
-        log_odds_remove=a(_logit(mp.remove_probability)), log_odds_max=a(_logit(mp.max_probability)),
+        log_odds_birth=a(_logit(mp.birth_probability)),
+        log_odds_confirm=a(_logit(mp.confirm_probability)),
+        confirm_hits=a(mp.confirm_hits),
+        tentative_scans=a(mp.tentative_scans),
+        log_odds_remove=a(_logit(mp.remove_probability)),
+        log_odds_max=a(_logit(mp.max_probability)),
         occlusion_width=a(mp.occlusion_width),
-        use_tentative=jnp.asarray(mp.use_tentative), use_diameter=jnp.asarray(mp.use_diameter),
+        use_tentative=jnp.asarray(mp.use_tentative),
+        use_diameter=jnp.asarray(mp.use_diameter),
         sigma_diameter=a(mp.sigma_diameter),
     )
     params = Params(
-        motion=motion_model_from_config(cfg), measurement=measurement_model_from_config(cfg),
-        init_cov=a(f.init_cov), ut_alpha=a(f.ut_alpha), ut_beta=a(f.ut_beta), ut_kappa=a(f.ut_kappa),
-        gate=a(f.gate), new_landmark=a(f.new_landmark), log_p0=a(math.log(f.p0)),
-        resample_threshold=a(f.resample_threshold), gamma=a(n.gamma), step=a(n.step),
-        nano_alpha=a(n.ut_alpha), nano_beta=a(n.ut_beta), nano_kappa=a(n.ut_kappa),
-        max_range=a(cfg.data.max_range), window_margin=a(f.window_margin), map=map_params,
-        forgetting=a(nz.forgetting), noise_floor=a(nz.adaptive_floor), new_feature_hits=a(cfg.nasrukf.new_feature_hits),
-        process_forgetting=a(cfg.nasrukf.process_forgetting), process_floor=a(cfg.nasrukf.process_floor),
+        motion=motion_model_from_config(cfg),
+        measurement=measurement_model_from_config(cfg),
+        init_cov=a(f.init_cov),
+        ut_alpha=a(f.ut_alpha),
+        ut_beta=a(f.ut_beta),
+        ut_kappa=a(f.ut_kappa),
+        gate=a(f.gate),
+        new_landmark=a(f.new_landmark),
+        log_p0=a(math.log(f.p0)),
+        resample_threshold=a(f.resample_threshold),
+        gamma=a(n.gamma),
+        step=a(n.step),
+        nano_alpha=a(n.ut_alpha),
+        nano_beta=a(n.ut_beta),
+        nano_kappa=a(n.ut_kappa),
+        max_range=a(cfg.data.max_range),
+        window_margin=a(f.window_margin),
+        map=map_params,
+        forgetting=a(nz.forgetting),
+        noise_floor=a(nz.adaptive_floor),
+        new_feature_hits=a(cfg.nasrukf.new_feature_hits),
+        process_forgetting=a(cfg.nasrukf.process_forgetting),
+        process_floor=a(cfg.nasrukf.process_floor),
         method={k: a(v) for k, v in get_method(f.method).method_params(f.method_params).items()},
     )
     return static, params

@@ -72,8 +72,13 @@ def reported_trajectory(estimate: str, outputs, state=None) -> np.ndarray:
     if estimate != "path":
         raise ValueError(f"filter.estimate: expected one of {', '.join(ESTIMATES)}, got {estimate!r}")
     if outputs.poses is None or state is None:
-        raise ValueError("filter.estimate 'path' needs the particles' poses and ancestors, which a run records "
-                         "only when its config has filter.estimate: path, and the run's final state")
+        raise ValueError(
+            "filter.estimate 'path' needs the particles' poses and ancestors, which a run records "
+            "only when its config has filter.estimate: path, and the run's final state"
+        )
     batched = np.ndim(outputs.poses) == 4
-    return np.asarray(_ancestral_path(jnp.asarray(outputs.poses), jnp.asarray(outputs.ancestors),
-                                      jnp.asarray(state.best), batched=batched))
+    return np.asarray(
+        _ancestral_path(
+            jnp.asarray(outputs.poses), jnp.asarray(outputs.ancestors), jnp.asarray(state.best), batched=batched
+        )
+    )

@@ -77,8 +77,9 @@ def _rate_points(motion: AbstractRateModel, x, poses, u, dt, s):
     du = s * mt(motion.noise_sqrt(dt))  # row j: s Lw[:, j]
     rates = jax.vmap(motion.rates)(jnp.concatenate([u[None], u + du, u - du]))
     pts = jnp.concatenate([poses[:4], jnp.broadcast_to(x, (c, 3)), poses[4:], jnp.broadcast_to(x, (c, 3))])
-    rts = jnp.concatenate([jnp.broadcast_to(rates[0], (4, 2)), rates[1:1 + c], jnp.broadcast_to(rates[0], (3, 2)),
-                           rates[1 + c:]])
+    rts = jnp.concatenate(
+        [jnp.broadcast_to(rates[0], (4, 2)), rates[1 : 1 + c], jnp.broadcast_to(rates[0], (3, 2)), rates[1 + c :]]
+    )
     return jax.vmap(motion.move, (0, 0, None))(pts, rts, dt)
 
 
@@ -125,7 +126,9 @@ def predict(
     return jax.lax.fori_loop(0, n_pieces, body, (x, P))
 
 
-def predict_mean(x: Float[Array, "3"], dt: Float[Array, " dr"], u: Float[Array, "dr 2"], params: Params) -> Float[Array, "3"]:
+def predict_mean(
+    x: Float[Array, "3"], dt: Float[Array, " dr"], u: Float[Array, "dr 2"], params: Params
+) -> Float[Array, "3"]:
     """Noise-free propagation (dead reckoning) through a segment's pieces (padding has dt = 0)."""
 
     def body(xc, inp):
@@ -161,6 +164,11 @@ def compose_prior(
     s, c = sincos(x[2])
     one, zero = jnp.ones_like(s), jnp.zeros_like(s)
     A = jnp.stack([jnp.stack([c, -s, zero]), jnp.stack([s, c, zero]), jnp.stack([zero, zero, one])])
-    mean = jnp.stack([x[0] + c * rel_mean[0] - s * rel_mean[1], x[1] + s * rel_mean[0] + c * rel_mean[1],
-                      wrap_angle(x[2] + rel_mean[2])])
+    mean = jnp.stack(
+        [
+            x[0] + c * rel_mean[0] - s * rel_mean[1],
+            x[1] + s * rel_mean[0] + c * rel_mean[1],
+            wrap_angle(x[2] + rel_mean[2]),
+        ]
+    )
     return mean, sym(sandwich(A, rel_cov))

@@ -44,8 +44,16 @@ class RowResults(NamedTuple):
 
 
 def row_work(
-    static: Static, params: Params, proposal: AbstractProposal, x0: Float[Array, "3"], P0: Float[Array, "3 3"],
-    R: Float[Array, "2 2"], det: Detections, existing: Bool[Array, " k"], ps: Int[Array, " k"], eps: Float[Array, "3"],
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    x0: Float[Array, "3"],
+    P0: Float[Array, "3 3"],
+    R: Float[Array, "2 2"],
+    det: Detections,
+    existing: Bool[Array, " k"],
+    ps: Int[Array, " k"],
+    eps: Float[Array, "3"],
 ) -> RowResults:
     """The proposal, the sampled pose and each row's likelihoods, landmark start and landmark update.
 
@@ -68,7 +76,8 @@ def row_work(
     ut = (params.ut_alpha, params.ut_beta, params.ut_kappa)
     if unscented:
         new_mean, new_cov = jax.vmap(ukf_init_landmark, (None, 0, None, None, None, None, None))(
-            x_s, det.z, R, *ut, model)
+            x_s, det.z, R, *ut, model
+        )
     else:
         new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None, None))(x_s, det.z, R, model)
     # EKF (UFastSLAM: unscented) updates at the sampled pose; each landmark is matched at most once
@@ -78,18 +87,28 @@ def row_work(
     if unscented:
         ukf = lambda *a: ukf_update_loglik(*a, model=model)  # noqa: E731
         upd_mean, upd_cov, llp = jax.vmap(ukf, (None, 0, 0, 0, None, None, None, None))(
-            x_s, det.z, cur_mean, cur_cov, R, *ut)
+            x_s, det.z, cur_mean, cur_cov, R, *ut
+        )
     else:
         upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None, None))(
-            x_s, det.z, cur_mean, cur_cov, R, model)
+            x_s, det.z, cur_mean, cur_cov, R, model
+        )
     # Both computed before the masked sums (a reduction fusion does not vectorise its operand).
     ll, llp = computed_once((ll, llp))
     return RowResults(prop, x_s, ll, llp, new_mean, new_cov, upd_mean, upd_cov)
 
 
 def rows_over_buckets(
-    static: Static, params: Params, proposal: AbstractProposal, x0: Float[Array, "3"], P0: Float[Array, "3 3"],
-    R: Float[Array, "2 2"], det: Detections, existing: Bool[Array, " k"], ps: Int[Array, " k"], eps: Float[Array, "3"],
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    x0: Float[Array, "3"],
+    P0: Float[Array, "3 3"],
+    R: Float[Array, "2 2"],
+    det: Detections,
+    existing: Bool[Array, " k"],
+    ps: Int[Array, " k"],
+    eps: Float[Array, "3"],
     z_mask: Bool[Array, " k"],
 ) -> RowResults:
     """:func:`row_work` over the first ``b`` detection rows only, ``b`` the smallest of
@@ -116,11 +135,21 @@ def rows_over_buckets(
             # A row matching a landmark an earlier row started lies after that row; the other
             # rows' ``ps`` is unused.
             out = row_work(static, params, proposal, x0, P0, R, det, existing, jnp.minimum(ps[:b], b - 1), eps)
-            pad = lambda a, fill: jnp.concatenate(  # noqa: E731
-                [a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (k_max - b,) + a.shape[1:])])
-            return out._replace(ll=pad(out.ll, 0.0), llp=pad(out.llp, 0.0), new_mean=pad(out.new_mean, 0.0),
-                                new_cov=pad(out.new_cov, jnp.eye(2)), upd_mean=pad(out.upd_mean, 0.0),
-                                upd_cov=pad(out.upd_cov, jnp.eye(2)))
+
+            def pad(a, fill):
+                return jnp.concatenate(
+                    [a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (k_max - b,) + a.shape[1:])]
+                )
+
+            return out._replace(
+                ll=pad(out.ll, 0.0),
+                llp=pad(out.llp, 0.0),
+                new_mean=pad(out.new_mean, 0.0),
+                new_cov=pad(out.new_cov, jnp.eye(2)),
+                upd_mean=pad(out.upd_mean, 0.0),
+                upd_cov=pad(out.upd_cov, jnp.eye(2)),
+            )
+
         return rows
 
     n_rows = jnp.max(jnp.where(z_mask, jnp.arange(1, k_max + 1), 0))

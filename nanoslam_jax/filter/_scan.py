@@ -47,8 +47,9 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
     method = get_method(static.method)
     if method.kind != "particle" or method.proposal is None:
         particle = [m for m in method_names() if get_method(m).kind == "particle"]
-        raise ValueError(f"filter.method: {static.method!r} has no particle-filter proposal; expected one of "
-                         f"{', '.join(particle)}")
+        raise ValueError(
+            f"filter.method: {static.method!r} has no particle-filter proposal; expected one of {', '.join(particle)}"
+        )
     return method.proposal(static, params, params.method)
 
 
@@ -56,9 +57,11 @@ def _check_filter_method(static: Static) -> None:
     """Refuse dead reckoning, which ``run_filter`` / ``run_batch`` cannot scan, before tracing (any
     other unknown method is refused by :func:`make_proposal`)."""
     if get_method(static.method).kind == "dead_reckoning":
-        raise ValueError("filter.method: 'dead_reckoning' is deterministic and has no filter to run: use "
-                         "nanoslam_jax.filter.dead_reckoning(params, segments) (what `nanoslam run` and "
-                         "`nanoslam compare` do for it)")
+        raise ValueError(
+            "filter.method: 'dead_reckoning' is deterministic and has no filter to run: use "
+            "nanoslam_jax.filter.dead_reckoning(params, segments) (what `nanoslam run` and "
+            "`nanoslam compare` do for it)"
+        )
 
 
 def _masked_step(static: Static, params: Params, state, inp: tuple):
@@ -113,8 +116,13 @@ def reported_map(state) -> LandmarkMap:
 
 
 def filter_scan(
-    static: Static, params: Params, segments: Segments, key: Key[Array, ""], state: Optional[Any] = None,
-    valid: Optional[Bool[Array, " segments"]] = None, skip_padding: bool = False,
+    static: Static,
+    params: Params,
+    segments: Segments,
+    key: Key[Array, ""],
+    state: Optional[Any] = None,
+    valid: Optional[Bool[Array, " segments"]] = None,
+    skip_padding: bool = False,
 ) -> tuple[Any, StepOutput]:
     """Run the filter over all segments in one ``lax.scan``.
 
@@ -243,15 +251,29 @@ def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
     return Segments(*(pad(np.asarray(a)) for a in segments)), valid  # type: ignore[arg-type]  # numpy on the host
 
 
-def _drive(chunk_fn, static: Static, params: Params, state: Any, segments: Segments, chunk: int,
-           progress, time_axis: int, timed: bool = False) -> FilterRun:
+def _drive(
+    chunk_fn,
+    static: Static,
+    params: Params,
+    state: Any,
+    segments: Segments,
+    chunk: int,
+    progress,
+    time_axis: int,
+    timed: bool = False,
+) -> FilterRun:
     """Compile ``chunk_fn`` once for ``chunk`` segments and call it over the padded log."""
     n = segments.time.shape[0]
     chunk = max(1, min(chunk, n))
     n_chunks = -(-n // chunk)
     padded, valid = _pad(segments, n_chunks * chunk)
-    piece = lambda c: (jax.tree.map(lambda a: jnp.asarray(a[c * chunk:(c + 1) * chunk]), padded),  # noqa: E731
-                       jnp.asarray(valid[c * chunk:(c + 1) * chunk]))
+
+    def piece(c):
+        return (
+            jax.tree.map(lambda a: jnp.asarray(a[c * chunk : (c + 1) * chunk]), padded),
+            jnp.asarray(valid[c * chunk : (c + 1) * chunk]),
+        )
+
     t0 = time.perf_counter()
     compiled = compile_program(chunk_fn, static, params, state, *piece(0))  # traced and compiled, or cached
     compile_s = time.perf_counter() - t0
@@ -349,7 +371,9 @@ def text_progress(label: str = "filter", stream=sys.stderr) -> Callable[[int, in
     def report(done: int, total: int, elapsed: float) -> None:
         eta = elapsed / max(done, 1) * (total - done)
         end = "\n" if done >= total else "\r"
-        stream.write(f"{label}: {done}/{total} scans ({100 * done / total:5.1f}%) {elapsed:6.1f} s elapsed, ~{eta:5.1f} s left{end}")
+        stream.write(
+            f"{label}: {done}/{total} scans ({100 * done / total:5.1f}%) {elapsed:6.1f} s elapsed, ~{eta:5.1f} s left{end}"
+        )
         stream.flush()
 
     return report

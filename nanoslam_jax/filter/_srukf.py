@@ -93,7 +93,9 @@ def chol_rank_one(L: Float[Array, "n n"], v: Float[Array, " n"], weight: Float[A
     return jnp.stack(cols, axis=-1)
 
 
-def chol_rank_update(L: Float[Array, "n n"], V: Float[Array, "n k"], weight: Float[ArrayLike, ""]) -> Float[Array, "n n"]:
+def chol_rank_update(
+    L: Float[Array, "n n"], V: Float[Array, "n k"], weight: Float[ArrayLike, ""]
+) -> Float[Array, "n n"]:
     """``L L' + weight V V'`` by :func:`chol_rank_one` with each column of ``V`` in turn (``k`` static)."""
     for j in range(V.shape[-1]):
         L = chol_rank_one(L, V[:, j], weight)
@@ -119,7 +121,9 @@ def block_diag(A: Float[Array, "n n"], B: Float[Array, "k k"]) -> Float[Array, "
     return jnp.concatenate([top, bottom], axis=0)
 
 
-def sigma_offsets(L: Float[Array, "n n"], rule: Unscented) -> tuple[Float[Array, "m n"], Float[Array, " m"], Float[Array, " m"]]:
+def sigma_offsets(
+    L: Float[Array, "n n"], rule: Unscented
+) -> tuple[Float[Array, "m n"], Float[Array, " m"], Float[Array, " m"]]:
     """The sigma points' offsets from the mean (eq. 8: ``0, +gamma L[:, i], -gamma L[:, i]``) and weights."""
     xi, wm, wc = rule.unit_points(L.shape[-1])
     return xi @ L.T, wm, wc
@@ -317,8 +321,12 @@ def adaptive_noise_rows(
 NOISE_FLOOR_WARN_FRACTION = 0.5
 
 #: The keys :func:`adaptive_noise_summary` always returns (sweeps record them as columns).
-NOISE_SUMMARY_KEYS = ("noise_sigma_r_final", "noise_sigma_beta_deg_final", "noise_at_floor_range",
-                      "noise_at_floor_bearing")
+NOISE_SUMMARY_KEYS = (
+    "noise_sigma_r_final",
+    "noise_sigma_beta_deg_final",
+    "noise_at_floor_range",
+    "noise_at_floor_bearing",
+)
 
 #: The keys :func:`adaptive_noise_summary` adds for NASRUKF's arc features (the diameter's noise).
 NOISE_ARC_SUMMARY_KEYS = ("noise_sigma_diameter_final", "noise_at_floor_diameter")
@@ -366,7 +374,9 @@ def adaptive_noise_summary(noise: ArrayLike, configured: ArrayLike, floor_fracti
         f"noise.adaptive: the {n} noise estimate ended at noise.adaptive_floor ({floor_fraction:g} of the configured "
         f"variance) in {100 * f:.0f} % of the particles: the residuals were smaller than the filter predicted, "
         "so the gates shrank and detections of mapped landmarks may fail association; see the key's documentation"
-        for n, f in zip(names, at_floor) if f >= NOISE_FLOOR_WARN_FRACTION]
+        for n, f in zip(names, at_floor)
+        if f >= NOISE_FLOOR_WARN_FRACTION
+    ]
     return metrics, warnings
 
 
@@ -477,9 +487,16 @@ def adaptive_process_summary(scale: ArrayLike, count: int, floor: float) -> tupl
     scale = np.asarray(scale, float)
     at_floor = bool(np.min(np.linalg.eigvalsh(scale)) <= floor * (1.0 + 1e-9))
     metrics = {f"process_noise_ratio_{j}": float(np.sqrt(scale[j, j])) for j in range(scale.shape[0])}
-    metrics.update(process_noise_scale=scale.tolist(), process_noise_updates=int(count),
-                   process_noise_at_floor=at_floor)
-    warnings = [f"nasrukf.adaptive_process: the process-noise estimate ended at nasrukf.process_floor ({floor:g} of "
-                "the configured covariance) in some direction: the pose corrections were smaller than the "
-                "configured noise predicts there"] if at_floor else []
+    metrics.update(
+        process_noise_scale=scale.tolist(), process_noise_updates=int(count), process_noise_at_floor=at_floor
+    )
+    warnings = (
+        [
+            f"nasrukf.adaptive_process: the process-noise estimate ended at nasrukf.process_floor ({floor:g} of "
+            "the configured covariance) in some direction: the pose corrections were smaller than the "
+            "configured noise predicts there"
+        ]
+        if at_floor
+        else []
+    )
     return metrics, warnings

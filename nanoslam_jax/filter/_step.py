@@ -168,14 +168,28 @@ def particle_update(
 
     radius = params.max_range + params.window_margin
     local, idx, window_overflow = _over_slot_bucket(
-        static, slot_bucket, lambda b, lm, x: gather_window(lm, x, W, radius, b, model), lm, x0[:2])
+        static, slot_bucket, lambda b, lm, x: gather_window(lm, x, W, radius, b, model), lm, x0[:2]
+    )
     # With the row buckets (many particles per call), also the association over the window's
     # prefix: the same association, compiled three times, which pays off only where the particles'
     # arithmetic outweighs the compilation (no faster at 10 particles, ~40 % longer to compile).
     assoc_fn = associate_window_prefix if static.row_buckets else associate
-    assoc = assoc_fn(local, x0, P0, z, z_mask, R, params.gate, params.new_landmark, static.sequential,
-                     diam=diam, use_diameter=mp.use_diameter, sigma_diameter=mp.sigma_diameter,
-                     ids=z_id if static.association == "known" else None, model=model)
+    assoc = assoc_fn(
+        local,
+        x0,
+        P0,
+        z,
+        z_mask,
+        R,
+        params.gate,
+        params.new_landmark,
+        static.sequential,
+        diam=diam,
+        use_diameter=mp.use_diameter,
+        sigma_diameter=mp.sigma_diameter,
+        ids=z_id if static.association == "known" else None,
+        model=model,
+    )
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
     provisional = matched & ~existing  # matched the landmark an earlier detection of this scan created
@@ -189,23 +203,36 @@ def particle_update(
     if static.adaptive_noise:
         z_prior, S_prior = predicted_measurements(x0, P0, local.mean[ws], local.cov[ws], R, model)
         _, noise, noise_count = adaptive_noise_rows(
-            noise, noise_count, jax.vmap(model.innovation)(z, z_prior), jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
-            existing, params.forgetting, params.noise_floor * configured)
+            noise,
+            noise_count,
+            jax.vmap(model.innovation)(z, z_prior),
+            jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
+            existing,
+            params.forgetting,
+            params.noise_floor * configured,
+        )
         R = jnp.diag(noise)
 
     # The proposal, the sampled pose, the weight's likelihoods and the landmarks' updates and
     # starts: over the scan's bucket of rows.
     prop, x_s, ll, llp, new_mean, new_cov, upd_mean, upd_cov = rows_over_buckets(
-        static, params, proposal, x0, P0, R, det, existing, ps, eps, z_mask)
+        static, params, proposal, x0, P0, R, det, existing, ps, eps, z_mask
+    )
     if static.manage:
         # A provisional landmark is tentative: its row weighs with its likelihood only with
         # use_tentative; unused rows that start or match a tentative landmark weigh as new (p0).
         as_new = assoc.is_new | (existing & ~trusted) | (provisional & ~mp.use_tentative)
-        dlogw = (jnp.sum(jnp.where(used, ll, 0.0)) + jnp.sum(as_new) * params.log_p0
-                 + jnp.sum(jnp.where(provisional & mp.use_tentative, llp, 0.0)))
+        dlogw = (
+            jnp.sum(jnp.where(used, ll, 0.0))
+            + jnp.sum(as_new) * params.log_p0
+            + jnp.sum(jnp.where(provisional & mp.use_tentative, llp, 0.0))
+        )
     else:
-        dlogw = (jnp.sum(jnp.where(existing, ll, 0.0)) + jnp.sum(assoc.is_new) * params.log_p0
-                 + jnp.sum(jnp.where(provisional, llp, 0.0)))
+        dlogw = (
+            jnp.sum(jnp.where(existing, ll, 0.0))
+            + jnp.sum(assoc.is_new) * params.log_p0
+            + jnp.sum(jnp.where(provisional, llp, 0.0))
+        )
 
     # Diameters: each matched row updates its landmark's estimate (scalar Kalman filter).
     var_d = jnp.square(mp.sigma_diameter)
@@ -217,17 +244,38 @@ def particle_update(
     isn = assoc.is_new
     pt = jnp.where(provisional, ps, K)
     new = new_landmarks(
-        mean=new_mean.at[pt].set(upd_mean, mode="drop"), cov=new_cov.at[pt].set(upd_cov, mode="drop"),
-        is_new=isn, extra_hits=jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop"),
-        diam=diam.at[pt].set(upd_d, mode="drop"), diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
-        scan=scan, mp=mp, manage=static.manage, ident=z_id if static.association == "known" else None)
+        mean=new_mean.at[pt].set(upd_mean, mode="drop"),
+        cov=new_cov.at[pt].set(upd_cov, mode="drop"),
+        is_new=isn,
+        extra_hits=jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop"),
+        diam=diam.at[pt].set(upd_d, mode="drop"),
+        diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
+        scan=scan,
+        mp=mp,
+        manage=static.manage,
+        ident=z_id if static.association == "known" else None,
+    )
 
     if static.manage:
         wt = jnp.where(existing, ws, W)
         local = update_slots(local, wt, upd_mean, upd_cov, upd_d, upd_dv)
         seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
-        manage = lambda loc, sn: manage_window(loc, x_s, sn, z, z_mask, diam, valid, scan,  # noqa: E731
-                                               params.measurement, mp, static.occlusion)
+
+        def manage(loc, sn):
+            return manage_window(
+                loc,
+                x_s,
+                sn,
+                z,
+                z_mask,
+                diam,
+                valid,
+                scan,
+                params.measurement,
+                mp,
+                static.occlusion,
+            )
+
         local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
         # The matched rows' estimates go straight to their slots (k rows); of the window only the
         # fields management changes are written back (scattering every field of all W slots
@@ -246,14 +294,25 @@ def particle_update(
         free = _over_slot_bucket(static, slot_bucket, lambda b, a: free_slots(a, K, past(b)), lm.active)
     lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage, free=free)
     n_landmarks, n_confirmed = _over_slot_bucket(
-        static, slot_bucket, lambda b, m: _counts(jax.tree.map(lambda a: a[:past(b)], m)), lm)
+        static, slot_bucket, lambda b, m: _counts(jax.tree.map(lambda a: a[: past(b)], m)), lm
+    )
     has_assoc = jnp.any(used)
     return _ParticleOut(
-        pose=x_s, pose_cov=prop.cov, landmarks=lm, dlogw=dlogw, iterations=prop.iterations,
-        result=jnp.where(has_assoc, prop.result, 0), has_assoc=has_assoc,
-        n_associated=jnp.sum(matched), n_new=jnp.sum(assoc.is_new),
-        window_overflow=window_overflow, overflow=overflow, n_landmarks=n_landmarks, n_confirmed=n_confirmed,
-        noise=noise, noise_count=noise_count,
+        pose=x_s,
+        pose_cov=prop.cov,
+        landmarks=lm,
+        dlogw=dlogw,
+        iterations=prop.iterations,
+        result=jnp.where(has_assoc, prop.result, 0),
+        has_assoc=has_assoc,
+        n_associated=jnp.sum(matched),
+        n_new=jnp.sum(assoc.is_new),
+        window_overflow=window_overflow,
+        overflow=overflow,
+        n_landmarks=n_landmarks,
+        n_confirmed=n_confirmed,
+        noise=noise,
+        noise_count=noise_count,
     )
 
 
@@ -281,7 +340,7 @@ def _gather_small(fields: dict, skip: str, axis_name: str) -> dict:
     out, i = {}, 0
     for f, c in zip(names, cols):
         a = fields[f]
-        out[f] = packed[:, i:i + c.shape[1]].reshape((-1,) + a.shape[1:]).astype(a.dtype)
+        out[f] = packed[:, i : i + c.shape[1]].reshape((-1,) + a.shape[1:]).astype(a.dtype)
         i += c.shape[1]
     return out
 
@@ -293,7 +352,11 @@ def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, " n"]) -> 
 
 
 def filter_step(
-    static: Static, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    state: FilterState,
+    seg: Segments,
     valid: Bool[Array, ""] | bool = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
 ) -> tuple[FilterState, StepOutput]:
@@ -317,19 +380,27 @@ def filter_step(
         rel_prior = relative_prior(seg.dt, seg.u, seg.dr_mask, params, static.prior)
     if static.devices == 1:
         return _step(static, None, params, proposal, state, seg, valid, rel_prior)
-    mesh = Mesh(np.array(jax.devices()[:static.devices]), ("particles",))
+    mesh = Mesh(np.array(jax.devices()[: static.devices]), ("particles",))
     part, rep = PartitionSpec("particles"), PartitionSpec()
     spec = jax.tree.map(lambda _: rep, state)
-    spec = spec._replace(particles=spec.particles._replace(
-        landmarks=jax.tree.map(lambda _: part, state.particles.landmarks)))
+    spec = spec._replace(
+        particles=spec.particles._replace(landmarks=jax.tree.map(lambda _: part, state.particles.landmarks))
+    )
     step = functools.partial(_step, static, "particles")
-    return jax.shard_map(step, mesh=mesh, in_specs=(rep, rep, spec, rep, rep, rep), out_specs=(spec, rep),
-                         check_vma=False)(params, proposal, state, seg, jnp.asarray(valid), rel_prior)
+    return jax.shard_map(
+        step, mesh=mesh, in_specs=(rep, rep, spec, rep, rep, rep), out_specs=(spec, rep), check_vma=False
+    )(params, proposal, state, seg, jnp.asarray(valid), rel_prior)
 
 
 def _step(
-    static: Static, axis: str | None, params: Params, proposal: AbstractProposal, state: FilterState, seg: Segments,
-    valid: Bool[Array, ""] | bool, rel_prior,
+    static: Static,
+    axis: str | None,
+    params: Params,
+    proposal: AbstractProposal,
+    state: FilterState,
+    seg: Segments,
+    valid: Bool[Array, ""] | bool,
+    rel_prior,
 ) -> tuple[FilterState, StepOutput]:
     """:func:`filter_step` on one device; ``axis`` names the device axis when the maps are split
     (``state.particles.landmarks`` then holds this device's share, everything else all particles)."""
@@ -351,9 +422,27 @@ def _step(
     in_use = slots_in_use(p.landmarks)
     slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
     out = jax.vmap(particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0, None))(
-        static, params, proposal, mine(p.pose), mine(p.pose_cov), p.landmarks, seg.dt, seg.u, seg.dr_mask, seg.z,
-        seg.z_mask, mine(eps), valid & seg.is_scan, rel_prior, slot_bucket, seg.diam, state.scan, mine(p.noise),
-        mine(p.noise_count), seg.z_id)
+        static,
+        params,
+        proposal,
+        mine(p.pose),
+        mine(p.pose_cov),
+        p.landmarks,
+        seg.dt,
+        seg.u,
+        seg.dr_mask,
+        seg.z,
+        seg.z_mask,
+        mine(eps),
+        valid & seg.is_scan,
+        rel_prior,
+        slot_bucket,
+        seg.diam,
+        state.scan,
+        mine(p.noise),
+        mine(p.noise_count),
+        seg.z_id,
+    )
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
@@ -411,6 +500,7 @@ def _step(
         best = jnp.where(record.resampled, best_after, best)
         parents = jnp.where(record.resampled, anc, jnp.arange(n, dtype=anc.dtype)) if track else None
     else:
+
         def do_resample(args):
             parts, _, _ = args
             anc, best_after = ancestors(parts)
@@ -419,12 +509,18 @@ def _step(
             parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
             return parts._replace(log_w=uniform), best_after, (anc if track else None)
 
-        particles, best, parents = jax.lax.cond(record.resampled, do_resample, lambda a: a,
-                                                (particles, best, jnp.arange(n, dtype=jnp.int32) if track else None))
+        particles, best, parents = jax.lax.cond(
+            record.resampled,
+            do_resample,
+            lambda a: a,
+            (particles, best, jnp.arange(n, dtype=jnp.int32) if track else None),
+        )
     if track:
         record = record._replace(poses=out.pose, ancestors=parents)
     new_state = FilterState(
-        particles=particles, key=key, best=best,
+        particles=particles,
+        key=key,
+        best=best,
         resample_count=state.resample_count + record.resampled.astype(jnp.int32),
         overflow=state.overflow + record.overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),

@@ -167,8 +167,12 @@ def slope_intercept_from_line(line: Float[ArrayLike, "*n 2"], max_slope: float =
     s_safe = jnp.where(vertical, 1.0, s_a)
     c_safe = jnp.where(vertical, c_a, 1.0)
     zero = jnp.zeros_like(rho)
-    return SlopeIntercept(a=jnp.where(vertical, zero, -c_a / s_safe), b=jnp.where(vertical, zero, rho / s_safe),
-                          c=jnp.where(vertical, rho / c_safe, zero), vertical=vertical)
+    return SlopeIntercept(
+        a=jnp.where(vertical, zero, -c_a / s_safe),
+        b=jnp.where(vertical, zero, rho / s_safe),
+        c=jnp.where(vertical, rho / c_safe, zero),
+        vertical=vertical,
+    )
 
 
 def sensor_pose(pose: Float[ArrayLike, "*n 3"], offset: _Offset = None) -> Float[Array, "*n 3"]:
@@ -182,12 +186,12 @@ def sensor_pose(pose: Float[ArrayLike, "*n 3"], offset: _Offset = None) -> Float
     pose = jnp.asarray(pose, dtype=float)
     off = jnp.zeros(2) if offset is None else jnp.asarray(offset, dtype=float)
     c, s = jnp.cos(pose[..., 2]), jnp.sin(pose[..., 2])
-    return jnp.stack([pose[..., 0] + c * off[0] - s * off[1], pose[..., 1] + s * off[0] + c * off[1],
-                      pose[..., 2]], -1)
+    return jnp.stack([pose[..., 0] + c * off[0] - s * off[1], pose[..., 1] + s * off[0] + c * off[1], pose[..., 2]], -1)
 
 
-def line_to_sensor(line: Float[ArrayLike, "*f 2"], pose: Float[ArrayLike, "*p 3"],
-                   offset: _Offset = None) -> Float[Array, "*n 2"]:
+def line_to_sensor(
+    line: Float[ArrayLike, "*f 2"], pose: Float[ArrayLike, "*p 3"], offset: _Offset = None
+) -> Float[Array, "*n 2"]:
     """A world line in the sensor's frame.
 
     With the sensor at ``s`` heading ``theta``: ``rho_s = rho - n(alpha) . s``, ``alpha_s = alpha -
@@ -208,8 +212,9 @@ def line_to_sensor(line: Float[ArrayLike, "*f 2"], pose: Float[ArrayLike, "*p 3"
     return normalize_line(jnp.stack([rho_s, alpha - s[..., 2]], -1))
 
 
-def line_to_world(line_s: Float[ArrayLike, "*f 2"], pose: Float[ArrayLike, "*p 3"],
-                  offset: _Offset = None) -> Float[Array, "*n 2"]:
+def line_to_world(
+    line_s: Float[ArrayLike, "*f 2"], pose: Float[ArrayLike, "*p 3"], offset: _Offset = None
+) -> Float[Array, "*n 2"]:
     """A line in the sensor's frame in the world: the inverse of :func:`line_to_sensor`.
 
     Args:
@@ -242,8 +247,9 @@ def _ray_fraction(num: Array, den: Array) -> tuple[Array, Bool[Array, "*n"]]:
     return jnp.where(hit, r, jnp.inf), hit
 
 
-def beam_range_line(pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*b"], line: Float[ArrayLike, "*f 2"],
-                    offset: _Offset = None) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
+def beam_range_line(
+    pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*b"], line: Float[ArrayLike, "*f 2"], offset: _Offset = None
+) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
     """The range along a beam to a line in normal form.
 
     With the sensor at ``s`` and the beam's direction ``d`` (world angle ``theta + phi``):
@@ -266,9 +272,13 @@ def beam_range_line(pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*b"],
     return _ray_fraction(rho - n_x * sx - n_y * sy, n_x * dx + n_y * dy)
 
 
-def beam_range_slope_intercept(pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*b"], a: Float[ArrayLike, "*f"],
-                               b: Float[ArrayLike, "*f"], offset: _Offset = None
-                               ) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
+def beam_range_slope_intercept(
+    pose: Float[ArrayLike, "*p 3"],
+    phi: Float[ArrayLike, "*b"],
+    a: Float[ArrayLike, "*f"],
+    b: Float[ArrayLike, "*f"],
+    offset: _Offset = None,
+) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
     """The range along a beam to the line ``y = a x + b``: the paper's eq. 14,
     ``r = (a s_x - s_y + b) / (sin(theta + phi) - a cos(theta + phi))``, with the sensor at
     ``s = (x - Ls cos theta, y - Ls sin theta)`` for ``offset = (-Ls, 0)``.
@@ -288,8 +298,9 @@ def beam_range_slope_intercept(pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayL
     return _ray_fraction(a * sx - sy + b, dy - a * dx)
 
 
-def beam_range_vertical(pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*b"], c: Float[ArrayLike, "*f"],
-                        offset: _Offset = None) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
+def beam_range_vertical(
+    pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*b"], c: Float[ArrayLike, "*f"], offset: _Offset = None
+) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
     """The range along a beam to the vertical line ``x = c``: the paper's eq. 15,
     ``r = (c - s_x) / cos(theta + phi)``.
 
@@ -306,8 +317,12 @@ def beam_range_vertical(pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*
     return _ray_fraction(jnp.asarray(c, dtype=float) - sx, dx)
 
 
-def beam_range_circle(pose: Float[ArrayLike, "*p 3"], phi: Float[ArrayLike, "*b"], circle: Float[ArrayLike, "*f 3"],
-                      offset: _Offset = None) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
+def beam_range_circle(
+    pose: Float[ArrayLike, "*p 3"],
+    phi: Float[ArrayLike, "*b"],
+    circle: Float[ArrayLike, "*f 3"],
+    offset: _Offset = None,
+) -> tuple[Float[Array, "*n"], Bool[Array, "*n"]]:
     """The range along a beam to a circle: its nearest intersection ahead of the sensor, the
     paper's eq. 16-17, ``r = d_S cos(theta_j) -+ sqrt(d_S^2 cos^2(theta_j) - (d_S^2 - R^2))`` with
     ``d_S`` the distance from the sensor to the centre and ``theta_j`` the angle between the beam
@@ -405,8 +420,11 @@ class LineSegment(AbstractMeasurementModel):
 
     def visible(self, x, m):
         z = self.h(x, m)
-        return ((z[0] > self.min_range + self.view_margin) & (z[0] < self.max_range - self.view_margin)
-                & (jnp.abs(z[1]) < self.half_fov - self.view_margin_angle))
+        return (
+            (z[0] > self.min_range + self.view_margin)
+            & (z[0] < self.max_range - self.view_margin)
+            & (jnp.abs(z[1]) < self.half_fov - self.view_margin_angle)
+        )
 
 
 class Circle(AbstractMeasurementModel):
@@ -463,13 +481,17 @@ class Circle(AbstractMeasurementModel):
         return jnp.stack([s[0] + z[0] * jnp.cos(a), s[1] + z[0] * jnp.sin(a), z[2]])
 
     def noise_cov(self):
-        return jnp.diag(jnp.stack([jnp.square(self.sigma_r), jnp.square(self.sigma_beta),
-                                   jnp.square(self.sigma_radius)]))
+        return jnp.diag(
+            jnp.stack([jnp.square(self.sigma_r), jnp.square(self.sigma_beta), jnp.square(self.sigma_radius)])
+        )
 
     def visible(self, x, m):
         z = self.h(x, m)
-        return ((z[0] > self.min_range + self.view_margin) & (z[0] < self.max_range - self.view_margin)
-                & (jnp.abs(z[1]) < self.half_fov - self.view_margin_angle))
+        return (
+            (z[0] > self.min_range + self.view_margin)
+            & (z[0] < self.max_range - self.view_margin)
+            & (jnp.abs(z[1]) < self.half_fov - self.view_margin_angle)
+        )
 
 
 MEASUREMENT_MODELS["line"] = LineSegment

@@ -82,7 +82,9 @@ class AbstractMeasurementModel(eqx.Module):
     angles: ClassVar[tuple[int, ...]] = ()
 
     @abc.abstractmethod
-    def h(self, x: Float[Array, "3"], m: Float[Array, " l"], aux: Float[Array, " a"] | None = None) -> Float[Array, " d"]:
+    def h(
+        self, x: Float[Array, "3"], m: Float[Array, " l"], aux: Float[Array, " a"] | None = None
+    ) -> Float[Array, " d"]:
         """The predicted detection of a landmark.
 
         Args:
@@ -153,7 +155,8 @@ class AbstractMeasurementModel(eqx.Module):
     ) -> tuple[Float[Array, "l 3"], Float[Array, "l d"]]:
         """Jacobians of :meth:`landmark_from` with respect to the pose and the detection (autodiff)."""
         return jax.jacfwd(lambda x_, z_: self.landmark_from(x_, z_, aux), argnums=(0, 1))(
-            jnp.asarray(x), jnp.asarray(z))
+            jnp.asarray(x), jnp.asarray(z)
+        )
 
     @classmethod
     def from_config(cls, cfg: "Config") -> "AbstractMeasurementModel":
@@ -166,8 +169,10 @@ class AbstractMeasurementModel(eqx.Module):
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(params) - names)
         if unknown:
-            raise ValueError(f"key 'model.measurement_params': {cls.__name__} has no parameter "
-                             f"{', '.join(map(repr, unknown))}; it takes {', '.join(sorted(names)) or 'none'}")
+            raise ValueError(
+                f"key 'model.measurement_params': {cls.__name__} has no parameter "
+                f"{', '.join(map(repr, unknown))}; it takes {', '.join(sorted(names)) or 'none'}"
+            )
         try:
             return cls(**{k: _f(v) for k, v in params.items()})
         except TypeError as e:
@@ -223,8 +228,11 @@ class RangeBearing(AbstractMeasurementModel):
     def in_view(self, r: Float[ArrayLike, "*n"], b: Float[ArrayLike, "*n"]) -> Bool[Array, "*n"]:
         """:meth:`visible` of landmarks predicted at range ``r`` and bearing ``b``."""
         r, b = jnp.asarray(r), jnp.asarray(b)
-        return ((r > self.min_range + self.view_margin) & (r < self.max_range - self.view_margin)
-                & (jnp.abs(b) < self.half_fov - self.view_margin_angle))
+        return (
+            (r > self.min_range + self.view_margin)
+            & (r < self.max_range - self.view_margin)
+            & (jnp.abs(b) < self.half_fov - self.view_margin_angle)
+        )
 
     def visible(self, x, m):
         z = range_bearing(x, m)
@@ -234,9 +242,16 @@ class RangeBearing(AbstractMeasurementModel):
     def from_config(cls, cfg: "Config") -> "RangeBearing":
         nz, d, mp = cfg.noise, cfg.data, cfg.map
         # The fields' converters take the floats (a converter is invisible to mypy).
-        return cls(nz.sigma_r, math.radians(nz.sigma_beta_deg), d.min_range, d.max_range,  # type: ignore[arg-type]
-                   math.radians(mp.fov_deg) / 2, mp.view_margin,  # type: ignore[arg-type]
-                   math.radians(mp.view_margin_deg))  # type: ignore[arg-type]
+        args: tuple[Any, ...] = (
+            nz.sigma_r,
+            math.radians(nz.sigma_beta_deg),
+            d.min_range,
+            d.max_range,
+            math.radians(mp.fov_deg) / 2,
+            mp.view_margin,
+            math.radians(mp.view_margin_deg),
+        )
+        return cls(*args)
 
 
 def is_range_bearing(model: Any) -> TypeGuard[RangeBearing]:
@@ -267,8 +282,9 @@ def measurement_model_from_config(cfg: "Config") -> AbstractMeasurementModel:
     return measurement_model_class(cfg.model.measurement).from_config(cfg)
 
 
-def check_measurement_model(model: type[AbstractMeasurementModel] | AbstractMeasurementModel, method: str,
-                            smoother: bool = False) -> None:
+def check_measurement_model(
+    model: type[AbstractMeasurementModel] | AbstractMeasurementModel, method: str, smoother: bool = False
+) -> None:
     """Raise a ValueError naming ``model.measurement`` when the filter cannot run ``model``.
 
     The filter's maps hold landmarks of ``landmark_dim == 2`` with detections of
@@ -279,15 +295,21 @@ def check_measurement_model(model: type[AbstractMeasurementModel] | AbstractMeas
     cls = model if isinstance(model, type) else type(model)
     name = cls.__name__
     if cls.landmark_dim != 2 or cls.measurement_dim != 2:
-        raise ValueError(f"key 'model.measurement': {name} has landmark_dim {cls.landmark_dim} and measurement_dim "
-                         f"{cls.measurement_dim}; the filter's maps hold 2-D landmarks with 2-D detections")
+        raise ValueError(
+            f"key 'model.measurement': {name} has landmark_dim {cls.landmark_dim} and measurement_dim "
+            f"{cls.measurement_dim}; the filter's maps hold 2-D landmarks with 2-D detections"
+        )
     if cls.aux_dim != 0:
-        raise ValueError(f"key 'model.measurement': {name} takes an auxiliary input (aux_dim {cls.aux_dim}); the "
-                         "log's detections carry none")
+        raise ValueError(
+            f"key 'model.measurement': {name} takes an auxiliary input (aux_dim {cls.aux_dim}); the "
+            "log's detections carry none"
+        )
     if not issubclass(cls, RangeBearing):
         if method == "nasrukf":
-            raise ValueError(f"key 'model.measurement': filter.method nasrukf runs range-bearing models only, not "
-                             f"{name}")
+            raise ValueError(
+                f"key 'model.measurement': filter.method nasrukf runs range-bearing models only, not {name}"
+            )
         if smoother:
-            raise ValueError(f"key 'model.measurement': the smoother (smoother.enabled) runs range-bearing models "
-                             f"only, not {name}")
+            raise ValueError(
+                f"key 'model.measurement': the smoother (smoother.enabled) runs range-bearing models only, not {name}"
+            )

@@ -134,8 +134,10 @@ class AbstractMotionModel(eqx.Module):
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(params) - names)
         if unknown:
-            raise ValueError(f"key 'model.motion_params': {cls.__name__} has no parameter "
-                             f"{', '.join(map(repr, unknown))}; it takes {', '.join(sorted(names)) or 'none'}")
+            raise ValueError(
+                f"key 'model.motion_params': {cls.__name__} has no parameter "
+                f"{', '.join(map(repr, unknown))}; it takes {', '.join(sorted(names)) or 'none'}"
+            )
         try:
             return cls(**{k: _f(v) for k, v in params.items()})
         except TypeError as e:
@@ -210,8 +212,15 @@ class Ackermann(AbstractRateModel):
     def from_config(cls, cfg: "Config") -> "Ackermann":
         v, nz = cfg.vehicle, cfg.noise
         # The fields' converters take the floats (a converter is invisible to mypy).
-        return cls(v.wheelbase, v.encoder_offset, v.laser_a, v.laser_b,  # type: ignore[arg-type]
-                   nz.sigma_v, math.radians(nz.sigma_alpha_deg))  # type: ignore[arg-type]
+        args: tuple[Any, ...] = (
+            v.wheelbase,
+            v.encoder_offset,
+            v.laser_a,
+            v.laser_b,
+            nz.sigma_v,
+            math.radians(nz.sigma_alpha_deg),
+        )
+        return cls(*args)
 
 
 class Unicycle(AbstractRateModel):
@@ -312,8 +321,9 @@ def _model_class(name: str, key: str, what: str, builtins: dict[str, type], base
     if name in builtins:
         return builtins[name]
     if ":" not in name:
-        raise ValueError(f"key '{key}': {name!r} is not a built-in {what} "
-                         f"({', '.join(builtins)}) nor an import path 'module:Class'")
+        raise ValueError(
+            f"key '{key}': {name!r} is not a built-in {what} ({', '.join(builtins)}) nor an import path 'module:Class'"
+        )
     cls = _import_object(name, key)
     if not (isinstance(cls, type) and issubclass(cls, base)):
         raise ValueError(f"key '{key}': {name!r} is not a subclass of nanoslam_jax.models.{base.__name__}")

@@ -13,8 +13,11 @@ from ._angles import wrap_angle
 
 
 def range_bearing_components(
-    px: Float[ArrayLike, "*#shape"], py: Float[ArrayLike, "*#shape"], phi: Float[ArrayLike, "*#shape"],
-    mx: Float[ArrayLike, "*#shape"], my: Float[ArrayLike, "*#shape"],
+    px: Float[ArrayLike, "*#shape"],
+    py: Float[ArrayLike, "*#shape"],
+    phi: Float[ArrayLike, "*#shape"],
+    mx: Float[ArrayLike, "*#shape"],
+    my: Float[ArrayLike, "*#shape"],
 ) -> tuple[Float[Array, "*shape"], Float[Array, "*shape"]]:
     """:func:`range_bearing` on separate coordinate arrays (any broadcastable shapes): ``(r, beta)``.
 
@@ -62,8 +65,11 @@ def inverse_range_bearing_jacobians(
 
 
 def range_bearing_jacobian_components(
-    px: Float[ArrayLike, "*#shape"], py: Float[ArrayLike, "*#shape"], phi: Float[ArrayLike, "*#shape"],
-    mx: Float[ArrayLike, "*#shape"], my: Float[ArrayLike, "*#shape"],
+    px: Float[ArrayLike, "*#shape"],
+    py: Float[ArrayLike, "*#shape"],
+    phi: Float[ArrayLike, "*#shape"],
+    mx: Float[ArrayLike, "*#shape"],
+    my: Float[ArrayLike, "*#shape"],
 ) -> tuple[tuple[Float[Array, "*shape"], Float[Array, "*shape"]], tuple[tuple[Float[Array, "*shape"], ...], ...]]:
     """:func:`range_bearing_components` and its Jacobian entry by entry (autodiff, one ``jvp`` per input).
 
@@ -74,6 +80,7 @@ def range_bearing_jacobian_components(
     args = jnp.broadcast_arrays(px, py, phi, mx, my)
     cols = []
     for i in range(5):
+
         def along(a, i=i):
             parts = list(args)
             parts[i] = a

@@ -8,7 +8,11 @@ from ._base import (
 )
 from ._fastslam1 import PriorProposal as PriorProposal
 from ._fastslam2 import LinearizedProposal as LinearizedProposal
-from ._iterated import IteratedProposal as IteratedProposal, gauss_newton_map as gauss_newton_map, map_estimate as map_estimate
+from ._iterated import (
+    IteratedProposal as IteratedProposal,
+    gauss_newton_map as gauss_newton_map,
+    map_estimate as map_estimate,
+)
 from ._nano import NanoProposal as NanoProposal
 from ._natural_gradient import (
     Gaussian as Gaussian,

@@ -92,7 +92,10 @@ range_bearing_residuals = measurement_residuals
 
 
 def noise_information(
-    x0: Float[Array, "3"], det: Detections, R: Float[Array, "2 2"], landmark_noise: bool,
+    x0: Float[Array, "3"],
+    det: Detections,
+    R: Float[Array, "2 2"],
+    landmark_noise: bool,
     model: AbstractMeasurementModel | None = None,
 ) -> Float[Array, "k 2 2"]:
     """Inverse noise of each detection: ``R^-1``, or ``(R + Gm Sigma Gm')^-1`` at the prior mean

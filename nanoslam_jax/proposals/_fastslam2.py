@@ -14,7 +14,11 @@ from ._natural_gradient import Gaussian
 
 
 def linearized_gaussian(
-    prior: Gaussian, residual, weights: Float[Array, "k d d"], mask: Bool[Array, " k"], project=wrap_pose,
+    prior: Gaussian,
+    residual,
+    weights: Float[Array, "k d d"],
+    mask: Bool[Array, " k"],
+    project=wrap_pose,
 ) -> Gaussian:
     """One EKF (Gauss-Newton) update of the prior with residuals linearised at the prior mean.
 
@@ -49,7 +53,8 @@ class LinearizedProposal(AbstractProposal):
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         W = noise_information(x0, det, R, self.landmark_noise, self.measurement)
-        q = linearized_gaussian(Gaussian(x0, sym(inv3(P0)), P0), measurement_residuals(det, self.measurement), W,
-                                det.mask)
+        q = linearized_gaussian(
+            Gaussian(x0, sym(inv3(P0)), P0), measurement_residuals(det, self.measurement), W, det.mask
+        )
         zero = jnp.zeros((), jnp.int32)
         return ProposalResult(q.mean, q.cov, zero, zero)

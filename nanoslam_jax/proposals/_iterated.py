@@ -36,8 +36,16 @@ def _solver(name: str, tol: float):
 
 
 def map_estimate(
-    prior: Gaussian, residual, weights, mask, *, solver: str = "gauss_newton", max_iter: int = 10, tol: float = 1e-8,
-    diff=pose_difference, project=wrap_pose,
+    prior: Gaussian,
+    residual,
+    weights,
+    mask,
+    *,
+    solver: str = "gauss_newton",
+    max_iter: int = 10,
+    tol: float = 1e-8,
+    diff=pose_difference,
+    project=wrap_pose,
 ) -> tuple[Gaussian, jax.Array, jax.Array]:
     """MAP of ``N(x; x0, P0) prod_k N(r_k(x); 0, W_k^-1)`` and its Laplace (Gauss-Newton) precision.
 
@@ -106,6 +114,13 @@ class IteratedProposal(AbstractProposal):
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         prior = Gaussian(x0, sym(inv3(P0)), P0)
         weights = noise_information(x0, det, R, self.landmark_noise, self.measurement)
-        q, steps, code = map_estimate(prior, measurement_residuals(det, self.measurement), weights, det.mask,
-                                      solver=self.solver, max_iter=self.max_iter, tol=self.tol)
+        q, steps, code = map_estimate(
+            prior,
+            measurement_residuals(det, self.measurement),
+            weights,
+            det.mask,
+            solver=self.solver,
+            max_iter=self.max_iter,
+            tol=self.tol,
+        )
         return ProposalResult(q.mean, q.cov, steps, code)

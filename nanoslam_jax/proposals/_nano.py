@@ -55,8 +55,18 @@ class NanoProposal(AbstractProposal):
         if self.init == "gauss_newton":
             start = gauss_newton_map(prior, residual, weights, det.mask, max_iter=self.max_iter)
         out = natural_gradient_gaussian(
-            prior, residual, weights, det.mask, self.rule, gamma=self.gamma, step=self.step,
-            max_iter=self.max_iter, hessian=self.hessian, solver=self.solver, start=start,
-            diff=pose_difference, project=wrap_pose,
+            prior,
+            residual,
+            weights,
+            det.mask,
+            self.rule,
+            gamma=self.gamma,
+            step=self.step,
+            max_iter=self.max_iter,
+            hessian=self.hessian,
+            solver=self.solver,
+            start=start,
+            diff=pose_difference,
+            project=wrap_pose,
         )
         return ProposalResult(out.q.mean, out.q.cov, out.iterations, out.result)

@@ -53,9 +53,17 @@ def kl_gaussian(q: Gaussian, p: Gaussian, diff: Callable = jnp.subtract) -> Floa
     n = q.mean.shape[-1]
     d = diff(p.mean, q.mean)
     # Clamped at 0: near convergence round-off can make the value slightly negative.
-    return jnp.maximum(0.0, 0.5 * (
-        tsum(tsum(p.precision * mt(q.cov), -1), -1) - n + quad_form(d, p.precision) + _logdet(q.precision) - _logdet(p.precision)
-    ))
+    return jnp.maximum(
+        0.0,
+        0.5
+        * (
+            tsum(tsum(p.precision * mt(q.cov), -1), -1)
+            - n
+            + quad_form(d, p.precision)
+            + _logdet(q.precision)
+            - _logdet(p.precision)
+        ),
+    )
 
 
 def expected_grad_hess(
@@ -208,17 +216,24 @@ def natural_gradient_gaussian(
         diff: ``(a, b) -> a - b`` on the state space (wraps angles for poses).
         project: maps an iterate back onto the state space (wraps angles for poses).
     """
-    problem = NaturalGradientProblem(rule, prior, residual, weights, mask, jnp.asarray(step, prior.mean.dtype),
-                                     hessian, diff, project)
+    problem = NaturalGradientProblem(
+        rule, prior, residual, weights, mask, jnp.asarray(step, prior.mean.dtype), hessian, diff, project
+    )
     gamma = jnp.asarray(gamma, prior.mean.dtype)
     y0 = (prior.mean, prior.precision) if start is None else (start.mean, start.precision)
     if solver == "optimistix":
-        sol: optx.Solution = optx.fixed_point(problem, NaturalGradientKL(gamma=gamma, diff=diff), y0,
-                                              max_steps=max_iter, throw=False,
-                                              adjoint=optx.RecursiveCheckpointAdjoint())
+        sol: optx.Solution = optx.fixed_point(
+            problem,
+            NaturalGradientKL(gamma=gamma, diff=diff),
+            y0,
+            max_steps=max_iter,
+            throw=False,
+            adjoint=optx.RecursiveCheckpointAdjoint(),
+        )
         (x, lam), steps = sol.value, sol.stats["num_steps"]
         capped = jnp.asarray(sol.result != optx.RESULTS.successful)
     else:
+
         def cond(c):
             i, _, kl = c
             return (i < max_iter) & ~(kl < gamma)

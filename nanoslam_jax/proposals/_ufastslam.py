@@ -179,8 +179,13 @@ class UnscentedProposal(AbstractProposal):
     kappa: Float[Array, ""]
     measurement: AbstractMeasurementModel
 
-    def __init__(self, alpha: Float[ArrayLike, ""] = 0.9, beta: Float[ArrayLike, ""] = 2.0,
-                 kappa: Float[ArrayLike, ""] = 0.0, measurement: AbstractMeasurementModel | None = None):
+    def __init__(
+        self,
+        alpha: Float[ArrayLike, ""] = 0.9,
+        beta: Float[ArrayLike, ""] = 2.0,
+        kappa: Float[ArrayLike, ""] = 0.0,
+        measurement: AbstractMeasurementModel | None = None,
+    ):
         """Args: the unscented parameters (scalars, may be traced) and the measurement model
         (default range-bearing)."""
         self.alpha = jnp.asarray(alpha, dtype=float)
@@ -191,8 +196,18 @@ class UnscentedProposal(AbstractProposal):
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         """Args: the prior mean ``x0`` and covariance ``P0``, the associated detections, the noise ``R``."""
         x, P = unscented_sequential_update(
-            x0, P0, self.measurement.h, det.z, det.mean, det.cov, det.mask, R,
-            self.alpha, self.beta, self.kappa, z_angle_index=self.measurement.angles,
+            x0,
+            P0,
+            self.measurement.h,
+            det.z,
+            det.mean,
+            det.cov,
+            det.mask,
+            R,
+            self.alpha,
+            self.beta,
+            self.kappa,
+            z_angle_index=self.measurement.angles,
         )
         ok = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(P))
         x = jnp.where(ok, x, x0)

@@ -15,13 +15,40 @@ each (method, particle count) point runs its seeds through the sweep runner and 
 from ._plots import plot_accuracy_vs_compute
 from ._runner import TIMING_FIELDS, StudyResult, run_study, write_tables
 from ._spec import (
-    STUDY_METRICS, PairedSpec, StudyMethod, StudyPoint, StudySpec, StudyTiming, expand_study, is_study_file, load_study,
-    point_config, point_sweep_dict)
+    STUDY_METRICS,
+    PairedSpec,
+    StudyMethod,
+    StudyPoint,
+    StudySpec,
+    StudyTiming,
+    expand_study,
+    is_study_file,
+    load_study,
+    point_config,
+    point_sweep_dict,
+)
 from ._stats import equal_time, error_values, paired_comparison, summarize_points, summary_stats
 
 __all__ = [
-    "STUDY_METRICS", "TIMING_FIELDS", "PairedSpec", "StudyMethod", "StudyPoint", "StudyResult", "StudySpec",
-    "StudyTiming", "equal_time", "error_values", "expand_study", "is_study_file", "load_study", "paired_comparison",
-    "plot_accuracy_vs_compute", "point_config", "point_sweep_dict", "run_study", "summarize_points", "summary_stats",
+    "STUDY_METRICS",
+    "TIMING_FIELDS",
+    "PairedSpec",
+    "StudyMethod",
+    "StudyPoint",
+    "StudyResult",
+    "StudySpec",
+    "StudyTiming",
+    "equal_time",
+    "error_values",
+    "expand_study",
+    "is_study_file",
+    "load_study",
+    "paired_comparison",
+    "plot_accuracy_vs_compute",
+    "point_config",
+    "point_sweep_dict",
+    "run_study",
+    "summarize_points",
+    "summary_stats",
     "write_tables",
 ]

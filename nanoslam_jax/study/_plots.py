@@ -15,8 +15,13 @@ import numpy as np  # noqa: E402
 __all__ = ["plot_accuracy_vs_compute"]
 
 
-def plot_accuracy_vs_compute(path: Path, summary: Sequence[dict], metrics: Sequence[str] = ("rmse_fixed", "rmse_aligned"),
-                             floor: Optional[dict] = None, title: str = "") -> None:
+def plot_accuracy_vs_compute(
+    path: Path,
+    summary: Sequence[dict],
+    metrics: Sequence[str] = ("rmse_fixed", "rmse_aligned"),
+    floor: Optional[dict] = None,
+    title: str = "",
+) -> None:
     """One panel per error: the median over seeds against the seconds per log (log axis), a line
     through each method's particle counts (labelled at each point) with the interquartile range
     shaded; a deterministic method (no particle count) is one point with its value. The GPS floor
@@ -35,8 +40,10 @@ def plot_accuracy_vs_compute(path: Path, summary: Sequence[dict], metrics: Seque
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, m in zip(axes[0], metrics):
         for i, method in enumerate(methods):
-            pts = sorted((s for s in summary if s["method"] == method and math.isfinite(s.get("seconds_per_log", math.nan))),
-                         key=lambda s: s["particles"] or 0)
+            pts = sorted(
+                (s for s in summary if s["method"] == method and math.isfinite(s.get("seconds_per_log", math.nan))),
+                key=lambda s: s["particles"] or 0,
+            )
             if not pts:
                 continue
             c = colors[i % len(colors)]
@@ -49,10 +56,17 @@ def plot_accuracy_vs_compute(path: Path, summary: Sequence[dict], metrics: Seque
             ax.fill_between(x, q1, np.minimum(q3, 1e6), color=c, alpha=0.18, lw=0)
             for s, xi, yi in zip(pts, x, med):
                 if math.isfinite(yi):
-                    ax.annotate(str(s["particles"]), (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=7, color=c)
+                    ax.annotate(
+                        str(s["particles"]), (xi, yi), textcoords="offset points", xytext=(4, 4), fontsize=7, color=c
+                    )
         if floor is not None and m.startswith("rmse_fixed"):
-            ax.axhspan(floor["fixed_floor_low"], floor["fixed_floor_high"], color="0.5", alpha=0.2,
-                       label="GPS floor (frame + GPS error)")
+            ax.axhspan(
+                floor["fixed_floor_low"],
+                floor["fixed_floor_high"],
+                color="0.5",
+                alpha=0.2,
+                label="GPS floor (frame + GPS error)",
+            )
         elif floor is not None:
             ax.axhline(floor["aligned_floor"], color="0.4", ls="--", lw=1, label="GPS floor (GPS error)")
         ax.set_xscale("log")

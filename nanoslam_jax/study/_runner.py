@@ -48,8 +48,16 @@ from ._stats import equal_time, number, paired_comparison, summarize_points
 __all__ = ["run_study", "StudyResult", "TIMING_FIELDS"]
 
 #: The timing columns of a point (``timing.csv``), copied into its runs and its summary.
-TIMING_FIELDS = ("seconds_per_log", "seconds_per_log_min", "timing_runs", "ms_per_scan", "scans", "devices",
-                 "compile_s", "peak_rss_mb")
+TIMING_FIELDS = (
+    "seconds_per_log",
+    "seconds_per_log_min",
+    "timing_runs",
+    "ms_per_scan",
+    "scans",
+    "devices",
+    "compile_s",
+    "peak_rss_mb",
+)
 _TIMING_COLUMNS = ("point_id", "method", "particles", "seed", "status", "reason", *TIMING_FIELDS, "runs_s")
 
 
@@ -85,8 +93,10 @@ def _sweep_done(sweep_dir: Path, sweep, pt: StudyPoint) -> bool:
         return False
     old = stored_identity((yaml.safe_load((sweep_dir / "sweep.yaml").read_text()) or {}).get("identity"))
     if old != spec_identity(sweep):
-        raise ConfigError(f"{sweep_dir}: holds the runs of other settings of point {pt.point_id} than {sweep.source}'s; "
-                          f"choose another --out")
+        raise ConfigError(
+            f"{sweep_dir}: holds the runs of other settings of point {pt.point_id} than {sweep.source}'s; "
+            f"choose another --out"
+        )
     rows = read_results(sweep_dir / "results.csv")
     return {f"c0000-s{s}" for s in pt.seeds} <= {r["run_id"] for r in rows}
 
@@ -94,8 +104,18 @@ def _sweep_done(sweep_dir: Path, sweep, pt: StudyPoint) -> bool:
 def _time_point(spec: StudySpec, pt: StudyPoint, out: Path, data_dir: Optional[str], cache: Optional[str]) -> dict:
     """One timing row: the point's first seed alone in a fresh process (see ``_timing``)."""
     js = out / "configs" / f"{pt.point_id}.timing.json"
-    cmd = [sys.executable, "-m", "nanoslam_jax.study._timing", str(out / "configs" / f"{pt.point_id}.yaml"),
-           "--json", str(js), "--repeats", str(spec.timing.repeats), "--budget-s", str(spec.timing.budget_s)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "nanoslam_jax.study._timing",
+        str(out / "configs" / f"{pt.point_id}.yaml"),
+        "--json",
+        str(js),
+        "--repeats",
+        str(spec.timing.repeats),
+        "--budget-s",
+        str(spec.timing.budget_s),
+    ]
     cmd += ["--data", data_dir] if data_dir else []
     cmd += ["--segments", str(spec.segments)] if spec.segments else []
     cmd += ["--cache", cache] if cache else []
@@ -103,10 +123,19 @@ def _time_point(spec: StudySpec, pt: StudyPoint, out: Path, data_dir: Optional[s
     proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     if proc.returncode != 0 or not js.is_file():
         tail = (proc.stderr or proc.stdout).strip().splitlines()
-        return {**row, "status": "failed", "reason": f"timing process exit {proc.returncode}: {tail[-1] if tail else ''}"}
+        return {
+            **row,
+            "status": "failed",
+            "reason": f"timing process exit {proc.returncode}: {tail[-1] if tail else ''}",
+        }
     t = json.loads(js.read_text())
-    return {**row, "status": "ok", "reason": "", **{k: t[k] for k in TIMING_FIELDS},
-            "runs_s": ";".join(f"{x:.4f}" for x in t["runs_s"])}
+    return {
+        **row,
+        "status": "ok",
+        "reason": "",
+        **{k: t[k] for k in TIMING_FIELDS},
+        "runs_s": ";".join(f"{x:.4f}" for x in t["runs_s"]),
+    }
 
 
 def _write_study_yaml(out: Path, spec: StudySpec, points: list[StudyPoint], resume: bool) -> list[dict]:
@@ -114,22 +143,51 @@ def _write_study_yaml(out: Path, spec: StudySpec, points: list[StudyPoint], resu
     points of its earlier runs that this one does not name, e.g. with ``--methods``)."""
     from ..experiment import versions
 
-    now = [{"point_id": p.point_id, "method": p.label, "filter_method": p.method, "particles": p.particles,
-            "first_seed": p.seeds[0], "n_seeds": len(p.seeds)} for p in points]
+    now = [
+        {
+            "point_id": p.point_id,
+            "method": p.label,
+            "filter_method": p.method,
+            "particles": p.particles,
+            "first_seed": p.seeds[0],
+            "n_seeds": len(p.seeds),
+        }
+        for p in points
+    ]
     old = ((yaml.safe_load((out / "study.yaml").read_text()) or {}).get("points") or []) if resume else []
     ids = {p["point_id"] for p in now}
     held = [p for p in old if p["point_id"] not in ids] + now
-    d = {"name": spec.name, "source": spec.source, "quick": spec.quick, "base": spec.base, "set": list(spec.set),
-         "first_seed": spec.first_seed, "segments": spec.segments, "timing": dataclasses.asdict(spec.timing),
-         "run": dict(spec.run), "paired": None if spec.paired is None else dataclasses.asdict(spec.paired),
-         "points": held, "versions": versions(), "command": " ".join(sys.argv),
-         "written": _dt.datetime.now().isoformat(timespec="seconds")}
+    d = {
+        "name": spec.name,
+        "source": spec.source,
+        "quick": spec.quick,
+        "base": spec.base,
+        "set": list(spec.set),
+        "first_seed": spec.first_seed,
+        "segments": spec.segments,
+        "timing": dataclasses.asdict(spec.timing),
+        "run": dict(spec.run),
+        "paired": None if spec.paired is None else dataclasses.asdict(spec.paired),
+        "points": held,
+        "versions": versions(),
+        "command": " ".join(sys.argv),
+        "written": _dt.datetime.now().isoformat(timespec="seconds"),
+    }
     (out / "study.yaml").write_text(f"# nanoslam-jax {__version__} study\n" + yaml.safe_dump(d, sort_keys=False))
     return held
 
 
-def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, data_dir: Optional[str] = None,
-              plots: bool = True, progress: bool = True, stream=sys.stderr, parallel: Optional[str] = None) -> StudyResult:
+def run_study(
+    spec: StudySpec,
+    out_dir: str | Path,
+    *,
+    resume: bool = False,
+    data_dir: Optional[str] = None,
+    plots: bool = True,
+    progress: bool = True,
+    stream=sys.stderr,
+    parallel: Optional[str] = None,
+) -> StudyResult:
     """Run (or resume) a study and write its directory (see the module docstring).
 
     Args:
@@ -164,7 +222,8 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
         cfg = config_to_dict(pt.config) | {"seed": pt.seeds[0]}
         (out / "configs" / f"{pt.point_id}.yaml").write_text(
             f"# study {spec.name}: {pt.label}, {pt.particles or 'no'} particles, seeds {pt.seeds[0]}..{pt.seeds[-1]}\n"
-            + yaml.safe_dump(cfg, sort_keys=False))
+            + yaml.safe_dump(cfg, sort_keys=False)
+        )
     # The cache the command set up (the user's, or $NANOSLAM_CACHE_DIR; none with --no-cache) serves
     # the timing processes too; without one, the study keeps its programs in OUT/jax_cache.
     cache = enable_compile_cache(out / "jax_cache") if dict(spec.run).get("compile_cache", True) else None
@@ -183,7 +242,9 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
 
     t_start = time.perf_counter()
     for k, pt in enumerate(points):
-        what = f"{pt.label}, " + (f"{pt.particles} particles, {len(pt.seeds)} seeds" if pt.particles else "deterministic")
+        what = f"{pt.label}, " + (
+            f"{pt.particles} particles, {len(pt.seeds)} seeds" if pt.particles else "deterministic"
+        )
         sweep_dir = out / "runs" / pt.point_id
         sweep = sweep_from_dict(point_sweep_dict(spec, pt), source=f"{spec.source}: {pt.point_id}")
         if _sweep_done(sweep_dir, sweep, pt):
@@ -192,16 +253,26 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
             say(f"[{k + 1}/{len(points)}] {what}: accuracy runs")
             # One run (a deterministic method) in one process: a batch split over the devices
             # would be padded with copies of it.
-            run_sweep(sweep, sweep_dir, resume=(sweep_dir / "sweep.yaml").is_file(), data_dir=data_dir,
-                      progress=progress, stream=stream, parallel=parallel or ("single" if len(pt.seeds) == 1 else None))
+            run_sweep(
+                sweep,
+                sweep_dir,
+                resume=(sweep_dir / "sweep.yaml").is_file(),
+                data_dir=data_dir,
+                progress=progress,
+                stream=stream,
+                parallel=parallel or ("single" if len(pt.seeds) == 1 else None),
+            )
         timed = {r["point_id"]: r for r in read_results(out / "timing.csv", key="point_id")}
         if timed.get(pt.point_id, {}).get("status") == "ok":
             say(f"    seconds per log measured before: {number(timed[pt.point_id]['seconds_per_log']):.3f}")
         else:
             row = _time_point(spec, pt, out, data_dir, cache)
             timing_file.append([row])
-            say(f"    seconds per log: {format_number(row.get('seconds_per_log'))} ({row.get('timing_runs', 0)} timed runs)"
-                if row["status"] == "ok" else f"    timing failed: {row['reason']}")
+            say(
+                f"    seconds per log: {format_number(row.get('seconds_per_log'))} ({row.get('timing_runs', 0)} timed runs)"
+                if row["status"] == "ok"
+                else f"    timing failed: {row['reason']}"
+            )
         write_tables(out, spec, held)
         say(f"    {time.perf_counter() - t_start:.0f} s elapsed")
 
@@ -211,8 +282,9 @@ def run_study(spec: StudySpec, out_dir: str | Path, *, resume: bool = False, dat
         from ._plots import plot_accuracy_vs_compute
 
         try:
-            plot_accuracy_vs_compute(out / "accuracy_vs_compute.png", summary, floor=floor,
-                                     title=f"{spec.name}: {Path(spec.source).name}")
+            plot_accuracy_vs_compute(
+                out / "accuracy_vs_compute.png", summary, floor=floor, title=f"{spec.name}: {Path(spec.source).name}"
+            )
         except Exception as e:  # the figure must never lose a study
             say(f"figure failed: {type(e).__name__}: {e}")
     runs = _collect_runs(out, held)
@@ -229,9 +301,17 @@ def _collect_runs(out: Path, points: list[dict]) -> list[dict]:
     rows = []
     for pt in points:
         for r in read_results(out / "runs" / pt["point_id"] / "results.csv"):
-            row = {"point_id": pt["point_id"], "method": pt["method"], "filter_method": pt["filter_method"],
-                   "particles": pt["particles"], "seed": int(r["seed"]), "status": r["status"], "reason": r["reason"],
-                   **{m: r.get(m, "") for m in METRIC_KEYS}, "batch_s_per_run": r.get("run_s", "")}
+            row = {
+                "point_id": pt["point_id"],
+                "method": pt["method"],
+                "filter_method": pt["filter_method"],
+                "particles": pt["particles"],
+                "seed": int(r["seed"]),
+                "status": r["status"],
+                "reason": r["reason"],
+                **{m: r.get(m, "") for m in METRIC_KEYS},
+                "batch_s_per_run": r.get("run_s", ""),
+            }
             t = timed.get(pt["point_id"], {})
             row.update({k: t.get(k, "") for k in TIMING_FIELDS if k not in ("compile_s", "peak_rss_mb")})
             rows.append(row)
@@ -254,7 +334,8 @@ def write_tables(out: Path, spec: StudySpec, points: list[dict]) -> tuple[list, 
     for r in read_results(out / "timing.csv", key="point_id"):
         if r["status"] == "ok":
             timing[(r["method"], None if r["particles"] == "" else int(r["particles"]))] = {
-                k: number(r[k]) for k in TIMING_FIELDS}
+                k: number(r[k]) for k in TIMING_FIELDS
+            }
     if runs:
         write_rows_csv(out / "runs.csv", runs)
     summary = summarize_points(runs, STUDY_METRICS, timing)
@@ -281,29 +362,51 @@ def _paired_rows(spec: StudySpec, runs: list[dict], summary: list[dict]) -> list
             if not any(s["method"] == other and s["particles"] == n for s in summary):
                 continue
             for m in p.metrics:
-                row = paired_comparison(runs, p.reference, other, n, m, n_resamples=p.bootstrap,
-                                        confidence=p.confidence, seed=p.bootstrap_seed)
+                row = paired_comparison(
+                    runs,
+                    p.reference,
+                    other,
+                    n,
+                    m,
+                    n_resamples=p.bootstrap,
+                    confidence=p.confidence,
+                    seed=p.bootstrap_seed,
+                )
                 eq = equal_time(summary, p.reference, other, n, m)
-                row.update(seconds_ref=eq["seconds"], median_other_at_time=eq["median_other_at_time"],
-                           diff_at_time=eq["diff"], bracket_at_time=eq["bracket"])
+                row.update(
+                    seconds_ref=eq["seconds"],
+                    median_other_at_time=eq["median_other_at_time"],
+                    diff_at_time=eq["diff"],
+                    bracket_at_time=eq["bracket"],
+                )
                 rows.append(row)
     return rows
 
 
 def _summary_markdown(spec: StudySpec, points: list[dict], summary: list[dict]) -> str:
     seg = f"the first {spec.segments} segments of the log" if spec.segments else "the whole log"
-    lines = [f"# {spec.name}", "",
-             f"{len(points)} points over {seg}. Errors in metres against GPS: median [q1, q3], worst seed (a failed "
-             f"run counts as inf). `s/log` is the median time of one run of the point's first seed alone over "
-             f"{seg}, after compilation, in a fresh process set up as `nanoslam run` is ({spec.timing.repeats} runs at "
-             f"most, none started past {spec.timing.budget_s:g} s), not a batch's time per run.", "",
-             "| method | particles | seeds (ok) | rmse_fixed median [IQR] | worst | rmse_aligned median [IQR] | worst | "
-             "landmarks | s/log |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# {spec.name}",
+        "",
+        f"{len(points)} points over {seg}. Errors in metres against GPS: median [q1, q3], worst seed (a failed "
+        f"run counts as inf). `s/log` is the median time of one run of the point's first seed alone over "
+        f"{seg}, after compilation, in a fresh process set up as `nanoslam run` is ({spec.timing.repeats} runs at "
+        f"most, none started past {spec.timing.budget_s:g} s), not a batch's time per run.",
+        "",
+        "| method | particles | seeds (ok) | rmse_fixed median [IQR] | worst | rmse_aligned median [IQR] | worst | "
+        "landmarks | s/log |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for s in sorted(summary, key=lambda s: (s["method"], s["particles"] or 0)):
-        cell = lambda m: f"{format_number(s[m + '_median'])} [{format_number(s[m + '_q1'])}, {format_number(s[m + '_q3'])}]"  # noqa: E731
-        lines.append(f"| {s['method']} | {s['particles'] or '-'} | {s['seeds']} ({s['n_ok']}) | {cell('rmse_fixed')} | "
-                     f"{format_number(s['rmse_fixed_worst'])} | {cell('rmse_aligned')} | {format_number(s['rmse_aligned_worst'])} | "
-                     f"{format_number(s['n_landmarks_median'], 0)} | {format_number(s.get('seconds_per_log'), 2)} |")
+
+        def cell(m):
+            return f"{format_number(s[m + '_median'])} [{format_number(s[m + '_q1'])}, {format_number(s[m + '_q3'])}]"
+
+        lines.append(
+            f"| {s['method']} | {s['particles'] or '-'} | {s['seeds']} ({s['n_ok']}) | {cell('rmse_fixed')} | "
+            f"{format_number(s['rmse_fixed_worst'])} | {cell('rmse_aligned')} | {format_number(s['rmse_aligned_worst'])} | "
+            f"{format_number(s['n_landmarks_median'], 0)} | {format_number(s.get('seconds_per_log'), 2)} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -312,14 +415,18 @@ def _paired_markdown(spec: StudySpec, rows: list[dict]) -> str:
         return f"# {spec.name}: paired comparison\n\nNone configured (or the compared points have not run yet).\n"
     p = spec.paired
     assert p is not None  # rows come only from a paired spec
-    lines = [f"# {spec.name}: {p.reference} against the others", "",
-             f"Same particle count, same seeds: wins / losses / ties of {p.reference} (lower error), the exact "
-             f"two-sided sign test's p, the median of the paired differences {p.reference} - other with its "
-             f"{100 * p.confidence:g} % bootstrap interval ({p.bootstrap} resamples), and the two medians. "
-             f"Equal time: the other's median error interpolated in log(seconds per log) at {p.reference}'s seconds "
-             f"per log (blank outside the other's measured range), and the difference.", "",
-             "| particles | against | metric | W/L/T | sign p | median diff [CI] | medians | s/log | other at equal time | diff at equal time |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# {spec.name}: {p.reference} against the others",
+        "",
+        f"Same particle count, same seeds: wins / losses / ties of {p.reference} (lower error), the exact "
+        f"two-sided sign test's p, the median of the paired differences {p.reference} - other with its "
+        f"{100 * p.confidence:g} % bootstrap interval ({p.bootstrap} resamples), and the two medians. "
+        f"Equal time: the other's median error interpolated in log(seconds per log) at {p.reference}'s seconds "
+        f"per log (blank outside the other's measured range), and the difference.",
+        "",
+        "| particles | against | metric | W/L/T | sign p | median diff [CI] | medians | s/log | other at equal time | diff at equal time |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         at = math.isfinite(r["median_other_at_time"])
         other_at = f"{format_number(r['median_other_at_time'])} (N {r['bracket_at_time']})" if at else ""
@@ -327,7 +434,8 @@ def _paired_markdown(spec: StudySpec, rows: list[dict]) -> str:
             f"| {r['particles']} | {r['other']} | {r['metric']} | {r['wins']}/{r['losses']}/{r['ties']} | "
             f"{format_number(r['sign_p'])} | {format_number(r['median_diff'])} [{format_number(r['diff_low'])}, {format_number(r['diff_high'])}] | "
             f"{format_number(r['median_ref'])} vs {format_number(r['median_other'])} | {format_number(r['seconds_ref'], 2)} | {other_at} | "
-            f"{format_number(r['diff_at_time']) if at else ''} |")
+            f"{format_number(r['diff_at_time']) if at else ''} |"
+        )
     return "\n".join(lines) + "\n"
 
 

@@ -41,8 +41,19 @@ from typing import Any, Optional, Sequence
 from ..compare import deterministic, int_at_least, method_rows, read_comparison, resolve_base, str_list
 from ..config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
 
-__all__ = ["StudyMethod", "StudyTiming", "PairedSpec", "StudySpec", "StudyPoint", "load_study", "is_study_file",
-           "expand_study", "point_config", "point_sweep_dict", "STUDY_METRICS"]
+__all__ = [
+    "StudyMethod",
+    "StudyTiming",
+    "PairedSpec",
+    "StudySpec",
+    "StudyPoint",
+    "load_study",
+    "is_study_file",
+    "expand_study",
+    "point_config",
+    "point_sweep_dict",
+    "STUDY_METRICS",
+]
 
 _TOP = {"name", "base", "set", "first_seed", "particles", "segments", "timing", "run", "paired", "methods", "quick"}
 _QUICK = {"particles", "segments", "methods", "timing", "first_seed"}
@@ -170,8 +181,10 @@ def is_study_file(path: str | Path) -> bool:
 
 def _particle_map(value: Any, key: str, where: str) -> tuple[tuple[int, int], ...]:
     if not isinstance(value, dict) or not value:
-        raise ConfigError(f"{where}: key '{key}': expected a mapping of particle counts to seeds, e.g. {{10: 16, 1000: 8}}, "
-                          f"got {value!r}")
+        raise ConfigError(
+            f"{where}: key '{key}': expected a mapping of particle counts to seeds, e.g. {{10: 16, 1000: 8}}, "
+            f"got {value!r}"
+        )
     out = []
     for n, s in value.items():
         int_at_least(n, f"{key}.{n}", where, 1)
@@ -208,22 +221,35 @@ def _paired(value: Any, labels: list[str], where: str) -> Optional[PairedSpec]:
             raise ConfigError(f"{where}: key '{key}': {lab!r} is not a method label; labels: {labels}")
     metrics = value.get("metrics", list(PairedSpec.metrics))
     if not isinstance(metrics, list) or not metrics or any(m not in STUDY_METRICS for m in metrics):
-        raise ConfigError(f"{where}: key 'paired.metrics': expected a list of some of {list(STUDY_METRICS)}, got {metrics!r}")
+        raise ConfigError(
+            f"{where}: key 'paired.metrics': expected a list of some of {list(STUDY_METRICS)}, got {metrics!r}"
+        )
     conf = value.get("confidence", PairedSpec.confidence)
     if isinstance(conf, bool) or not isinstance(conf, (int, float)) or not 0 < conf < 1:
         raise ConfigError(f"{where}: key 'paired.confidence': expected a number in (0, 1), got {conf!r}")
-    return PairedSpec(str(ref), tuple(against), tuple(metrics),
-                      int_at_least(value.get("bootstrap", PairedSpec.bootstrap), "paired.bootstrap", where, 100), float(conf),
-                      int_at_least(value.get("bootstrap_seed", 0), "paired.bootstrap_seed", where, 0))
+    return PairedSpec(
+        str(ref),
+        tuple(against),
+        tuple(metrics),
+        int_at_least(value.get("bootstrap", PairedSpec.bootstrap), "paired.bootstrap", where, 100),
+        float(conf),
+        int_at_least(value.get("bootstrap_seed", 0), "paired.bootstrap_seed", where, 0),
+    )
 
 
 def _segments(value: Any, key: str, where: str) -> Optional[int]:
     return None if value is None else int_at_least(value, key, where, 1)
 
 
-def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool = False,
-               seeds: Optional[int] = None, only: Optional[Sequence[str]] = None,
-               counts: Optional[Sequence[int]] = None) -> StudySpec:
+def load_study(
+    path: str | Path,
+    overrides: tuple[str, ...] = (),
+    *,
+    quick: bool = False,
+    seeds: Optional[int] = None,
+    only: Optional[Sequence[str]] = None,
+    counts: Optional[Sequence[int]] = None,
+) -> StudySpec:
     """Read and validate a study file.
 
     Args:
@@ -252,9 +278,14 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         if bad:
             raise ConfigError(f"{where}: key 'quick': unknown key(s) {sorted(bad)}; expected some of {sorted(_QUICK)}")
     base = resolve_base(raw.get("base"), p)
-    methods = [StudyMethod(label, sets, None if row.get("particles") is None
-                           else _particle_map(row["particles"], f"{key}.particles", where))
-               for key, row, label, sets in method_rows(raw.get("methods"), where, _METHOD)]
+    methods = [
+        StudyMethod(
+            label,
+            sets,
+            None if row.get("particles") is None else _particle_map(row["particles"], f"{key}.particles", where),
+        )
+        for key, row, label, sets in method_rows(raw.get("methods"), where, _METHOD)
+    ]
     labels = [m.label for m in methods]
 
     particles = _particle_map(raw.get("particles"), "particles", where)
@@ -274,7 +305,9 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         keep = q.get("methods")
         if keep is not None:
             if not isinstance(keep, list) or not keep or any(k not in labels for k in keep):
-                raise ConfigError(f"{where}: key 'quick.methods': expected a list of method labels from {labels}, got {keep!r}")
+                raise ConfigError(
+                    f"{where}: key 'quick.methods': expected a list of method labels from {labels}, got {keep!r}"
+                )
             methods = [m for m in methods if m.label in keep]
     in_variant = [m.label for m in methods]  # --methods and --particles narrow a run, not the study
     if only is not None:
@@ -285,15 +318,23 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
     if counts is not None:
         have_n = sorted({n for n, _ in particles} | {n for m in methods if m.particles for n, _ in m.particles})
         if not counts or any(not isinstance(n, int) or n not in have_n for n in counts):
-            raise ConfigError(f"{where}: --particles: expected particle counts of the study {have_n}, got {list(counts)}")
+            raise ConfigError(
+                f"{where}: --particles: expected particle counts of the study {have_n}, got {list(counts)}"
+            )
         particles = tuple((n, s) for n, s in particles if n in counts)
-        methods = [m if m.particles is None else dataclasses.replace(m, particles=tuple((n, s) for n, s in m.particles if n in counts))
-                   for m in methods]
+        methods = [
+            m
+            if m.particles is None
+            else dataclasses.replace(m, particles=tuple((n, s) for n, s in m.particles if n in counts))
+            for m in methods
+        ]
     if seeds is not None:
         int_at_least(seeds, "--seeds", where, 1)
         particles = tuple((n, seeds) for n, _ in particles)
-        methods = [m if m.particles is None else dataclasses.replace(m, particles=tuple((n, seeds) for n, _ in m.particles))
-                   for m in methods]
+        methods = [
+            m if m.particles is None else dataclasses.replace(m, particles=tuple((n, seeds) for n, _ in m.particles))
+            for m in methods
+        ]
     run = raw.get("run") or {}
     if not isinstance(run, dict):
         raise ConfigError(f"{where}: key 'run': expected a mapping of sweep run options, got {run!r}")
@@ -302,9 +343,18 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
         against = tuple(a for a in paired.against if a in in_variant)
         paired = dataclasses.replace(paired, against=against) if paired.reference in in_variant and against else None
     spec = StudySpec(
-        name=str(raw.get("name", p.stem)) + ("-quick" if quick else ""), source=where, base=base,
-        set=str_list(raw.get("set"), "set", where) + tuple(overrides), methods=tuple(methods), particles=particles,
-        first_seed=first_seed, segments=segments, timing=timing, run=tuple(run.items()), paired=paired, quick=quick,
+        name=str(raw.get("name", p.stem)) + ("-quick" if quick else ""),
+        source=where,
+        base=base,
+        set=str_list(raw.get("set"), "set", where) + tuple(overrides),
+        methods=tuple(methods),
+        particles=particles,
+        first_seed=first_seed,
+        segments=segments,
+        timing=timing,
+        run=tuple(run.items()),
+        paired=paired,
+        quick=quick,
     )
     points = expand_study(spec)  # every method's config is validated here, before anything runs
     from ..methods import method_names
@@ -312,8 +362,10 @@ def load_study(path: str | Path, overrides: tuple[str, ...] = (), *, quick: bool
 
     for pt in points:
         if pt.method not in method_names():
-            raise ConfigError(f"{where}: method {pt.label!r}: filter.method {pt.method!r} is not registered; "
-                              f"registered: {', '.join(method_names())}")
+            raise ConfigError(
+                f"{where}: method {pt.label!r}: filter.method {pt.method!r} is not registered; "
+                f"registered: {', '.join(method_names())}"
+            )
 
     sweep_from_dict(point_sweep_dict(spec, points[0]), source=where)  # the 'run' options, named by this file
     if len({pt.point_id for pt in points}) != len(points):
@@ -349,20 +401,38 @@ def expand_study(spec: StudySpec) -> list[StudyPoint]:
     for order, m in enumerate(spec.methods):
         cfg = point_config(spec, m)
         if deterministic(cfg.filter.method):
-            rows.append(((0, order), StudyPoint(_safe(m.label), m.label, cfg.filter.method, None, (spec.first_seed,), cfg)))
+            rows.append(
+                ((0, order), StudyPoint(_safe(m.label), m.label, cfg.filter.method, None, (spec.first_seed,), cfg))
+            )
             continue
         counts = m.particles if m.particles is not None else spec.particles  # () once --particles drops them all
         if not counts:
             continue
         width = max(4, len(str(max(n for n, _ in counts))))
         for n, s in counts:
-            rows.append(((n, order), StudyPoint(f"{_safe(m.label)}_N{n:0{width}d}", m.label, cfg.filter.method, n,
-                                                tuple(range(spec.first_seed, spec.first_seed + s)),
-                                                point_config(spec, m, n))))
+            rows.append(
+                (
+                    (n, order),
+                    StudyPoint(
+                        f"{_safe(m.label)}_N{n:0{width}d}",
+                        m.label,
+                        cfg.filter.method,
+                        n,
+                        tuple(range(spec.first_seed, spec.first_seed + s)),
+                        point_config(spec, m, n),
+                    ),
+                )
+            )
     return [pt for _, pt in sorted(rows, key=lambda r: r[0])]
 
 
 def point_sweep_dict(spec: StudySpec, pt: StudyPoint) -> dict:
     """The sweep (``nanoslam sweep`` file layout) that runs one point's seeds: no grid, no shapes."""
-    return {"name": pt.point_id, "base": config_to_dict(pt.config), "seeds": list(pt.seeds),
-            "segments": spec.segments, "run": dict(spec.run), "plots": False}
+    return {
+        "name": pt.point_id,
+        "base": config_to_dict(pt.config),
+        "seeds": list(pt.seeds),
+        "segments": spec.segments,
+        "run": dict(spec.run),
+        "plots": False,
+    }

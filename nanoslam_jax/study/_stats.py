@@ -69,10 +69,17 @@ def summarize_points(rows: Sequence[dict], metrics: Sequence[str], timing: Optio
         groups.setdefault(_key(r), []).append(r)
     out = []
     for (method, particles), rs in groups.items():
-        st = summarize_runs(rs, metrics, goals={m: "min" for m in metrics},
-                            stats=("median", "q1", "q3", "worst", "best"))
-        s: dict = {"method": method, "particles": particles, "seeds": st["n_runs"], "n_ok": st["n_ok"],
-                   "n_failed": st["n_failed"], "failed_seeds": st["failed_seeds"]}
+        st = summarize_runs(
+            rs, metrics, goals={m: "min" for m in metrics}, stats=("median", "q1", "q3", "worst", "best")
+        )
+        s: dict = {
+            "method": method,
+            "particles": particles,
+            "seeds": st["n_runs"],
+            "n_ok": st["n_ok"],
+            "n_failed": st["n_failed"],
+            "failed_seeds": st["failed_seeds"],
+        }
         s.update({f"{m}_{k}": st[f"{m}_{k}"] for m in metrics for k in ("median", "q1", "q3", "worst", "best")})
         s["n_landmarks_median"] = summarize_runs(rs, ["n_landmarks"], stats=("median",))["n_landmarks_median"]
         s.update((timing or {}).get((method, particles), {}))
@@ -80,8 +87,17 @@ def summarize_points(rows: Sequence[dict], metrics: Sequence[str], timing: Optio
     return out
 
 
-def paired_comparison(rows: Sequence[dict], reference: str, other: str, particles: Optional[int], metric: str, *,
-                      n_resamples: int = 10000, confidence: float = 0.95, seed: int = 0) -> dict:
+def paired_comparison(
+    rows: Sequence[dict],
+    reference: str,
+    other: str,
+    particles: Optional[int],
+    metric: str,
+    *,
+    n_resamples: int = 10000,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> dict:
     """The reference method against another at one particle count, over the seeds both ran.
 
     Returns:
@@ -105,23 +121,44 @@ def paired_comparison(rows: Sequence[dict], reference: str, other: str, particle
     n = wins + losses
     both = np.isfinite(a) & np.isfinite(b)
     d = a[both] - b[both]
-    out = {"reference": reference, "other": other, "particles": particles, "metric": metric, "pairs": len(seeds),
-           "wins": wins, "losses": losses, "ties": len(seeds) - n,
-           "sign_p": float(binomtest(wins, n).pvalue) if n else math.nan, "n_diff": int(d.size),
-           "median_diff": float(np.median(d)) if d.size else math.nan, "diff_low": math.nan, "diff_high": math.nan}
+    out = {
+        "reference": reference,
+        "other": other,
+        "particles": particles,
+        "metric": metric,
+        "pairs": len(seeds),
+        "wins": wins,
+        "losses": losses,
+        "ties": len(seeds) - n,
+        "sign_p": float(binomtest(wins, n).pvalue) if n else math.nan,
+        "n_diff": int(d.size),
+        "median_diff": float(np.median(d)) if d.size else math.nan,
+        "diff_low": math.nan,
+        "diff_high": math.nan,
+    }
     if d.size >= 2 and np.ptp(d) == 0:
         out["diff_low"] = out["diff_high"] = float(d[0])
     elif d.size >= 2:
-        ci = bootstrap((d,), np.median, n_resamples=n_resamples, confidence_level=confidence, method="percentile",
-                       vectorized=True, random_state=np.random.default_rng(seed)).confidence_interval
+        ci = bootstrap(
+            (d,),
+            np.median,
+            n_resamples=n_resamples,
+            confidence_level=confidence,
+            method="percentile",
+            vectorized=True,
+            random_state=np.random.default_rng(seed),
+        ).confidence_interval
         out["diff_low"], out["diff_high"] = float(ci.low), float(ci.high)
     ma, mb = summary_stats(a)["median"], summary_stats(b)["median"]
-    out.update(median_ref=ma, median_other=mb, ratio=ma / mb if mb and math.isfinite(mb) and math.isfinite(ma) else math.nan)
+    out.update(
+        median_ref=ma, median_other=mb, ratio=ma / mb if mb and math.isfinite(mb) and math.isfinite(ma) else math.nan
+    )
     return out
 
 
-def equal_time(summary: Sequence[dict], reference: str, other: str, particles: int, metric: str,
-               time_key: str = "seconds_per_log") -> dict:
+def equal_time(
+    summary: Sequence[dict], reference: str, other: str, particles: int, metric: str, time_key: str = "seconds_per_log"
+) -> dict:
     """The reference method's median error against the other's at the same seconds per log.
 
     Args:
@@ -137,10 +174,24 @@ def equal_time(summary: Sequence[dict], reference: str, other: str, particles: i
         ``bracket`` (the other's two particle counts around that time, e.g. ``"100-300"``).
     """
     ref = next((s for s in summary if s["method"] == reference and s["particles"] == particles), None)
-    pts = sorted(((number(s.get(time_key)), s[f"{metric}_median"], s["particles"]) for s in summary
-                  if s["method"] == other and math.isfinite(number(s.get(time_key))) and number(s.get(time_key)) > 0))
-    out = {"reference": reference, "other": other, "particles": particles, "metric": metric, "seconds": math.nan,
-           "median_ref": math.nan, "median_other_at_time": math.nan, "diff": math.nan, "bracket": ""}
+    pts = sorted(
+        (
+            (number(s.get(time_key)), s[f"{metric}_median"], s["particles"])
+            for s in summary
+            if s["method"] == other and math.isfinite(number(s.get(time_key))) and number(s.get(time_key)) > 0
+        )
+    )
+    out = {
+        "reference": reference,
+        "other": other,
+        "particles": particles,
+        "metric": metric,
+        "seconds": math.nan,
+        "median_ref": math.nan,
+        "median_other_at_time": math.nan,
+        "diff": math.nan,
+        "bracket": "",
+    }
     if ref is None:
         return out
     t = number(ref.get(time_key))

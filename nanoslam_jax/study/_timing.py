@@ -30,8 +30,14 @@ from typing import Optional, Sequence
 __all__ = ["time_point", "main"]
 
 
-def time_point(config_path: str, data_dir: Optional[str], segments: Optional[int], repeats: int, budget_s: float,
-               cache: Optional[str] = None) -> dict:
+def time_point(
+    config_path: str,
+    data_dir: Optional[str],
+    segments: Optional[int],
+    repeats: int,
+    budget_s: float,
+    cache: Optional[str] = None,
+) -> dict:
     """Time single runs of a config in this process (call it first thing, before any JAX work).
 
     Args:
@@ -77,9 +83,17 @@ def time_point(config_path: str, data_dir: Optional[str], segments: Optional[int
         runs.append(r.run_s + smoother_s)
     scans = int(log.segments.time.shape[0])
     med = statistics.median(runs)
-    return {"seconds_per_log": med, "seconds_per_log_min": min(runs), "runs_s": runs, "timing_runs": len(runs),
-            "compile_s": compile_s, "ms_per_scan": 1e3 * med / scans, "scans": scans, "devices": static.devices,
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+    return {
+        "seconds_per_log": med,
+        "seconds_per_log_min": min(runs),
+        "runs_s": runs,
+        "timing_runs": len(runs),
+        "compile_s": compile_s,
+        "ms_per_scan": 1e3 * med / scans,
+        "scans": scans,
+        "devices": static.devices,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:

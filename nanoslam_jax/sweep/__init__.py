@@ -13,15 +13,43 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 _EXPORTS = {
-    "_spec": ("SweepSpec", "RunOptions", "RandomSpec", "RandomParam", "ConfigPoint", "Run", "load_sweep",
-              "sweep_from_dict", "METRIC_KEYS", "MAP_METRIC_KEYS", "SMOOTHER_METRIC_KEYS", "SURVEY_METRIC_KEYS"),
+    "_spec": (
+        "SweepSpec",
+        "RunOptions",
+        "RandomSpec",
+        "RandomParam",
+        "ConfigPoint",
+        "Run",
+        "load_sweep",
+        "sweep_from_dict",
+        "METRIC_KEYS",
+        "MAP_METRIC_KEYS",
+        "SMOOTHER_METRIC_KEYS",
+        "SURVEY_METRIC_KEYS",
+    ),
     "_expand": ("expand", "sample_random", "spec_identity", "stored_identity"),
     "_plan": ("Group", "plan_groups", "make_tasks"),
-    "_batch": ("LogData", "BatchTask", "BatchOutput", "batch_program", "single_program", "execute_batch",
-               "batch_outputs", "load_log_data", "compile_events"),
+    "_batch": (
+        "LogData",
+        "BatchTask",
+        "BatchOutput",
+        "batch_program",
+        "single_program",
+        "execute_batch",
+        "batch_outputs",
+        "load_log_data",
+        "compile_events",
+    ),
     "_runner": ("run_sweep", "SweepResult", "resolve_parallel", "AUTO_PARALLEL"),
-    "_results": ("ResultsFile", "read_results", "summarize", "select_best", "write_summary", "write_best_yaml",
-                 "TIMING_COLUMNS"),
+    "_results": (
+        "ResultsFile",
+        "read_results",
+        "summarize",
+        "select_best",
+        "write_summary",
+        "write_best_yaml",
+        "TIMING_COLUMNS",
+    ),
     "_plots": ("plot_sweep", "plot_metric_vs_param", "plot_heatmap"),
     "_ray": ("ray_iter", "import_ray"),
     "_cli": ("add_sweep_parser", "sweep_command"),
@@ -48,13 +76,39 @@ if TYPE_CHECKING:  # pragma: no cover
     from ._plots import plot_heatmap, plot_metric_vs_param, plot_sweep  # noqa: F401
     from ._ray import import_ray, ray_iter  # noqa: F401
     from ._results import (  # noqa: F401
-        TIMING_COLUMNS, ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary)
+        TIMING_COLUMNS,
+        ResultsFile,
+        read_results,
+        select_best,
+        summarize,
+        write_best_yaml,
+        write_summary,
+    )
     from ._batch import (  # noqa: F401
-        BatchOutput, BatchTask, LogData, batch_outputs, batch_program, compile_events, execute_batch, load_log_data,
-        single_program)
+        BatchOutput,
+        BatchTask,
+        LogData,
+        batch_outputs,
+        batch_program,
+        compile_events,
+        execute_batch,
+        load_log_data,
+        single_program,
+    )
     from ._expand import expand, sample_random, spec_identity, stored_identity  # noqa: F401
     from ._plan import Group, make_tasks, plan_groups  # noqa: F401
     from ._runner import AUTO_PARALLEL, SweepResult, resolve_parallel, run_sweep  # noqa: F401
     from ._spec import (  # noqa: F401
-        MAP_METRIC_KEYS, METRIC_KEYS, SMOOTHER_METRIC_KEYS, SURVEY_METRIC_KEYS, ConfigPoint, RandomParam, RandomSpec, Run, RunOptions, SweepSpec, load_sweep,
-        sweep_from_dict)
+        MAP_METRIC_KEYS,
+        METRIC_KEYS,
+        SMOOTHER_METRIC_KEYS,
+        SURVEY_METRIC_KEYS,
+        ConfigPoint,
+        RandomParam,
+        RandomSpec,
+        Run,
+        RunOptions,
+        SweepSpec,
+        load_sweep,
+        sweep_from_dict,
+    )

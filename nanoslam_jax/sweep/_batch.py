@@ -22,8 +22,18 @@ from .._cache import program_cache, release_programs
 from ..config import Config
 from ..data import Segments
 from .._scoring import MapEstimate, companion_tracks, failure_reason, score_run
-from ..filter import (MapHistory, Params, Static, adaptive_noise_summary, ancestral_path, configured_noise,
-                      filter_scan, initial_state, noise_estimates, reported_map)
+from ..filter import (
+    MapHistory,
+    Params,
+    Static,
+    adaptive_noise_summary,
+    ancestral_path,
+    configured_noise,
+    filter_scan,
+    initial_state,
+    noise_estimates,
+    reported_map,
+)
 from ..smoother import Smoothed, SmootherSettings, held_landmarks, smooth_run, smoother_metrics
 
 
@@ -82,8 +92,7 @@ def load_log_data(cfg: Config, data_dir: Optional[str] = None, segments: Optiona
     seg = log.segments
     n = seg.time.shape[0] if segments is None else min(segments, seg.time.shape[0])
     seg = type(seg)(*(np.asarray(a)[:n] for a in seg))  # type: ignore[arg-type]  # numpy on the host
-    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source, log.survey,
-                   log.raw.truth_poses)
+    return LogData(seg, np.asarray(log.raw.gps), log.frame, log.map_truth, log.source, log.survey, log.raw.truth_poses)
 
 
 # --------------------------------------------------------------------------- the compiled program
@@ -173,20 +182,31 @@ def _member(static: Static, params: Params, seed, segments: Segments, history_ch
 
     zero = jnp.zeros((), jnp.int32)
     return BatchOutput(
-        best_pose=out.best_pose, mean_pose=out.mean_pose, ess=rec("ess", float), iterations=rec("iterations", float),
-        n_associated=rec("n_associated", float), n_capped=rec("n_capped", jnp.int32),
-        n_nonfinite=rec("n_nonfinite", jnp.int32), window_overflow=rec("window_overflow", jnp.int32),
+        best_pose=out.best_pose,
+        mean_pose=out.mean_pose,
+        ess=rec("ess", float),
+        iterations=rec("iterations", float),
+        n_associated=rec("n_associated", float),
+        n_capped=rec("n_capped", jnp.int32),
+        n_nonfinite=rec("n_nonfinite", jnp.int32),
+        window_overflow=rec("window_overflow", jnp.int32),
         weight_reset=rec("weight_reset", bool),
-        overflow=getattr(state, "overflow", zero), resample_count=getattr(state, "resample_count", zero),
-        map_mean=lm.mean, map_active=lm.active, map_confirmed=lm.confirmed,
+        overflow=getattr(state, "overflow", zero),
+        resample_count=getattr(state, "resample_count", zero),
+        map_mean=lm.mean,
+        map_active=lm.active,
+        map_confirmed=lm.confirmed,
         path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate == "path" else None,
         noise=noise_estimates(state) if static.adaptive_noise else None,
-        map_ident=lm.ident, history_mean=h_mean, history_held=h_held,
+        map_ident=lm.ident,
+        history_mean=h_mean,
+        history_held=h_held,
     )
 
 
-def _local_batch(static: Static, vectorize: str, params: Params, seeds, segments: Segments,
-                 history_chunk: int = 0) -> BatchOutput:
+def _local_batch(
+    static: Static, vectorize: str, params: Params, seeds, segments: Segments, history_chunk: int = 0
+) -> BatchOutput:
     member = functools.partial(_member, static, history_chunk=history_chunk)
     if vectorize == "vmap":
         return jax.vmap(member, in_axes=(0, 0, None))(params, seeds, segments)
@@ -194,8 +214,9 @@ def _local_batch(static: Static, vectorize: str, params: Params, seeds, segments
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1, 2), static_argnames=("history_chunk",))
-def batch_program(static: Static, vectorize: str, devices: int, params: Params, seeds, segments: Segments,
-                  history_chunk: int = 0) -> BatchOutput:
+def batch_program(
+    static: Static, vectorize: str, devices: int, params: Params, seeds, segments: Segments, history_chunk: int = 0
+) -> BatchOutput:
     """A batch of runs in one compiled program.
 
     Args:
@@ -218,8 +239,9 @@ def batch_program(static: Static, vectorize: str, devices: int, params: Params, 
 
     mesh = Mesh(np.array(jax.devices()[:devices]), ("batch",))
     split = PartitionSpec("batch")
-    return jax.shard_map(local, mesh=mesh, in_specs=(split, split, PartitionSpec()), out_specs=split,
-                         check_vma=False)(params, seeds, segments)
+    return jax.shard_map(local, mesh=mesh, in_specs=(split, split, PartitionSpec()), out_specs=split, check_vma=False)(
+        params, seeds, segments
+    )
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -283,8 +305,14 @@ class BatchTask:
 
 
 def _program_key(task: BatchTask, segments: Segments) -> tuple:
-    return (task.static, task.vectorize, task.devices, task.batch, task.history_chunk,
-            tuple((a.shape, str(a.dtype)) for a in segments))
+    return (
+        task.static,
+        task.vectorize,
+        task.devices,
+        task.batch,
+        task.history_chunk,
+        tuple((a.shape, str(a.dtype)) for a in segments),
+    )
 
 
 def _place(task: BatchTask, segments: Segments):
@@ -296,7 +324,7 @@ def _place(task: BatchTask, segments: Segments):
 def _first_line(e: BaseException, limit: int = 300) -> str:
     msg = str(e).strip().splitlines()
     text = f"{type(e).__name__}: {msg[0] if msg else ''}".strip()
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, float]:
@@ -319,8 +347,9 @@ def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, fl
         release_programs()
         t0 = time.perf_counter()
         try:
-            compiled = batch_program.lower(task.static, task.vectorize, task.devices, *args,
-                                           history_chunk=task.history_chunk).compile()
+            compiled = batch_program.lower(
+                task.static, task.vectorize, task.devices, *args, history_chunk=task.history_chunk
+            ).compile()
         except Exception as e:
             _FAILED[key] = f"compilation failed: {_first_line(e)}"
             raise RuntimeError(_FAILED[key]) from e
@@ -348,8 +377,10 @@ def execute_batch(task: BatchTask, log: LogData) -> list[dict]:
     try:
         host, compile_s, run_s = batch_outputs(task, log)
     except Exception as e:  # a failing group must not stop the sweep
-        return [dict(status="failed", reason=f"error: {_first_line(e)}", run_s=math.nan, compile_s=0.0)
-                for _ in range(task.n_real)]
+        return [
+            dict(status="failed", reason=f"error: {_first_line(e)}", run_s=math.nan, compile_s=0.0)
+            for _ in range(task.n_real)
+        ]
     run_s /= max(task.n_real, 1)
     rows = []
     for i in range(task.n_real):
@@ -370,8 +401,9 @@ def _smooth(i: int, out: BatchOutput, log: LogData, task: BatchTask, path: np.nd
     final = np.asarray(lm.xy)[np.asarray(lm.confirmed, bool)]
     held = None
     if settings.map_history and out.history_mean is not None:
-        held = held_landmarks(MapHistory(out.history_mean[i], out.history_held[i]), final, None,
-                              settings.map_history_radius)
+        held = held_landmarks(
+            MapHistory(out.history_mean[i], out.history_held[i]), final, None, settings.map_history_radius
+        )
     p_i = jax.tree.map(lambda a: np.asarray(a)[i], task.params)
     return smooth_run(path, final, log.segments, p_i, settings, task.static.prior, held)
 
@@ -382,8 +414,11 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     static = task.static
     est = np.asarray({"best": out.best_pose, "mean": out.mean_pose, "path": out.path_pose}[static.estimate][i])
     act = np.asarray(out.map_active[i], bool)
-    lm = MapEstimate(np.asarray(out.map_mean[i])[act], np.asarray(out.map_confirmed[i])[act],
-                     None if out.map_ident is None else np.asarray(out.map_ident[i])[act])
+    lm = MapEstimate(
+        np.asarray(out.map_mean[i])[act],
+        np.asarray(out.map_confirmed[i])[act],
+        None if out.map_ident is None else np.asarray(out.map_ident[i])[act],
+    )
     m: dict = {}
     before = None
     if task.smoother is not None and np.all(np.isfinite(est)):
@@ -393,23 +428,36 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
         m.update(sm_metrics, smoother_converged=int(sm.converged))
     reason = failure_reason(log.time, est)
     reasons = [reason] if reason else []
-    m.update(score_run(log, est, task.metrics_opts[i], lm,
-                       companion_tracks(static.estimate, out.best_pose[i], out.mean_pose[i], before)))
+    m.update(
+        score_run(
+            log,
+            est,
+            task.metrics_opts[i],
+            lm,
+            companion_tracks(static.estimate, out.best_pose[i], out.mean_pose[i], before),
+        )
+    )
     has = out.n_associated[i] > 0
     overflow = int(out.overflow[i])
     m.update(
         landmark_overflow=overflow,
-        window_overflow_max=int(np.max(out.window_overflow[i], initial=0)), resample_count=int(out.resample_count[i]),
-        ess_mean=float(np.mean(out.ess[i])), ess_min=float(np.min(out.ess[i])),
+        window_overflow_max=int(np.max(out.window_overflow[i], initial=0)),
+        resample_count=int(out.resample_count[i]),
+        ess_mean=float(np.mean(out.ess[i])),
+        ess_min=float(np.min(out.ess[i])),
         nano_iterations_mean=float(np.mean(out.iterations[i][has])) if has.any() else 0.0,
-        proposal_capped=int(np.sum(out.n_capped[i])), proposal_nonfinite=int(np.sum(out.n_nonfinite[i])),
-        weight_resets=int(np.sum(out.weight_reset[i])), associations_per_scan=float(np.mean(out.n_associated[i])),
+        proposal_capped=int(np.sum(out.n_capped[i])),
+        proposal_nonfinite=int(np.sum(out.n_nonfinite[i])),
+        weight_resets=int(np.sum(out.weight_reset[i])),
+        associations_per_scan=float(np.mean(out.n_associated[i])),
     )
     if out.noise is not None:
         p_i = jax.tree.map(lambda a: np.asarray(a)[i], task.params)
         m.update(adaptive_noise_summary(out.noise[i], configured_noise(static, p_i), float(p_i.noise_floor))[0])
     if overflow > 0 and task.fail_on_overflow:
-        reasons.append(f"landmark capacity overflow: {overflow} new landmarks dropped (filter.capacity = {static.capacity})")
+        reasons.append(
+            f"landmark capacity overflow: {overflow} new landmarks dropped (filter.capacity = {static.capacity})"
+        )
     m["status"] = "failed" if reasons else "ok"
     m["reason"] = "; ".join(reasons)
     return m

@@ -127,10 +127,18 @@ def spec_to_dict(spec: SweepSpec) -> dict:
         "segments": spec.segments,
         "seeds": list(spec.seeds),
         "grid": {k: list(v) for k, v in spec.grid},
-        "random": None if spec.random is None else {
-            "n": spec.random.n, "seed": spec.random.seed, "combine": spec.random.combine,
-            "params": {p.key: ({"choice": list(p.choice)} if p.choice is not None
-                               else {"low": p.low, "high": p.high, "log": p.log}) for p in spec.random.params},
+        "random": None
+        if spec.random is None
+        else {
+            "n": spec.random.n,
+            "seed": spec.random.seed,
+            "combine": spec.random.combine,
+            "params": {
+                p.key: (
+                    {"choice": list(p.choice)} if p.choice is not None else {"low": p.low, "high": p.high, "log": p.log}
+                )
+                for p in spec.random.params
+            },
         },
         "shapes": {k: list(v) for k, v in spec.shapes},
         "metric": spec.metric,
@@ -147,8 +155,9 @@ def spec_identity(spec: SweepSpec) -> dict:
     config's ``name`` is a label and decides nothing a run computes, so a renamed sweep (or a
     study's point under another study name) resumes its runs."""
     d = spec_to_dict(spec)
-    return stored_identity({k: d[k] for k in ("segments", "seeds", "grid", "random", "shapes", "fail_on_overflow",
-                                              "skip_invalid", "base")})
+    return stored_identity(
+        {k: d[k] for k in ("segments", "seeds", "grid", "random", "shapes", "fail_on_overflow", "skip_invalid", "base")}
+    )
 
 
 def stored_identity(identity: dict | None) -> dict:

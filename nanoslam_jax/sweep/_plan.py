@@ -64,8 +64,9 @@ def _bytes_per_run(static: Static, n_segments: int) -> int:
     return 4 * state + 2 * window + 2 * outputs + (1 << 16)
 
 
-def plan_groups(spec: SweepSpec, runs: Sequence[Run], logs: dict, *, batch: Optional[int] = None,
-                split: int = 1, devices: int = 1) -> list[Group]:
+def plan_groups(
+    spec: SweepSpec, runs: Sequence[Run], logs: dict, *, batch: Optional[int] = None, split: int = 1, devices: int = 1
+) -> list[Group]:
     """Group runs by (log, static settings) and choose each group's batch size.
 
     Args:
@@ -91,8 +92,9 @@ def plan_groups(spec: SweepSpec, runs: Sequence[Run], logs: dict, *, batch: Opti
         static, _ = settings_from_config(r.point.config, log.segments.k_max)
         g = groups.get((lid, static))
         if g is None:
-            g = groups[(lid, static)] = Group(f"g{len(groups)}", static, lid, [],
-                                               shape_values={k: r.point.values[k] for k in shape_keys})
+            g = groups[(lid, static)] = Group(
+                f"g{len(groups)}", static, lid, [], shape_values={k: r.point.values[k] for k in shape_keys}
+            )
         g.runs.append(r)
     want = batch if batch is not None else spec.run.batch
     for g in groups.values():
@@ -117,8 +119,9 @@ def logs_by_id(logs: dict) -> dict[int, LogData]:
     return {lid: log for lid, log in logs.values()}
 
 
-def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, devices: int = 1,
-               vectorize: Optional[str] = None) -> list[BatchTask]:
+def make_tasks(
+    spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, devices: int = 1, vectorize: Optional[str] = None
+) -> list[BatchTask]:
     """The batches still to run (finished run ids in ``done`` are skipped).
 
     Args:
@@ -138,25 +141,36 @@ def make_tasks(spec: SweepSpec, groups: Sequence[Group], logs: dict, done: set, 
         split = devices if shardable(g.static.method, g.static.nano_init) else 1
         # The proposal's row buckets pay off by the particles one call carries (per device).
         per_call = g.static.n_particles * (max(1, g.batch // split) if vectorize == "vmap" else 1)
-        static = dataclasses.replace(g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call),
-                                     devices=1)  # the batch, not a run's particles, is split over devices
+        static = dataclasses.replace(
+            g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call), devices=1
+        )  # the batch, not a run's particles, is split over devices
         # The smoother runs on the host after the batch, on each run's path and map; its map
         # history needs the run in chunks of output.chunk segments, as `nanoslam run` makes it.
         cfg0 = g.runs[0].point.config
         smoother = cfg0.smoother if cfg0.smoother.enabled else None
         history_chunk = cfg0.output.chunk if smoother is not None and smoother.map_history else 0
         for start in range(0, len(pending), g.batch):
-            chunk = pending[start:start + g.batch]
+            chunk = pending[start : start + g.batch]
             members = chunk + [chunk[0]] * (g.batch - len(chunk))
             plist = [settings_from_config(r.point.config, k_max)[1] for r in members]
             params = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *plist)
-            tasks.append(BatchTask(
-                group=g.label, static=static, log_id=g.log_id, params=params,
-                seeds=np.array([r.seed for r in members], dtype=np.int64), n_real=len(chunk),
-                metrics_opts=tuple(r.point.config.metrics for r in chunk),
-                fail_on_overflow=spec.run.fail_on_overflow, run_ids=tuple(r.run_id for r in chunk), devices=split,
-                vectorize=vectorize, smoother=smoother, history_chunk=history_chunk,
-            ))
+            tasks.append(
+                BatchTask(
+                    group=g.label,
+                    static=static,
+                    log_id=g.log_id,
+                    params=params,
+                    seeds=np.array([r.seed for r in members], dtype=np.int64),
+                    n_real=len(chunk),
+                    metrics_opts=tuple(r.point.config.metrics for r in chunk),
+                    fail_on_overflow=spec.run.fail_on_overflow,
+                    run_ids=tuple(r.run_id for r in chunk),
+                    devices=split,
+                    vectorize=vectorize,
+                    smoother=smoother,
+                    history_chunk=history_chunk,
+                )
+            )
     return tasks
 
 

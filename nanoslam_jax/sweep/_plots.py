@@ -30,10 +30,17 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
 
-def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[float] | np.ndarray, metric: str,
-                         title: str = "", log_x: bool | None = None,
-                         failed: Optional[Sequence[bool] | np.ndarray] = None,
-                         goal: Optional[str] = "min") -> None:
+def plot_metric_vs_param(
+    path: Path,
+    key: str,
+    xs: Sequence[Any],
+    ys: Sequence[float] | np.ndarray,
+    metric: str,
+    title: str = "",
+    log_x: bool | None = None,
+    failed: Optional[Sequence[bool] | np.ndarray] = None,
+    goal: Optional[str] = "min",
+) -> None:
     """Scatter of per-run values of ``metric`` against ``key`` and the median per distinct value.
 
     Args:
@@ -51,7 +58,7 @@ def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[f
     """
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     numeric = all(_is_number(x) for x in xs)
-    distinct = sorted(set(xs), key=lambda v: (v if numeric else str(v)))
+    distinct = sorted(set(xs), key=lambda v: v if numeric else str(v))
     if numeric:
         pos = {v: float(v) for v in distinct}
     else:
@@ -64,8 +71,10 @@ def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[f
     jitter = 0.0 if numeric else 0.08
     rng = np.random.default_rng(0)
     ax.scatter((x + jitter * rng.uniform(-1, 1, x.shape))[shown], y[shown], s=14, alpha=0.5, label="runs (each seed)")
-    med = [seed_summary(y[x == pos[v]], bad[x == pos[v]], goal)["median"] if np.any(x == pos[v]) else np.nan
-           for v in distinct]
+    med = [
+        seed_summary(y[x == pos[v]], bad[x == pos[v]], goal)["median"] if np.any(x == pos[v]) else np.nan
+        for v in distinct
+    ]
     med = [m if np.isfinite(m) else np.nan for m in med]
     ax.plot([pos[v] for v in distinct], med, "-o", color="C3", ms=4, label="median")
     if log_x is None:
@@ -83,8 +92,16 @@ def plot_metric_vs_param(path: Path, key: str, xs: Sequence[Any], ys: Sequence[f
     plt.close(fig)
 
 
-def plot_heatmap(path: Path, kx: str, ky: str, xvals: Sequence[Any], yvals: Sequence[Any], table: np.ndarray,
-                 metric: str, title: str = "") -> None:
+def plot_heatmap(
+    path: Path,
+    kx: str,
+    ky: str,
+    xvals: Sequence[Any],
+    yvals: Sequence[Any],
+    table: np.ndarray,
+    metric: str,
+    title: str = "",
+) -> None:
     """Heat map of ``table[iy, ix]`` (the metric's median) over two grid parameters, annotated."""
     fig, ax = plt.subplots(figsize=(1.2 * len(xvals) + 2.5, 0.7 * len(yvals) + 2.0))
     masked = np.ma.masked_invalid(table)
@@ -98,8 +115,15 @@ def plot_heatmap(path: Path, kx: str, ky: str, xvals: Sequence[Any], yvals: Sequ
     for iy in range(len(yvals)):
         for ix in range(len(xvals)):
             v = table[iy, ix]
-            ax.text(ix, iy, "failed" if not np.isfinite(v) else f"{v:.3g}", ha="center", va="center", fontsize=8,
-                    color="white" if np.isfinite(v) and v > mid else "black")
+            ax.text(
+                ix,
+                iy,
+                "failed" if not np.isfinite(v) else f"{v:.3g}",
+                ha="center",
+                va="center",
+                fontsize=8,
+                color="white" if np.isfinite(v) and v > mid else "black",
+            )
     fig.colorbar(im, ax=ax, label=f"median {metric}")
     ax.set_title(textwrap.fill(title or f"median {metric}", 60), fontsize=9)
     fig.tight_layout()
@@ -107,8 +131,9 @@ def plot_heatmap(path: Path, kx: str, ky: str, xvals: Sequence[Any], yvals: Sequ
     plt.close(fig)
 
 
-def plot_sweep(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: Sequence[dict],
-               metrics: Sequence[str]) -> list[Path]:
+def plot_sweep(
+    out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: Sequence[dict], metrics: Sequence[str]
+) -> list[Path]:
     """All figures of a sweep in ``out`` (created); returns the files written.
 
     ``<metric>_vs_<key>.png`` for every swept key with more than one value, and
@@ -133,8 +158,17 @@ def plot_sweep(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: 
             if len(set(map(repr, xs))) < 2:
                 continue
             path = out / f"{_safe(metric)}_vs_{_safe(key)}.png"
-            plot_metric_vs_param(path, key, xs, ys, metric, title=f"{spec.name}: {metric} against {key}",
-                                 log_x=True if key in log_keys else None, failed=failed, goal=goal)
+            plot_metric_vs_param(
+                path,
+                key,
+                xs,
+                ys,
+                metric,
+                title=f"{spec.name}: {metric} against {key}",
+                log_x=True if key in log_keys else None,
+                failed=failed,
+                goal=goal,
+            )
             written.append(path)
         grid = [(k, list(v)) for k, v in spec.grid if len(v) > 1]
         for (kx, vx), (ky, vy) in itertools.combinations(grid, 2):
@@ -142,8 +176,13 @@ def plot_sweep(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], rows: 
             table = np.full((len(vy), len(vx)), np.nan)
             for iy, yv in enumerate(vy):
                 for ix, xv in enumerate(vx):
-                    sel = np.array([_match(cfgx[r["config_id"]].values[kx], xv)
-                                    and _match(cfgx[r["config_id"]].values[ky], yv) for r in runs], bool)
+                    sel = np.array(
+                        [
+                            _match(cfgx[r["config_id"]].values[kx], xv) and _match(cfgx[r["config_id"]].values[ky], yv)
+                            for r in runs
+                        ],
+                        bool,
+                    )
                     if sel.any():
                         table[iy, ix] = seed_summary(ys[sel], failed[sel], goal)["median"]
             path = out / f"heatmap_{_safe(metric)}_{_safe(kx)}_{_safe(ky)}.png"

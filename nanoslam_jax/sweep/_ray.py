@@ -23,8 +23,10 @@ def import_ray():
     try:
         import ray
     except ImportError:
-        raise ConfigError("backend 'ray' needs Ray, which is not installed; install it with "
-                          "pip install 'nanoslam-jax[ray]' (or pip install 'ray>=2.9'), or use backend: local") from None
+        raise ConfigError(
+            "backend 'ray' needs Ray, which is not installed; install it with "
+            "pip install 'nanoslam-jax[ray]' (or pip install 'ray>=2.9'), or use backend: local"
+        ) from None
     return ray
 
 
@@ -40,9 +42,15 @@ def _remote_execute(task: BatchTask, log: LogData, cache_dir: Optional[str]) -> 
     return execute_batch(task, log)
 
 
-def ray_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData], *, address: Optional[str] = None,
-             num_cpus: Optional[int] = None, cache_dir: Optional[str] = None,
-             max_in_flight: Optional[int] = None) -> Iterator[tuple[BatchTask, list[dict]]]:
+def ray_iter(
+    tasks: Sequence[BatchTask],
+    logs: dict[int, LogData],
+    *,
+    address: Optional[str] = None,
+    num_cpus: Optional[int] = None,
+    cache_dir: Optional[str] = None,
+    max_in_flight: Optional[int] = None,
+) -> Iterator[tuple[BatchTask, list[dict]]]:
     """Run batches as Ray tasks and yield ``(task, member results)`` as they finish.
 
     Args:
@@ -79,8 +87,12 @@ def ray_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData], *, address: O
                 try:
                     res = ray.get(ref)
                 except Exception as e:  # the task or its worker failed: fail the batch, go on
-                    res = [dict(status="failed", reason=f"error: ray task: {_first_line(e)}", run_s=math.nan,
-                                compile_s=0.0) for _ in range(t.n_real)]
+                    res = [
+                        dict(
+                            status="failed", reason=f"error: ray task: {_first_line(e)}", run_s=math.nan, compile_s=0.0
+                        )
+                        for _ in range(t.n_real)
+                    ]
                 yield t, res
     finally:
         for ref in list(locals().get("running", {})):

@@ -172,8 +172,13 @@ def read_results(path: str | os.PathLike, key: str = "run_id") -> list[dict]:
     return list(by_id.values())
 
 
-def summarize(rows: Sequence[dict], points: Sequence[ConfigPoint], groups: dict[str, str],
-              metric_keys: Sequence[str], goals: Optional[dict] = None) -> list[dict]:
+def summarize(
+    rows: Sequence[dict],
+    points: Sequence[ConfigPoint],
+    groups: dict[str, str],
+    metric_keys: Sequence[str],
+    goals: Optional[dict] = None,
+) -> list[dict]:
     """One summary per configuration over its seeds (:func:`~nanoslam_jax._scoring.summarize_runs`).
 
     Args:
@@ -200,9 +205,16 @@ def summarize(rows: Sequence[dict], points: Sequence[ConfigPoint], groups: dict[
         if not rs:
             continue
         st = summarize_runs(rs, metric_keys, goals)
-        s: dict = {"config_id": p.config_id, "group": groups.get(p.config_id, ""), **p.values,
-                   "n_runs": st["n_runs"], "n_ok": st["n_ok"], "n_failed": st["n_failed"],
-                   "failed_seeds": st["failed_seeds"], "reasons": st["reasons"]}
+        s: dict = {
+            "config_id": p.config_id,
+            "group": groups.get(p.config_id, ""),
+            **p.values,
+            "n_runs": st["n_runs"],
+            "n_ok": st["n_ok"],
+            "n_failed": st["n_failed"],
+            "failed_seeds": st["failed_seeds"],
+            "reasons": st["reasons"],
+        }
         s.update({k: v for k, v in st.items() if k not in s})
         out.append(s)
     return out
@@ -226,8 +238,14 @@ def select_best(summary: Sequence[dict], metric: str, n_seeds: int, goal: str = 
     return min(full, key=lambda s: (sign * s[f"{metric}_median"], s["config_id"]))
 
 
-def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_keys: Sequence[str],
-                  best: Optional[dict], complete: bool) -> None:
+def write_summary(
+    out: Path,
+    summary: Sequence[dict],
+    spec: SweepSpec,
+    metric_keys: Sequence[str],
+    best: Optional[dict],
+    complete: bool,
+) -> None:
     """``summary.csv`` (every statistic) and ``summary.md`` (a readable table sorted by the metric)."""
     keys = list(spec.swept_keys)
     cols = ["config_id", "group", *keys, "n_runs", "n_ok", "n_failed", "failed_seeds"]
@@ -242,32 +260,50 @@ def write_summary(out: Path, summary: Sequence[dict], spec: SweepSpec, metric_ke
 
     m = spec.metric
     sign = 1.0 if spec.goal == "min" else -1.0
-    order = sorted(summary, key=lambda s: (not math.isfinite(s[f"{m}_median"]), sign * s[f"{m}_median"]
-                                           if math.isfinite(s[f"{m}_median"]) else 0.0, s["config_id"]))
+    order = sorted(
+        summary,
+        key=lambda s: (
+            not math.isfinite(s[f"{m}_median"]),
+            sign * s[f"{m}_median"] if math.isfinite(s[f"{m}_median"]) else 0.0,
+            s["config_id"],
+        ),
+    )
     shown = [k for k in (m, "rmse_fixed", "rmse_aligned", "final_error", "n_landmarks") if k in metric_keys]
     shown = list(dict.fromkeys(shown))
-    lines = [f"# Sweep {spec.name}", "",
-             f"{len(summary)} configurations x {len(spec.seeds)} seeds; median [q1, q3] (min-max) over the seeds, "
-             f"a failed seed counting as the worst value (inf for an error); sorted by {m} "
-             f"({'lower' if spec.goal == 'min' else 'higher'} is better)."
-             + ("" if complete else " **Partial: the sweep has not finished.**"), ""]
+    lines = [
+        f"# Sweep {spec.name}",
+        "",
+        f"{len(summary)} configurations x {len(spec.seeds)} seeds; median [q1, q3] (min-max) over the seeds, "
+        f"a failed seed counting as the worst value (inf for an error); sorted by {m} "
+        f"({'lower' if spec.goal == 'min' else 'higher'} is better)."
+        + ("" if complete else " **Partial: the sweep has not finished.**"),
+        "",
+    ]
     if best is not None:
-        lines += [f"Best: **{best['config_id']}** ({', '.join(f'{k}={best[k]!r}' for k in keys) or 'the base config'}), "
-                  f"{m} median {best[f'{m}_median']:.4g}; written to best.yaml.", ""]
+        lines += [
+            f"Best: **{best['config_id']}** ({', '.join(f'{k}={best[k]!r}' for k in keys) or 'the base config'}), "
+            f"{m} median {best[f'{m}_median']:.4g}; written to best.yaml.",
+            "",
+        ]
     head = ["config", "group", *keys, "ok/runs", *shown]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "---|" * len(head))
     fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
     for s in order:
         cells = [s["config_id"], s["group"], *(fmt(s[k]) for k in keys), f"{s['n_ok']}/{s['n_runs']}"]
-        cells += [f"{s[f'{k}_median']:.4g} [{s[f'{k}_q1']:.4g}, {s[f'{k}_q3']:.4g}] ({s[f'{k}_min']:.4g}-{s[f'{k}_max']:.4g})"
-                  for k in shown]
+        cells += [
+            f"{s[f'{k}_median']:.4g} [{s[f'{k}_q1']:.4g}, {s[f'{k}_q3']:.4g}] ({s[f'{k}_min']:.4g}-{s[f'{k}_max']:.4g})"
+            for k in shown
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     failed = [s for s in summary if s["n_failed"]]
     if failed:
         lines += ["", "Failed runs:", ""]
-        lines += [f"- {s['config_id']}: {s['n_failed']} of {s['n_runs']} (seeds {s['failed_seeds'].replace(';', ', ')}): "
-                  f"{s['reasons']}" for s in failed]
+        lines += [
+            f"- {s['config_id']}: {s['n_failed']} of {s['n_runs']} (seeds {s['failed_seeds'].replace(';', ', ')}): "
+            f"{s['reasons']}"
+            for s in failed
+        ]
     (out / "summary.md").write_text("\n".join(lines) + "\n")
 
 
@@ -277,14 +313,19 @@ def write_best_yaml(path: Path, spec: SweepSpec, point: ConfigPoint, best: dict)
     d = config_to_dict(point.config)
     d["name"] = f"{spec.name}-best"
     values = ", ".join(f"{k}={v!r}" for k, v in point.values.items()) or "the base config"
-    seg = (f"\n# The sweep used only the first {spec.segments} segments of the log; this file runs the whole log."
-           if spec.segments else "")
-    header = (f"# Best configuration of sweep '{spec.name}' ({spec.source}), written by nanoslam-jax {__version__} "
-              f"on {_dt.datetime.now().isoformat(timespec='seconds')}.\n"
-              f"# {point.config_id}: {values}\n"
-              f"# {m}: median {best[f'{m}_median']:.6g} [q1 {best[f'{m}_q1']:.6g}, q3 {best[f'{m}_q3']:.6g}] over "
-              f"{best['n_ok']} of {best['n_runs']} seeds ({'lower' if spec.goal == 'min' else 'higher'} is better)."
-              f"{seg}\n# Run it with: nanoslam run {path.name}\n")
+    seg = (
+        f"\n# The sweep used only the first {spec.segments} segments of the log; this file runs the whole log."
+        if spec.segments
+        else ""
+    )
+    header = (
+        f"# Best configuration of sweep '{spec.name}' ({spec.source}), written by nanoslam-jax {__version__} "
+        f"on {_dt.datetime.now().isoformat(timespec='seconds')}.\n"
+        f"# {point.config_id}: {values}\n"
+        f"# {m}: median {best[f'{m}_median']:.6g} [q1 {best[f'{m}_q1']:.6g}, q3 {best[f'{m}_q3']:.6g}] over "
+        f"{best['n_ok']} of {best['n_runs']} seeds ({'lower' if spec.goal == 'min' else 'higher'} is better)."
+        f"{seg}\n# Run it with: nanoslam run {path.name}\n"
+    )
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(header + yaml.safe_dump(d, sort_keys=False))
     os.replace(tmp, path)

@@ -80,8 +80,9 @@ def _worker_init(cores, cache_dir: Optional[str]) -> None:
         enable_compile_cache(cache_dir)
 
 
-def _process_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData], workers: int,
-                  cache_dir: Optional[str]) -> Iterator[tuple[BatchTask, list[dict]]]:
+def _process_iter(
+    tasks: Sequence[BatchTask], logs: dict[int, LogData], workers: int, cache_dir: Optional[str]
+) -> Iterator[tuple[BatchTask, list[dict]]]:
     """Run batches in ``workers`` spawned processes, each pinned to its own core."""
     import concurrent.futures as cf
     import multiprocessing as mp
@@ -91,8 +92,9 @@ def _process_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData], workers:
     avail = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     for i in range(workers):
         cores.put(avail[i] if len(avail) >= workers else None)
-    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                                  initargs=(cores, cache_dir))
+    pool = cf.ProcessPoolExecutor(
+        max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(cores, cache_dir)
+    )
     queue = list(tasks)
     running: dict = {}
     try:
@@ -106,8 +108,15 @@ def _process_iter(tasks: Sequence[BatchTask], logs: dict[int, LogData], workers:
                 try:
                     res = f.result()
                 except Exception as e:  # a worker died (e.g. out of memory): fail its batch, go on
-                    res = [dict(status="failed", reason=f"error: worker process: {_first_line(e)}",
-                                run_s=math.nan, compile_s=0.0) for _ in range(t.n_real)]
+                    res = [
+                        dict(
+                            status="failed",
+                            reason=f"error: worker process: {_first_line(e)}",
+                            run_s=math.nan,
+                            compile_s=0.0,
+                        )
+                        for _ in range(t.n_real)
+                    ]
                 yield t, res
     finally:
         if queue or running:  # interrupted: do not wait for the batches in flight (they are not saved)
@@ -144,11 +153,17 @@ class Progress:
         new = self.done - self.start_done
         left = self.total - self.done
         running = max(elapsed - self.compile_s, 1e-9)  # compilation is paid once per group, not per run
-        eta = f"~{_hms(running / new * left)} left" if new and left else ("done" if not left else "ETA after the first batch")
+        eta = (
+            f"~{_hms(running / new * left)} left"
+            if new and left
+            else ("done" if not left else "ETA after the first batch")
+        )
         frac = self.done / max(self.total, 1)
         bar = "#" * int(round(24 * frac))
-        return (f"sweep [{bar:<24}] {self.done}/{self.total} runs ({100 * frac:5.1f}%), {self.failed} failed, "
-                f"{_hms(elapsed)} elapsed, {eta}")
+        return (
+            f"sweep [{bar:<24}] {self.done}/{self.total} runs ({100 * frac:5.1f}%), {self.failed} failed, "
+            f"{_hms(elapsed)} elapsed, {eta}"
+        )
 
     def update(self, n_new: int, n_failed: int, compile_s: float = 0.0) -> None:
         self.done += n_new
@@ -197,7 +212,18 @@ class SweepResult:
 
 
 def _columns(spec: SweepSpec, metric_keys: Sequence[str]) -> list[str]:
-    return ["run_id", "config_id", "group", *spec.swept_keys, "seed", "status", "reason", *metric_keys, "run_s", "compile_s"]
+    return [
+        "run_id",
+        "config_id",
+        "group",
+        *spec.swept_keys,
+        "seed",
+        "status",
+        "reason",
+        *metric_keys,
+        "run_s",
+        "compile_s",
+    ]
 
 
 def _write_atomic(path: Path, text: str) -> None:
@@ -214,8 +240,15 @@ def _first_difference(a: Any, b: Any, prefix: str = "") -> str:
     return prefix.rstrip(".") or "(top level)"
 
 
-def _write_metadata(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], groups: Sequence[Group],
-                    logs: dict, skipped: list, vectorize: str) -> None:
+def _write_metadata(
+    out: Path,
+    spec: SweepSpec,
+    points: Sequence[ConfigPoint],
+    groups: Sequence[Group],
+    logs: dict,
+    skipped: list,
+    vectorize: str,
+) -> None:
     from ..experiment import versions
 
     stamp = _dt.datetime.now().isoformat(timespec="seconds")
@@ -223,23 +256,39 @@ def _write_metadata(out: Path, spec: SweepSpec, points: Sequence[ConfigPoint], g
     d["identity"] = spec_identity(spec)
     d["vectorize"] = vectorize  # resolved; a resumed sweep keeps it (see run_sweep)
     d["skipped_invalid"] = [{"values": v, "reason": r} for v, r in skipped]
-    _write_atomic(out / "sweep.yaml", f"# resolved sweep, nanoslam-jax {__version__}, written {stamp}\n"
-                  + yaml.safe_dump(d, sort_keys=False))
-    _write_atomic(out / "base_config.yaml", f"# base configuration of sweep '{spec.name}'\n"
-                  + yaml.safe_dump(spec.base, sort_keys=False))
-    _write_atomic(out / "version.json", json.dumps({**versions(), "written": stamp, "command": " ".join(sys.argv)},
-                                                   indent=2) + "\n")
+    _write_atomic(
+        out / "sweep.yaml",
+        f"# resolved sweep, nanoslam-jax {__version__}, written {stamp}\n" + yaml.safe_dump(d, sort_keys=False),
+    )
+    _write_atomic(
+        out / "base_config.yaml",
+        f"# base configuration of sweep '{spec.name}'\n" + yaml.safe_dump(spec.base, sort_keys=False),
+    )
+    _write_atomic(
+        out / "version.json",
+        json.dumps({**versions(), "written": stamp, "command": " ".join(sys.argv)}, indent=2) + "\n",
+    )
     by_id = logs_by_id(logs)
-    gd = {g.label: {"shapes": g.shape_values, "runs": len(g.runs), "batch": g.batch,
-                    "log": by_id[g.log_id].source, "segments": int(by_id[g.log_id].segments.time.shape[0]),
-                    "static": dataclasses.asdict(g.static)} for g in groups}
+    gd = {
+        g.label: {
+            "shapes": g.shape_values,
+            "runs": len(g.runs),
+            "batch": g.batch,
+            "log": by_id[g.log_id].source,
+            "segments": int(by_id[g.log_id].segments.time.shape[0]),
+            "static": dataclasses.asdict(g.static),
+        }
+        for g in groups
+    }
     _write_atomic(out / "groups.yaml", yaml.safe_dump(gd, sort_keys=False))
     lines = ["config_id,group," + ",".join(spec.swept_keys)]
     cfg_group = {r.config_id: g.label for g in groups for r in g.runs}
     from ._results import format_value
 
     for p in points:
-        lines.append(",".join([p.config_id, cfg_group[p.config_id]] + [format_value(p.values[k]) for k in spec.swept_keys]))
+        lines.append(
+            ",".join([p.config_id, cfg_group[p.config_id]] + [format_value(p.values[k]) for k in spec.swept_keys])
+        )
     _write_atomic(out / "configs.csv", "\n".join(lines) + "\n")
 
 
@@ -288,26 +337,33 @@ def run_sweep(
         held, wanted = stored_identity(old.get("identity")), spec_identity(spec)
         if held != wanted:
             key = _first_difference(held, wanted)
-            raise ConfigError(f"{out}: was made by a different sweep ('{key}' differs from {spec.source}); "
-                              f"resume it with the same sweep file, or choose another --out")
+            raise ConfigError(
+                f"{out}: was made by a different sweep ('{key}' differs from {spec.source}); "
+                f"resume it with the same sweep file, or choose another --out"
+            )
     elif results_path.exists():
-        raise ConfigError(f"{out}: holds a sweep already (results.csv); pass --resume to continue it, "
-                          f"or choose another --out")
+        raise ConfigError(
+            f"{out}: holds a sweep already (results.csv); pass --resume to continue it, or choose another --out"
+        )
 
     stored_vectorize = None
     if resume:
         stored_vectorize = old.get("vectorize")
         explicit = vectorize or (opts.vectorize if opts.vectorize != "auto" else None)
         if stored_vectorize and explicit and explicit != stored_vectorize:
-            raise ConfigError(f"{out}: was run with vectorize '{stored_vectorize}'; resuming with '{explicit}' would "
-                              f"mix results that differ in rounding; resume with the same vectorize")
+            raise ConfigError(
+                f"{out}: was run with vectorize '{stored_vectorize}'; resuming with '{explicit}' would "
+                f"mix results that differ in rounding; resume with the same vectorize"
+            )
         vectorize = vectorize or stored_vectorize
 
     points, runs, skipped = expand(spec)
     for p in points:
         if p.config.filter.method not in method_names():
-            raise ConfigError(f"{spec.source}: filter.method {p.config.filter.method!r} is not registered; "
-                              f"registered: {', '.join(method_names())}")
+            raise ConfigError(
+                f"{spec.source}: filter.method {p.config.filter.method!r} is not registered; "
+                f"registered: {', '.join(method_names())}"
+            )
     prog = Progress(len(runs), 0, stream, progress)
 
     if backend == "ray":
@@ -322,8 +378,10 @@ def run_sweep(
             if devices < n_workers and requested == "auto":  # JAX started before the sweep: next best
                 mode, devices = "processes", 1
             elif devices < n_workers:
-                prog.message(f"sweep: only {devices} JAX device(s) (JAX had started before the sweep); "
-                             f"set jax_num_cpu_devices first, or use parallel: processes")
+                prog.message(
+                    f"sweep: only {devices} JAX device(s) (JAX had started before the sweep); "
+                    f"set jax_num_cpu_devices first, or use parallel: processes"
+                )
                 if devices == 1:
                     mode = "single"
 
@@ -335,14 +393,17 @@ def run_sweep(
             logs[k] = (len(logs), load_log_data(p.config, data_dir, spec.segments))
     split = n_workers if mode == "processes" else (spec.ray_num_cpus or 2) if mode == "ray" else 1
     groups = plan_groups(spec, runs, logs, batch=batch, split=split, devices=devices)
-    metric_keys = list(METRIC_KEYS) + (list(MAP_METRIC_KEYS) if any(l.map_truth is not None
-                                                                       for _, l in logs.values()) else [])
+    metric_keys = list(METRIC_KEYS) + (
+        list(MAP_METRIC_KEYS) if any(l.map_truth is not None for _, l in logs.values()) else []
+    )
     metric_keys += list(SURVEY_METRIC_KEYS) if any(l.survey is not None for _, l in logs.values()) else []
     metric_keys += list(SMOOTHER_METRIC_KEYS) if any(g.runs[0].point.config.smoother.enabled for g in groups) else []
     if any(g.static.adaptive_noise for g in groups):  # where the adaptive noise estimates ended
         metric_keys += list(NOISE_SUMMARY_KEYS)
-        if any(g.static.adaptive_noise and g.static.method == "nasrukf" and g.static.nasrukf_feature == "arc"
-               for g in groups):
+        if any(
+            g.static.adaptive_noise and g.static.method == "nasrukf" and g.static.nasrukf_feature == "arc"
+            for g in groups
+        ):
             metric_keys += list(NOISE_ARC_SUMMARY_KEYS)
     rf = ResultsFile(results_path, _columns(spec, metric_keys))
 
@@ -363,16 +424,20 @@ def run_sweep(
     tasks = make_tasks(spec, groups, logs, done, devices=devices, vectorize=vectorize)
     n_skipped = sum(1 for r in runs if r.run_id in done)
     prog.done = prog.start_done = n_skipped
-    prog.message(f"sweep {spec.name}: {len(points)} configurations x {len(spec.seeds)} seeds = {len(runs)} runs in "
-                 f"{len(groups)} shape group(s), {len(tasks)} batches ({mode}, {vectorize}"
-                 f"{f', {n_workers} workers' if mode == 'processes' else ''}"
-                 f"{f', {devices} devices' if devices > 1 else ''}); "
-                 f"{n_skipped} finished before" + (f", {len(skipped)} invalid configurations skipped" if skipped else ""))
+    prog.message(
+        f"sweep {spec.name}: {len(points)} configurations x {len(spec.seeds)} seeds = {len(runs)} runs in "
+        f"{len(groups)} shape group(s), {len(tasks)} batches ({mode}, {vectorize}"
+        f"{f', {n_workers} workers' if mode == 'processes' else ''}"
+        f"{f', {devices} devices' if devices > 1 else ''}); "
+        f"{n_skipped} finished before" + (f", {len(skipped)} invalid configurations skipped" if skipped else "")
+    )
 
     unsplit = sorted({t.group for t in tasks if t.devices < devices})
     if unsplit:
-        prog.message(f"sweep: {', '.join(unsplit)}: each batch on one device (optimistix's least squares "
-                     f"cannot run under shard_map)")
+        prog.message(
+            f"sweep: {', '.join(unsplit)}: each batch on one device (optimistix's least squares "
+            f"cannot run under shard_map)"
+        )
     by_id = logs_by_id(logs)
     if mode == "ray":
         from ._ray import ray_iter
@@ -390,8 +455,16 @@ def run_sweep(
             rows = []
             for rid, res in zip(task.run_ids, results):
                 r = run_meta[rid]
-                rows.append({"run_id": rid, "config_id": r.config_id, "group": groups_of[rid], **r.point.values,
-                             "seed": r.seed, **res})
+                rows.append(
+                    {
+                        "run_id": rid,
+                        "config_id": r.config_id,
+                        "group": groups_of[rid],
+                        **r.point.values,
+                        "seed": r.seed,
+                        **res,
+                    }
+                )
             rf.append(rows)
             n_new += len(rows)
             compile_s = sum(float(row.get("compile_s") or 0.0) for row in rows)
@@ -421,7 +494,12 @@ def run_sweep(
         except Exception as e:  # figures must never lose a sweep
             prog.message(f"sweep: plots failed: {_first_line(e)}\n{traceback.format_exc(limit=3)}")
     n_failed = sum(r["status"] != "ok" for r in rows)
-    prog.message(f"sweep {spec.name}: {len(rows)} runs recorded ({n_failed} failed), {n_new} now; "
-                 + (f"best {best['config_id']} ({spec.metric} median {best[f'{spec.metric}_median']:.4g})"
-                    if best else "no configuration finished ok"))
+    prog.message(
+        f"sweep {spec.name}: {len(rows)} runs recorded ({n_failed} failed), {n_new} now; "
+        + (
+            f"best {best['config_id']} ({spec.metric} median {best[f'{spec.metric}_median']:.4g})"
+            if best
+            else "no configuration finished ok"
+        )
+    )
     return SweepResult(out, len(runs), n_new, n_skipped, n_failed, best, tuple(groups))

@@ -44,29 +44,90 @@ __all__ = [
 
 #: Metrics every run records (lower is better for the errors; see :func:`nanoslam_jax.metrics.evaluate`).
 METRIC_KEYS = (
-    "rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "mean_error", "max_error",
-    "final_error", "n_landmarks", "n_confirmed", "landmark_overflow", "window_overflow_max", "resample_count", "ess_mean",
-    "ess_min", "nano_iterations_mean", "proposal_capped", "proposal_nonfinite", "weight_resets",
+    "rmse_fixed",
+    "rmse_aligned",
+    "rmse_fixed_clean",
+    "rmse_aligned_clean",
+    "mean_error",
+    "max_error",
+    "final_error",
+    "n_landmarks",
+    "n_confirmed",
+    "landmark_overflow",
+    "window_overflow_max",
+    "resample_count",
+    "ess_mean",
+    "ess_min",
+    "nano_iterations_mean",
+    "proposal_capped",
+    "proposal_nonfinite",
+    "weight_resets",
     "associations_per_scan",
 )
 #: Extra metrics of simulated logs (map against the true trees).
-MAP_METRIC_KEYS = ("map_n_true", "map_n_found", "map_found_fraction", "map_n_spurious", "map_spurious_fraction",
-                   "map_rmse_matched", "map_median_est_to_true", "map_found_fraction_aligned",
-                   "map_spurious_fraction_aligned", "map_rmse_matched_aligned")
+MAP_METRIC_KEYS = (
+    "map_n_true",
+    "map_n_found",
+    "map_found_fraction",
+    "map_n_spurious",
+    "map_spurious_fraction",
+    "map_rmse_matched",
+    "map_median_est_to_true",
+    "map_found_fraction_aligned",
+    "map_spurious_fraction_aligned",
+    "map_rmse_matched_aligned",
+)
 #: Extra metrics of real logs with surveyed landmarks (MRCLAM): the map after a rigid alignment
 #: (:func:`nanoslam_jax.metrics.survey_summary`; the ``_by_id`` ones with known association).
-SURVEY_METRIC_KEYS = ("survey_rmse", "survey_found", "survey_spurious", "survey_landmarks", "survey_rmse_by_id",
-                      "survey_found_by_id", "survey_spurious_by_id")
+SURVEY_METRIC_KEYS = (
+    "survey_rmse",
+    "survey_found",
+    "survey_spurious",
+    "survey_landmarks",
+    "survey_rmse_by_id",
+    "survey_found_by_id",
+    "survey_spurious_by_id",
+)
 #: Extra metrics of a sweep whose base config runs the smoother: the path it started from and the
 #: filter's own estimate (``rmse_*_path``, ``rmse_*_best``), and the smoother's account.
-SMOOTHER_METRIC_KEYS = ("rmse_fixed_path", "rmse_aligned_path", "rmse_fixed_best", "rmse_aligned_best",
-                        "smoother_iterations", "smoother_converged", "smoother_merged", "smoother_s")
+SMOOTHER_METRIC_KEYS = (
+    "rmse_fixed_path",
+    "rmse_aligned_path",
+    "rmse_fixed_best",
+    "rmse_aligned_best",
+    "smoother_iterations",
+    "smoother_converged",
+    "smoother_merged",
+    "smoother_s",
+)
 
-_TOP_KEYS = ("name", "base", "set", "segments", "seeds", "grid", "random", "shapes", "metric", "goal", "run", "ray",
-             "plots")
+_TOP_KEYS = (
+    "name",
+    "base",
+    "set",
+    "segments",
+    "seeds",
+    "grid",
+    "random",
+    "shapes",
+    "metric",
+    "goal",
+    "run",
+    "ray",
+    "plots",
+)
 _RANDOM_KEYS = ("n", "seed", "combine", "params")
-_RUN_KEYS = ("batch", "memory_gb", "vectorize", "backend", "parallel", "workers", "fail_on_overflow", "skip_invalid",
-             "compile_cache")
+_RUN_KEYS = (
+    "batch",
+    "memory_gb",
+    "vectorize",
+    "backend",
+    "parallel",
+    "workers",
+    "fail_on_overflow",
+    "skip_invalid",
+    "compile_cache",
+)
 _RAY_KEYS = ("address", "num_cpus")
 #: Config keys no sweep may vary: identity, the seed (use ``seeds``), and output settings.
 _UNSWEEPABLE = ("name", "seed")
@@ -253,15 +314,20 @@ def _check_sweep_key(key: Any, section: str, where: str, *, want_static: bool) -
     if key in _UNSWEEPABLE or key.split(".")[0] in _UNSWEEPABLE_SECTIONS:
         hint = "; list seeds under 'seeds'" if key == "seed" else ""
         if key.startswith("smoother."):
-            hint = ("; the smoother runs after each run with the base config's settings "
-                    "(experiments/smoother_tuning.py varies them over one batch of runs)")
+            hint = (
+                "; the smoother runs after each run with the base config's settings "
+                "(experiments/smoother_tuning.py varies them over one batch of runs)"
+            )
         raise ConfigError(f"{where}: key '{section}.{key}': '{key}' cannot be swept{hint}")
     if want_static and not static:
-        raise ConfigError(f"{where}: key '{section}.{key}': '{key}' is a traced hyperparameter (no recompilation); "
-                          f"list it under 'grid' or 'random', not 'shapes'")
+        raise ConfigError(
+            f"{where}: key '{section}.{key}': '{key}' is a traced hyperparameter (no recompilation); "
+            f"list it under 'grid' or 'random', not 'shapes'"
+        )
     if not want_static and static:
-        raise ConfigError(f"{where}: key '{section}.{key}': '{key}' changes shapes or the compiled program; "
-                          f"list it under 'shapes'")
+        raise ConfigError(
+            f"{where}: key '{section}.{key}': '{key}' changes shapes or the compiled program; list it under 'shapes'"
+        )
 
 
 def _value_list(values: Any, key: str, section: str, where: str) -> tuple:
@@ -293,8 +359,10 @@ def _parse_random(raw: Any, where: str) -> Optional[RandomSpec]:
         raise ConfigError(f"{where}: key 'random.combine': expected 'product' or 'union', got {combine!r}")
     params_raw = r.get("params")
     if not isinstance(params_raw, dict) or not params_raw:
-        raise ConfigError(f"{where}: key 'random.params': expected a mapping of config keys to "
-                          f"{{low, high[, log]}} or {{choice: [...]}}, got {params_raw!r}")
+        raise ConfigError(
+            f"{where}: key 'random.params': expected a mapping of config keys to "
+            f"{{low, high[, log]}} or {{choice: [...]}}, got {params_raw!r}"
+        )
     params = []
     for key, d in params_raw.items():
         _check_sweep_key(key, "random.params", where, want_static=False)
@@ -341,7 +409,9 @@ def _parse_seeds(raw: Any, base_seed: int, where: str) -> tuple[int, ...]:
         if len(set(raw)) != len(raw):
             raise ConfigError(f"{where}: key 'seeds': the seeds repeat: {raw!r}")
         return tuple(raw)
-    raise ConfigError(f"{where}: key 'seeds': expected a positive integer or a list of non-negative integers, got {raw!r}")
+    raise ConfigError(
+        f"{where}: key 'seeds': expected a positive integer or a list of non-negative integers, got {raw!r}"
+    )
 
 
 def _parse_run(raw: Any, where: str) -> RunOptions:
@@ -367,7 +437,9 @@ def _parse_run(raw: Any, where: str) -> RunOptions:
         elif typing.get_origin(hints[key]) is Literal:
             allowed = typing.get_args(hints[key])
             if value not in allowed:
-                raise ConfigError(f"{where}: key '{what}': expected one of {', '.join(map(repr, allowed))}, got {value!r}")
+                raise ConfigError(
+                    f"{where}: key '{what}': expected one of {', '.join(map(repr, allowed))}, got {value!r}"
+                )
         elif hints[key] is bool and not isinstance(value, bool):
             raise ConfigError(f"{where}: key '{what}': expected true or false, got {value!r}")
         kw[key] = value
@@ -394,8 +466,9 @@ def _load_base(raw: Any, overrides: tuple[str, ...], path: Optional[Path], where
     return config_to_dict(cfg)
 
 
-def sweep_from_dict(raw: Any, *, source: str = "<sweep>", path: Optional[Path] = None,
-                    overrides: tuple[str, ...] = ()) -> SweepSpec:
+def sweep_from_dict(
+    raw: Any, *, source: str = "<sweep>", path: Optional[Path] = None, overrides: tuple[str, ...] = ()
+) -> SweepSpec:
     """Validate a sweep mapping (as read from YAML).
 
     Args:
@@ -422,8 +495,11 @@ def sweep_from_dict(raw: Any, *, source: str = "<sweep>", path: Optional[Path] =
     random = _parse_random(top.get("random"), where)
 
     seen: dict[str, str] = {}
-    for section, keys in (("shapes", [k for k, _ in shapes]), ("grid", [k for k, _ in grid]),
-                          ("random.params", [p.key for p in random.params] if random else [])):
+    for section, keys in (
+        ("shapes", [k for k, _ in shapes]),
+        ("grid", [k for k, _ in grid]),
+        ("random.params", [p.key for p in random.params] if random else []),
+    ):
         for k in keys:
             if k in seen:
                 raise ConfigError(f"{where}: key '{section}.{k}': '{k}' is already swept under '{seen[k]}'")
@@ -431,8 +507,10 @@ def sweep_from_dict(raw: Any, *, source: str = "<sweep>", path: Optional[Path] =
 
     metric = top.get("metric", "rmse_aligned")
     if metric not in METRIC_KEYS + MAP_METRIC_KEYS + SURVEY_METRIC_KEYS:
-        raise ConfigError(f"{where}: key 'metric': expected one of "
-                          f"{', '.join(METRIC_KEYS + MAP_METRIC_KEYS + SURVEY_METRIC_KEYS)}, got {metric!r}")
+        raise ConfigError(
+            f"{where}: key 'metric': expected one of "
+            f"{', '.join(METRIC_KEYS + MAP_METRIC_KEYS + SURVEY_METRIC_KEYS)}, got {metric!r}"
+        )
     goal = top.get("goal", "min")
     if goal not in ("min", "max"):
         raise ConfigError(f"{where}: key 'goal': expected 'min' (lower is better) or 'max', got {goal!r}")
@@ -448,10 +526,20 @@ def sweep_from_dict(raw: Any, *, source: str = "<sweep>", path: Optional[Path] =
         raise ConfigError(f"{where}: key 'plots': expected true or false, got {plots!r}")
 
     spec = SweepSpec(
-        name=name, source=source, base=base, segments=segments,
-        seeds=_parse_seeds(top.get("seeds"), int(base["seed"]), where), grid=tuple(grid), random=random,
-        shapes=tuple(shapes), metric=metric, goal=goal, run=_parse_run(top.get("run"), where),
-        ray_address=address, ray_num_cpus=num_cpus, plots=plots,
+        name=name,
+        source=source,
+        base=base,
+        segments=segments,
+        seeds=_parse_seeds(top.get("seeds"), int(base["seed"]), where),
+        grid=tuple(grid),
+        random=random,
+        shapes=tuple(shapes),
+        metric=metric,
+        goal=goal,
+        run=_parse_run(top.get("run"), where),
+        ray_address=address,
+        ray_num_cpus=num_cpus,
+        plots=plots,
     )
     if spec.base_config.filter.method == "dead_reckoning" and "filter.method" not in dict(spec.shapes):
         raise ConfigError(f"{where}: key 'base': filter.method 'dead_reckoning' has no filter to sweep")
@@ -465,7 +553,9 @@ def _key_lists(top: dict, section: str, where: str, want_static: bool) -> list:
     """``[(key, values), ...]`` of the ``grid`` (traced keys) or ``shapes`` (static keys) section."""
     raw = top.get(section) or {}
     if not isinstance(raw, dict):
-        raise ConfigError(f"{where}: key '{section}': expected a mapping of config keys to lists of values, got {raw!r}")
+        raise ConfigError(
+            f"{where}: key '{section}': expected a mapping of config keys to lists of values, got {raw!r}"
+        )
     out = []
     for key, values in raw.items():
         _check_sweep_key(key, section, where, want_static=want_static)
