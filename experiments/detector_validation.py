@@ -1,13 +1,15 @@
 """Validation of the raw laser front end on the Victoria Park log (docs/frontend.md).
 
     .venv/bin/python experiments/detector_validation.py [--data DIR] [--config CONFIG] [--set detector.key=value ...]
-        [--slam [CONFIG ...]] [--seeds 16-31] [--control] [--figure PATH]
+        [--slam [CONFIG ...]] [--seeds 16-31] [--control] [--ablate DIR] [--figure PATH]
 
 Prints (1) how many of the dataset's own detections (measurements.dat) within 30 m ours find (a
 match lies within 0.5 m in range and 1.5 deg in bearing; one-to-one per scan, nearest first), the
 detections we add and what they are, and the diameter agreement; (2) with --slam, SLAM from our
 detections against the same runs on measurements.dat, paired over the seeds (with --control, also on
-measurements.dat with 1 mm of range noise: how far the medians move from a change that cannot matter).
+measurements.dat with 1 mm of range noise: how far the medians move from a change that cannot matter;
+with --ablate, also on logs that isolate what differs: ours without the detections we add, the dataset's
+without those we miss, and the dataset's with our range and bearing where we match it).
 """
 
 from __future__ import annotations
@@ -190,6 +192,37 @@ def control_log(data: str, out: str, sigma: float = 0.001, seed: int = 0) -> str
     return out
 
 
+def ablation_logs(data: str, detected: str, out: str) -> dict:
+    """Write logs between the dataset's detections and ours (matched one-to-one over all ranges), each
+    differing from one of them in one respect; return label -> directory.
+
+    * ours, matched only: our detections without those we add;
+    * dataset, matched only: the dataset's without those we miss;
+    * dataset, our range and bearing: the dataset's detections, range and bearing ours where we match.
+    """
+    import shutil
+
+    from nanoslam_jax.data import RawLog, write_victoria_park
+
+    ds = load_victoria_park(data)
+    ref, ours = ds.detections, load_victoria_park(detected).detections
+    i, j = match(ref, ours)
+    ours_rb = ref.copy()
+    ours_rb[i, 1:3] = ours[j, 1:3]
+    variants = {"ours, matched only (the detections we add dropped)": ("ours_matched", ours[np.sort(j)]),
+                "measurements.dat, matched only (those we miss dropped)": ("dataset_matched", ref[np.sort(i)]),
+                "measurements.dat, our range and bearing where matched": ("dataset_our_rb", ours_rb)}
+    logs = {}
+    for label, (name, det) in variants.items():
+        directory = Path(out) / name
+        write_victoria_park(directory, RawLog(dr=ds.dr, detections=det[np.lexsort((det[:, 2], det[:, 0]))],
+                                              gps=ds.gps))
+        for f in ("inputs.dat", "gps.dat"):
+            shutil.copyfile(Path(data) / f, directory / f)
+        logs[label] = str(directory)
+    return logs
+
+
 def slam_table(config: str, logs: dict, seeds: list[int], overrides: list[str]) -> dict:
     """Run ``config`` for every seed on each log of ``logs`` (label -> directory; the first is the
     reference); print each run and a paired summary table against the first."""
@@ -234,6 +267,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None, help="directory for the detected log (default: a temporary one)")
     p.add_argument("--control", action="store_true",
                    help="with --slam: also run on measurements.dat with 1 mm of noise added to the ranges")
+    p.add_argument("--ablate", default=None, metavar="DIR",
+                   help="with --slam: also write logs that isolate what differs (detections added, missed, "
+                        "range and bearing) under DIR and run on them")
     p.add_argument("--figure", default=None, help="draw examples of the added detections to this image file")
     args = p.parse_args(argv)
     cfg = load_config(args.config, args.overrides)
@@ -272,6 +308,8 @@ def main(argv=None) -> int:
         if args.control:
             logs["control: measurements.dat, ranges + N(0, 1 mm)"] = control_log(
                 args.data, tempfile.mkdtemp(prefix="control-"))
+        if args.ablate:
+            logs.update(ablation_logs(args.data, detected, args.ablate))
         for config in args.slam or ["configs/victoria_park_nano.yaml"]:
             print(f"\nSLAM, {config}, seeds {args.seeds}")
             slam_table(config, logs, parse_seeds(args.seeds), slam_overrides)
