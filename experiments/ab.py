@@ -36,16 +36,33 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _worktree(rev: str, into: Path) -> Path:
     """A detached worktree of ``rev`` at ``into``."""
-    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "--force", str(into), rev], check=True,
-                   capture_output=True, text=True)
+    subprocess.run(
+        ["git", "-C", str(ROOT), "worktree", "add", "--detach", "--force", str(into), rev],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     return into
 
 
 def _run(tree: Path, cache: Path, config: str, particles: int, extra: list[str], out: Path, data: str | None) -> dict:
     """One ``nanoslam run`` with ``tree``'s package; returns its metrics and outputs."""
     env = {**os.environ, "PYTHONPATH": str(tree), "NANOSLAM_CACHE_DIR": str(cache)}
-    cmd = [sys.executable, "-m", "nanoslam_jax.cli", "run", str(tree / config), "--out", str(out), "--quiet",
-           "--set", f"filter.n_particles={particles}", "--set", "output.plots=false", *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "nanoslam_jax.cli",
+        "run",
+        str(tree / config),
+        "--out",
+        str(out),
+        "--quiet",
+        "--set",
+        f"filter.n_particles={particles}",
+        "--set",
+        "output.plots=false",
+        *extra,
+    ]
     if data:
         cmd += ["--data", data]
     # run from the project root, where the default data directories are found
@@ -57,8 +74,12 @@ def _run(tree: Path, cache: Path, config: str, particles: int, extra: list[str],
     lm = out / "map.csv"
     landmarks = np.loadtxt(lm, delimiter=",", skiprows=1, ndmin=2) if lm.is_file() else np.zeros((0, 2))
     shutil.rmtree(out)
-    return {"run_s": float(metrics["run_s"]), "compile_s": float(metrics.get("compile_s", np.nan)),
-            "trajectory": traj[:, 1:4], "map": landmarks[:, :2]}
+    return {
+        "run_s": float(metrics["run_s"]),
+        "compile_s": float(metrics.get("compile_s", np.nan)),
+        "trajectory": traj[:, 1:4],
+        "map": landmarks[:, :2],
+    }
 
 
 def _difference(a: np.ndarray, b: np.ndarray) -> float:
@@ -91,35 +112,45 @@ def main() -> None:
                 times: dict[str, list[float]] = {"A": [], "B": []}
                 first: dict[str, dict] = {}
                 for r in range(args.rounds + 1):  # round 0 compiles (into each tree's cache) and is not timed
-                    for k in (("A", "B") if r % 2 == 0 else ("B", "A")):
+                    for k in ("A", "B") if r % 2 == 0 else ("B", "A"):
                         res = _run(trees[k], caches[k], args.config, n, extra, tmp / f"out-{k}", args.data)
                         if r == 0:
                             first[k] = res
                         else:
                             times[k].append(res["run_s"])
                 a, b = np.array(times["A"]), np.array(times["B"])
-                row = {"particles": n, "a_run_s": float(np.median(a)), "b_run_s": float(np.median(b)),
-                       "ratio_of_medians": float(np.median(b) / np.median(a)),
-                       "median_round_ratio": float(np.median(b / a)),
-                       "a_compile_s": first["A"]["compile_s"], "b_compile_s": first["B"]["compile_s"],
-                       "trajectory_diff": _difference(first["A"]["trajectory"], first["B"]["trajectory"]),
-                       "map_diff": _difference(first["A"]["map"], first["B"]["map"])}
+                row = {
+                    "particles": n,
+                    "a_run_s": float(np.median(a)),
+                    "b_run_s": float(np.median(b)),
+                    "ratio_of_medians": float(np.median(b) / np.median(a)),
+                    "median_round_ratio": float(np.median(b / a)),
+                    "a_compile_s": first["A"]["compile_s"],
+                    "b_compile_s": first["B"]["compile_s"],
+                    "trajectory_diff": _difference(first["A"]["trajectory"], first["B"]["trajectory"]),
+                    "map_diff": _difference(first["A"]["map"], first["B"]["map"]),
+                }
                 rows.append(row)
                 print(f"N={n}: A {row['a_run_s']:.2f} s, B {row['b_run_s']:.2f} s", file=sys.stderr, flush=True)
         finally:
             for k in ("A", "B"):
                 if trees[k] != ROOT:
-                    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(trees[k])],
-                                   capture_output=True)
+                    subprocess.run(
+                        ["git", "-C", str(ROOT), "worktree", "remove", "--force", str(trees[k])], capture_output=True
+                    )
     label_b = args.b or "working tree"
     print(f"A = {args.a}, B = {label_b}; {args.config}, {args.rounds} timed rounds each, alternating\n")
-    print("| particles | A run (s) | B run (s) | B / A (medians) | B / A (median of rounds) | A compile (s) "
-          "| B compile (s) | largest difference: trajectory, map |")
+    print(
+        "| particles | A run (s) | B run (s) | B / A (medians) | B / A (median of rounds) | A compile (s) "
+        "| B compile (s) | largest difference: trajectory, map |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
-        print(f"| {r['particles']} | {r['a_run_s']:.2f} | {r['b_run_s']:.2f} | {r['ratio_of_medians']:.3f} "
-              f"| {r['median_round_ratio']:.3f} | {r['a_compile_s']:.1f} | {r['b_compile_s']:.1f} "
-              f"| {r['trajectory_diff']:.3g}, {r['map_diff']:.3g} |")
+        print(
+            f"| {r['particles']} | {r['a_run_s']:.2f} | {r['b_run_s']:.2f} | {r['ratio_of_medians']:.3f} "
+            f"| {r['median_round_ratio']:.3f} | {r['a_compile_s']:.1f} | {r['b_compile_s']:.1f} "
+            f"| {r['trajectory_diff']:.3g}, {r['map_diff']:.3g} |"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
 

@@ -29,12 +29,24 @@ import jax
 import numpy as np
 
 from nanoslam_jax import enable_compile_cache
-from nanoslam_jax._scoring import (MapEstimate, companion_tracks, failure_reason, format_number, score_run,
-                                   summarize_runs)
+from nanoslam_jax._scoring import (
+    MapEstimate,
+    companion_tracks,
+    failure_reason,
+    format_number,
+    score_run,
+    summarize_runs,
+)
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import (reported_map, reported_trajectory, run_batch, settings_from_config, stack_params,
-                                 text_progress)
+from nanoslam_jax.filter import (
+    reported_map,
+    reported_trajectory,
+    run_batch,
+    settings_from_config,
+    stack_params,
+    text_progress,
+)
 from nanoslam_jax.metrics import evaluate
 from nanoslam_jax.smoother import smooth_filter_run
 
@@ -49,8 +61,14 @@ def main() -> None:
     p.add_argument("--data")
     p.add_argument("--set", dest="overrides", action="append", default=[])
     p.add_argument("--json", help="write per-seed rows and the summary here")
-    p.add_argument("--without-fix", type=float, action="append", default=[], metavar="T",
-                   help="also score without the GPS fix nearest time T s (repeatable)")
+    p.add_argument(
+        "--without-fix",
+        type=float,
+        action="append",
+        default=[],
+        metavar="T",
+        help="also score without the GPS fix nearest time T s (repeatable)",
+    )
     p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
     args = p.parse_args()
     if not args.no_cache:
@@ -61,8 +79,14 @@ def main() -> None:
     static, params = settings_from_config(cfg, log.segments.k_max)
     seeds = np.arange(args.first_seed, args.first_seed + args.seeds)
     try:  # run_batch refuses a method it cannot run (dead reckoning: `nanoslam run` scores it) before tracing
-        run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds, chunk=cfg.output.chunk,
-                        progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
+        run = run_batch(
+            static,
+            stack_params([params] * len(seeds)),
+            log.segments,
+            seeds,
+            chunk=cfg.output.chunk,
+            progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"),
+        )
     except ValueError as e:
         p.error(str(e))
     t = np.asarray(log.segments.time)
@@ -90,39 +114,72 @@ def main() -> None:
             if not sm.converged:
                 print(f"warning: seed {s}: the smoother stopped after {sm.iterations} iterations without converging")
         act = maps.active[i]
-        m = score_run(log, traj, cfg.metrics, MapEstimate(maps.mean[i][act], maps.confirmed[i][act]),
-                      companion_tracks(static.estimate, np.asarray(run.outputs.best_pose[i]),
-                                       np.asarray(run.outputs.mean_pose[i]), before))
+        m = score_run(
+            log,
+            traj,
+            cfg.metrics,
+            MapEstimate(maps.mean[i][act], maps.confirmed[i][act]),
+            companion_tracks(
+                static.estimate, np.asarray(run.outputs.best_pose[i]), np.asarray(run.outputs.mean_pose[i]), before
+            ),
+        )
         m.update(extra)
         if args.without_fix and m["finite"]:
             w = evaluate(t, traj[:, :2], gps[keep], **mk)
             m.update(rmse_fixed_without=w["rmse_fixed"], rmse_aligned_without=w["rmse_aligned"])
         reason = failure_reason(t, traj)
-        rows.append({"seed": int(s), "status": "failed" if reason else "ok", "reason": reason,
-                     **{k: m.get(k, float("nan")) for k in keys + ("n_landmarks", "n_confirmed")},
-                     "finite": m["finite"]})
+        rows.append(
+            {
+                "seed": int(s),
+                "status": "failed" if reason else "ok",
+                "reason": reason,
+                **{k: m.get(k, float("nan")) for k in keys + ("n_landmarks", "n_confirmed")},
+                "finite": m["finite"],
+            }
+        )
 
-    print(f"\n{cfg.name}: {cfg.filter.method}, {static.n_particles} particles, {len(seeds)} seeds, "
-          f"{t.shape[0]} scans, batch run {run.run_s:.1f} s (compile {run.compile_s:.1f} s)\n")
+    print(
+        f"\n{cfg.name}: {cfg.filter.method}, {static.n_particles} particles, {len(seeds)} seeds, "
+        f"{t.shape[0]} scans, batch run {run.run_s:.1f} s (compile {run.compile_s:.1f} s)\n"
+    )
     print("| seed | " + " | ".join(keys) + " | landmarks | confirmed |")
     print("|---" * (len(keys) + 3) + "|")
     for r in rows:
-        print(f"| {r['seed']} | " + " | ".join(format_number(float(r[k])) for k in keys)
-              + f" | {r['n_landmarks']} | {r['n_confirmed']} |")
+        print(
+            f"| {r['seed']} | "
+            + " | ".join(format_number(float(r[k])) for k in keys)
+            + f" | {r['n_landmarks']} | {r['n_confirmed']} |"
+        )
     st = summarize_runs(rows, keys + ("n_landmarks", "n_confirmed"))
-    summary = {k: {x: st[f"{k}_{x}"] for x in ("median", "q1", "q3", "min", "max")}
-               for k in keys + ("n_landmarks", "n_confirmed")}
+    summary = {
+        k: {x: st[f"{k}_{x}"] for x in ("median", "q1", "q3", "min", "max")}
+        for k in keys + ("n_landmarks", "n_confirmed")
+    }
     print("\n| metric | median | IQR | min | max |\n|---|---|---|---|---|")
     for k, q in summary.items():
-        print(f"| {k} | {format_number(q['median'])} | {format_number(q['q1'])} - {format_number(q['q3'])} | "
-              f"{format_number(q['min'])} | {format_number(q['max'])} |")
+        print(
+            f"| {k} | {format_number(q['median'])} | {format_number(q['q1'])} - {format_number(q['q3'])} | "
+            f"{format_number(q['min'])} | {format_number(q['max'])} |"
+        )
     if st["n_failed"]:
-        print(f"\n{st['n_failed']} of {len(rows)} seeds failed (counted as an infinite error): seeds "
-              f"{st['failed_seeds'].replace(';', ', ')}: {st['reasons']}")
+        print(
+            f"\n{st['n_failed']} of {len(rows)} seeds failed (counted as an infinite error): seeds "
+            f"{st['failed_seeds'].replace(';', ', ')}: {st['reasons']}"
+        )
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"config": args.config, "overrides": args.overrides, "rows": rows, "summary": summary,
-                       "n_failed": st["n_failed"], "failed_seeds": st["failed_seeds"]}, f, indent=2)
+            json.dump(
+                {
+                    "config": args.config,
+                    "overrides": args.overrides,
+                    "rows": rows,
+                    "summary": summary,
+                    "n_failed": st["n_failed"],
+                    "failed_seeds": st["failed_seeds"],
+                },
+                f,
+                indent=2,
+            )
 
 
 if __name__ == "__main__":

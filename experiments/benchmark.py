@@ -93,8 +93,9 @@ def _segments(cfg, data: str | None, segments: int | None):
     return seg if segments is None else type(seg)(*(a[:segments] for a in seg))
 
 
-def run_one(name: str, overrides: list[str], config: str, segments: int | None, data: str | None,
-            repeats: int = 1) -> dict:
+def run_one(
+    name: str, overrides: list[str], config: str, segments: int | None, data: str | None, repeats: int = 1
+) -> dict:
     """Run one configuration in this process and return its measurements (``run_s``: the best of
     ``repeats`` runs of the compiled program; ``compile_s``: the first run's)."""
     import jax
@@ -152,16 +153,27 @@ def second_run(config: str, data: str | None) -> dict:
             if res.returncode != 0:
                 raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
             m = json.loads((Path(tmp) / name / "metrics.json").read_text())
-            runs.append(dict(run=name, compile_s=m["compile_s"], run_s=m["run_s"], wall_s=wall,
-                             jax=m["compilation"], rmse_fixed=m["rmse_fixed"],
-                             load=[round(load, 2), round(os.getloadavg()[0], 2)]))
-        identical = all((Path(tmp) / "first" / f).read_bytes() == (Path(tmp) / "second" / f).read_bytes()
-                        for f in ("trajectory.csv", "map.csv"))
+            runs.append(
+                dict(
+                    run=name,
+                    compile_s=m["compile_s"],
+                    run_s=m["run_s"],
+                    wall_s=wall,
+                    jax=m["compilation"],
+                    rmse_fixed=m["rmse_fixed"],
+                    load=[round(load, 2), round(os.getloadavg()[0], 2)],
+                )
+            )
+        identical = all(
+            (Path(tmp) / "first" / f).read_bytes() == (Path(tmp) / "second" / f).read_bytes()
+            for f in ("trajectory.csv", "map.csv")
+        )
     return dict(config=config, runs=runs, identical=identical)
 
 
-def paired_timing(config: str, variants: dict[str, list[str]], segments: int | None, data: str | None,
-                  repeats: int) -> dict:
+def paired_timing(
+    config: str, variants: dict[str, list[str]], segments: int | None, data: str | None, repeats: int
+) -> dict:
     """Run each variant's compiled program ``repeats`` times, alternating their order every round
     (see the ``management`` table in the module docstring); all variants share one process and log."""
     import statistics
@@ -179,16 +191,28 @@ def paired_timing(config: str, variants: dict[str, list[str]], segments: int | N
     times: dict[str, list[float]] = {k: [] for k in variants}
     load_before = os.getloadavg()[0]
     for i in range(repeats):
-        for k in (list(variants) if i % 2 == 0 else list(variants)[::-1]):
+        for k in list(variants) if i % 2 == 0 else list(variants)[::-1]:
             static, params, cfg = progs[k]
             times[k].append(run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk).run_s)
     base = list(variants)[-1]
-    out = dict(config=config, repeats=repeats, scans=int(seg.time.shape[0]), base=base, variants={},
-               load=[round(load_before, 2), round(os.getloadavg()[0], 2)])
+    out = dict(
+        config=config,
+        repeats=repeats,
+        scans=int(seg.time.shape[0]),
+        base=base,
+        variants={},
+        load=[round(load_before, 2), round(os.getloadavg()[0], 2)],
+    )
     for k, ts in times.items():
         ratios = [a / b for a, b in zip(ts, times[base])]
-        out["variants"][k] = dict(overrides=variants[k], run_s=ts, best_s=min(ts), median_s=statistics.median(ts),
-                                  ratio_best=min(ts) / min(times[base]), ratio_median=statistics.median(ratios))
+        out["variants"][k] = dict(
+            overrides=variants[k],
+            run_s=ts,
+            best_s=min(ts),
+            median_s=statistics.median(ts),
+            ratio_best=min(ts) / min(times[base]),
+            ratio_median=statistics.median(ratios),
+        )
     return out
 
 
@@ -199,8 +223,10 @@ def data_timings(data: str | None) -> dict:
     from nanoslam_jax.simulate import simulate
 
     real = load_victoria_park(resolve_data_dir(load_config(None), data))
-    steps = {"simulate the default log": lambda: simulate(SimConfig(), VehicleConfig()),
-             "segments of the real log": lambda: make_segments(real, max_range=30.0)}
+    steps = {
+        "simulate the default log": lambda: simulate(SimConfig(), VehicleConfig()),
+        "segments of the real log": lambda: make_segments(real, max_range=30.0),
+    }
     out = {}
     for name, fn in steps.items():
         fn()
@@ -223,13 +249,17 @@ def markdown(result: dict) -> str:
     if result.get("rows"):
         scans = sorted({r["scans"] for r in result["rows"]})
         out += [f"Scans per run: {', '.join(map(str, scans))}.", ""]
-        head = ("| row | particles | devices | capacity | compile [s] | run [s] | ms/scan "
-                "| peak RSS [MB] | landmarks | load before / after |")
+        head = (
+            "| row | particles | devices | capacity | compile [s] | run [s] | ms/scan "
+            "| peak RSS [MB] | landmarks | load before / after |"
+        )
         out += [head, "|" + "---|" * (head.count("|") - 1)]
         for r in result["rows"]:
-            out.append(f"| {r['name']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
-                       f"{r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
-                       f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {_load(r)} |")
+            out.append(
+                f"| {r['name']} | {r['particles']} | {r['devices']} | {r['capacity']} | "
+                f"{r['compile_s']:.1f} | {r['run_s']:.2f} | {r['ms_per_scan']:.3f} | "
+                f"{r['peak_rss_mb']:.0f} | {r['landmarks']} | {_load(r)} |"
+            )
     dt = result.get("data")
     if dt:
         if out:
@@ -240,26 +270,37 @@ def markdown(result: dict) -> str:
     if mg:
         if out:
             out.append("")
-        out += [f"Landmark management's cost, paired: {mg['repeats']} alternating runs of each compiled program in "
-                f"one process ({mg['scans']} scans; ratios against `{mg['base']}`):", "",
-                "| setting | best [s] | median [s] | ratio of bests | median of per-run ratios | load before / after |",
-                "|---|---|---|---|---|---|"]
+        out += [
+            f"Landmark management's cost, paired: {mg['repeats']} alternating runs of each compiled program in "
+            f"one process ({mg['scans']} scans; ratios against `{mg['base']}`):",
+            "",
+            "| setting | best [s] | median [s] | ratio of bests | median of per-run ratios | load before / after |",
+            "|---|---|---|---|---|---|",
+        ]
         for k, v in mg["variants"].items():
-            out.append(f"| {k} | {v['best_s']:.2f} | {v['median_s']:.2f} | {v['ratio_best']:.3f} | "
-                       f"{v['ratio_median']:.3f} | {_load(mg)} |")
+            out.append(
+                f"| {k} | {v['best_s']:.2f} | {v['median_s']:.2f} | {v['ratio_best']:.3f} | "
+                f"{v['ratio_median']:.3f} | {_load(mg)} |"
+            )
     sr = result.get("second_run")
     if sr:
         if out:
             out.append("")
-        out += [f"`nanoslam run {sr['config']}` twice in fresh processes, empty cache before the first "
-                f"(outputs identical: {'yes' if sr['identical'] else '**no**'}):", "",
-                "| run | compile_s [s] | JAX: trace [s] | lower [s] | compile or load [s] | cache hits | cache misses "
-                "| run [s] | wall [s] | load before / after |", "|---|---|---|---|---|---|---|---|---|---|"]
+        out += [
+            f"`nanoslam run {sr['config']}` twice in fresh processes, empty cache before the first "
+            f"(outputs identical: {'yes' if sr['identical'] else '**no**'}):",
+            "",
+            "| run | compile_s [s] | JAX: trace [s] | lower [s] | compile or load [s] | cache hits | cache misses "
+            "| run [s] | wall [s] | load before / after |",
+            "|---|---|---|---|---|---|---|---|---|---|",
+        ]
         for r in sr["runs"]:
             j = r["jax"]
-            out.append(f"| {r['run']} | {r['compile_s']:.2f} | {j['trace_s']:.2f} | {j['lower_s']:.2f} | "
-                       f"{j['backend_s']:.2f} | {j['cache_hits']} | {j['cache_misses']} | {r['run_s']:.2f} | "
-                       f"{r['wall_s']:.1f} | {_load(r)} |")
+            out.append(
+                f"| {r['run']} | {r['compile_s']:.2f} | {j['trace_s']:.2f} | {j['lower_s']:.2f} | "
+                f"{j['backend_s']:.2f} | {j['cache_hits']} | {j['cache_misses']} | {r['run_s']:.2f} | "
+                f"{r['wall_s']:.1f} | {_load(r)} |"
+            )
     return "\n".join(out)
 
 
@@ -279,27 +320,35 @@ def _single(name: str, args) -> dict | None:
 
 
 def _commit() -> str:
-    res = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True,
-                         cwd=Path(__file__).resolve().parent)
+    res = subprocess.run(
+        ["git", "describe", "--always", "--dirty"], capture_output=True, text=True, cwd=Path(__file__).resolve().parent
+    )
     return res.stdout.strip() or "unknown"
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--only", nargs="*", choices=list(ROWS) + [SECOND_RUN, DATA, MANAGEMENT], help="rows to run (default: all)")
+    p.add_argument(
+        "--only", nargs="*", choices=list(ROWS) + [SECOND_RUN, DATA, MANAGEMENT], help="rows to run (default: all)"
+    )
     p.add_argument("--config", default="configs/victoria_park_nano.yaml")
     p.add_argument("--segments", type=int, help="use only the first N segments (not for second-run)")
     p.add_argument("--data", help="log directory")
     p.add_argument("--json", help="also write the tables as JSON here (the docs' performance page reads it)")
-    p.add_argument("--repeats", type=int, default=1,
-                   help="runs of each row's compiled program; run [s] is the best (default 1; 3 for ratios "
-                        "between rows on a noisy VM)")
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="runs of each row's compiled program; run [s] is the best (default 1; 3 for ratios "
+        "between rows on a noisy VM)",
+    )
     p.add_argument("--single", help=argparse.SUPPRESS)
     args = p.parse_args()
 
     if args.single == MANAGEMENT:
-        print(json.dumps(paired_timing(args.config, MANAGEMENT_VARIANTS, args.segments, args.data,
-                                       max(args.repeats, 5))))
+        print(
+            json.dumps(paired_timing(args.config, MANAGEMENT_VARIANTS, args.segments, args.data, max(args.repeats, 5)))
+        )
         return
     if args.single:
         print(json.dumps(run_one(args.single, ROWS[args.single], args.config, args.segments, args.data, args.repeats)))
@@ -313,9 +362,13 @@ def main() -> None:
             continue
         rows.append(r)
         print(f"{name}: {r['run_s']:.2f} s run, {r['compile_s']:.1f} s compile", file=sys.stderr, flush=True)
-    result = dict(commit=_commit(), date=datetime.datetime.now().isoformat(timespec="minutes"),
-                  cores=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
-                  command=" ".join(["python", "experiments/benchmark.py", *sys.argv[1:]]), rows=rows)
+    result = dict(
+        commit=_commit(),
+        date=datetime.datetime.now().isoformat(timespec="minutes"),
+        cores=len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        command=" ".join(["python", "experiments/benchmark.py", *sys.argv[1:]]),
+        rows=rows,
+    )
     if MANAGEMENT in wanted:
         mg = _single(MANAGEMENT, args)
         if mg is not None:

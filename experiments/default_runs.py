@@ -27,15 +27,23 @@ import numpy as np
 from nanoslam_jax._scoring import MapEstimate, failure_reason, score_run, seed_summary
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import (dead_reckoning, reported_map, reported_trajectory, run_batch, settings_from_config,
-                                 stack_params)
+from nanoslam_jax.filter import (
+    dead_reckoning,
+    reported_map,
+    reported_trajectory,
+    run_batch,
+    settings_from_config,
+    stack_params,
+)
 
 
 def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds: int) -> list[dict]:
     """Every filter seed's figures on the simulated log of ``sim_seed``."""
     cfg = load_config(config, overrides + [f"sim.seed={sim_seed}"])
     if cfg.data.kind != "simulated":
-        raise SystemExit(f"{config or 'embedded default'}: data.kind is {cfg.data.kind!r}; this script needs simulated logs")
+        raise SystemExit(
+            f"{config or 'embedded default'}: data.kind is {cfg.data.kind!r}; this script needs simulated logs"
+        )
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
     seeds = 1000 * sim_seed + np.arange(n_seeds)
@@ -50,14 +58,24 @@ def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds
         act = maps.active[i]
         m = score_run(log, est[i], cfg.metrics, MapEstimate(maps.mean[i][act], maps.confirmed[i][act]))
         reason = failure_reason(t, est[i])
-        rows.append(dict(sim_seed=sim_seed, seed=int(seed), status="failed" if reason else "ok", reason=reason,
-                         rmse_fixed=m.get("rmse_fixed", nan), rmse_aligned=m.get("rmse_aligned", nan),
-                         dr_rmse_fixed=dr.get("rmse_fixed", nan),
-                         dr_over_slam=dr.get("rmse_fixed", nan) / m.get("rmse_fixed", nan),
-                         n_confirmed=m["n_confirmed"], found=m["map_found_fraction"],
-                         spurious=m["map_spurious_fraction"], found_aligned=m.get("map_found_fraction_aligned", nan),
-                         spurious_aligned=m.get("map_spurious_fraction_aligned", nan),
-                         overflow=int(np.asarray(run.state.overflow)[i])))
+        rows.append(
+            dict(
+                sim_seed=sim_seed,
+                seed=int(seed),
+                status="failed" if reason else "ok",
+                reason=reason,
+                rmse_fixed=m.get("rmse_fixed", nan),
+                rmse_aligned=m.get("rmse_aligned", nan),
+                dr_rmse_fixed=dr.get("rmse_fixed", nan),
+                dr_over_slam=dr.get("rmse_fixed", nan) / m.get("rmse_fixed", nan),
+                n_confirmed=m["n_confirmed"],
+                found=m["map_found_fraction"],
+                spurious=m["map_spurious_fraction"],
+                found_aligned=m.get("map_found_fraction_aligned", nan),
+                spurious_aligned=m.get("map_spurious_fraction_aligned", nan),
+                overflow=int(np.asarray(run.state.overflow)[i]),
+            )
+        )
     return rows
 
 
@@ -77,9 +95,12 @@ def main() -> None:
     for sim_seed in range(a.sims):
         for r in runs_on_log(a.config, overrides, sim_seed, a.seeds):
             rows.append(r)
-            print(f"sim {r['sim_seed']} seed {r['seed']}: RMSE {r['rmse_fixed']:.2f} m (aligned {r['rmse_aligned']:.2f}), "
-                  f"dead reckoning {r['dr_rmse_fixed']:.1f} m ({r['dr_over_slam']:.1f}x); {r['n_confirmed']} confirmed, "
-                  f"found {100 * r['found_aligned']:.0f} %, spurious {100 * r['spurious_aligned']:.1f} % (aligned)", flush=True)
+            print(
+                f"sim {r['sim_seed']} seed {r['seed']}: RMSE {r['rmse_fixed']:.2f} m (aligned {r['rmse_aligned']:.2f}), "
+                f"dead reckoning {r['dr_rmse_fixed']:.1f} m ({r['dr_over_slam']:.1f}x); {r['n_confirmed']} confirmed, "
+                f"found {100 * r['found_aligned']:.0f} %, spurious {100 * r['spurious_aligned']:.1f} % (aligned)",
+                flush=True,
+            )
     col = {k: np.array([r[k] for r in rows], float) for k in rows[0] if k not in ("status", "reason")}
     failed = [r["status"] != "ok" for r in rows]
 
@@ -87,23 +108,32 @@ def main() -> None:
         s = seed_summary(v, failed, "min")
         return f"median {s['median']:.2f} (IQR {s['q1']:.2f}-{s['q3']:.2f}), worst {s['worst']:.2f}"
 
-    print(f"\n{len(rows)} runs, {time.perf_counter() - t0:.0f} s"
-          + (f", {sum(failed)} failed (non-finite estimate; counted as the worst value)" if any(failed) else ""))
+    print(
+        f"\n{len(rows)} runs, {time.perf_counter() - t0:.0f} s"
+        + (f", {sum(failed)} failed (non-finite estimate; counted as the worst value)" if any(failed) else "")
+    )
     print(f"RMSE fixed [m]: {spread(col['rmse_fixed'])}; aligned: {spread(col['rmse_aligned'])}")
+
     def st(k, goal):  # one column under the failed-seed rule (found: higher is better)
         return seed_summary(col[k], failed, goal)
 
     dos, fa, sa = st("dr_over_slam", "max"), st("found_aligned", "max"), st("spurious_aligned", "min")
-    print(f"dead reckoning [m]: {col['dr_rmse_fixed'].min():.1f}-{col['dr_rmse_fixed'].max():.1f}; "
-          f"dead reckoning / SLAM: median {dos['median']:.1f}, least {dos['worst']:.1f}")
-    print(f"confirmed landmarks: median {st('n_confirmed', None)['median']:.0f}; aligned map: found median "
-          f"{100 * fa['median']:.0f} % (least {100 * fa['worst']:.0f} %), spurious median "
-          f"{100 * sa['median']:.1f} % (most {100 * sa['worst']:.1f} %); "
-          f"SLAM frame: found {100 * st('found', 'max')['median']:.0f} %, "
-          f"spurious {100 * st('spurious', 'min')['median']:.1f} %")
-    print(f"RMSE < 2 m: {int(np.sum(col['rmse_fixed'] < 2))}/{len(rows)}; found >= 90 % and spurious <= 10 % (aligned): "
-          f"{int(np.sum((col['found_aligned'] >= 0.9) & (col['spurious_aligned'] <= 0.1)))}/{len(rows)}; "
-          f"capacity overflow in {int(np.sum(col['overflow'] > 0))}")
+    print(
+        f"dead reckoning [m]: {col['dr_rmse_fixed'].min():.1f}-{col['dr_rmse_fixed'].max():.1f}; "
+        f"dead reckoning / SLAM: median {dos['median']:.1f}, least {dos['worst']:.1f}"
+    )
+    print(
+        f"confirmed landmarks: median {st('n_confirmed', None)['median']:.0f}; aligned map: found median "
+        f"{100 * fa['median']:.0f} % (least {100 * fa['worst']:.0f} %), spurious median "
+        f"{100 * sa['median']:.1f} % (most {100 * sa['worst']:.1f} %); "
+        f"SLAM frame: found {100 * st('found', 'max')['median']:.0f} %, "
+        f"spurious {100 * st('spurious', 'min')['median']:.1f} %"
+    )
+    print(
+        f"RMSE < 2 m: {int(np.sum(col['rmse_fixed'] < 2))}/{len(rows)}; found >= 90 % and spurious <= 10 % (aligned): "
+        f"{int(np.sum((col['found_aligned'] >= 0.9) & (col['spurious_aligned'] <= 0.1)))}/{len(rows)}; "
+        f"capacity overflow in {int(np.sum(col['overflow'] > 0))}"
+    )
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1)

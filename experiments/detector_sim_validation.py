@@ -42,8 +42,13 @@ from nanoslam_jax.simulate_laser import KIND_BUSH, KIND_FENCE, KIND_TREE, KIND_W
 
 WITHIN, MIN_BEAMS = 30.0, 3
 FALSE_KINDS = ("tree (centre off)", "wall", "fence", "bush", "no surface: a spurious return")
-MISS_KINDS = ("occluded (fewer beams hit than cross it)", "at the edge of the field of view",
-              "another return within 2 m of its surface", "3-5 beams", "other")
+MISS_KINDS = (
+    "occluded (fewer beams hit than cross it)",
+    "at the edge of the field of view",
+    "another return within 2 m of its surface",
+    "3-5 beams",
+    "other",
+)
 
 
 def naive_trees(scans: LaserScans, jump: float = 0.3, max_diameter: float = 1.2) -> np.ndarray:
@@ -116,11 +121,19 @@ def evaluate(log, det: np.ndarray) -> dict:
     crowded = np.any(other & (scans.ranges[ms] < scans.max_range) & (gap < 2.0), axis=1)
     few = truth[missed, 2] <= 5
     miss_kind = np.select([occl, edge, crowded, few], [0, 1, 2, 3], 4)
-    return {"targets": int(target.sum()), "found": int((target & found).sum()), "dets": int(near.sum()),
-            "whole": int((target & in_view).sum()), "whole_found": int((target & in_view & found).sum()),
-            "true": int((near & used).sum()), "diam": dd, "diam_range": dd_range, "diam_target": dd_target,
-            "false_kind": np.bincount(false_kind, minlength=len(FALSE_KINDS)),
-            "miss_kind": np.bincount(miss_kind, minlength=len(MISS_KINDS))}
+    return {
+        "targets": int(target.sum()),
+        "found": int((target & found).sum()),
+        "dets": int(near.sum()),
+        "whole": int((target & in_view).sum()),
+        "whole_found": int((target & in_view & found).sum()),
+        "true": int((near & used).sum()),
+        "diam": dd,
+        "diam_range": dd_range,
+        "diam_target": dd_target,
+        "false_kind": np.bincount(false_kind, minlength=len(FALSE_KINDS)),
+        "miss_kind": np.bincount(miss_kind, minlength=len(MISS_KINDS)),
+    }
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -140,12 +153,16 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     cfg = load_config(args.config, [f"sim.duration={args.duration}"] + args.overrides)
     s = cfg.sim
-    print(f"simulated raw logs: {args.duration:g} s, {s.n_trees} trees, {s.laser_walls} walls, {s.laser_fences} "
-          f"fences, {s.laser_bushes} bushes, range noise {s.laser_range_noise * 100:g} cm, dropouts "
-          f"{s.laser_dropout * 100:g} %, spurious {s.laser_spurious * 100:g} %; targets: trees hit by >= {MIN_BEAMS} "
-          f"beams within {WITHIN:g} m\n")
-    print("| seed | scans | targets | recall | recall in view | precision | diam. err. (cm) | naive recall "
-          "| naive precision | naive diam. err. (cm) | sim (s) | detect (s) |")
+    print(
+        f"simulated raw logs: {args.duration:g} s, {s.n_trees} trees, {s.laser_walls} walls, {s.laser_fences} "
+        f"fences, {s.laser_bushes} bushes, range noise {s.laser_range_noise * 100:g} cm, dropouts "
+        f"{s.laser_dropout * 100:g} %, spurious {s.laser_spurious * 100:g} %; targets: trees hit by >= {MIN_BEAMS} "
+        f"beams within {WITHIN:g} m\n"
+    )
+    print(
+        "| seed | scans | targets | recall | recall in view | precision | diam. err. (cm) | naive recall "
+        "| naive precision | naive diam. err. (cm) | sim (s) | detect (s) |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     pooled = {"ours": [], "naive": []}
     for seed in parse_seeds(args.seeds):
@@ -157,14 +174,19 @@ def main(argv=None) -> int:
         naive = evaluate(log, naive_trees(log.scans))
         pooled["ours"].append(ours)
         pooled["naive"].append(naive)
-        print(f"| {seed} | {log.scans.n_scans} | {ours['targets']} | {ours['found'] / ours['targets']:.3f} | "
-              f"{ours['whole_found'] / ours['whole']:.3f} | "
-              f"{ours['true'] / max(ours['dets'], 1):.3f} | {np.median(ours['diam']) * 100:.1f} | "
-              f"{naive['found'] / naive['targets']:.3f} | {naive['true'] / max(naive['dets'], 1):.3f} | "
-              f"{np.median(naive['diam']) * 100:.1f} | {t1 - t0:.1f} | {t2 - t1:.1f} |", flush=True)
+        print(
+            f"| {seed} | {log.scans.n_scans} | {ours['targets']} | {ours['found'] / ours['targets']:.3f} | "
+            f"{ours['whole_found'] / ours['whole']:.3f} | "
+            f"{ours['true'] / max(ours['dets'], 1):.3f} | {np.median(ours['diam']) * 100:.1f} | "
+            f"{naive['found'] / naive['targets']:.3f} | {naive['true'] / max(naive['dets'], 1):.3f} | "
+            f"{np.median(naive['diam']) * 100:.1f} | {t1 - t0:.1f} | {t2 - t1:.1f} |",
+            flush=True,
+        )
     print()
-    print("| detector | targets | recall | recall in view | precision | diam. err. median (cm) "
-          "| diam. err. p90 (cm) | diam. err. median, targets found (cm) |")
+    print(
+        "| detector | targets | recall | recall in view | precision | diam. err. median (cm) "
+        "| diam. err. p90 (cm) | diam. err. median, targets found (cm) |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for name, runs in pooled.items():
         tg, fd = sum(r["targets"] for r in runs), sum(r["found"] for r in runs)
@@ -172,8 +194,10 @@ def main(argv=None) -> int:
         dd = np.concatenate([r["diam"] for r in runs])
         wh, wf = sum(r["whole"] for r in runs), sum(r["whole_found"] for r in runs)
         dt_found = np.concatenate([r["diam_target"] for r in runs])
-        print(f"| {name} | {tg} | {fd / tg:.3f} | {wf / wh:.3f} | {tr / max(dt, 1):.3f} | {np.median(dd) * 100:.2f} | "
-              f"{np.percentile(dd, 90) * 100:.1f} | {np.median(dt_found) * 100:.2f} |")
+        print(
+            f"| {name} | {tg} | {fd / tg:.3f} | {wf / wh:.3f} | {tr / max(dt, 1):.3f} | {np.median(dd) * 100:.2f} | "
+            f"{np.percentile(dd, 90) * 100:.1f} | {np.median(dt_found) * 100:.2f} |"
+        )
     print("\n| detector | median diameter error (cm), centre at 0-10 m | 10-20 m | 20-30 m |")
     print("|---|---:|---:|---:|")
     for name, runs in pooled.items():
@@ -184,8 +208,9 @@ def main(argv=None) -> int:
     for name, runs in pooled.items():
         fk = sum(r["false_kind"] for r in runs)
         mk = sum(r["miss_kind"] for r in runs)
-        print(f"\n{name}: false detections within {WITHIN:g} m ({int(fk.sum())}), "
-              "by what the beam at their bearing hit:")
+        print(
+            f"\n{name}: false detections within {WITHIN:g} m ({int(fk.sum())}), by what the beam at their bearing hit:"
+        )
         for label, n in zip(FALSE_KINDS, fk):
             print(f"  {label}: {int(n)}")
         print(f"{name}: missed trees ({int(mk.sum())}), first reason that applies:")

@@ -32,8 +32,9 @@ from nanoslam_jax.models._angles import wrap_angle_np  # noqa: E402
 MATCH_RANGE, MATCH_BEARING_DEG, WITHIN = 0.5, 1.5, 30.0
 
 
-def match(ref: np.ndarray, ours: np.ndarray, d_range: float = MATCH_RANGE,
-          d_bearing: float = np.deg2rad(MATCH_BEARING_DEG)) -> tuple[np.ndarray, np.ndarray]:
+def match(
+    ref: np.ndarray, ours: np.ndarray, d_range: float = MATCH_RANGE, d_bearing: float = np.deg2rad(MATCH_BEARING_DEG)
+) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one matches between detections of the same scans (times equal to the millisecond):
     pairs within ``d_range`` and ``d_bearing``, taken nearest first (normalised distance).
 
@@ -88,17 +89,30 @@ def detection_table(ref: np.ndarray, feats, within: float = WITHIN) -> dict:
     r, o = ref[rsel], ours[osel]
     dd = ours[mj, 3] - ref[mi, 3]
     extra_rows = np.flatnonzero(osel & ~used)
-    return dict(ref=r.shape[0], ours=o.shape[0], matched=mi.size, recall=mi.size / max(r.shape[0], 1),
-                extra=extra_rows.size, extra_rows=extra_rows, missed_rows=np.flatnonzero(rsel & ~found),
-                diam_bias=float(np.median(dd)), diam_mad=float(np.median(np.abs(dd - np.median(dd)))),
-                diam_abs=float(np.median(np.abs(dd))), range_bias=float(np.median(ours[mj, 1] - ref[mi, 1])),
-                bearing_bias_deg=float(np.rad2deg(np.median(wrap_angle_np(ours[mj, 2] - ref[mi, 2])))),
-                scans=common.size)
+    return dict(
+        ref=r.shape[0],
+        ours=o.shape[0],
+        matched=mi.size,
+        recall=mi.size / max(r.shape[0], 1),
+        extra=extra_rows.size,
+        extra_rows=extra_rows,
+        missed_rows=np.flatnonzero(rsel & ~found),
+        diam_bias=float(np.median(dd)),
+        diam_mad=float(np.median(np.abs(dd - np.median(dd)))),
+        diam_abs=float(np.median(np.abs(dd))),
+        range_bias=float(np.median(ours[mj, 1] - ref[mi, 1])),
+        bearing_bias_deg=float(np.rad2deg(np.median(wrap_angle_np(ours[mj, 2] - ref[mi, 2])))),
+        scans=common.size,
+    )
 
 
-EXTRA_KINDS = ("near a dataset detection (range or bearing off)", "wide (diameter > 1 m)",
-               "a neighbour within 3 m (the dataset drops one)", "one return (a thin pole or a stray return)",
-               "other: an isolated trunk of 2 or more returns")
+EXTRA_KINDS = (
+    "near a dataset detection (range or bearing off)",
+    "wide (diameter > 1 m)",
+    "a neighbour within 3 m (the dataset drops one)",
+    "one return (a thin pole or a stray return)",
+    "other: an isolated trunk of 2 or more returns",
+)
 
 
 def classify_extras(ref: np.ndarray, ours: np.ndarray, rows: np.ndarray, beams: np.ndarray) -> np.ndarray:
@@ -134,7 +148,7 @@ def extras_figure(path: str, scans, feats, ref: np.ndarray, rows: np.ndarray, ki
 
     ours = feats.tree_table()
     fig, axes = plt.subplots(2, 3, figsize=(15, 9.5))
-    for ax in axes.ravel()[len(EXTRA_KINDS):]:
+    for ax in axes.ravel()[len(EXTRA_KINDS) :]:
         ax.set_visible(False)
     for ax, kind in zip(axes.ravel(), range(len(EXTRA_KINDS))):
         pick = rows[kinds == kind]
@@ -145,15 +159,23 @@ def extras_figure(path: str, scans, feats, ref: np.ndarray, rows: np.ndarray, ki
         scan = int(np.argmin(np.abs(scans.time - ours[k, 0])))
         r = scans.ranges[scan]
         ok = r < 75
-        ax.plot(r[ok] * np.cos(scans.angles[ok]), r[ok] * np.sin(scans.angles[ok]), ".", color="0.5", ms=3,
-                label="returns")
+        ax.plot(
+            r[ok] * np.cos(scans.angles[ok]), r[ok] * np.sin(scans.angles[ok]), ".", color="0.5", ms=3, label="returns"
+        )
         rr = ref[np.abs(ref[:, 0] - ours[k, 0]) < 5e-4]
-        ax.plot(rr[:, 1] * np.cos(rr[:, 2]), rr[:, 1] * np.sin(rr[:, 2]), "bo", mfc="none", ms=9,
-                label="measurements.dat")
+        ax.plot(
+            rr[:, 1] * np.cos(rr[:, 2]), rr[:, 1] * np.sin(rr[:, 2]), "bo", mfc="none", ms=9, label="measurements.dat"
+        )
         oo = ours[np.abs(ours[:, 0] - ours[k, 0]) < 5e-4]
         ax.plot(oo[:, 1] * np.cos(oo[:, 2]), oo[:, 1] * np.sin(oo[:, 2]), "g+", ms=9, label="ours")
-        ax.plot(ours[k, 1] * np.cos(ours[k, 2]), ours[k, 1] * np.sin(ours[k, 2]), "rs", mfc="none", ms=14,
-                label="added: " + EXTRA_KINDS[kind])
+        ax.plot(
+            ours[k, 1] * np.cos(ours[k, 2]),
+            ours[k, 1] * np.sin(ours[k, 2]),
+            "rs",
+            mfc="none",
+            ms=14,
+            label="added: " + EXTRA_KINDS[kind],
+        )
         cx, cy = ours[k, 1] * np.cos(ours[k, 2]), ours[k, 1] * np.sin(ours[k, 2])
         ax.set_xlim(cx - 8, cx + 8)
         ax.set_ylim(cy - 8, cy + 8)
@@ -209,14 +231,15 @@ def ablation_logs(data: str, detected: str, out: str) -> dict:
     i, j = match(ref, ours)
     ours_rb = ref.copy()
     ours_rb[i, 1:3] = ours[j, 1:3]
-    variants = {"ours, matched only (the detections we add dropped)": ("ours_matched", ours[np.sort(j)]),
-                "measurements.dat, matched only (those we miss dropped)": ("dataset_matched", ref[np.sort(i)]),
-                "measurements.dat, our range and bearing where matched": ("dataset_our_rb", ours_rb)}
+    variants = {
+        "ours, matched only (the detections we add dropped)": ("ours_matched", ours[np.sort(j)]),
+        "measurements.dat, matched only (those we miss dropped)": ("dataset_matched", ref[np.sort(i)]),
+        "measurements.dat, our range and bearing where matched": ("dataset_our_rb", ours_rb),
+    }
     logs = {}
     for label, (name, det) in variants.items():
         directory = Path(out) / name
-        write_victoria_park(directory, RawLog(dr=ds.dr, detections=det[np.lexsort((det[:, 2], det[:, 0]))],
-                                              gps=ds.gps))
+        write_victoria_park(directory, RawLog(dr=ds.dr, detections=det[np.lexsort((det[:, 2], det[:, 0]))], gps=ds.gps))
         for f in ("inputs.dat", "gps.dat"):
             shutil.copyfile(Path(data) / f, directory / f)
         logs[label] = str(directory)
@@ -236,21 +259,28 @@ def slam_table(config: str, logs: dict, seeds: list[int], overrides: list[str]) 
             t = time.perf_counter()
             m = execute(cfg, directory, progress=False).metrics
             rows.append([seed, m["rmse_fixed"], m["rmse_aligned"], m.get("n_confirmed", m.get("n_landmarks", 0))])
-            print(f"  {label}, seed {seed}: rmse_fixed {m['rmse_fixed']:.2f}, rmse_aligned {m['rmse_aligned']:.2f}, "
-                  f"{rows[-1][3]} trees, {time.perf_counter() - t:.0f} s", flush=True)
+            print(
+                f"  {label}, seed {seed}: rmse_fixed {m['rmse_fixed']:.2f}, rmse_aligned {m['rmse_aligned']:.2f}, "
+                f"{rows[-1][3]} trees, {time.perf_counter() - t:.0f} s",
+                flush=True,
+            )
         res[label] = np.asarray(rows, dtype=float)
 
     def q(v):
         return f"{np.median(v):.2f} [{np.percentile(v, 25):.2f}, {np.percentile(v, 75):.2f}], worst {v.max():.2f}"
 
     base = next(iter(res.values()))
-    print("| detections | rmse_fixed median [IQR], worst (m) | rmse_aligned median [IQR], worst (m) | medians / "
-          "the first's (fixed, aligned) | better than the first (seeds, fixed) | confirmed trees (median) |")
+    print(
+        "| detections | rmse_fixed median [IQR], worst (m) | rmse_aligned median [IQR], worst (m) | medians / "
+        "the first's (fixed, aligned) | better than the first (seeds, fixed) | confirmed trees (median) |"
+    )
     print("|---|---|---|---|---|---|")
     for label, a in res.items():
-        print(f"| {label} | {q(a[:, 1])} | {q(a[:, 2])} | {np.median(a[:, 1]) / np.median(base[:, 1]):.3f}, "
-              f"{np.median(a[:, 2]) / np.median(base[:, 2]):.3f} | {int((a[:, 1] < base[:, 1]).sum())} of "
-              f"{len(a)} | {np.median(a[:, 3]):.0f} |")
+        print(
+            f"| {label} | {q(a[:, 1])} | {q(a[:, 2])} | {np.median(a[:, 1]) / np.median(base[:, 1]):.3f}, "
+            f"{np.median(a[:, 2]) / np.median(base[:, 2]):.3f} | {int((a[:, 1] < base[:, 1]).sum())} of "
+            f"{len(a)} | {np.median(a[:, 3]):.0f} |"
+        )
     return res
 
 
@@ -258,18 +288,34 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "victoria_park"))
     p.add_argument("--config", default=None, help="config whose detector section is used (default: defaults)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config key (detector.* for the detector; others apply to the SLAM runs)")
-    p.add_argument("--slam", nargs="*", metavar="CONFIG",
-                   help="also run SLAM from both detection sets with these configs "
-                        "(default: configs/victoria_park_nano.yaml)")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config key (detector.* for the detector; others apply to the SLAM runs)",
+    )
+    p.add_argument(
+        "--slam",
+        nargs="*",
+        metavar="CONFIG",
+        help="also run SLAM from both detection sets with these configs (default: configs/victoria_park_nano.yaml)",
+    )
     p.add_argument("--seeds", default="16-31", help="seeds of the SLAM runs, e.g. 16-31 or 0,1,2")
     p.add_argument("--out", default=None, help="directory for the detected log (default: a temporary one)")
-    p.add_argument("--control", action="store_true",
-                   help="with --slam: also run on measurements.dat with 1 mm of noise added to the ranges")
-    p.add_argument("--ablate", default=None, metavar="DIR",
-                   help="with --slam: also write logs that isolate what differs (detections added, missed, "
-                        "range and bearing) under DIR and run on them")
+    p.add_argument(
+        "--control",
+        action="store_true",
+        help="with --slam: also run on measurements.dat with 1 mm of noise added to the ranges",
+    )
+    p.add_argument(
+        "--ablate",
+        default=None,
+        metavar="DIR",
+        help="with --slam: also write logs that isolate what differs (detections added, missed, "
+        "range and bearing) under DIR and run on them",
+    )
     p.add_argument("--figure", default=None, help="draw examples of the added detections to this image file")
     args = p.parse_args(argv)
     cfg = load_config(args.config, args.overrides)
@@ -280,11 +326,15 @@ def main(argv=None) -> int:
     ref = load_victoria_park(args.data).detections
     res = detection_table(ref, feats)
     print(f"features of {scans.n_scans} scans in {t:.2f} s")
-    print(f"| within {WITHIN:.0f} m | dataset | ours | matched | recall | added | diameter ours - dataset (median, "
-          f"MAD, median abs) | range bias | bearing bias |")
-    print(f"| {res['scans']} scans | {res['ref']} | {res['ours']} | {res['matched']} | {res['recall']:.4f} | "
-          f"{res['extra']} | {res['diam_bias']:+.3f} / {res['diam_mad']:.3f} / {res['diam_abs']:.3f} m | "
-          f"{res['range_bias']:+.3f} m | {res['bearing_bias_deg']:+.3f} deg |")
+    print(
+        f"| within {WITHIN:.0f} m | dataset | ours | matched | recall | added | diameter ours - dataset (median, "
+        f"MAD, median abs) | range bias | bearing bias |"
+    )
+    print(
+        f"| {res['scans']} scans | {res['ref']} | {res['ours']} | {res['matched']} | {res['recall']:.4f} | "
+        f"{res['extra']} | {res['diam_bias']:+.3f} / {res['diam_mad']:.3f} / {res['diam_abs']:.3f} m | "
+        f"{res['range_bias']:+.3f} m | {res['bearing_bias_deg']:+.3f} deg |"
+    )
     ours = feats.tree_table()
     kinds = classify_extras(ref, ours, res["extra_rows"], feats.trees.last_beam - feats.trees.first_beam + 1)
     print("\n| added detection (within 30 m) | count | share of added |")
@@ -307,7 +357,8 @@ def main(argv=None) -> int:
         logs = {"measurements.dat": args.data, "ours (nanoslam detect)": detected}
         if args.control:
             logs["control: measurements.dat, ranges + N(0, 1 mm)"] = control_log(
-                args.data, tempfile.mkdtemp(prefix="control-"))
+                args.data, tempfile.mkdtemp(prefix="control-")
+            )
         if args.ablate:
             logs.update(ablation_logs(args.data, detected, args.ablate))
         for config in args.slam or ["configs/victoria_park_nano.yaml"]:

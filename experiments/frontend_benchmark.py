@@ -43,15 +43,19 @@ def main(argv=None) -> int:
     t_load, scans = timed(lambda: load_laser(args.data), max(1, args.repeats // 2))
     t_all, feats = timed(lambda: extract_features(scans, cfg), args.repeats)
     t_chunk, _ = timed(lambda: extract_features_chunked(scans, cfg), args.repeats)
-    print(f"{scans.n_scans} scans x {scans.n_beams} beams, {os.cpu_count()} CPUs; {feats.points.r.size} returns, "
-          f"{feats.clusters.scan.size} clusters, {feats.lines.scan.size} lines, {feats.circles.scan.size} circles, "
-          f"{feats.corners.scan.size} corners, {feats.breakpoints.scan.size} break points, "
-          f"{feats.trees.scan.size} trees")
+    print(
+        f"{scans.n_scans} scans x {scans.n_beams} beams, {os.cpu_count()} CPUs; {feats.points.r.size} returns, "
+        f"{feats.clusters.scan.size} clusters, {feats.lines.scan.size} lines, {feats.circles.scan.size} circles, "
+        f"{feats.corners.scan.size} corners, {feats.breakpoints.scan.size} break points, "
+        f"{feats.trees.scan.size} trees"
+    )
     print("| stage | best (s) | median (s) | per scan (ms) | target |")
     print("|---|---|---|---|---|")
-    for name, t, target in (("read LASER.txt", t_load, ""),
-                            ("features, whole log at once", t_all, "<= 5 s"),
-                            ("features, chunks of 1000 scans (nanoslam detect)", t_chunk, "<= 5 s")):
+    for name, t, target in (
+        ("read LASER.txt", t_load, ""),
+        ("features, whole log at once", t_all, "<= 5 s"),
+        ("features, chunks of 1000 scans (nanoslam detect)", t_chunk, "<= 5 s"),
+    ):
         print(f"| {name} | {t.min():.2f} | {np.median(t):.2f} | {1000 * np.median(t) / scans.n_scans:.3f} | {target} |")
     return 0
 

@@ -61,8 +61,22 @@ def check(log, detector, every: int) -> dict[str, np.ndarray]:
     pick = np.arange(0, log.scans.n_scans, every)
     scans, pose, w = log.scans.select(pick), log.scan_pose[pick], log.world
     f = extract_features(scans, detector)
-    out: dict[str, list] = {k: [] for k in ("rho", "alpha", "rho_shared", "alpha_shared", "corner", "centre",
-                                            "radius", "stray_arcs", "break_near", "break_err", "break_or_corner")}
+    out: dict[str, list] = {
+        k: []
+        for k in (
+            "rho",
+            "alpha",
+            "rho_shared",
+            "alpha_shared",
+            "corner",
+            "centre",
+            "radius",
+            "stray_arcs",
+            "break_near",
+            "break_err",
+            "break_or_corner",
+        )
+    }
     rho, alpha = hessian_lines(w.walls)
     ln = f.lines
     for q in range(ln.scan.size):
@@ -104,10 +118,12 @@ def _stat(v: np.ndarray, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def table(rows: dict[str, list[dict[str, np.ndarray]]]) -> str:
-    head = ("| template | logs | scans | lines on one wall | rho error (mm), median / 90 % | alpha error (deg) | "
-            "lines over a corner | their rho error (mm) | corners | corner error (cm) | arcs on a pillar | "
-            "centre error (cm) | radius error (cm) | other arcs | object ends | within 5 cm of a truth break point "
-            "| their error (cm) | within 5 cm of a truth break point or corner |")
+    head = (
+        "| template | logs | scans | lines on one wall | rho error (mm), median / 90 % | alpha error (deg) | "
+        "lines over a corner | their rho error (mm) | corners | corner error (cm) | arcs on a pillar | "
+        "centre error (cm) | radius error (cm) | other arcs | object ends | within 5 cm of a truth break point "
+        "| their error (cm) | within 5 cm of a truth break point or corner |"
+    )
     lines = [head, "|---|" + "---:|" * 17]
     for name, rs in rows.items():
         cat = {k: np.concatenate([r[k] for r in rs]) for k in rs[0]}
@@ -118,7 +134,8 @@ def table(rows: dict[str, list[dict[str, np.ndarray]]]) -> str:
             f"{_stat(cat['radius'], 100)} | {int(cat['stray_arcs'].sum())} | {cat['break_near'].size} | "
             f"{cat['break_near'].mean() if cat['break_near'].size else float('nan'):.2f} | "
             f"{_stat(cat['break_err'], 100)} | "
-            f"{cat['break_or_corner'].mean() if cat['break_or_corner'].size else float('nan'):.2f} |")
+            f"{cat['break_or_corner'].mean() if cat['break_or_corner'].size else float('nan'):.2f} |"
+        )
     return "\n".join(lines)
 
 
@@ -127,8 +144,14 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", default="0-15", help="indoor.seed values, e.g. 0-15 or 1,4,9")
     p.add_argument("--duration", type=float, default=60.0, help="seconds per log (indoor.duration)")
     p.add_argument("--every", type=int, default=10, help="check every n-th scan")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override an indoor.* or detector.* key (repeatable)")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override an indoor.* or detector.* key (repeatable)",
+    )
     args = p.parse_args(argv)
     try:
         cfg = load_config(None, args.overrides)
@@ -145,8 +168,10 @@ def main(argv=None) -> int:
         rows.setdefault("all", []).append(r)
     rows = {k: rows[k] for k in sorted(rows, key=lambda k: (k == "all", k))}
     sets = " ".join(f"--set {o}" for o in args.overrides)
-    print(f"indoor_frontend_check.py --seeds {args.seeds} --duration {args.duration:g} --every {args.every} {sets}".rstrip()
-          + f" ({time.perf_counter() - t0:.0f} s)\n")
+    print(
+        f"indoor_frontend_check.py --seeds {args.seeds} --duration {args.duration:g} --every {args.every} {sets}".rstrip()
+        + f" ({time.perf_counter() - t0:.0f} s)\n"
+    )
     print(table(rows))
     return 0
 

@@ -21,10 +21,15 @@ from nanoslam_jax.experiment import execute
 from nanoslam_jax.metrics import seed_summary
 
 #: The columns: metric, header, scale, digits.
-COLUMNS = (("rmse_fixed", "pos. RMSE (cm)", 100.0, 2), ("rmse_heading_deg", "heading RMSE (deg)", 1.0, 2),
-           ("line_intercept_median", "intercept med. (cm)", 100.0, 2), ("line_slope_median", "slope med.", 1.0, 4),
-           ("line_intercept_worst", "intercept worst (cm)", 100.0, 2), ("corner_median", "corner med. (cm)", 100.0, 2),
-           ("corner_worst", "corner worst (cm)", 100.0, 2))
+COLUMNS = (
+    ("rmse_fixed", "pos. RMSE (cm)", 100.0, 2),
+    ("rmse_heading_deg", "heading RMSE (deg)", 1.0, 2),
+    ("line_intercept_median", "intercept med. (cm)", 100.0, 2),
+    ("line_slope_median", "slope med.", 1.0, 4),
+    ("line_intercept_worst", "intercept worst (cm)", 100.0, 2),
+    ("corner_median", "corner med. (cm)", 100.0, 2),
+    ("corner_worst", "corner worst (cm)", 100.0, 2),
+)
 
 
 def _seeds(text: str) -> list[int]:
@@ -40,8 +45,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     seeds = _seeds(args.seeds)
     rows, failed = [], []
-    header = ("| seed | world | " + " | ".join(h for _, h, _, _ in COLUMNS)
-              + " | lines matched | corners matched | lines in map |")
+    header = (
+        "| seed | world | "
+        + " | ".join(h for _, h, _, _ in COLUMNS)
+        + " | lines matched | corners matched | lines in map |"
+    )
     print(header)
     print("|" + "---|" * (header.count("|") - 1))
     for s in seeds:
@@ -56,19 +64,23 @@ def main(argv: list[str] | None = None) -> int:
         failed.append(not ok)
         cells = [f"{m[k] * sc:.{d}f}" if ok and k in m else "fail" for k, _, sc, d in COLUMNS]
         world = m.get("data", "").replace("simulated indoor ", "")
-        print(f"| {s} | {world} | " + " | ".join(cells) + f" | {m.get('n_lines_matched', '-')}/{m.get('n_lines', '-')} | "
-              f"{m.get('n_corners_matched', '-')}/{m.get('n_corners', '-')} | {m.get('n_lines_est', '-')} |"
-              f"  <!-- {time.perf_counter() - t0:.0f} s -->",
-              flush=True)
+        print(
+            f"| {s} | {world} | " + " | ".join(cells) + f" | {m.get('n_lines_matched', '-')}/{m.get('n_lines', '-')} | "
+            f"{m.get('n_corners_matched', '-')}/{m.get('n_corners', '-')} | {m.get('n_lines_est', '-')} |"
+            f"  <!-- {time.perf_counter() - t0:.0f} s -->",
+            flush=True,
+        )
     for stat in ("median", "worst"):
         cells = []
         for k, _, sc, d in COLUMNS:
             v = seed_summary([r.get(k, float("nan")) for r in rows], failed, "min", seeds)[stat]
             cells.append(f"{v * sc:.{d}f}")
         print(f"| {stat} | | " + " | ".join(cells) + " | | | |")
-    print(f"| total | | {' | ' * (len(COLUMNS) - 1)} | {sum(r.get('n_lines_matched', 0) for r in rows)}/"
-          f"{sum(r.get('n_lines', 0) for r in rows)} | {sum(r.get('n_corners_matched', 0) for r in rows)}/"
-          f"{sum(r.get('n_corners', 0) for r in rows)} | {sum(r.get('n_lines_est', 0) for r in rows)} |")
+    print(
+        f"| total | | {' | ' * (len(COLUMNS) - 1)} | {sum(r.get('n_lines_matched', 0) for r in rows)}/"
+        f"{sum(r.get('n_lines', 0) for r in rows)} | {sum(r.get('n_corners_matched', 0) for r in rows)}/"
+        f"{sum(r.get('n_corners', 0) for r in rows)} | {sum(r.get('n_lines_est', 0) for r in rows)} |"
+    )
     return 0
 
 

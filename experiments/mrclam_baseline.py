@@ -44,8 +44,11 @@ def baseline(directory: Path, robot: int, match_radius: float) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", help="the MRCLAM dataset directory (default: data.path, $NANOSLAM_DATA, "
-                                  "../shared/data/utias_mrclam/MRCLAM_Dataset1)")
+    p.add_argument(
+        "--data",
+        help="the MRCLAM dataset directory (default: data.path, $NANOSLAM_DATA, "
+        "../shared/data/utias_mrclam/MRCLAM_Dataset1)",
+    )
     p.add_argument("--robots", type=int, nargs="+", default=list(MRCLAM_ROBOTS), choices=MRCLAM_ROBOTS)
     p.add_argument("--radius", type=float, default=0.5, help="match radius (m) of the found landmarks")
     p.add_argument("--json", help="also write the figures here")
@@ -53,14 +56,20 @@ def main() -> None:
     cfg = load_config(None, ["data.kind=victoria_park", "data.format=mrclam", "model.motion=unicycle"])
     directory = resolve_data_dir(cfg, args.data)
     rows = [baseline(directory, r, args.radius) for r in args.robots]
-    print(f"UTIAS MRCLAM, {directory}: dead-reckoning map against the surveyed landmarks after a rigid alignment "
-          f"by landmark id\n")
-    print(f"| robot | duration (s) | odometry samples | sightings | scans | landmarks seen | DR map RMSE (m) "
-          f"| found within {args.radius:g} m |")
+    print(
+        f"UTIAS MRCLAM, {directory}: dead-reckoning map against the surveyed landmarks after a rigid alignment "
+        f"by landmark id\n"
+    )
+    print(
+        f"| robot | duration (s) | odometry samples | sightings | scans | landmarks seen | DR map RMSE (m) "
+        f"| found within {args.radius:g} m |"
+    )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['robot']} | {r['duration_s']:.1f} | {r['odometry_samples']} | {r['sightings']} | {r['scans']} "
-              f"| {r['landmarks_seen']} of {r['landmarks_surveyed']} | {r['dr_map_rmse']:.3f} | {r['dr_map_found']} |")
+        print(
+            f"| {r['robot']} | {r['duration_s']:.1f} | {r['odometry_samples']} | {r['sightings']} | {r['scans']} "
+            f"| {r['landmarks_seen']} of {r['landmarks_surveyed']} | {r['dr_map_rmse']:.3f} | {r['dr_map_found']} |"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
 

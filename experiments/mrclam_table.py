@@ -39,28 +39,38 @@ def main() -> None:
     directory = resolve_data_dir(cfg, args.data)
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        key = (int(r.get("data.robot") or cfg.data.robot), r.get("filter.association") or cfg.filter.association,
-               r.get("filter.method") or cfg.filter.method)
+        key = (
+            int(r.get("data.robot") or cfg.data.robot),
+            r.get("filter.association") or cfg.filter.association,
+            r.get("filter.method") or cfg.filter.method,
+        )
         groups.setdefault(key, []).append(r)
     baseline = {}
     for robot in sorted({k[0] for k in groups}):
         raw = load_mrclam(directory, robot)
         m = dead_reckoning_map(raw)
         baseline[robot] = map_alignment_metrics(m.xy, raw.truth_landmarks, m.ids, raw.landmark_ids)["rmse"]
-    print("| robot | association | method | seeds (failed) | map RMSE median [IQR] worst (m) | found | spurious "
-          "| by barcode, median (m) | DR map (m) | DR / SLAM |")
+    print(
+        "| robot | association | method | seeds (failed) | map RMSE median [IQR] worst (m) | found | spurious "
+        "| by barcode, median (m) | DR map (m) | DR / SLAM |"
+    )
     print("|---:|---|---|---:|---|---:|---:|---:|---:|---:|")
     for (robot, assoc, method), rs in sorted(groups.items()):
-        st = summarize_runs(rs, ["survey_rmse", "survey_found", "survey_spurious", "survey_rmse_by_id"],
-                            stats=("median", "q1", "q3", "worst"))
+        st = summarize_runs(
+            rs,
+            ["survey_rmse", "survey_found", "survey_spurious", "survey_rmse_by_id"],
+            stats=("median", "q1", "q3", "worst"),
+        )
         med = st["survey_rmse_median"]
         by_id = st["survey_rmse_by_id_median"]
         by_id_s = "-" if math.isnan(by_id) else format_number(by_id)
         ratio = f"{baseline[robot] / med:.0f}x" if math.isfinite(med) and med > 0 else "-"
-        print(f"| {robot} | {assoc} | {method} | {st['n_runs']} ({st['n_failed']}) | {format_number(med)} "
-              f"[{format_number(st['survey_rmse_q1'])}, {format_number(st['survey_rmse_q3'])}] "
-              f"{format_number(st['survey_rmse_worst'])} | {st['survey_found_median']:g} | "
-              f"{st['survey_spurious_median']:g} | {by_id_s} | {baseline[robot]:.2f} | {ratio} |")
+        print(
+            f"| {robot} | {assoc} | {method} | {st['n_runs']} ({st['n_failed']}) | {format_number(med)} "
+            f"[{format_number(st['survey_rmse_q1'])}, {format_number(st['survey_rmse_q3'])}] "
+            f"{format_number(st['survey_rmse_worst'])} | {st['survey_found_median']:g} | "
+            f"{st['survey_spurious_median']:g} | {by_id_s} | {baseline[robot]:.2f} | {ratio} |"
+        )
 
 
 if __name__ == "__main__":

@@ -38,8 +38,13 @@ def _summary(v: np.ndarray, ok: np.ndarray) -> dict:
 def _score(fixed: np.ndarray, aligned: np.ndarray, ok: np.ndarray, a: float, f: float, w: float) -> float:
     """target_score.py's score of one setting's seeds (a seed not ``ok`` counts as a failed run)."""
     sf, sa = _summary(fixed, ok), _summary(aligned, ok)
-    row = {"rmse_aligned_median": sa["median"], "rmse_fixed_median": sf["median"], "rmse_aligned_max": sa["max"],
-           "rmse_fixed_max": sf["max"], "n_failed": max(sf["n_failed"], sa["n_failed"])}
+    row = {
+        "rmse_aligned_median": sa["median"],
+        "rmse_fixed_median": sf["median"],
+        "rmse_aligned_max": sa["max"],
+        "rmse_fixed_max": sf["max"],
+        "n_failed": max(sf["n_failed"], sa["n_failed"]),
+    }
     return float(target_score(row, a, f, w)["score"])
 
 
@@ -50,8 +55,13 @@ def main() -> None:
     p.add_argument("--first-seed", type=int, default=0)
     p.add_argument("--data")
     p.add_argument("--set", dest="overrides", action="append", default=[])
-    p.add_argument("--grid", nargs="+", default=[], metavar="KEY=V1,V2",
-                   help="smoother keys (without 'smoother.') and their values; every combination runs")
+    p.add_argument(
+        "--grid",
+        nargs="+",
+        default=[],
+        metavar="KEY=V1,V2",
+        help="smoother keys (without 'smoother.') and their values; every combination runs",
+    )
     p.add_argument("--aligned", type=float, default=2.6)
     p.add_argument("--fixed", type=float, default=3.5)
     p.add_argument("--worst", type=float, default=1.5)
@@ -70,8 +80,14 @@ def main() -> None:
     log = load_log(cfg, args.data)
     static, params = settings_from_config(cfg, log.segments.k_max)
     seeds = np.arange(args.first_seed, args.first_seed + args.seeds)
-    run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds, chunk=cfg.output.chunk,
-                    progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"))
+    run = run_batch(
+        static,
+        stack_params([params] * len(seeds)),
+        log.segments,
+        seeds,
+        chunk=cfg.output.chunk,
+        progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"),
+    )
     paths = reported_trajectory("path", run.outputs, run.state)
     nan = float("nan")
     base = [score_run(log, paths[i], cfg.metrics) for i in range(len(seeds))]
@@ -86,28 +102,43 @@ def main() -> None:
             final, held = smoother_map(run, settings, i)
             sm = smooth_run(paths[i], final, log.segments, params, settings, cfg.filter.prior, held)
             m = score_run(log, sm.poses, cfg.metrics)
-            rows.append(dict(seed=int(s), rmse_fixed=m.get("rmse_fixed", nan), rmse_aligned=m.get("rmse_aligned", nan),
-                             rmse_fixed_path=base[i].get("rmse_fixed", nan),
-                             rmse_aligned_path=base[i].get("rmse_aligned", nan),
-                             iterations=sm.iterations, converged=sm.converged, seconds=sm.seconds))
+            rows.append(
+                dict(
+                    seed=int(s),
+                    rmse_fixed=m.get("rmse_fixed", nan),
+                    rmse_aligned=m.get("rmse_aligned", nan),
+                    rmse_fixed_path=base[i].get("rmse_fixed", nan),
+                    rmse_aligned_path=base[i].get("rmse_aligned", nan),
+                    iterations=sm.iterations,
+                    converged=sm.converged,
+                    seconds=sm.seconds,
+                )
+            )
         fx, al = (np.array([r[k] for r in rows]) for k in ("rmse_fixed", "rmse_aligned"))
         conv = np.array([r["converged"] for r in rows])
         setting = dict(zip(grid, values))
         score = _score(fx, al, conv, args.aligned, args.fixed, args.worst)
         results.append(dict(setting=setting, score=score, rows=rows))
         sf, sa = _summary(fx, conv), _summary(al, conv)
-        print(f"{setting}: fixed {sf['median']:.2f} (worst {sf['worst']:.2f}), aligned {sa['median']:.2f} "
-              f"(worst {sa['worst']:.2f}), score {score:.3f}, {conv.sum()}/{len(conv)} converged, "
-              f"{np.median([r['seconds'] for r in rows]):.1f} s per seed", flush=True)
+        print(
+            f"{setting}: fixed {sf['median']:.2f} (worst {sf['worst']:.2f}), aligned {sa['median']:.2f} "
+            f"(worst {sa['worst']:.2f}), score {score:.3f}, {conv.sum()}/{len(conv)} converged, "
+            f"{np.median([r['seconds'] for r in rows]):.1f} s per seed",
+            flush=True,
+        )
 
     fx0, al0 = (np.array([b.get(k, nan) for b in base]) for k in ("rmse_fixed", "rmse_aligned"))
     all_ok = np.ones(len(seeds), bool)
     sf0, sa0 = _summary(fx0, all_ok), _summary(al0, all_ok)
-    print(f"\n{cfg.name}, seeds {seeds[0]}-{seeds[-1]}: the unsmoothed path: fixed {sf0['median']:.2f} "
-          f"(worst {sf0['worst']:.2f}), aligned {sa0['median']:.2f} (worst {sa0['worst']:.2f}), score "
-          f"{_score(fx0, al0, np.ones(len(seeds), bool), args.aligned, args.fixed, args.worst):.3f}\n")
-    print("| " + " | ".join(grid) + " | rmse_fixed median [IQR], worst | rmse_aligned median [IQR], worst | "
-          "iterations (max) | score |")
+    print(
+        f"\n{cfg.name}, seeds {seeds[0]}-{seeds[-1]}: the unsmoothed path: fixed {sf0['median']:.2f} "
+        f"(worst {sf0['worst']:.2f}), aligned {sa0['median']:.2f} (worst {sa0['worst']:.2f}), score "
+        f"{_score(fx0, al0, np.ones(len(seeds), bool), args.aligned, args.fixed, args.worst):.3f}\n"
+    )
+    print(
+        "| " + " | ".join(grid) + " | rmse_fixed median [IQR], worst | rmse_aligned median [IQR], worst | "
+        "iterations (max) | score |"
+    )
     print("|---" * (len(grid) + 4) + "|")
     for r in sorted(results, key=lambda r: r["score"]):
         fx, al = (np.array([x[k] for x in r["rows"]]) for k in ("rmse_fixed", "rmse_aligned"))
@@ -116,11 +147,18 @@ def main() -> None:
         def q(v):
             st = _summary(v, ok)
             return f"{st['median']:.2f} [{st['q1']:.2f}, {st['q3']:.2f}], {st['worst']:.2f}"
-        print("| " + " | ".join(f"{v:g}" for v in r["setting"].values()) + f" | {q(fx)} | {q(al)} | "
-              f"{max(x['iterations'] for x in r['rows'])} | {r['score']:.3f} |")
+
+        print(
+            "| " + " | ".join(f"{v:g}" for v in r["setting"].values()) + f" | {q(fx)} | {q(al)} | "
+            f"{max(x['iterations'] for x in r['rows'])} | {r['score']:.3f} |"
+        )
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"config": args.config, "overrides": args.overrides, "seeds": seeds.tolist(), "results": results}, f, indent=2)
+            json.dump(
+                {"config": args.config, "overrides": args.overrides, "seeds": seeds.tolist(), "results": results},
+                f,
+                indent=2,
+            )
 
 
 if __name__ == "__main__":

@@ -63,14 +63,23 @@ WORKLOAD = dict(n=64, particles=10, segments=500)
 def sweep_dict(config: str, n: int, particles: int, segments: int, batch: int) -> dict:
     """The benchmark's sweep: ``n`` random configurations, one seed."""
     return {
-        "name": "bench", "base": os.path.abspath(config), "set": [f"filter.n_particles={particles}"],
-        "segments": segments, "seeds": [0],
-        "random": {"n": n, "seed": 0, "params": {
-            "filter.gate": {"low": 4.0, "high": 9.0},
-            "filter.new_landmark": {"low": 13.0, "high": 20.0},
-            "noise.sigma_r": {"low": 0.5, "high": 2.0, "log": True},
-            "noise.sigma_beta_deg": {"low": 1.5, "high": 6.0}}},
-        "run": {"batch": batch, "compile_cache": False, "fail_on_overflow": False}, "plots": False,
+        "name": "bench",
+        "base": os.path.abspath(config),
+        "set": [f"filter.n_particles={particles}"],
+        "segments": segments,
+        "seeds": [0],
+        "random": {
+            "n": n,
+            "seed": 0,
+            "params": {
+                "filter.gate": {"low": 4.0, "high": 9.0},
+                "filter.new_landmark": {"low": 13.0, "high": 20.0},
+                "noise.sigma_r": {"low": 0.5, "high": 2.0, "log": True},
+                "noise.sigma_beta_deg": {"low": 1.5, "high": 6.0},
+            },
+        },
+        "run": {"batch": batch, "compile_cache": False, "fail_on_overflow": False},
+        "plots": False,
     }
 
 
@@ -86,8 +95,9 @@ def workload(args, particles: int):
     from nanoslam_jax.filter import settings_from_config
     from nanoslam_jax.sweep import expand, load_log_data, sweep_from_dict
 
-    spec = sweep_from_dict(sweep_dict(args.config, args.configs, particles, args.segments, args.configs),
-                           source="benchmark")
+    spec = sweep_from_dict(
+        sweep_dict(args.config, args.configs, particles, args.segments, args.configs), source="benchmark"
+    )
     points, _, _ = expand(spec)
     log = load_log_data(points[0].config, args.data, spec.segments)
     seg = jax.tree.map(jax.numpy.asarray, log.segments)
@@ -124,19 +134,27 @@ def throughput(args) -> dict:
     def for_call(runs_per_device):  # the static settings of a call carrying this many runs per device
         # As the sweep runner does: a vmapped call carries configs x particles, enough for the
         # proposal's row buckets (filter.row_buckets: auto); one config at a time does not.
-        return dataclasses.replace(static, row_buckets=row_buckets(
-            points[0].config.filter.row_buckets, static.n_particles * runs_per_device))
+        return dataclasses.replace(
+            static, row_buckets=row_buckets(points[0].config.filter.row_buckets, static.n_particles * runs_per_device)
+        )
 
     def pose_diff(out, seq):
-        return max(float(np.max(np.abs(np.asarray(out.best_pose[i]) - np.asarray(seq[i].best_pose))))
-                   for i in range(len(params)))
+        return max(
+            float(np.max(np.abs(np.asarray(out.best_pose[i]) - np.asarray(seq[i].best_pose))))
+            for i in range(len(params))
+        )
 
     t0 = time.perf_counter()
     single = single_program.lower(static, params[0], seeds[0], seg).compile()
     single_compile = time.perf_counter() - t0
     jax.block_until_ready(single(params[0], seeds[0], seg))  # warm
-    res = dict(configs=len(params), particles=static.n_particles, segments=int(seg.time.shape[0]),
-               cpu_count=len(os.sched_getaffinity(0)), single_compile_s=single_compile)
+    res = dict(
+        configs=len(params),
+        particles=static.n_particles,
+        segments=int(seg.time.shape[0]),
+        cpu_count=len(os.sched_getaffinity(0)),
+        single_compile_s=single_compile,
+    )
     if split > 1:
         ndev = len(jax.devices())
         if len(params) % ndev:
@@ -152,8 +170,12 @@ def throughput(args) -> dict:
             t0 = time.perf_counter()
             out_shard = jax.block_until_ready(sharded(stacked, seeds, seg))
             shard_t.append(time.perf_counter() - t0)
-        res.update(devices=ndev, sharded_s=min(shard_t), repeats=dict(sharded=shard_t),
-                   max_abs_pose_diff_sharded=pose_diff(out_shard, seq))
+        res.update(
+            devices=ndev,
+            sharded_s=min(shard_t),
+            repeats=dict(sharded=shard_t),
+            max_abs_pose_diff_sharded=pose_diff(out_shard, seq),
+        )
         return res
 
     t0 = time.perf_counter()
@@ -173,9 +195,14 @@ def throughput(args) -> dict:
         t0 = time.perf_counter()
         out_map = jax.block_until_ready(mapped(stacked, seeds, seg))
         map_t.append(time.perf_counter() - t0)
-    res.update(sequential_s=min(seq_t), vmapped_s=min(vmap_t), mapped_s=min(map_t),
-               repeats=dict(sequential=seq_t, vmapped=vmap_t, mapped=map_t),
-               max_abs_pose_diff=pose_diff(out, seq), max_abs_pose_diff_map=pose_diff(out_map, seq))
+    res.update(
+        sequential_s=min(seq_t),
+        vmapped_s=min(vmap_t),
+        mapped_s=min(map_t),
+        repeats=dict(sequential=seq_t, vmapped=vmap_t, mapped=map_t),
+        max_abs_pose_diff=pose_diff(out, seq),
+        max_abs_pose_diff_map=pose_diff(out_map, seq),
+    )
     return res
 
 
@@ -193,17 +220,31 @@ def multicore_one(args) -> dict:
     import nanoslam_jax  # noqa: F401
     from nanoslam_jax.sweep import run_sweep, sweep_from_dict
 
-    spec = sweep_from_dict(sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs),
-                           source="benchmark")
+    spec = sweep_from_dict(
+        sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs), source="benchmark"
+    )
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
-        run_sweep(spec, os.path.join(d, "s"), data_dir=args.data, progress=False, parallel=mode, workers=2,
-                  vectorize=args.vectorize)
+        run_sweep(
+            spec,
+            os.path.join(d, "s"),
+            data_dir=args.data,
+            progress=False,
+            parallel=mode,
+            workers=2,
+            vectorize=args.vectorize,
+        )
         wall = time.perf_counter() - t0
         rows = list(csv.DictReader(open(os.path.join(d, "s", "results.csv"))))
     compile_s = max(float(r["compile_s"]) for r in rows)
-    return dict(mode=mode, vectorize=args.vectorize, configs=len(rows), wall_s=wall, compile_s=compile_s,
-                ok=sum(r["status"] == "ok" for r in rows))
+    return dict(
+        mode=mode,
+        vectorize=args.vectorize,
+        configs=len(rows),
+        wall_s=wall,
+        compile_s=compile_s,
+        ok=sum(r["status"] == "ok" for r in rows),
+    )
 
 
 def ceiling_one(args) -> dict:
@@ -229,8 +270,9 @@ def ceiling_one(args) -> dict:
         calls[str(n)] = [lambda prog=prog, p=p, seg=seg: prog(p, seed, seg) for _, p in settings[:C]]
         buckets[str(n)] = list(static.row_buckets)
         if pinned and n == 10:  # the same configurations as one vmapped batch, as the sweep computes them
-            batch_static = dataclasses.replace(static, row_buckets=row_buckets(
-                points[0].config.filter.row_buckets, static.n_particles * C))
+            batch_static = dataclasses.replace(
+                static, row_buckets=row_buckets(points[0].config.filter.row_buckets, static.n_particles * C)
+            )
             stacked = jax.tree.map(lambda *a: jax.numpy.stack(a), *[p for _, p in settings[:C]])
             seeds = jax.numpy.zeros(C, dtype=int)
             batch = batch_program.lower(batch_static, "vmap", 1, stacked, seeds, seg).compile()
@@ -246,9 +288,19 @@ def ceiling_one(args) -> dict:
                     t0 = time.perf_counter()
                     jax.block_until_ready(cs[c]())
                     times[k][rep, c] = time.perf_counter() - t0
-    return dict(mode=args.ceiling_worker, configs=C, cores=len(os.sched_getaffinity(0)),
-                runs={k: dict(sum_of_medians_s=float(np.median(t, axis=0).sum()), row_buckets=buckets[k],
-                              sums_s=t.sum(axis=1).tolist()) for k, t in times.items()})
+    return dict(
+        mode=args.ceiling_worker,
+        configs=C,
+        cores=len(os.sched_getaffinity(0)),
+        runs={
+            k: dict(
+                sum_of_medians_s=float(np.median(t, axis=0).sum()),
+                row_buckets=buckets[k],
+                sums_s=t.sum(axis=1).tolist(),
+            )
+            for k, t in times.items()
+        },
+    )
 
 
 def main() -> None:
@@ -261,10 +313,19 @@ def main() -> None:
     p.add_argument("--segments", type=int, default=WORKLOAD["segments"])
     p.add_argument("--repeat", type=int, default=3, help="timed repetitions of the throughput runs (best is shown)")
     p.add_argument("--modes", nargs="*", default=["single", "devices", "processes"])
-    p.add_argument("--vectorize", default="vmap", choices=["vmap", "map"], help="batch computation of the multi-core runs")
-    p.add_argument("--ceiling-particles", type=int, nargs="+", default=[1, 40, 80, 160],
-                   help="particle counts of the ceiling's single runs (10 is always included)")
-    p.add_argument("--ceiling-configs", type=int, help="configurations the ceiling's runs cover (default: the first 16)")
+    p.add_argument(
+        "--vectorize", default="vmap", choices=["vmap", "map"], help="batch computation of the multi-core runs"
+    )
+    p.add_argument(
+        "--ceiling-particles",
+        type=int,
+        nargs="+",
+        default=[1, 40, 80, 160],
+        help="particle counts of the ceiling's single runs (10 is always included)",
+    )
+    p.add_argument(
+        "--ceiling-configs", type=int, help="configurations the ceiling's runs cover (default: the first 16)"
+    )
     p.add_argument("--json", help="also write the measurements here")
     p.add_argument("--worker", help=argparse.SUPPRESS)
     p.add_argument("--throughput-worker", action="store_true", help=argparse.SUPPRESS)
@@ -286,8 +347,20 @@ def main() -> None:
         print(json.dumps(ceiling_one(args)))
         return
 
-    common = ["--config", args.config, "--configs", str(args.configs), "--particles", str(args.particles),
-              "--segments", str(args.segments), "--vectorize", args.vectorize, "--repeat", str(args.repeat)] + (["--data", args.data] if args.data else [])
+    common = [
+        "--config",
+        args.config,
+        "--configs",
+        str(args.configs),
+        "--particles",
+        str(args.particles),
+        "--segments",
+        str(args.segments),
+        "--vectorize",
+        args.vectorize,
+        "--repeat",
+        str(args.repeat),
+    ] + (["--data", args.data] if args.data else [])
     results: dict = {}
     if args.only in (None, "throughput"):
         from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
@@ -295,8 +368,11 @@ def main() -> None:
         cores = len(os.sched_getaffinity(0))
         parts = {}
         for split in [0] + ([cores * SWEEP_DEVICES_PER_CORE] if cores > 1 else []):
-            res = subprocess.run([sys.executable, __file__, "--throughput-worker", "--split-devices", str(split), *common],
-                                 capture_output=True, text=True)
+            res = subprocess.run(
+                [sys.executable, __file__, "--throughput-worker", "--split-devices", str(split), *common],
+                capture_output=True,
+                text=True,
+            )
             if res.returncode:
                 sys.exit(f"throughput run failed:\n{res.stderr[-3000:]}")
             parts[split] = json.loads(res.stdout.strip().splitlines()[-1])
@@ -307,30 +383,47 @@ def main() -> None:
                 t.update({k: v for k, v in part.items() if k not in ("repeats", "single_compile_s")})
                 t["repeats"].update(part["repeats"])
         results["throughput"] = t
-        print(f"\nThroughput: {t['configs']} configurations x {t['particles']} particles x {t['segments']} segments "
-              f"(NANO, Victoria Park), {t['cpu_count']} CPU cores, after compilation, best of {args.repeat}\n")
+        print(
+            f"\nThroughput: {t['configs']} configurations x {t['particles']} particles x {t['segments']} segments "
+            f"(NANO, Victoria Park), {t['cpu_count']} CPU cores, after compilation, best of {args.repeat}\n"
+        )
         print("| execution | compile [s] | run [s] | configs/s | speed-up |")
         print("|---|---|---|---|---|")
         seq_rate, vm_rate = t["configs"] / t["sequential_s"], t["configs"] / t["vmapped_s"]
-        print(f"| {t['configs']} sequential calls of the single-run program (one device) | {t['single_compile_s']:.1f} | "
-              f"{t['sequential_s']:.2f} | {seq_rate:.2f} | 1.00 |")
-        print(f"| one vmapped batch of {t['configs']} | {t['batch_compile_s']:.1f} | {t['vmapped_s']:.2f} | "
-              f"{vm_rate:.2f} | {vm_rate / seq_rate:.2f} |")
+        print(
+            f"| {t['configs']} sequential calls of the single-run program (one device) | {t['single_compile_s']:.1f} | "
+            f"{t['sequential_s']:.2f} | {seq_rate:.2f} | 1.00 |"
+        )
+        print(
+            f"| one vmapped batch of {t['configs']} | {t['batch_compile_s']:.1f} | {t['vmapped_s']:.2f} | "
+            f"{vm_rate:.2f} | {vm_rate / seq_rate:.2f} |"
+        )
         map_rate = t["configs"] / t["mapped_s"]
-        print(f"| one batch of {t['configs']} with lax.map (vectorize: map) | {t['map_compile_s']:.1f} | "
-              f"{t['mapped_s']:.2f} | {map_rate:.2f} | {map_rate / seq_rate:.2f} |")
+        print(
+            f"| one batch of {t['configs']} with lax.map (vectorize: map) | {t['map_compile_s']:.1f} | "
+            f"{t['mapped_s']:.2f} | {map_rate:.2f} | {map_rate / seq_rate:.2f} |"
+        )
         if t.get("sharded_s"):
             sh_rate = t["configs"] / t["sharded_s"]
-            print(f"| one vmapped batch of {t['configs']} split over {t['devices']} JAX devices (the sweep's default; "
-                  f"its own process) | {t['shard_compile_s']:.1f} | {t['sharded_s']:.2f} | {sh_rate:.2f} | {sh_rate / seq_rate:.2f} |")
-        print(f"\nlargest difference between a batch member's reported poses and the same run alone: "
-              f"vmap {t['max_abs_pose_diff']:.2e} m, map {t['max_abs_pose_diff_map']:.2e} m"
-              + (f", split {t['max_abs_pose_diff_sharded']:.2e} m" if t.get("sharded_s") else ""))
+            print(
+                f"| one vmapped batch of {t['configs']} split over {t['devices']} JAX devices (the sweep's default; "
+                f"its own process) | {t['shard_compile_s']:.1f} | {t['sharded_s']:.2f} | {sh_rate:.2f} | {sh_rate / seq_rate:.2f} |"
+            )
+        print(
+            f"\nlargest difference between a batch member's reported poses and the same run alone: "
+            f"vmap {t['max_abs_pose_diff']:.2e} m, map {t['max_abs_pose_diff_map']:.2e} m"
+            + (f", split {t['max_abs_pose_diff_sharded']:.2e} m" if t.get("sharded_s") else "")
+        )
         if t.get("sequential_here_s"):
-            print(f"(the {t['configs']} sequential runs in the split batch's process, with {t['devices']} devices exposed: "
-                  f"{t['sequential_here_s']:.2f} s, one pass)")
-        print("all timings [s]: " + "; ".join(f"{k} " + ", ".join(f"{x:.2f}" for x in v) for k, v in t["repeats"].items()),
-              flush=True)
+            print(
+                f"(the {t['configs']} sequential runs in the split batch's process, with {t['devices']} devices exposed: "
+                f"{t['sequential_here_s']:.2f} s, one pass)"
+            )
+        print(
+            "all timings [s]: "
+            + "; ".join(f"{k} " + ", ".join(f"{x:.2f}" for x in v) for k, v in t["repeats"].items()),
+            flush=True,
+        )
     if args.only in (None, "multicore"):
         rows = []
         for mode in args.modes:
@@ -345,51 +438,86 @@ def main() -> None:
             rows[-1]["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
             print(f"{mode}: {rows[-1]['wall_s']:.1f} s", file=sys.stderr, flush=True)
         results["multicore"] = rows
-        print(f"\nMulti-core: the same {args.configs}-configuration sweep through run_sweep (vectorize: "
-              f"{args.vectorize}), fresh processes, no compilation cache\n")
-        print("| mode | wall incl. compile [s] | compile [s] | wall - compile [s] | configs/s after compile | "
-              "CPU [s] | cores busy | ok |")
+        print(
+            f"\nMulti-core: the same {args.configs}-configuration sweep through run_sweep (vectorize: "
+            f"{args.vectorize}), fresh processes, no compilation cache\n"
+        )
+        print(
+            "| mode | wall incl. compile [s] | compile [s] | wall - compile [s] | configs/s after compile | "
+            "CPU [s] | cores busy | ok |"
+        )
         print("|---|---|---|---|---|---|---|---|")
         for r in rows:
             run = r["wall_s"] - r["compile_s"]
-            print(f"| {r['mode']} | {r['wall_s']:.1f} | {r['compile_s']:.1f} | {run:.1f} | {r['configs'] / run:.2f} | "
-                  f"{r['cpu_s']:.1f} | {r['cpu_s'] / r['wall_s']:.2f} | {r['ok']}/{r['configs']} |")
+            print(
+                f"| {r['mode']} | {r['wall_s']:.1f} | {r['compile_s']:.1f} | {run:.1f} | {r['configs'] / run:.2f} | "
+                f"{r['cpu_s']:.1f} | {r['cpu_s'] / r['wall_s']:.2f} | {r['ok']}/{r['configs']} |"
+            )
     if args.only == "ceiling":
         parts = {}
         for mode in ("pinned", "free"):
-            res = subprocess.run([sys.executable, __file__, "--ceiling-worker", mode, "--ceiling-configs",
-                                  str(args.ceiling_configs), "--ceiling-particles", *map(str, args.ceiling_particles),
-                                  *common], capture_output=True, text=True)
+            res = subprocess.run(
+                [
+                    sys.executable,
+                    __file__,
+                    "--ceiling-worker",
+                    mode,
+                    "--ceiling-configs",
+                    str(args.ceiling_configs),
+                    "--ceiling-particles",
+                    *map(str, args.ceiling_particles),
+                    *common,
+                ],
+                capture_output=True,
+                text=True,
+            )
             if res.returncode:
                 sys.exit(f"ceiling run ({mode}) failed:\n{res.stderr[-3000:]}")
             parts[mode] = json.loads(res.stdout.strip().splitlines()[-1])
         results["ceiling"] = parts
         pinned, free = parts["pinned"]["runs"], parts["free"]["runs"]
         alone = pinned["10"]["sum_of_medians_s"]
-        print(f"\nCeiling: the single-run program on the first {args.ceiling_configs} configurations x "
-              f"{args.segments} segments, median of 3 alternated runs each, summed\n")
+        print(
+            f"\nCeiling: the single-run program on the first {args.ceiling_configs} configurations x "
+            f"{args.segments} segments, median of 3 alternated runs each, summed\n"
+        )
         print("| runs | row buckets | run time [s] | per 10 particles [s] | per-particle cost vs 10 alone |")
         print("|---|---|---|---|---|")
         per10 = {}
         for n, r in sorted(((k, r) for k, r in pinned.items() if k != "batch"), key=lambda kv: int(kv[0])):
             per10[n] = r["sum_of_medians_s"] * 10 / int(n)
-            print(f"| {n} particle{'s' if n != '1' else ''}, one core | {tuple(r['row_buckets']) or '-'} | {r['sum_of_medians_s']:.2f} | "
-                  f"{per10[n]:.2f} | {per10[n] / alone:.2f} |")
+            print(
+                f"| {n} particle{'s' if n != '1' else ''}, one core | {tuple(r['row_buckets']) or '-'} | {r['sum_of_medians_s']:.2f} | "
+                f"{per10[n]:.2f} | {per10[n] / alone:.2f} |"
+            )
         b = pinned["batch"]
-        print(f"| the {args.ceiling_configs} configurations x 10 particles as one vmapped batch, one core | "
-              f"{tuple(b['row_buckets']) or '-'} | {b['sum_of_medians_s']:.2f} | {b['sum_of_medians_s']:.2f} | "
-              f"{b['sum_of_medians_s'] / alone:.2f} |")
+        print(
+            f"| the {args.ceiling_configs} configurations x 10 particles as one vmapped batch, one core | "
+            f"{tuple(b['row_buckets']) or '-'} | {b['sum_of_medians_s']:.2f} | {b['sum_of_medians_s']:.2f} | "
+            f"{b['sum_of_medians_s'] / alone:.2f} |"
+        )
         per10["batch"] = b["sum_of_medians_s"]  # counted too, should a batch ever beat every single run
         f10 = free["10"]["sum_of_medians_s"]
-        print(f"| 10 particles, unpinned ({parts['free']['cores']} cores, as the throughput table's sequential runs) "
-              f"| - | {f10:.2f} | {f10:.2f} | {f10 / alone:.2f} |")
+        print(
+            f"| 10 particles, unpinned ({parts['free']['cores']} cores, as the throughput table's sequential runs) "
+            f"| - | {f10:.2f} | {f10:.2f} | {f10 / alone:.2f} |"
+        )
         best, cores = min(per10, key=per10.get), parts["free"]["cores"]
         label = "the vmapped batch" if best == "batch" else f"{best} particles per run"
-        print(f"\ncheapest per particle: {label}; {cores} cores at most divide that by {cores}, so no "
-              f"batch of 10-particle runs can be more than {cores * alone / per10[best]:.2f}x faster than the same "
-              f"runs one after another on one core, or {cores * f10 / per10[best]:.2f}x than the unpinned sequential runs")
-        print("all sums [s]: " + "; ".join(f"{mode} {n} " + ", ".join(f"{x:.2f}" for x in r["sums_s"])
-                                           for mode, part in parts.items() for n, r in part["runs"].items()), flush=True)
+        print(
+            f"\ncheapest per particle: {label}; {cores} cores at most divide that by {cores}, so no "
+            f"batch of 10-particle runs can be more than {cores * alone / per10[best]:.2f}x faster than the same "
+            f"runs one after another on one core, or {cores * f10 / per10[best]:.2f}x than the unpinned sequential runs"
+        )
+        print(
+            "all sums [s]: "
+            + "; ".join(
+                f"{mode} {n} " + ", ".join(f"{x:.2f}" for x in r["sums_s"])
+                for mode, part in parts.items()
+                for n, r in part["runs"].items()
+            ),
+            flush=True,
+        )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=2)

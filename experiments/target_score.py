@@ -25,6 +25,7 @@ from pathlib import Path
 
 def score(row: dict, aligned: float, fixed: float, worst: float) -> dict:
     """The four ratios and their maximum for one ``summary.csv`` row (NaN when a statistic is missing)."""
+
     def num(key: str) -> float:
         try:
             return float(row[key])
@@ -33,8 +34,12 @@ def score(row: dict, aligned: float, fixed: float, worst: float) -> dict:
 
     ma, mf = num("rmse_aligned_median"), num("rmse_fixed_median")
     wa, wf = num("rmse_aligned_max"), num("rmse_fixed_max")
-    r = {"median_aligned": ma / aligned, "median_fixed": mf / fixed,
-         "worst_aligned": wa / (worst * ma), "worst_fixed": wf / (worst * mf)}
+    r = {
+        "median_aligned": ma / aligned,
+        "median_fixed": mf / fixed,
+        "worst_aligned": wa / (worst * ma),
+        "worst_fixed": wf / (worst * mf),
+    }
     failed = int(row.get("n_failed") or 0) > 0
     r["score"] = math.inf if failed or any(math.isnan(v) for v in r.values()) else max(r.values())
     return r
@@ -52,22 +57,37 @@ def main() -> None:
         rows = list(csv.DictReader(f))
     need = {"rmse_aligned_median", "rmse_fixed_median", "rmse_aligned_max", "rmse_fixed_max"}
     if not rows or not need <= set(rows[0]):
-        raise SystemExit(f"{path}: expected a sweep's summary.csv with the columns {sorted(need)} "
-                         f"(written by nanoslam sweep since the summary has min/max)")
+        raise SystemExit(
+            f"{path}: expected a sweep's summary.csv with the columns {sorted(need)} "
+            f"(written by nanoslam sweep since the summary has min/max)"
+        )
     fixed_cols = {"config_id", "group", "n_runs", "n_ok", "n_failed", "reasons"}
-    swept = [k for k in rows[0] if k not in fixed_cols and k.rsplit("_", 1)[-1] not in ("median", "q1", "q3", "min", "max")]
-    scored = sorted(((score(r, args.aligned, args.fixed, args.worst), r) for r in rows),
-                    key=lambda t: (t[0]["score"], t[1]["config_id"]))
+    swept = [
+        k for k in rows[0] if k not in fixed_cols and k.rsplit("_", 1)[-1] not in ("median", "q1", "q3", "min", "max")
+    ]
+    scored = sorted(
+        ((score(r, args.aligned, args.fixed, args.worst), r) for r in rows),
+        key=lambda t: (t[0]["score"], t[1]["config_id"]),
+    )
     head = ["config", *swept, "aligned median / worst [m]", "fixed median / worst [m]", "score", "limited by"]
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))
     for s, r in scored:
-        lim = (max((k for k in s if k != "score"), key=lambda k: s[k]) if math.isfinite(s["score"])
-               else f"{r['n_failed']} failed seed(s)" if int(r.get("n_failed") or 0) else "no statistics")
-        cells = [r["config_id"], *(r[k] for k in swept),
-                 f"{float(r['rmse_aligned_median']):.2f} / {float(r['rmse_aligned_max']):.2f}",
-                 f"{float(r['rmse_fixed_median']):.2f} / {float(r['rmse_fixed_max']):.2f}",
-                 f"{s['score']:.3f}", lim]
+        lim = (
+            max((k for k in s if k != "score"), key=lambda k: s[k])
+            if math.isfinite(s["score"])
+            else f"{r['n_failed']} failed seed(s)"
+            if int(r.get("n_failed") or 0)
+            else "no statistics"
+        )
+        cells = [
+            r["config_id"],
+            *(r[k] for k in swept),
+            f"{float(r['rmse_aligned_median']):.2f} / {float(r['rmse_aligned_max']):.2f}",
+            f"{float(r['rmse_fixed_median']):.2f} / {float(r['rmse_fixed_max']):.2f}",
+            f"{s['score']:.3f}",
+            lim,
+        ]
         print("| " + " | ".join(cells) + " |")
 
 

@@ -478,8 +478,7 @@ def run_compare(
 
     def key_of(c):
         return json.dumps(
-            [config_to_dict(c)[k] for k in ("data", "sim", "indoor", "vehicle", "detector")]
-            + [c.model.measurement],
+            [config_to_dict(c)[k] for k in ("data", "sim", "indoor", "vehicle", "detector")] + [c.model.measurement],
             sort_keys=True,
         )
 

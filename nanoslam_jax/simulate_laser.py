@@ -141,8 +141,10 @@ def _place(rng, n: int, make, lo, hi, ok, key: str) -> list:
         good = np.flatnonzero(ok(cand))
         kept.extend(cand[j] for j in good[: n - len(kept)])
     if len(kept) < n:
-        raise ValueError(f"sim.{key}: cannot place {n} in the park clear of the trees and the path "
-                         f"(placed {len(kept)}); lower sim.{key} or sim.laser_clearance")
+        raise ValueError(
+            f"sim.{key}: cannot place {n} in the park clear of the trees and the path "
+            f"(placed {len(kept)}); lower sim.{key} or sim.laser_clearance"
+        )
     return kept
 
 
@@ -200,18 +202,21 @@ def build_world(raw: RawLog, sim: SimConfig, rng: np.random.Generator) -> LaserW
     if sim.laser_bushes:
         bushes = np.array(_place(rng, sim.laser_bushes, make_bush, lo, hi, bush_ok, "laser_bushes"))
         centres, bush_r = bushes[:, :2], bushes[:, 2]
-        vx, vy = bushes[:, 3:3 + BUSH_VERTICES], bushes[:, 3 + BUSH_VERTICES:]
+        vx, vy = bushes[:, 3 : 3 + BUSH_VERTICES], bushes[:, 3 + BUSH_VERTICES :]
         segs.append(np.stack([vx, vy, np.roll(vx, -1, axis=1), np.roll(vy, -1, axis=1)], axis=2).reshape(-1, 4))
         kinds.append(np.full(vx.size, KIND_BUSH))
         objs.append(np.repeat(np.arange(sim.laser_bushes), BUSH_VERTICES))
     else:
         centres, bush_r = np.zeros((0, 2)), np.zeros(0)
     return LaserWorld(
-        trees=trees, tree_radius=radius,
+        trees=trees,
+        tree_radius=radius,
         segments=np.concatenate(segs, axis=0) if segs else np.zeros((0, 4)),
         segment_kind=np.concatenate(kinds).astype(np.int64) if kinds else np.zeros(0, np.int64),
         segment_object=np.concatenate(objs).astype(np.int64) if objs else np.zeros(0, np.int64),
-        bush_centres=centres, bush_radius=bush_r)
+        bush_centres=centres,
+        bush_radius=bush_r,
+    )
 
 
 # --------------------------------------------------------------------------- the ray-caster
@@ -242,10 +247,13 @@ def _segment_t(ox, oy, dx, dy, seg):
     return np.where((denom != 0.0) & (t > 0.0) & (s >= 0.0) & (s <= 1.0), t, np.inf)
 
 
-def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, " B"], world: LaserWorld,
-             max_range: float, fence_return: Bool[np.ndarray, "S B"] | None = None,
-             ) -> tuple[Float[np.ndarray, "S B"], Int[np.ndarray, "S B"], Int[np.ndarray, "S B"],
-                        Int[np.ndarray, "S T"]]:
+def ray_cast(
+    poses: Float[np.ndarray, "S 3"],
+    angles: Float[np.ndarray, " B"],
+    world: LaserWorld,
+    max_range: float,
+    fence_return: Bool[np.ndarray, "S B"] | None = None,
+) -> tuple[Float[np.ndarray, "S B"], Int[np.ndarray, "S B"], Int[np.ndarray, "S B"], Int[np.ndarray, "S T"]]:
     """Noise-free ranges of a fan of beams cast from each pose into ``world`` (the nearest surface wins).
 
     Args:
@@ -272,7 +280,7 @@ def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, " B"], w
     line_seg, line_kind, line_obj = world.segments[lines], world.segment_kind[lines], world.segment_object[lines]
     bush_seg = world.segments[~lines].reshape(-1, BUSH_VERTICES, 4)
     for a in range(0, n_s, _CHUNK):
-        p = poses[a:a + _CHUNK]
+        p = poses[a : a + _CHUNK]
         c = p.shape[0]
         ox, oy = p[:, 0, None, None], p[:, 1, None, None]
         th = p[:, 2, None] + angles[None, :]
@@ -289,19 +297,24 @@ def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, " B"], w
 
         # trunks near the chunk's poses
         if n_t:
-            near = np.flatnonzero(np.min(np.hypot(world.trees[None, :, 0] - p[:, 0, None],
-                                                  world.trees[None, :, 1] - p[:, 1, None])
-                                         - world.tree_radius[None, :], axis=0) < max_range)
+            near = np.flatnonzero(
+                np.min(
+                    np.hypot(world.trees[None, :, 0] - p[:, 0, None], world.trees[None, :, 1] - p[:, 1, None])
+                    - world.tree_radius[None, :],
+                    axis=0,
+                )
+                < max_range
+            )
             if near.size:
                 t = _circle_t(ox, oy, dx, dy, world.trees[near, 0], world.trees[near, 1], world.tree_radius[near])
-                span[a:a + c, near] = np.sum(t < max_range, axis=1)
+                span[a : a + c, near] = np.sum(t < max_range, axis=1)
                 j = np.argmin(t, axis=2)
                 offer(np.take_along_axis(t, j[..., None], axis=2)[..., 0], KIND_TREE, near[j])
         # walls and fences
         if line_seg.shape[0]:
             t = _segment_t(ox, oy, dx, dy, line_seg[None, None])
             if fence_return is not None:
-                t = np.where((line_kind == KIND_FENCE)[None, None, :] & ~fence_return[a:a + c, :, None], np.inf, t)
+                t = np.where((line_kind == KIND_FENCE)[None, None, :] & ~fence_return[a : a + c, :, None], np.inf, t)
             j = np.argmin(t, axis=2)
             offer(np.take_along_axis(t, j[..., None], axis=2)[..., 0], line_kind[j], line_obj[j])
         # bushes: only the (scan, beam, bush) triples whose ray crosses the bush's bounding circle
@@ -321,9 +334,9 @@ def ray_cast(poses: Float[np.ndarray, "S 3"], angles: Float[np.ndarray, " B"], w
                 cobj[s_i[sel], b_i[sel]] = k_i[sel]
                 offer(cand, KIND_BUSH, cobj)
         seen = best < max_range
-        ranges[a:a + c] = np.where(seen, best, np.inf)
-        kind[a:a + c] = np.where(seen, bk, KIND_NONE)
-        obj[a:a + c] = np.where(seen, bo, -1)
+        ranges[a : a + c] = np.where(seen, best, np.inf)
+        kind[a : a + c] = np.where(seen, bk, KIND_NONE)
+        obj[a : a + c] = np.where(seen, bo, -1)
     return ranges, kind, obj, span
 
 
@@ -338,8 +351,9 @@ def _scan_rows(raw: RawLog) -> np.ndarray:
     return np.flatnonzero(np.abs(k - np.round(k)) > 1e-6)
 
 
-def simulate_laser(sim: SimConfig | None = None, vehicle: VehicleConfig | None = None,
-                   unicycle: UnicycleConfig | None = None) -> LaserLog:
+def simulate_laser(
+    sim: SimConfig | None = None, vehicle: VehicleConfig | None = None, unicycle: UnicycleConfig | None = None
+) -> LaserLog:
     """Simulate a log (:func:`nanoslam_jax.simulate.simulate`) and ray-cast its raw scans.
 
     Args:
@@ -383,15 +397,28 @@ def simulate_laser(sim: SimConfig | None = None, vehicle: VehicleConfig | None =
     hits = np.zeros_like(span)
     np.add.at(hits, (np.nonzero(is_tree)[0], obj[is_tree]), 1)
     dxy = world.trees[t_i] - poses[s_i, :2]
-    truth = np.stack([scan_t[s_i], t_i, hits[s_i, t_i], span[s_i, t_i], np.hypot(dxy[:, 0], dxy[:, 1]),
-                      wrap_angle_np(np.arctan2(dxy[:, 1], dxy[:, 0]) - poses[s_i, 2]), 2 * world.tree_radius[t_i]],
-                     axis=1).astype(np.float64)
+    truth = np.stack(
+        [
+            scan_t[s_i],
+            t_i,
+            hits[s_i, t_i],
+            span[s_i, t_i],
+            np.hypot(dxy[:, 0], dxy[:, 1]),
+            wrap_angle_np(np.arctan2(dxy[:, 1], dxy[:, 0]) - poses[s_i, 2]),
+            2 * world.tree_radius[t_i],
+        ],
+        axis=1,
+    ).astype(np.float64)
     scans = LaserScans(time=scan_t, ranges=meas, angles=angles, max_range=sim.laser_max_range, source="simulated")
     return LaserLog(raw=raw, scans=scans, truth=truth, world=world, kind=kind, object_id=obj)
 
 
-def simulate_laser_to_dir(directory: str | os.PathLike, sim: SimConfig | None = None,
-                          vehicle: VehicleConfig | None = None, unicycle: UnicycleConfig | None = None) -> LaserLog:
+def simulate_laser_to_dir(
+    directory: str | os.PathLike,
+    sim: SimConfig | None = None,
+    vehicle: VehicleConfig | None = None,
+    unicycle: UnicycleConfig | None = None,
+) -> LaserLog:
     """Simulate a log with raw scans (:func:`simulate_laser`) and write it as a log directory.
 
     Args:
@@ -409,14 +436,22 @@ def simulate_laser_to_dir(directory: str | os.PathLike, sim: SimConfig | None = 
     os.makedirs(directory, exist_ok=True)
     write_victoria_park(directory, log.raw)
     write_laser(os.path.join(directory, "LASER.txt"), log.scans)
-    np.savetxt(os.path.join(directory, "laser_truth.csv"), log.truth, delimiter=",",
-               fmt=["%.6f", "%d", "%d", "%d", "%.6f", "%.9f", "%.6f"], header=",".join(TRUTH_COLUMNS), comments="")
+    np.savetxt(
+        os.path.join(directory, "laser_truth.csv"),
+        log.truth,
+        delimiter=",",
+        fmt=["%.6f", "%d", "%d", "%d", "%.6f", "%.9f", "%.6f"],
+        header=",".join(TRUTH_COLUMNS),
+        comments="",
+    )
     w = log.world
     with open(os.path.join(directory, "laser_world.csv"), "w") as f:
         f.write("kind,id,x0,y0,x1,y1\n")
-        f.writelines(f"tree,{i},{x:.6f},{y:.6f},{2 * r:.6f},0\n"
-                     for i, ((x, y), r) in enumerate(zip(w.trees, w.tree_radius)))
-        f.writelines(f"{_KIND_NAMES[int(k)]},{int(o)}," + ",".join(f"{v:.6f}" for v in seg) + "\n"
-                     for seg, k, o in zip(w.segments, w.segment_kind, w.segment_object))
+        f.writelines(
+            f"tree,{i},{x:.6f},{y:.6f},{2 * r:.6f},0\n" for i, ((x, y), r) in enumerate(zip(w.trees, w.tree_radius))
+        )
+        f.writelines(
+            f"{_KIND_NAMES[int(k)]},{int(o)}," + ",".join(f"{v:.6f}" for v in seg) + "\n"
+            for seg, k, o in zip(w.segments, w.segment_kind, w.segment_object)
+        )
     return log
-

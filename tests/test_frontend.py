@@ -35,7 +35,7 @@ def ray_cast(origin, heading, trees=(), walls=(), max_range=80.0, angles=ANGLES)
     for cx, cy, d in trees:
         px, py = cx - ox, cy - oy
         along = ux * px + uy * py
-        disc = (d / 2) ** 2 - (px * px + py * py - along ** 2)
+        disc = (d / 2) ** 2 - (px * px + py * py - along**2)
         t = along - np.sqrt(np.maximum(disc, 0.0))
         r = np.where((disc >= 0) & (t > 0), np.minimum(r, t), r)
     for (x0, y0), (x1, y1) in walls:
@@ -130,7 +130,7 @@ def test_breakpoint_rule_splits_at_the_configured_jump_and_not_below(r0):
         r[100:180] = r0
         # |p(r0, a) - p(r1, a + dphi)| = gap  ->  r1 from the law of cosines (r1 > r0)
         c = np.cos(dphi)
-        r1 = r0 * c + np.sqrt(gap ** 2 - r0 ** 2 * (1 - c * c))
+        r1 = r0 * c + np.sqrt(gap**2 - r0**2 * (1 - c * c))
         r[180:261] = r1
         f = extract_features(scans_of(r), cfg)
         return f.clusters.scan.size
@@ -261,8 +261,9 @@ def test_ranges_no_trunk_as_wide_explains_are_no_tree():
     assert detect_trees(scans_of(r), DetectorConfig(tree_max_profile_residual=10.0)).shape[0] == 2
 
 
-@pytest.mark.parametrize("key, value", [("tree_min_returns", "0"), ("tree_range_noise", "0"),
-                                        ("tree_max_profile_residual", "-0.1")])
+@pytest.mark.parametrize(
+    "key, value", [("tree_min_returns", "0"), ("tree_range_noise", "0"), ("tree_max_profile_residual", "-0.1")]
+)
 def test_tree_keys_are_validated(key, value):
     with pytest.raises(ConfigError, match=f"detector.{key}"):
         load_config(None, [f"detector.{key}={value}"])
@@ -276,8 +277,12 @@ def _write_short_log(directory: Path, n_scans=40):
     (speed, zero steering at 40 Hz), gps.dat."""
     directory.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(5)
-    trees = [(x, y, d) for x, y, d in zip(np.arange(3.0, 60.0, 4.0), np.tile([6.0, -7.0, 11.0, -9.0], 4)[:15],
-                                          rng.uniform(0.2, 0.6, 15))]
+    trees = [
+        (x, y, d)
+        for x, y, d in zip(
+            np.arange(3.0, 60.0, 4.0), np.tile([6.0, -7.0, 11.0, -9.0], 4)[:15], rng.uniform(0.2, 0.6, 15)
+        )
+    ]
     t_scan = 1.0 + 0.2 * np.arange(n_scans)
     rows = []
     for t in t_scan:
@@ -296,11 +301,19 @@ def test_detect_writes_a_complete_log(tmp_path, capsys):
     from nanoslam_jax.cli import main
 
     _write_short_log(tmp_path / "log")
-    assert main(["detect", "--data", str(tmp_path / "log"), "--out", str(tmp_path / "det"), "--plot", "0,3-4",
-                 "--quiet"]) == 0
+    assert (
+        main(["detect", "--data", str(tmp_path / "log"), "--out", str(tmp_path / "det"), "--plot", "0,3-4", "--quiet"])
+        == 0
+    )
     out = tmp_path / "det"
-    for name in ("measurements.dat", "inputs.dat", "gps.dat", "features.csv", "scans/scan_00000.png",
-                 "scans/scan_00004.png"):
+    for name in (
+        "measurements.dat",
+        "inputs.dat",
+        "gps.dat",
+        "features.csv",
+        "scans/scan_00000.png",
+        "scans/scan_00004.png",
+    ):
         assert (out / name).is_file(), name
     assert (out / "inputs.dat").read_bytes() == (tmp_path / "log" / "inputs.dat").read_bytes()
     m = np.loadtxt(out / "measurements.dat")
@@ -321,8 +334,9 @@ def test_detections_laser_loads_the_same_log_as_the_written_directory(tmp_path):
 
     _write_short_log(tmp_path / "log")
     detect_log(tmp_path / "log", tmp_path / "det", DetectorConfig())
-    cfg = load_config("configs/victoria_park_nano.yaml" if Path("configs").is_dir() else None,
-                      ["data.kind=victoria_park"])
+    cfg = load_config(
+        "configs/victoria_park_nano.yaml" if Path("configs").is_dir() else None, ["data.kind=victoria_park"]
+    )
     a = load_log(load_config(None, ["data.kind=victoria_park", "data.detections=laser"]), str(tmp_path / "log"))
     b = load_log(load_config(None, ["data.kind=victoria_park"]), str(tmp_path / "det"))
     assert cfg.data.detections == "file"
@@ -350,8 +364,9 @@ REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "victori
 
 @pytest.mark.slow
 @pytest.mark.data
-@pytest.mark.skipif(not (REAL / "LASER.txt").is_file(),
-                    reason="the Victoria Park raw scans (../shared/data) are missing")
+@pytest.mark.skipif(
+    not (REAL / "LASER.txt").is_file(), reason="the Victoria Park raw scans (../shared/data) are missing"
+)
 def test_real_log_trees_match_the_datasets_detections_in_a_stretch():
     scans = load_laser(REAL).select(slice(2000, 2300))
     ours = detect_trees(scans, DetectorConfig())

@@ -53,8 +53,9 @@ def test_write_laser_reads_back(tmp_path):
 def test_reads_a_mat_file_in_cm_and_ms(tmp_path):
     t, r = _scans()
     t_ms = np.round(t * 1000).astype(np.uint32) + 20967  # the MATLAB files' clock
-    scipy.io.savemat(tmp_path / "aa3_lsr2.mat", {"LASER": np.round(r * 100).astype(np.uint16),
-                                                  "TLsr": t_ms.reshape(-1, 1)})
+    scipy.io.savemat(
+        tmp_path / "aa3_lsr2.mat", {"LASER": np.round(r * 100).astype(np.uint16), "TLsr": t_ms.reshape(-1, 1)}
+    )
     s = load_laser(tmp_path)
     np.testing.assert_allclose(s.time, np.round(t, 3), atol=1e-9)
     np.testing.assert_allclose(s.ranges, r, atol=1e-9)
@@ -116,8 +117,9 @@ def test_laserscans_checks_shapes():
 
 @pytest.mark.slow
 @pytest.mark.data
-@pytest.mark.skipif(not (REAL / "LASER.txt").is_file(),
-                    reason="the Victoria Park raw scans (../shared/data) are missing")
+@pytest.mark.skipif(
+    not (REAL / "LASER.txt").is_file(), reason="the Victoria Park raw scans (../shared/data) are missing"
+)
 def test_real_log():
     s = load_laser(REAL)
     assert s.ranges.shape == (7230, 361)

@@ -34,10 +34,15 @@ def _world(trees=(), radii=(), segments=(), kinds=(), bushes=()):
         segs.append(np.stack([vx, vy, np.roll(vx, -1), np.roll(vy, -1)], axis=1))
         kk.append(np.full(BUSH_VERTICES, KIND_BUSH))
         oo.append(np.full(BUSH_VERTICES, i))
-    return LaserWorld(np.reshape(np.asarray(trees, float), (-1, 2)), np.asarray(radii, float),
-                      np.concatenate(segs), np.concatenate(kk), np.concatenate(oo),
-                      np.reshape(np.asarray([b[:2] for b in bushes], float), (-1, 2)),
-                      np.asarray([b[2] for b in bushes], float))
+    return LaserWorld(
+        np.reshape(np.asarray(trees, float), (-1, 2)),
+        np.asarray(radii, float),
+        np.concatenate(segs),
+        np.concatenate(kk),
+        np.concatenate(oo),
+        np.reshape(np.asarray([b[:2] for b in bushes], float), (-1, 2)),
+        np.asarray([b[2] for b in bushes], float),
+    )
 
 
 def _circle_range(pose, angles, c, r):
@@ -73,7 +78,7 @@ def test_wall_at_perpendicular_distance_and_max_range():
     world = _world(segments=[[-30.0, 10.0, 30.0, 10.0]], kinds=[KIND_WALL])
     ranges, kind, _, _ = ray_cast(pose[None], ANGLES, world, 80.0)
     # beam angle a (left positive) meets y = 10 at 7 / cos(a) where x = 2 - 7 tan(a) lies on the wall
-    inside = (np.abs(np.cos(ANGLES)) > 1e-9)
+    inside = np.abs(np.cos(ANGLES)) > 1e-9
     x_hit = 2.0 - 7.0 * np.tan(ANGLES, where=inside, out=np.full_like(ANGLES, np.inf))
     want = np.where(inside & (np.abs(x_hit) <= 30.0), 7.0 / np.abs(np.cos(ANGLES)), np.inf)
     want = np.where(want < 80.0, want, np.inf)
@@ -87,9 +92,13 @@ def test_wall_at_perpendicular_distance_and_max_range():
 
 def test_occlusion_nearer_object_wins_and_fences_pass():
     pose = np.array([0.0, 0.0, 0.0])
-    world = _world(trees=[[5.0, 0.0]], radii=[0.3],
-                   segments=[[10.0, -50.0, 10.0, 50.0], [8.0, -50.0, 8.0, 50.0]], kinds=[KIND_WALL, KIND_FENCE],
-                   bushes=[(6.5 * np.cos(ANGLES[250]), 6.5 * np.sin(ANGLES[250]), 1.0)])
+    world = _world(
+        trees=[[5.0, 0.0]],
+        radii=[0.3],
+        segments=[[10.0, -50.0, 10.0, 50.0], [8.0, -50.0, 8.0, 50.0]],
+        kinds=[KIND_WALL, KIND_FENCE],
+        bushes=[(6.5 * np.cos(ANGLES[250]), 6.5 * np.sin(ANGLES[250]), 1.0)],
+    )
     ranges, kind, obj, _ = ray_cast(pose[None], ANGLES, world, 80.0)
     tree = _circle_range(pose, ANGLES, (5.0, 0.0), 0.3)
     on_tree = np.isfinite(tree)
@@ -116,12 +125,17 @@ def test_occlusion_nearer_object_wins_and_fences_pass():
 
 def test_chunks_give_the_same_as_one_scan_at_a_time():
     rng = np.random.default_rng(3)
-    world = _world(trees=rng.uniform(-30, 30, (40, 2)), radii=rng.uniform(0.05, 0.3, 40),
-                   segments=[[-20.0, 25.0, 20.0, 28.0]], kinds=[KIND_WALL], bushes=[(10.0, -12.0, 1.5)])
+    world = _world(
+        trees=rng.uniform(-30, 30, (40, 2)),
+        radii=rng.uniform(0.05, 0.3, 40),
+        segments=[[-20.0, 25.0, 20.0, 28.0]],
+        kinds=[KIND_WALL],
+        bushes=[(10.0, -12.0, 1.5)],
+    )
     poses = np.column_stack([rng.uniform(-2, 2, (70, 2)), rng.uniform(-np.pi, np.pi, 70)])
     r, k, _, s = ray_cast(poses, ANGLES, world, 80.0)
     for i in (0, 33, 69):
-        r1, k1, _, s1 = ray_cast(poses[i:i + 1], ANGLES, world, 80.0)
+        r1, k1, _, s1 = ray_cast(poses[i : i + 1], ANGLES, world, 80.0)
         np.testing.assert_array_equal(r1[0], r[i])
         np.testing.assert_array_equal(k1[0], k[i])
         np.testing.assert_array_equal(s1[0], s[i])
@@ -181,8 +195,9 @@ def test_clutter_keeps_clear_of_trunks_and_path(short_log):
 
 @pytest.mark.slow
 def test_dropout_spurious_and_noise_rates():
-    sim = SimConfig(seed=9, duration=60.0, laser_dropout=0.05, laser_spurious=0.02, laser_range_noise=0.03,
-                    laser_fences=0)
+    sim = SimConfig(
+        seed=9, duration=60.0, laser_dropout=0.05, laser_spurious=0.02, laser_range_noise=0.03, laser_fences=0
+    )
     log = simulate_laser(sim)
     poses = log.raw.truth_poses[np.searchsorted(log.raw.truth_poses[:, 0], log.scans.time), 1:]
     true_r, _, _, _ = ray_cast(poses, log.scans.angles, log.world, sim.laser_max_range)
@@ -230,8 +245,15 @@ def test_cli_simulate_laser(tmp_path, capsys):
     assert load_laser(tmp_path).n_beams == 361
 
 
-@pytest.mark.parametrize("key, value", [("sim.laser_dropout", "1.5"), ("sim.laser_beams", "1"),
-                                        ("sim.laser_bush_roughness", "0.95"), ("sim.laser_walls", "-1")])
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("sim.laser_dropout", "1.5"),
+        ("sim.laser_beams", "1"),
+        ("sim.laser_bush_roughness", "0.95"),
+        ("sim.laser_walls", "-1"),
+    ],
+)
 def test_bad_laser_keys_name_the_key(key, value):
     with pytest.raises(ConfigError, match=key.split(".")[1]):
         load_config(None, [f"{key}={value}"])

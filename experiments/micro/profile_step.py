@@ -43,7 +43,7 @@ def _sections(hlo: list[str]) -> dict[str, dict[int, str]]:
         if name not in hlo:
             continue
         table = {}
-        for line in hlo[hlo.index(name) + 1:]:
+        for line in hlo[hlo.index(name) + 1 :]:
             m = re.match(r"^(\d+) (.*)$", line)
             if not m:
                 break
@@ -74,8 +74,10 @@ def _attribution(hlo_text: str, callers: bool = False) -> tuple[dict[str, str], 
     for k, v in t.get("FileLocations", {}).items():
         d = dict(re.findall(r"(\w+)=(\d+)", v))
         path = files.get(int(d["file_name_id"]), "?")
-        locs[k] = (path.split("nanoslam_jax/")[-1] if "nanoslam_jax/" in path else None,
-                   funcs.get(int(d["function_name_id"]), "?"))
+        locs[k] = (
+            path.split("nanoslam_jax/")[-1] if "nanoslam_jax/" in path else None,
+            funcs.get(int(d["function_name_id"]), "?"),
+        )
     frames = {k: dict(re.findall(r"(\w+)=(\d+)", v)) for k, v in t.get("StackFrames", {}).items()}
     where, path = {}, {}
     for line in lines:
@@ -114,9 +116,12 @@ def main() -> None:
     p.add_argument("--scans", type=int, default=100, help="scans in the profiled stretch")
     p.add_argument("--top", type=int, default=25, help="rows per table")
     p.add_argument("--keep", help="keep the trace and hlo.txt in this directory")
-    p.add_argument("--callers", action="store_true",
-                   help="name an operation of a small helper (matrix algebra, trigonometry, the models) "
-                        "by its call chain up to the project function that called it")
+    p.add_argument(
+        "--callers",
+        action="store_true",
+        help="name an operation of a small helper (matrix algebra, trigonometry, the models) "
+        "by its call chain up to the project function that called it",
+    )
     args = p.parse_args()
     if args.start < 1:
         p.error("--start: at least 1 (the stretch starts from the state a run over the scans before it reached)")
@@ -132,16 +137,20 @@ def main() -> None:
     from nanoslam_jax.filter import run_filter, settings_from_config
     from nanoslam_jax.filter._scan import filter_scan
 
-    cfg = load_config(args.config, [f"filter.n_particles={args.particles}", "filter.split_devices=never",
-                                    *args.overrides])
+    cfg = load_config(
+        args.config, [f"filter.n_particles={args.particles}", "filter.split_devices=never", *args.overrides]
+    )
     seg = load_log(cfg, args.data).segments
     static, params = settings_from_config(cfg, seg.k_max)
     part = lambda a, b: type(seg)(*(x[a:b] for x in seg))  # noqa: E731
     state = run_filter(static, params, part(0, args.start), 0, chunk=args.start).state  # the stretch's start
     stretch = jax.tree.map(jax.numpy.asarray, part(args.start, args.start + args.scans))
     valid = jax.numpy.ones(stretch.time.shape[0], bool)
-    program = jax.jit(lambda pr, st, sg, v: filter_scan(static, pr, sg, st.key, st, v)).lower(
-        params, state, stretch, valid).compile()
+    program = (
+        jax.jit(lambda pr, st, sg, v: filter_scan(static, pr, sg, st.key, st, v))
+        .lower(params, state, stretch, valid)
+        .compile()
+    )
     jax.block_until_ready(program(params, state, stretch, valid))
     out = args.keep or tempfile.mkdtemp(prefix="nanoslam_profile_")
     os.makedirs(out, exist_ok=True)
@@ -169,8 +178,10 @@ def main() -> None:
         by_caller[where.get(name, "(no source)").split(" < ")[-1]] += d
         by_path[path.get(name, "(no op_name)")] += d
 
-    print(f"\n{cfg.name}: {static.method}, {args.particles} particles, scans {args.start}-{args.start + args.scans}, "
-          f"one device: {wall:.2f} s under the profiler, {total:.0f} ms in leaf operations\n")
+    print(
+        f"\n{cfg.name}: {static.method}, {args.particles} particles, scans {args.start}-{args.start + args.scans}, "
+        f"one device: {wall:.2f} s under the profiler, {total:.0f} ms in leaf operations\n"
+    )
     tables = [("project function", by_where), ("op_name path", by_path)]
     if args.callers:  # the helpers' time added to the functions that called them
         tables.insert(1, ("calling function", by_caller))

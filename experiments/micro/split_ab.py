@@ -40,8 +40,11 @@ def main() -> None:
         for name, static in settings.items():
             run = run_filter(static, params, seg, cfg.seed, chunk=cfg.output.chunk)
             times[name].append(run.run_s)
-            print(f"{name}: run {run.run_s:.2f} s (compile {run.compile_s:.1f} s), "
-                  f"{int(run.state.resample_count)} resamples", flush=True)
+            print(
+                f"{name}: run {run.run_s:.2f} s (compile {run.compile_s:.1f} s), "
+                f"{int(run.state.resample_count)} resamples",
+                flush=True,
+            )
     print(f"\n| {args.particles} particles | " + " | ".join(f"{k} [s]" for k in times) + " |")
     print("|---|" + "---|" * len(times))
     print("| run | " + " | ".join(" / ".join(f"{t:.2f}" for t in v) for v in times.values()) + " |")

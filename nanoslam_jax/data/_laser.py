@@ -58,11 +58,15 @@ class LaserScans:
         ranges = np.asarray(self.ranges, dtype=np.float64)
         angles = np.asarray(self.angles, dtype=np.float64)
         if time.ndim != 1 or ranges.ndim != 2 or angles.ndim != 1:
-            raise ValueError(f"LaserScans: expected time (S,), ranges (S, B), angles (B,); got shapes "
-                             f"{time.shape}, {ranges.shape}, {angles.shape}")
+            raise ValueError(
+                f"LaserScans: expected time (S,), ranges (S, B), angles (B,); got shapes "
+                f"{time.shape}, {ranges.shape}, {angles.shape}"
+            )
         if ranges.shape != (time.shape[0], angles.shape[0]):
-            raise ValueError(f"LaserScans: ranges must have shape (len(time), len(angles)) = "
-                             f"({time.shape[0]}, {angles.shape[0]}), got {ranges.shape}")
+            raise ValueError(
+                f"LaserScans: ranges must have shape (len(time), len(angles)) = "
+                f"({time.shape[0]}, {angles.shape[0]}), got {ranges.shape}"
+            )
         if angles.shape[0] >= 2 and not np.all(np.diff(angles) > 0):
             raise ValueError("LaserScans: beam angles must be strictly increasing")
         if not self.max_range > 0:
@@ -123,8 +127,8 @@ def _read_ascii(path: Path, n_beams: int) -> tuple[np.ndarray, np.ndarray, Calla
                 scan, col = divmod(k, per_scan)
                 what = "the scan time" if col == 0 else f"the range of beam {col - 1}"
                 raise LogFormatError(
-                    f"{path} line {line}, number {k + 1} (scan {scan + 1}, {what}): expected a number, "
-                    f"got {tok!r}") from None
+                    f"{path} line {line}, number {k + 1} (scan {scan + 1}, {what}): expected a number, got {tok!r}"
+                ) from None
         raise
     if values.size == 0:
         raise LogFormatError(f"{path}: no data; expected scans of {per_scan} numbers (time and {n_beams} ranges)")
@@ -134,15 +138,17 @@ def _read_ascii(path: Path, n_beams: int) -> tuple[np.ndarray, np.ndarray, Calla
         raise LogFormatError(
             f"{path}: expected a multiple of {per_scan} numbers (per scan: the time and {n_beams} ranges), "
             f"got {values.size}: {whole} whole scans and {extra} numbers left over, starting at number "
-            f"{whole * per_scan + 1} (line {line}, {tok!r})")
+            f"{whole * per_scan + 1} (line {line}, {tok!r})"
+        )
     table = values.reshape(-1, per_scan)
     bad = np.flatnonzero(~np.isfinite(table).all(axis=1))
     if bad.size:
         s = int(bad[0])
         c = int(np.flatnonzero(~np.isfinite(table[s]))[0])
         line, tok = _locate_token(text, s * per_scan + c)
-        raise LogFormatError(f"{path} line {line}, number {s * per_scan + c + 1} (scan {s + 1}): expected a finite "
-                             f"number, got {tok!r}")
+        raise LogFormatError(
+            f"{path} line {line}, number {s * per_scan + c + 1} (scan {s + 1}): expected a finite number, got {tok!r}"
+        )
     return table[:, 0], table[:, 1:], (lambda k: _locate_token(text, k)[0])
 
 
@@ -154,13 +160,16 @@ def _read_mat(path: Path) -> tuple[np.ndarray, np.ndarray, None]:
         raise LogFormatError(f"{path}: not a readable MATLAB file ({e})") from None
     missing = [n for n in ("LASER", "TLsr") if n not in contents]
     if missing:
-        raise LogFormatError(f"{path}: expected variables LASER (ranges, cm) and TLsr (times, ms); "
-                             f"missing {', '.join(missing)}")
+        raise LogFormatError(
+            f"{path}: expected variables LASER (ranges, cm) and TLsr (times, ms); missing {', '.join(missing)}"
+        )
     ranges = np.asarray(contents["LASER"], dtype=np.float64)
     t = np.asarray(contents["TLsr"], dtype=np.float64).ravel()
     if ranges.ndim != 2 or ranges.shape[0] != t.size:
-        raise LogFormatError(f"{path}: expected LASER of shape (scans, beams) with one TLsr entry per scan, got "
-                             f"LASER {ranges.shape} and TLsr of {t.size}")
+        raise LogFormatError(
+            f"{path}: expected LASER of shape (scans, beams) with one TLsr entry per scan, got "
+            f"LASER {ranges.shape} and TLsr of {t.size}"
+        )
     if t.size == 0:
         raise LogFormatError(f"{path}: no scans in LASER / TLsr")
     bad = np.flatnonzero(~(np.isfinite(ranges).all(axis=1) & np.isfinite(t)))
@@ -178,8 +187,12 @@ def find_laser_file(directory: str | os.PathLike) -> Path | None:
     return None
 
 
-def load_laser(path: str | os.PathLike, n_beams: int = VICTORIA_PARK_BEAMS, fov_deg: float = 180.0,
-               max_range: float = VICTORIA_PARK_MAX_RANGE) -> LaserScans:
+def load_laser(
+    path: str | os.PathLike,
+    n_beams: int = VICTORIA_PARK_BEAMS,
+    fov_deg: float = 180.0,
+    max_range: float = VICTORIA_PARK_MAX_RANGE,
+) -> LaserScans:
     """Read the raw scans of a log.
 
     Args:
@@ -213,18 +226,27 @@ def load_laser(path: str | os.PathLike, n_beams: int = VICTORIA_PARK_BEAMS, fov_
     bad = np.flatnonzero(np.diff(time) < 0)
     if bad.size:
         s = int(bad[0]) + 1
-        where = (f" line {line_of(s * (ranges.shape[1] + 1))}, number {s * (ranges.shape[1] + 1) + 1}"
-                 if line_of else f" row {s + 1}")
-        raise LogFormatError(f"{path}{where} (scan {s + 1}): scan times must be non-decreasing, got {time[s]!r} "
-                             f"after {time[s - 1]!r}")
+        where = (
+            f" line {line_of(s * (ranges.shape[1] + 1))}, number {s * (ranges.shape[1] + 1) + 1}"
+            if line_of
+            else f" row {s + 1}"
+        )
+        raise LogFormatError(
+            f"{path}{where} (scan {s + 1}): scan times must be non-decreasing, got {time[s]!r} after {time[s - 1]!r}"
+        )
     negative = np.argwhere(ranges < 0)
     if negative.size:
         s, b = (int(v) for v in negative[0])
         k = s * (ranges.shape[1] + 1) + 1 + b
         where = f" line {line_of(k)}, number {k + 1}" if line_of else f" row {s + 1}"
         raise LogFormatError(f"{path}{where} (scan {s + 1}, beam {b}): expected a range >= 0, got {ranges[s, b]!r}")
-    return LaserScans(time=time, ranges=ranges, angles=fan_angles(ranges.shape[1], fov_deg),
-                      max_range=float(max_range), source=str(path))
+    return LaserScans(
+        time=time,
+        ranges=ranges,
+        angles=fan_angles(ranges.shape[1], fov_deg),
+        max_range=float(max_range),
+        source=str(path),
+    )
 
 
 def write_laser(path: str | os.PathLike, scans: LaserScans) -> None:

@@ -137,9 +137,7 @@ def rows_over_buckets(
             out = row_work(static, params, proposal, x0, P0, R, det, existing, jnp.minimum(ps[:b], b - 1), eps)
 
             def pad(a, fill):
-                return jnp.concatenate(
-                    [a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (k_max - b,) + a.shape[1:])]
-                )
+                return jnp.concatenate([a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (k_max - b,) + a.shape[1:])])
 
             return out._replace(
                 ll=pad(out.ll, 0.0),

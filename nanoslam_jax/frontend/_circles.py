@@ -33,8 +33,13 @@ def _group_sum(values: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np
     return cs[starts + counts] - cs[starts]
 
 
-def fit_circles(x: Float[np.ndarray, " N"], y: Float[np.ndarray, " N"], starts: Int[np.ndarray, " G"],
-                counts: Int[np.ndarray, " G"], iterations: int = 4) -> CircleFit:
+def fit_circles(
+    x: Float[np.ndarray, " N"],
+    y: Float[np.ndarray, " N"],
+    starts: Int[np.ndarray, " G"],
+    counts: Int[np.ndarray, " G"],
+    iterations: int = 4,
+) -> CircleFit:
     """Fit one circle to each contiguous group of points.
 
     Args:
@@ -70,8 +75,9 @@ def fit_circles(x: Float[np.ndarray, " N"], y: Float[np.ndarray, " N"], starts: 
         a11, a12, a13 = s(ju * ju), s(ju * jv), -s(ju)
         a22, a23, a33 = s(jv * jv), -s(jv), n
         g1, g2, g3 = s(ju * e), s(jv * e), -s(e)
-        mat = np.stack([np.stack([a11, a12, a13], -1), np.stack([a12, a22, a23], -1),
-                        np.stack([a13, a23, a33], -1)], -2)
+        mat = np.stack(
+            [np.stack([a11, a12, a13], -1), np.stack([a12, a22, a23], -1), np.stack([a13, a23, a33], -1)], -2
+        )
         mat = mat + 1e-9 * np.eye(3) * (1.0 + np.trace(mat, axis1=-2, axis2=-1))[:, None, None]
         rhs = np.stack([g1, g2, g3], -1)
         step = np.linalg.solve(np.where(ok[:, None, None], mat, np.eye(3)), -rhs[..., None])[..., 0]

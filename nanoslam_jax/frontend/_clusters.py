@@ -44,16 +44,17 @@ def scan_points(scans: LaserScans, cfg: DetectorConfig) -> tuple[Points, Bool[np
     return Points(scan, beam, r, r * np.cos(a), r * np.sin(a)), valid
 
 
-def breakpoint_threshold(r0: Float[np.ndarray, "..."], r1: Float[np.ndarray, "..."], dphi: Float[np.ndarray, "..."],
-                         cfg: DetectorConfig) -> Float[np.ndarray, "..."]:
+def breakpoint_threshold(
+    r0: Float[np.ndarray, "..."], r1: Float[np.ndarray, "..."], dphi: Float[np.ndarray, "..."], cfg: DetectorConfig
+) -> Float[np.ndarray, "..."]:
     """The adaptive breakpoint distance between returns at ranges ``r0``, ``r1`` an angle ``dphi`` apart (m)."""
     lam = np.deg2rad(cfg.breakpoint_lambda_deg)
-    return np.asarray(np.minimum(r0, r1) * np.sin(dphi) / np.sin(np.maximum(lam - dphi, 1e-9))
-                      + 3.0 * cfg.breakpoint_sigma_r)
+    return np.asarray(
+        np.minimum(r0, r1) * np.sin(dphi) / np.sin(np.maximum(lam - dphi, 1e-9)) + 3.0 * cfg.breakpoint_sigma_r
+    )
 
 
-def find_clusters(points: Points, valid: Bool[np.ndarray, "S B"], scans: LaserScans,
-                  cfg: DetectorConfig) -> Clusters:
+def find_clusters(points: Points, valid: Bool[np.ndarray, "S B"], scans: LaserScans, cfg: DetectorConfig) -> Clusters:
     """Cut the returns into clusters at breakpoints, no-return beams and scan ends.
 
     Args:
@@ -71,13 +72,20 @@ def find_clusters(points: Points, valid: Bool[np.ndarray, "S B"], scans: LaserSc
     start = np.flatnonzero(np.concatenate([[True], ~joined])) if n else np.zeros(0, int)
     end = np.concatenate([start[1:] - 1, [n - 1]]) if n else np.zeros(0, int)
     scan, first, last = points.scan[start], points.beam[start], points.beam[end]
-    return Clusters(scan, start, end, first, last,
-                    _edge(scans, valid, scan, first, first - 1, points.r[start]),
-                    _edge(scans, valid, scan, last, last + 1, points.r[end]))
+    return Clusters(
+        scan,
+        start,
+        end,
+        first,
+        last,
+        _edge(scans, valid, scan, first, first - 1, points.r[start]),
+        _edge(scans, valid, scan, last, last + 1, points.r[end]),
+    )
 
 
-def _edge(scans: LaserScans, valid: np.ndarray, scan: np.ndarray, beam: np.ndarray, beyond: np.ndarray,
-          r_edge: np.ndarray) -> np.ndarray:
+def _edge(
+    scans: LaserScans, valid: np.ndarray, scan: np.ndarray, beam: np.ndarray, beyond: np.ndarray, r_edge: np.ndarray
+) -> np.ndarray:
     """What the beam beyond a cluster's edge saw (``EDGE_*`` codes)."""
     inside = (beyond >= 0) & (beyond < scans.n_beams)
     b = np.clip(beyond, 0, scans.n_beams - 1)

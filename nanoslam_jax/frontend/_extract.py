@@ -37,12 +37,24 @@ def extract_features(scans: LaserScans, cfg: DetectorConfig | None = None) -> Fe
     for full, f in zip(fit, part):
         full[fitted] = f
     trees = find_trees(points, clusters, fit, scans, cfg)
-    arc = (np.isfinite(fit.radius) & ~has_line & (fit.rms <= cfg.circle_max_residual)
-           & (fit.radius <= cfg.circle_max_radius)
-           & (np.hypot(fit.cx, fit.cy) > middle_range(points, clusters)))
+    arc = (
+        np.isfinite(fit.radius)
+        & ~has_line
+        & (fit.rms <= cfg.circle_max_residual)
+        & (fit.radius <= cfg.circle_max_radius)
+        & (np.hypot(fit.cx, fit.cy) > middle_range(points, clusters))
+    )
     k = np.flatnonzero(arc)
-    circles = Circles(clusters.scan[k], clusters.first_beam[k], clusters.last_beam[k], fit.cx[k], fit.cy[k],
-                      fit.radius[k], fit.rms[k], n[k])
+    circles = Circles(
+        clusters.scan[k],
+        clusters.first_beam[k],
+        clusters.last_beam[k],
+        fit.cx[k],
+        fit.cy[k],
+        fit.radius[k],
+        fit.rms[k],
+        n[k],
+    )
     return Features(scans.time, points, clusters, lines, circles, corners, breakpoints, trees)
 
 

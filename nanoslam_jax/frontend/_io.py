@@ -25,8 +25,28 @@ from ._types import EDGE_NAMES, Features
 __all__ = ["FEATURE_COLUMNS", "concatenate_features", "detect_log", "extract_features_chunked", "write_features_csv"]
 
 #: Columns of ``features.csv``; a row holds one feature, the columns its kind does not use are empty.
-FEATURE_COLUMNS = ("kind", "scan", "time", "first_beam", "last_beam", "x", "y", "x_end", "y_end", "alpha", "rho",
-                   "radius", "range", "bearing", "diameter", "angle", "length", "rms", "n", "beyond")
+FEATURE_COLUMNS = (
+    "kind",
+    "scan",
+    "time",
+    "first_beam",
+    "last_beam",
+    "x",
+    "y",
+    "x_end",
+    "y_end",
+    "alpha",
+    "rho",
+    "radius",
+    "range",
+    "bearing",
+    "diameter",
+    "angle",
+    "length",
+    "rms",
+    "n",
+    "beyond",
+)
 
 
 def concatenate_features(parts: list[Features]) -> Features:
@@ -52,8 +72,12 @@ def concatenate_features(parts: list[Features]) -> Features:
     return Features(time=np.concatenate([p.time for p in parts]), **tables)
 
 
-def extract_features_chunked(scans: LaserScans, cfg: DetectorConfig | None = None, chunk: int = 1000,
-                             progress: Callable[[int, int], None] | None = None) -> Features:
+def extract_features_chunked(
+    scans: LaserScans,
+    cfg: DetectorConfig | None = None,
+    chunk: int = 1000,
+    progress: Callable[[int, int], None] | None = None,
+) -> Features:
     """:func:`extract_features` over chunks of ``chunk`` scans (the same features: none crosses a scan),
     calling ``progress(done, total)`` after each."""
     parts = []
@@ -95,22 +119,83 @@ def write_features_csv(path: str | os.PathLike, feats: Features) -> int:
         blocks.append((scan, np.full(n, order), rows))
 
     L = feats.lines
-    add("line", 0, L.scan, dict(scan=L.scan, time=t[L.scan], first_beam=L.first_beam, last_beam=L.last_beam, x=L.x0,
-                                y=L.y0, x_end=L.x1, y_end=L.y1, alpha=L.alpha, rho=L.rho, length=L.length, rms=L.rms,
-                                n=L.n))
+    add(
+        "line",
+        0,
+        L.scan,
+        dict(
+            scan=L.scan,
+            time=t[L.scan],
+            first_beam=L.first_beam,
+            last_beam=L.last_beam,
+            x=L.x0,
+            y=L.y0,
+            x_end=L.x1,
+            y_end=L.y1,
+            alpha=L.alpha,
+            rho=L.rho,
+            length=L.length,
+            rms=L.rms,
+            n=L.n,
+        ),
+    )
     C = feats.circles
-    add("circle", 1, C.scan, dict(scan=C.scan, time=t[C.scan], first_beam=C.first_beam, last_beam=C.last_beam, x=C.cx,
-                                  y=C.cy, radius=C.radius, rms=C.rms, n=C.n))
+    add(
+        "circle",
+        1,
+        C.scan,
+        dict(
+            scan=C.scan,
+            time=t[C.scan],
+            first_beam=C.first_beam,
+            last_beam=C.last_beam,
+            x=C.cx,
+            y=C.cy,
+            radius=C.radius,
+            rms=C.rms,
+            n=C.n,
+        ),
+    )
     Q = feats.corners
-    add("corner", 2, Q.scan, dict(scan=Q.scan, time=t[Q.scan], first_beam=Q.beam, last_beam=Q.beam, x=Q.x, y=Q.y,
-                                  angle=Q.angle))
+    add(
+        "corner",
+        2,
+        Q.scan,
+        dict(scan=Q.scan, time=t[Q.scan], first_beam=Q.beam, last_beam=Q.beam, x=Q.x, y=Q.y, angle=Q.angle),
+    )
     B = feats.breakpoints
-    add("breakpoint", 3, B.scan, dict(scan=B.scan, time=t[B.scan], first_beam=B.beam, last_beam=B.beam, x=B.x, y=B.y,
-                                      beyond=np.asarray(EDGE_NAMES, dtype=object)[B.beyond]))
+    add(
+        "breakpoint",
+        3,
+        B.scan,
+        dict(
+            scan=B.scan,
+            time=t[B.scan],
+            first_beam=B.beam,
+            last_beam=B.beam,
+            x=B.x,
+            y=B.y,
+            beyond=np.asarray(EDGE_NAMES, dtype=object)[B.beyond],
+        ),
+    )
     T = feats.trees
-    add("tree", 4, T.scan, dict(scan=T.scan, time=T.time, first_beam=T.first_beam, last_beam=T.last_beam,
-                                x=T.range * np.cos(T.bearing), y=T.range * np.sin(T.bearing), radius=T.diameter / 2,
-                                range=T.range, bearing=T.bearing, diameter=T.diameter))
+    add(
+        "tree",
+        4,
+        T.scan,
+        dict(
+            scan=T.scan,
+            time=T.time,
+            first_beam=T.first_beam,
+            last_beam=T.last_beam,
+            x=T.range * np.cos(T.bearing),
+            y=T.range * np.sin(T.bearing),
+            radius=T.diameter / 2,
+            range=T.range,
+            bearing=T.bearing,
+            diameter=T.diameter,
+        ),
+    )
     path = Path(path)
     with path.open("w") as fh:
         fh.write(",".join(FEATURE_COLUMNS) + "\n")
@@ -124,8 +209,13 @@ def write_features_csv(path: str | os.PathLike, feats: Features) -> int:
     return 0
 
 
-def detect_log(data_dir: str | os.PathLike, out_dir: str | os.PathLike, cfg: DetectorConfig | None = None,
-               progress: Callable[[int, int], None] | None = None, fmt: str = "auto") -> tuple[RawLog, Features]:
+def detect_log(
+    data_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    cfg: DetectorConfig | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    fmt: str = "auto",
+) -> tuple[RawLog, Features]:
     """Detect the trees in a log's raw scans and write a complete log.
 
     Writes ``measurements.dat`` (the trees, in the dataset's format: ``time range bearing diameter``,

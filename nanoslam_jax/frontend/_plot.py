@@ -28,8 +28,9 @@ def parse_scan_list(text: str, n_scans: int) -> list[int]:
     return out
 
 
-def plot_scan(scans: LaserScans, feats: Features, scan: int, path: str | os.PathLike,
-              window: float | None = 40.0, ax=None) -> None:
+def plot_scan(
+    scans: LaserScans, feats: Features, scan: int, path: str | os.PathLike, window: float | None = 40.0, ax=None
+) -> None:
     """Draw one scan: its returns coloured by cluster, line segments, circles, corners, break points
     and trees (centre and trunk), in the vehicle frame.
 
@@ -79,8 +80,10 @@ def plot_scan(scans: LaserScans, feats: Features, scan: int, path: str | os.Path
         ax.set_ylim(-window * 0.75, window * 0.75)
     ax.set_xlabel("x ahead (m)")
     ax.set_ylabel("y left (m)")
-    ax.set_title(f"scan {scan} (t = {scans.time[scan]:.3f} s): {t.size} trees, "
-                 f"{int((L.scan == scan).sum())} lines, {int(q.sum())} corners, {int(b.sum())} break points")
+    ax.set_title(
+        f"scan {scan} (t = {scans.time[scan]:.3f} s): {t.size} trees, "
+        f"{int((L.scan == scan).sum())} lines, {int(q.sum())} corners, {int(b.sum())} break points"
+    )
     ax.legend(loc="upper left", fontsize=7)
     if own:
         fig.tight_layout()

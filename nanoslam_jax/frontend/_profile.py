@@ -43,9 +43,16 @@ class TrunkProfile(NamedTuple):
     rms: Float[np.ndarray, " G"]
 
 
-def fit_trunk_profiles(r: Float[np.ndarray, " N"], a: Float[np.ndarray, " N"], starts: Int[np.ndarray, " G"],
-                       counts: Int[np.ndarray, " G"], a_first: Float[np.ndarray, " G"], a_last: Float[np.ndarray, " G"],
-                       dphi: float, sigma: float) -> TrunkProfile:
+def fit_trunk_profiles(
+    r: Float[np.ndarray, " N"],
+    a: Float[np.ndarray, " N"],
+    starts: Int[np.ndarray, " G"],
+    counts: Int[np.ndarray, " G"],
+    a_first: Float[np.ndarray, " G"],
+    a_last: Float[np.ndarray, " G"],
+    dphi: float,
+    sigma: float,
+) -> TrunkProfile:
     """Fit a trunk to each contiguous group of returns from the ranges and the edge constraints.
 
     Args:

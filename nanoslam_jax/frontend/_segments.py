@@ -30,9 +30,16 @@ def _chord_distance(x, y, ax, ay, bx, by):
     return np.where(length > 0, across, np.hypot(x - ax, y - ay))
 
 
-def split_and_merge(x: Float[np.ndarray, " N"], y: Float[np.ndarray, " N"], cluster: Int[np.ndarray, " N"],
-                    starts: Int[np.ndarray, " C"], ends: Int[np.ndarray, " C"], split_distance: float,
-                    merge_distance: float, rounds: int = 24) -> Bool[np.ndarray, " N"]:
+def split_and_merge(
+    x: Float[np.ndarray, " N"],
+    y: Float[np.ndarray, " N"],
+    cluster: Int[np.ndarray, " N"],
+    starts: Int[np.ndarray, " C"],
+    ends: Int[np.ndarray, " C"],
+    split_distance: float,
+    merge_distance: float,
+    rounds: int = 24,
+) -> Bool[np.ndarray, " N"]:
     """The vertices of every cluster's polyline after split-and-merge.
 
     Args:
@@ -108,8 +115,16 @@ def split_and_merge(x: Float[np.ndarray, " N"], y: Float[np.ndarray, " N"], clus
 def polyline_vertices(x, y, split_distance: float, merge_distance: float, rounds: int = 24) -> Int[np.ndarray, " V"]:
     """The vertex indices of one polyline (all points one cluster) after split-and-merge."""
     x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    v = split_and_merge(x, y, np.zeros(x.size, dtype=np.int64), np.array([0]), np.array([x.size - 1]),
-                        split_distance, merge_distance, rounds)
+    v = split_and_merge(
+        x,
+        y,
+        np.zeros(x.size, dtype=np.int64),
+        np.array([0]),
+        np.array([x.size - 1]),
+        split_distance,
+        merge_distance,
+        rounds,
+    )
     return np.flatnonzero(v)
 
 
@@ -141,6 +156,7 @@ def _sums(x, y, start, end) -> _LineFit:
     def cs(v):
         c = np.concatenate([[0.0], np.cumsum(v)])
         return c[end + 1] - c[start]
+
     return _LineFit((end - start + 1).astype(np.float64), cs(x), cs(y), cs(x * x), cs(x * y), cs(y * y))
 
 
@@ -167,8 +183,9 @@ def _project(x, y, alpha, rho):
     return x - d * c, y - d * s
 
 
-def extract_lines(points: Points, clusters: Clusters, cfg: DetectorConfig
-                  ) -> tuple[Lines, Corners, BreakPoints, Bool[np.ndarray, " C"]]:
+def extract_lines(
+    points: Points, clusters: Clusters, cfg: DetectorConfig
+) -> tuple[Lines, Corners, BreakPoints, Bool[np.ndarray, " C"]]:
     """Line segments, corners and break points of all clusters.
 
     Args:
@@ -181,8 +198,9 @@ def extract_lines(points: Points, clusters: Clusters, cfg: DetectorConfig
     """
     x, y = points.x, points.y
     cluster = np.repeat(np.arange(clusters.start.size), clusters.n)
-    vertex = split_and_merge(x, y, cluster, clusters.start, clusters.end, cfg.split_distance,
-                             cfg.merge_distance, cfg.split_rounds)
+    vertex = split_and_merge(
+        x, y, cluster, clusters.start, clusters.end, cfg.split_distance, cfg.merge_distance, cfg.split_rounds
+    )
     seg = segments_of(vertex, cluster)
     sums = _sums(x, y, seg.start, seg.end)
     alpha, rho, rms = fit_lines(sums)
@@ -217,15 +235,17 @@ def extract_lines(points: Points, clusters: Clusters, cfg: DetectorConfig
     bp_y = np.concatenate([y0[li][at_start], y1[li][at_end]])
     bp_beyond = np.concatenate([clusters.left[seg.cluster[li][at_start]], clusters.right[seg.cluster[li][at_end]]])
     order = np.argsort(bp_idx, kind="stable")
-    breakpoints = BreakPoints(points.scan[bp_idx][order], points.beam[bp_idx][order], bp_x[order], bp_y[order],
-                              bp_beyond[order])
+    breakpoints = BreakPoints(
+        points.scan[bp_idx][order], points.beam[bp_idx][order], bp_x[order], bp_y[order], bp_beyond[order]
+    )
 
     lines = _merge_collinear(points, seg, sums, is_line, x0, y0, x1, y1, cfg)
     return lines, corners, breakpoints, has_line
 
 
-def _merge_collinear(points: Points, seg: Segments, sums: _LineFit, is_line, x0, y0, x1, y1,
-                     cfg: DetectorConfig) -> Lines:
+def _merge_collinear(
+    points: Points, seg: Segments, sums: _LineFit, is_line, x0, y0, x1, y1, cfg: DetectorConfig
+) -> Lines:
     """Lines of neighbouring clusters (next to each other in a scan) on one straight line joined into one."""
     li = np.flatnonzero(is_line)
     alpha, rho, _ = fit_lines(_LineFit(*(f[li] for f in sums)))
@@ -235,18 +255,34 @@ def _merge_collinear(points: Points, seg: Segments, sums: _LineFit, is_line, x0,
     d_next = np.abs(ex0[1:] * np.cos(alpha[:-1]) + ey0[1:] * np.sin(alpha[:-1]) - rho[:-1])
     d_prev = np.abs(ex1[:-1] * np.cos(alpha[1:]) + ey1[:-1] * np.sin(alpha[1:]) - rho[1:])
     gap = np.hypot(ex0[1:] - ex1[:-1], ey0[1:] - ey1[:-1])
-    join = ((scan[1:] == scan[:-1]) & (seg.cluster[li][1:] != seg.cluster[li][:-1])
-            & (da < np.deg2rad(cfg.collinear_angle_deg)) & (d_next < cfg.collinear_distance)
-            & (d_prev < cfg.collinear_distance) & (gap < cfg.collinear_gap))
-    group = np.cumsum(np.concatenate([[True], ~join])[:li.size]) - 1
+    join = (
+        (scan[1:] == scan[:-1])
+        & (seg.cluster[li][1:] != seg.cluster[li][:-1])
+        & (da < np.deg2rad(cfg.collinear_angle_deg))
+        & (d_next < cfg.collinear_distance)
+        & (d_prev < cfg.collinear_distance)
+        & (gap < cfg.collinear_gap)
+    )
+    group = np.cumsum(np.concatenate([[True], ~join])[: li.size]) - 1
     g = group.max() + 1 if group.size else 0
     merged = _LineFit(*(np.bincount(group, weights=f[li], minlength=g) for f in sums))
     alpha, rho, rms = fit_lines(merged)
-    first = np.flatnonzero(np.concatenate([[True], ~join])[:li.size])
+    first = np.flatnonzero(np.concatenate([[True], ~join])[: li.size])
     last = np.concatenate([first[1:] - 1, [li.size - 1]]) if li.size else first
     s_idx, e_idx = seg.start[li][first], seg.end[li][last]
     gx0, gy0 = _project(points.x[s_idx], points.y[s_idx], alpha, rho)
     gx1, gy1 = _project(points.x[e_idx], points.y[e_idx], alpha, rho)
-    return Lines(points.scan[s_idx], points.beam[s_idx], points.beam[e_idx], gx0, gy0, gx1, gy1, alpha, rho,
-                 np.hypot(gx1 - gx0, gy1 - gy0), rms, merged.n.astype(np.int64))
-
+    return Lines(
+        points.scan[s_idx],
+        points.beam[s_idx],
+        points.beam[e_idx],
+        gx0,
+        gy0,
+        gx1,
+        gy1,
+        alpha,
+        rho,
+        np.hypot(gx1 - gx0, gy1 - gy0),
+        rms,
+        merged.n.astype(np.int64),
+    )

@@ -83,11 +83,15 @@ def find_trees(points: Points, clusters: Clusters, fit: CircleFit, scans: LaserS
     chord = np.hypot(x1 - x0, y1 - y0)
     asym = np.abs(points.r[clusters.end] - points.r[clusters.start])
     flat = big & has_fit & (~convex | (fit.radius > ratio * r_w) | (fit.rms > cfg.tree_max_residual))
-    ok = (~flat
-          & (diameter >= cfg.tree_min_diameter) & (diameter <= cfg.tree_max_diameter)
-          & (chord <= cfg.tree_max_diameter)
-          & (r_s >= cfg.tree_min_range) & (rng <= cfg.tree_max_range)
-          & (asym <= cfg.tree_max_asymmetry * diameter))
+    ok = (
+        ~flat
+        & (diameter >= cfg.tree_min_diameter)
+        & (diameter <= cfg.tree_max_diameter)
+        & (chord <= cfg.tree_max_diameter)
+        & (r_s >= cfg.tree_min_range)
+        & (rng <= cfg.tree_max_range)
+        & (asym <= cfg.tree_max_asymmetry * diameter)
+    )
     ok &= _separation(points, clusters) >= cfg.tree_min_separation
     margin = np.deg2rad(cfg.edge_margin_deg)
     ok &= (a0 - 0.5 * dphi >= scans.angles[0] + margin - 1e-9) & (a1 + 0.5 * dphi <= scans.angles[-1] - margin + 1e-9)
@@ -102,14 +106,23 @@ def find_trees(points: Points, clusters: Clusters, fit: CircleFit, scans: LaserS
         keep = _clearance(scans, clusters, k, rng, brg, rad, cfg.max_range) >= cfg.tree_min_clearance
         k = k[keep]
     # the trunk's measure: from the ranges of its beams and the beams beside it that missed it
-    prof = fit_trunk_profiles(points.r, scans.angles[points.beam], clusters.start[k], n[k], a0[k], a1[k], dphi,
-                              cfg.tree_range_noise)
+    prof = fit_trunk_profiles(
+        points.r, scans.angles[points.beam], clusters.start[k], n[k], a0[k], a1[k], dphi, cfg.tree_range_noise
+    )
     rng[k], brg[k], rad[k] = prof.range, prof.bearing, prof.radius
     diameter = 2 * rad
     round_ = (n[k] < 3) | (prof.rms <= cfg.tree_max_profile_residual)
     k = k[round_ & (diameter[k] >= cfg.tree_min_diameter) & (diameter[k] <= cfg.tree_max_diameter)]
-    return Trees(clusters.scan[k], scans.time[clusters.scan[k]], rng[k], brg[k], diameter[k],
-                 clusters.first_beam[k], clusters.last_beam[k], use_fit[k].astype(np.int64))
+    return Trees(
+        clusters.scan[k],
+        scans.time[clusters.scan[k]],
+        rng[k],
+        brg[k],
+        diameter[k],
+        clusters.first_beam[k],
+        clusters.last_beam[k],
+        use_fit[k].astype(np.int64),
+    )
 
 
 def _separation(points: Points, clusters: Clusters) -> np.ndarray:
@@ -120,27 +133,37 @@ def _separation(points: Points, clusters: Clusters) -> np.ndarray:
     if c < 2:
         return gap
     same = clusters.scan[1:] == clusters.scan[:-1]
-    d = np.hypot(points.x[clusters.start[1:]] - points.x[clusters.end[:-1]],
-                 points.y[clusters.start[1:]] - points.y[clusters.end[:-1]])
+    d = np.hypot(
+        points.x[clusters.start[1:]] - points.x[clusters.end[:-1]],
+        points.y[clusters.start[1:]] - points.y[clusters.end[:-1]],
+    )
     d = np.where(same, d, np.inf)
     gap[1:] = np.minimum(gap[1:], d)
     gap[:-1] = np.minimum(gap[:-1], d)
     return gap
 
 
-def _clearance(scans: LaserScans, clusters: Clusters, k: np.ndarray, rng: np.ndarray, brg: np.ndarray,
-               rad: np.ndarray, max_range: float, block: int = 4096) -> np.ndarray:
+def _clearance(
+    scans: LaserScans,
+    clusters: Clusters,
+    k: np.ndarray,
+    rng: np.ndarray,
+    brg: np.ndarray,
+    rad: np.ndarray,
+    max_range: float,
+    block: int = 4096,
+) -> np.ndarray:
     """For the clusters ``k``: the distance (m) from the trunk's surface (centre ``rng``, ``brg``,
     radius ``rad``) to the nearest return of its scan outside the cluster."""
     out = np.empty(k.size)
     beams = np.arange(scans.n_beams)
     cos_a, sin_a = np.cos(scans.angles), np.sin(scans.angles)
     for lo in range(0, k.size, block):
-        kk = k[lo:lo + block]
+        kk = k[lo : lo + block]
         r = scans.ranges[clusters.scan[kk]]
         cx, cy = rng[kk] * np.cos(brg[kk]), rng[kk] * np.sin(brg[kk])
         d = np.hypot(r * cos_a - cx[:, None], r * sin_a - cy[:, None])
         own = (beams >= clusters.first_beam[kk, None]) & (beams <= clusters.last_beam[kk, None])
         d = np.where((r < min(max_range, scans.max_range)) & ~own, d, np.inf)
-        out[lo:lo + block] = d.min(axis=1) - rad[kk]
+        out[lo : lo + block] = d.min(axis=1) - rad[kk]
     return out
