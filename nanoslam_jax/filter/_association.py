@@ -217,7 +217,7 @@ def nearest_neighbours(
     k_max = z.shape[0]
     window = active.shape[0]
     # Components kept apart: stacking each detection's innovations (range, bearing) into one array
-    # per loop step cost ~12 % of the association on CPU.
+    # per loop step is slower on CPU.
     components = isinstance(z_hat, tuple)
     if components:
         (zr, zb), (a00, a01, a11) = z_hat, s_inv

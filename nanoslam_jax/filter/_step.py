@@ -172,7 +172,7 @@ def particle_update(
     )
     # With the row buckets (many particles per call), also the association over the window's
     # prefix: the same association, compiled three times, which pays off only where the particles'
-    # arithmetic outweighs the compilation (no faster at 10 particles, ~40 % longer to compile).
+    # arithmetic outweighs the longer compilation.
     assoc_fn = associate_window_prefix if static.row_buckets else associate
     assoc = assoc_fn(
         local,
@@ -406,7 +406,7 @@ def _step(
     (``state.particles.landmarks`` then holds this device's share, everything else all particles)."""
     n = static.n_particles
     key, k_part, k_res = jax.random.split(state.key, 3)
-    # All particles' standard normal draws in one call (per-particle keys cost ~7 % of a step).
+    # All particles' standard normal draws in one call (cheaper than a key per particle).
     eps = jax.random.normal(k_part, (n, 3), dtype=state.particles.pose.dtype)
     p = state.particles
     valid = jnp.asarray(valid)

@@ -129,7 +129,7 @@ class AbstractMeasurementModel(eqx.Module):
             position: the particle's position ``(px, py)``.
             m: ``(n, landmark_dim)`` landmarks.
         """
-        # Components written out: a reduction over a trailing axis of 2 is ~10x slower on XLA:CPU.
+        # Components written out: a reduction over a trailing axis of 2 is much slower on XLA:CPU.
         return jnp.square(m[:, 0] - position[0]) + jnp.square(m[:, 1] - position[1])
 
     @property
