@@ -354,7 +354,37 @@ def beam_range_circle(
     return jnp.where(hit, r, jnp.inf), hit
 
 
-class LineSegment(AbstractMeasurementModel):
+class _SensorFeature(AbstractMeasurementModel):
+    """A feature seen by a sensor offset from the pose, whose detection starts with the feature's
+    distance and bearing from the sensor (``z[0]``, ``z[1]``): the sensor's range and field of view
+    and its offset, shared by :class:`LineSegment` and :class:`Circle`.
+
+    :meth:`visible`: ``z[0]`` and ``z[1]`` inside the range and field of view shrunk by the margins.
+    """
+
+    min_range: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+    max_range: Float[Array, ""] = eqx.field(default=np.inf, converter=_f)
+    half_fov: Float[Array, ""] = eqx.field(default=math.pi, converter=_f)
+    view_margin: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+    view_margin_angle: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+    sensor_x: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+    sensor_y: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+
+    @property
+    def offset(self) -> Float[Array, "2"]:
+        """The sensor's position ``(forward, left)`` in the pose's frame."""
+        return jnp.stack([jnp.asarray(self.sensor_x), jnp.asarray(self.sensor_y)])
+
+    def visible(self, x, m):
+        z = self.h(x, m)
+        return (
+            (z[0] > self.min_range + self.view_margin)
+            & (z[0] < self.max_range - self.view_margin)
+            & (jnp.abs(z[1]) < self.half_fov - self.view_margin_angle)
+        )
+
+
+class LineSegment(_SensorFeature):
     """A line landmark seen as a segment: landmark the world line ``m = (rho, alpha)``, detection
     the segment's line in the sensor's frame ``z = (rho_s, alpha_s)`` (:func:`line_to_sensor`), as
     the front end's total least squares line fit reports it (``Lines.rho``, ``Lines.alpha``).
@@ -392,18 +422,6 @@ class LineSegment(AbstractMeasurementModel):
 
     sigma_rho: Float[Array, ""] = eqx.field(default=0.02, converter=_f)
     sigma_alpha: Float[Array, ""] = eqx.field(default=math.radians(1.0), converter=_f)
-    min_range: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    max_range: Float[Array, ""] = eqx.field(default=np.inf, converter=_f)
-    half_fov: Float[Array, ""] = eqx.field(default=math.pi, converter=_f)
-    view_margin: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    view_margin_angle: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    sensor_x: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    sensor_y: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-
-    @property
-    def offset(self) -> Float[Array, "2"]:
-        """The sensor's position ``(forward, left)`` in the pose's frame."""
-        return jnp.stack([jnp.asarray(self.sensor_x), jnp.asarray(self.sensor_y)])
 
     def h(self, x, m, aux=None):
         return line_to_sensor(m, x, self.offset)
@@ -418,16 +436,8 @@ class LineSegment(AbstractMeasurementModel):
     def noise_cov(self):
         return jnp.diag(jnp.stack([jnp.square(self.sigma_rho), jnp.square(self.sigma_alpha)]))
 
-    def visible(self, x, m):
-        z = self.h(x, m)
-        return (
-            (z[0] > self.min_range + self.view_margin)
-            & (z[0] < self.max_range - self.view_margin)
-            & (jnp.abs(z[1]) < self.half_fov - self.view_margin_angle)
-        )
 
-
-class Circle(AbstractMeasurementModel):
+class Circle(_SensorFeature):
     """A circle landmark (an arc of a wall, a round pillar): landmark ``m = (xc, yc, R)``,
     detection the range and bearing of the centre from the sensor and the radius, ``z = (r, b,
     R)``; the bearing relative to the sensor's axis, wrapped. The front end's circle fit gives
@@ -456,18 +466,6 @@ class Circle(AbstractMeasurementModel):
     sigma_r: Float[Array, ""] = eqx.field(default=0.02, converter=_f)
     sigma_beta: Float[Array, ""] = eqx.field(default=math.radians(1.0), converter=_f)
     sigma_radius: Float[Array, ""] = eqx.field(default=0.02, converter=_f)
-    min_range: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    max_range: Float[Array, ""] = eqx.field(default=np.inf, converter=_f)
-    half_fov: Float[Array, ""] = eqx.field(default=math.pi, converter=_f)
-    view_margin: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    view_margin_angle: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    sensor_x: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    sensor_y: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-
-    @property
-    def offset(self) -> Float[Array, "2"]:
-        """The sensor's position ``(forward, left)`` in the pose's frame."""
-        return jnp.stack([jnp.asarray(self.sensor_x), jnp.asarray(self.sensor_y)])
 
     def h(self, x, m, aux=None):
         s = sensor_pose(x, self.offset)
@@ -483,14 +481,6 @@ class Circle(AbstractMeasurementModel):
     def noise_cov(self):
         return jnp.diag(
             jnp.stack([jnp.square(self.sigma_r), jnp.square(self.sigma_beta), jnp.square(self.sigma_radius)])
-        )
-
-    def visible(self, x, m):
-        z = self.h(x, m)
-        return (
-            (z[0] > self.min_range + self.view_margin)
-            & (z[0] < self.max_range - self.view_margin)
-            & (jnp.abs(z[1]) < self.half_fov - self.view_margin_angle)
         )
 
 
