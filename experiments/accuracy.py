@@ -1,56 +1,52 @@
-"""Accuracy over seeds: one config, S seeds vmapped in one compiled program; prints a Markdown table.
+"""Accuracy over seeds of one config: a one-row `nanoslam compare` that prints every seed.
 
     python experiments/accuracy.py configs/victoria_park_nano.yaml --seeds 8
     python experiments/accuracy.py configs/victoria_park_nano.yaml --seeds 8 --set filter.estimate=mean
-    python experiments/accuracy.py configs/victoria_park_best.yaml --seeds 16 --set filter.estimate=path
     python experiments/accuracy.py configs/victoria_park_best.yaml --seeds 32 --first-seed 100 --without-fix 1223.3
 
+The seeds run and are scored by the engine of `nanoslam compare` (``nanoslam_jax.compare.run_method``:
+S seeds vmapped in one compiled program, each smoothed when ``smoother.enabled``, each scored by
+``nanoslam_jax._scoring.score_run``), so its figures are those of a comparison file with this config
+as its one row (configs/recommended.yaml holds the recommended configuration's rows). What this
+preset adds: the per-seed table, and with ``--without-fix T`` (repeatable) the two RMSEs with the
+GPS fix nearest each time T left out (``rmse_*_without``): how much of a figure single fixes make
+(the 136 m outlier at t = 1223.3 s, :mod:`nanoslam_jax.gps_floor`).
+
 Reports, per seed and summarised (median, interquartile range, min, max): ``rmse_fixed``,
-``rmse_aligned`` and their ``*_clean`` variants (docs/method/victoria-park.md, "Scoring against GPS"), and the landmarks
-(all, and confirmed) in the best particle's map. With ``filter.estimate: path`` also the filter's
-own estimate of the same runs (``rmse_*_best``), a paired comparison of the two. With
-``--without-fix T`` (repeatable) also the two RMSEs with the GPS fix nearest each time T left out
-(``rmse_*_without``): how much of a figure single fixes make (the 136 m outlier at t = 1223.3 s,
-:mod:`nanoslam_jax.gps_floor`). The protocol's figures are always those with every fix. With
-``smoother.enabled`` (configs/victoria_park_best.yaml) each seed's path and map are smoothed
-(:mod:`nanoslam_jax.smoother`) and scored, with the path it started from (``rmse_*_path``) and
-the filter's own estimate (``rmse_*_best``) beside them; a seed whose smoother did not converge
-is named. Each seed is scored as every command scores a run (``nanoslam_jax._scoring.score_run``)
-and the seeds are summarised under its failed-seed rule (a seed whose estimate became non-finite
-is counted, named, and counts as an infinite error).
+``rmse_aligned`` and their ``*_clean`` variants (docs/method/victoria-park.md), the landmarks (all,
+and confirmed) in the reported map; with ``filter.estimate: path`` the filter's own estimate of the
+same runs (``rmse_*_best``); with the smoother the path it started from (``rmse_*_path``) and its
+iterations, joined landmarks and time. A failed seed (a non-finite estimate) is counted, named and
+counts as an infinite error (the scorer's failed-seed rule).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
-import jax
 import numpy as np
 
 from nanoslam_jax import enable_compile_cache
-from nanoslam_jax._scoring import (
-    MapEstimate,
-    companion_tracks,
-    failure_reason,
-    format_number,
-    score_run,
-    summarize_runs,
-)
-from nanoslam_jax.config import load_config
+from nanoslam_jax._scoring import format_number, summarize_runs
+from nanoslam_jax.compare import CompareSpec, MethodSpec, method_config, run_method
+from nanoslam_jax.config import ConfigError
 from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import (
-    reported_map,
-    reported_trajectory,
-    run_batch,
-    settings_from_config,
-    stack_params,
-    text_progress,
-)
+from nanoslam_jax.filter import text_progress
 from nanoslam_jax.metrics import evaluate
-from nanoslam_jax.smoother import smooth_filter_run
 
 KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
+#: Columns reported when the runs have them (the filter's own estimate, the smoother's).
+OPTIONAL = (
+    "rmse_fixed_best",
+    "rmse_aligned_best",
+    "rmse_fixed_path",
+    "rmse_aligned_path",
+    "smoother_iterations",
+    "smoother_merged",
+    "smoother_s",
+)
 
 
 def main() -> None:
@@ -74,23 +70,32 @@ def main() -> None:
     if not args.no_cache:
         enable_compile_cache()  # as every nanoslam command: a repeated call loads the batch program
 
-    cfg = load_config(args.config, args.overrides)
-    log = load_log(cfg, args.data)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    seeds = np.arange(args.first_seed, args.first_seed + args.seeds)
-    try:  # run_batch refuses a method it cannot run (dead reckoning: `nanoslam run` scores it) before tracing
-        run = run_batch(
-            static,
-            stack_params([params] * len(seeds)),
-            log.segments,
-            seeds,
-            chunk=cfg.output.chunk,
-            progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"),
-        )
-    except ValueError as e:
+    name = Path(args.config).stem
+    spec = CompareSpec(
+        name=name,
+        base=args.config,
+        methods=(MethodSpec(name, ()),),
+        seeds=args.seeds,
+        first_seed=args.first_seed,
+        set=tuple(args.overrides),
+        source=args.config,
+    )
+    try:
+        cfg = method_config(spec, spec.methods[0])
+    except ConfigError as e:
         p.error(str(e))
-    t = np.asarray(log.segments.time)
-    keys = KEYS + (("rmse_fixed_best", "rmse_aligned_best") if static.estimate == "path" else ())
+    log = load_log(cfg, args.data)
+    res = run_method(
+        spec,
+        spec.methods[0],
+        log,
+        progress=text_progress(f"{name} x{args.seeds} seeds"),
+        timed=False,
+        keep_trajectories=True,
+    )
+    rows = res.rows
+    keys = KEYS + tuple(k for k in OPTIONAL if any(k in r for r in rows))
+
     gps = np.asarray(log.raw.gps)
     keep = np.ones(len(gps), bool)
     for tf in args.without_fix:
@@ -99,62 +104,28 @@ def main() -> None:
         keep[j] = False
     if args.without_fix:
         keys += ("rmse_fixed_without", "rmse_aligned_without")
-    est = reported_trajectory(static.estimate, run.outputs, run.state)
-    if cfg.smoother.enabled:  # the final best particle's path and map refined offline, per seed
-        keys += ("rmse_fixed_path", "rmse_aligned_path", "smoother_iterations", "smoother_merged", "smoother_s")
-    mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
-    maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
-    rows = []
-    for i, s in enumerate(seeds):
-        traj, before, extra = np.asarray(est[i]), None, {}
-        if cfg.smoother.enabled and np.all(np.isfinite(traj)):
-            sm = smooth_filter_run(run, traj, log.segments, params, cfg.smoother, cfg.filter.prior, i)
-            before, traj = traj, sm.poses
-            extra = dict(smoother_iterations=sm.iterations, smoother_merged=sm.merged, smoother_s=sm.seconds)
-            if not sm.converged:
-                print(f"warning: seed {s}: the smoother stopped after {sm.iterations} iterations without converging")
-        act = maps.active[i]
-        m = score_run(
-            log,
-            traj,
-            cfg.metrics,
-            MapEstimate(maps.mean[i][act], maps.confirmed[i][act]),
-            companion_tracks(
-                static.estimate, np.asarray(run.outputs.best_pose[i]), np.asarray(run.outputs.mean_pose[i]), before
-            ),
-        )
-        m.update(extra)
-        if args.without_fix and m["finite"]:
-            w = evaluate(t, traj[:, :2], gps[keep], **mk)
-            m.update(rmse_fixed_without=w["rmse_fixed"], rmse_aligned_without=w["rmse_aligned"])
-        reason = failure_reason(t, traj)
-        rows.append(
-            {
-                "seed": int(s),
-                "status": "failed" if reason else "ok",
-                "reason": reason,
-                **{k: m.get(k, float("nan")) for k in keys + ("n_landmarks", "n_confirmed")},
-                "finite": m["finite"],
-            }
-        )
+        t = np.asarray(log.segments.time)
+        mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
+        for r, traj in zip(rows, res.trajectories or []):
+            if r.get("finite"):
+                w = evaluate(t, np.asarray(traj)[:, :2], gps[keep], **mk)
+                r.update(rmse_fixed_without=w["rmse_fixed"], rmse_aligned_without=w["rmse_aligned"])
+    for r in rows:
+        if r.get("smoother_converged") is False:
+            print(f"warning: seed {r['seed']}: the smoother stopped after {r['smoother_iterations']} iterations")
 
     print(
-        f"\n{cfg.name}: {cfg.filter.method}, {static.n_particles} particles, {len(seeds)} seeds, "
-        f"{t.shape[0]} scans, batch run {run.run_s:.1f} s (compile {run.compile_s:.1f} s)\n"
+        f"\n{cfg.name}: {cfg.filter.method}, {cfg.filter.n_particles} particles, {len(rows)} seeds, "
+        f"{log.segments.time.shape[0]} scans, batch run {res.batch_run_s:.1f} s\n"
     )
     print("| seed | " + " | ".join(keys) + " | landmarks | confirmed |")
     print("|---" * (len(keys) + 3) + "|")
     for r in rows:
-        print(
-            f"| {r['seed']} | "
-            + " | ".join(format_number(float(r[k])) for k in keys)
-            + f" | {r['n_landmarks']} | {r['n_confirmed']} |"
-        )
-    st = summarize_runs(rows, keys + ("n_landmarks", "n_confirmed"))
-    summary = {
-        k: {x: st[f"{k}_{x}"] for x in ("median", "q1", "q3", "min", "max")}
-        for k in keys + ("n_landmarks", "n_confirmed")
-    }
+        cells = " | ".join(format_number(float(r.get(k, float("nan")))) for k in keys)
+        print(f"| {r['seed']} | {cells} | {r.get('n_landmarks', '')} | {r.get('n_confirmed', '')} |")
+    columns = keys + ("n_landmarks", "n_confirmed")
+    st = summarize_runs(rows, columns)
+    summary = {k: {x: st[f"{k}_{x}"] for x in ("median", "q1", "q3", "min", "max")} for k in columns}
     print("\n| metric | median | IQR | min | max |\n|---|---|---|---|---|")
     for k, q in summary.items():
         print(
@@ -179,6 +150,7 @@ def main() -> None:
                 },
                 f,
                 indent=2,
+                default=float,
             )
 
 

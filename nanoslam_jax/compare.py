@@ -15,13 +15,20 @@ figures to print beside ours::
         set: [filter.method=nano]
         paper_rmse: 2.538
         paper_ms: 17.692
+      - label: the paper setting
+        base: victoria_park_nano.yaml # this row's own base config (relative to this file)
+
+A row's ``base`` replaces the comparison's base for that row (its ``set`` and the comparison's
+``set`` still apply), so rows of different configs can be compared on the same seeds
+(``configs/recommended.yaml``).
 
 For each method the seeds run vmapped in one compiled program (:func:`filter.run_batch`); a
 separate single run of the first seed, timed chunk by chunk, gives the computation time per
 scan (the table's ms per scan and Fig. 5). EKF-SLAM, NASRUKF and dead reckoning are deterministic
 and run once. With ``smoother.enabled`` (``filter.estimate: path``) each seed's final best particle's
 path and map are smoothed after the batch (:mod:`nanoslam_jax.smoother`), and the smoothed path is
-scored, with the path it started from beside it (``rmse_*_path``). Every run is scored by
+scored, with the path it started from beside it (``rmse_*_path``) and the filter's own estimate of the
+same runs, the best particle's pose at each scan (``rmse_*_best``, a row of its own in ``table1.md``). Every run is scored by
 :func:`nanoslam_jax._scoring.score_run` and the seeds summarised by
 :func:`nanoslam_jax._scoring.summarize_runs`: a failed seed (non-finite estimate, exception) is
 counted and named, and counts as an infinite error in the medians, quartiles and worst seed. A
@@ -92,12 +99,14 @@ class MethodSpec:
         set: ``key=value`` overrides of the base config (at least ``filter.method``).
         paper_rmse: the paper's RMSE for this method (m), if it reports one.
         paper_ms: the paper's time per step (ms), if it reports one.
+        base: this row's base config path (resolved), replacing the comparison's; None: the comparison's.
     """
 
     label: str
     set: tuple[str, ...]
     paper_rmse: Optional[float] = None
     paper_ms: Optional[float] = None
+    base: Optional[str] = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,7 +135,7 @@ class CompareSpec:
 
 
 _TOP = {"name", "base", "seeds", "first_seed", "timing_chunk", "set", "methods"}
-_ROW = {"label", "set", "paper_rmse", "paper_ms"}
+_ROW = {"label", "set", "paper_rmse", "paper_ms", "base"}
 
 
 def str_list(value: Any, key: str, where: str) -> tuple[str, ...]:
@@ -164,8 +173,9 @@ def read_comparison(path: Path, allowed: set) -> dict:
     return raw
 
 
-def resolve_base(base: Any, path: Path) -> Optional[str]:
-    """A comparison file's ``base``: a config path relative to the file (or absolute), or None.
+def resolve_base(base: Any, path: Path, key: str = "base") -> Optional[str]:
+    """A comparison file's ``base`` (or a row's, named by ``key``): a config path relative to the
+    file (or absolute), or None.
 
     Raises:
         ConfigError: naming the file, when it is not a string or the config does not exist.
@@ -173,10 +183,10 @@ def resolve_base(base: Any, path: Path) -> Optional[str]:
     if base is None:
         return None
     if not isinstance(base, str):
-        raise ConfigError(f"{path}: key 'base': expected a config path or null, got {base!r}")
+        raise ConfigError(f"{path}: key '{key}': expected a config path or null, got {base!r}")
     base_path = Path(base) if Path(base).is_absolute() else path.parent / base
     if not base_path.is_file():
-        raise ConfigError(f"{path}: key 'base': config file {base_path} not found")
+        raise ConfigError(f"{path}: key '{key}': config file {base_path} not found")
     return str(base_path)
 
 
@@ -236,6 +246,7 @@ def load_compare_spec(path: str | Path, overrides: tuple[str, ...] = (), seeds: 
             sets,
             _number(row.get("paper_rmse"), f"{key}.paper_rmse", where),
             _number(row.get("paper_ms"), f"{key}.paper_ms", where),
+            resolve_base(row["base"], p, f"{key}.base") if "base" in row else None,
         )
         for key, row, label, sets in method_rows(raw.get("methods"), where, _ROW)
     ]
@@ -255,9 +266,10 @@ def load_compare_spec(path: str | Path, overrides: tuple[str, ...] = (), seeds: 
 
 
 def method_config(spec: CompareSpec, m: MethodSpec) -> Config:
-    """The resolved config of one method: base, then the comparison's ``set``, then the method's."""
+    """The resolved config of one method: its base (the row's, else the comparison's), then the
+    comparison's ``set``, then the method's."""
     try:
-        cfg = load_config(spec.base, list(spec.set) + list(m.set))
+        cfg = load_config(m.base if m.base is not None else spec.base, list(spec.set) + list(m.set))
     except ConfigError as e:
         raise ConfigError(f"{spec.source}: method {m.label!r}: {e}") from None
     return dataclasses.replace(cfg, name=f"{spec.name}-{m.label}")
@@ -279,6 +291,7 @@ class MethodResult:
     landmarks: Optional[np.ndarray] = None  # first seed's map (L, 2)
     chunk_ms: Optional[np.ndarray] = None  # ms per scan of each timed chunk
     chunk_t: Optional[np.ndarray] = None  # log time at the middle of each chunk
+    trajectories: Optional[list] = None  # every seed's scored trajectory (run_method's keep_trajectories)
 
 
 def _map_of(maps, i: int) -> MapEstimate:
@@ -287,10 +300,23 @@ def _map_of(maps, i: int) -> MapEstimate:
     return MapEstimate(np.asarray(maps.mean[i])[act], np.asarray(maps.confirmed[i])[act], ids)
 
 
-def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodResult:
+def run_method(
+    spec: CompareSpec, m: MethodSpec, log, progress=None, timed: bool = True, keep_trajectories: bool = False
+) -> MethodResult:
     """Run one method over the seeds (vmapped) and once more, timed, for the time per scan; with
     ``smoother.enabled`` each seed's run is smoothed after the batch; every seed is scored
-    (:func:`~nanoslam_jax._scoring.score_run`)."""
+    (:func:`~nanoslam_jax._scoring.score_run`).
+
+    Args:
+        spec: the comparison.
+        m: the row to run.
+        log: the loaded log (:func:`~nanoslam_jax.experiment.load_log`).
+        progress: progress callback of the batch run.
+        timed: also run the first seed alone, chunk by chunk, for the time per scan (False: the
+            time columns are NaN).
+        keep_trajectories: keep every seed's scored trajectory in ``trajectories`` (else only the
+            first seed's, in ``trajectory``).
+    """
     cfg = method_config(spec, m)
     method = cfg.filter.method
     seg = log.segments
@@ -308,6 +334,7 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
         res.ms_per_scan = 1e3 * (time.perf_counter() - t1) / n
         res.compile_s = t1 - t0
         res.trajectory = est
+        res.trajectories = [est] if keep_trajectories else None
         reason = failure_reason(t, est)
         res.rows.append(
             {
@@ -323,14 +350,16 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
             res.status, res.reason = "failed", reason
         return res
 
-    # Timing: one run of the first seed, chunk by chunk.
-    single = run_filter(static, params, seg, spec.first_seed, chunk=min(spec.timing_chunk, n), timed=True)
-    res.compile_s = single.compile_s
-    res.ms_per_scan = 1e3 * single.run_s / n
-    sizes = np.minimum(single.chunk_size, n - single.chunk_size * np.arange(len(single.chunk_s)))
-    res.chunk_ms = 1e3 * np.asarray(single.chunk_s) / sizes
-    mids = np.minimum(single.chunk_size * np.arange(len(sizes)) + sizes // 2, n - 1)
-    res.chunk_t = t[mids]
+    if timed:  # one run of the first seed, chunk by chunk
+        single = run_filter(static, params, seg, spec.first_seed, chunk=min(spec.timing_chunk, n), timed=True)
+        res.compile_s = single.compile_s
+        res.ms_per_scan = 1e3 * single.run_s / n
+        sizes = np.minimum(single.chunk_size, n - single.chunk_size * np.arange(len(single.chunk_s)))
+        res.chunk_ms = 1e3 * np.asarray(single.chunk_s) / sizes
+        mids = np.minimum(single.chunk_size * np.arange(len(sizes)) + sizes // 2, n - 1)
+        res.chunk_t = t[mids]
+    elif len(seeds) == 1:
+        single = run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk)
 
     if len(seeds) == 1:
         run, index = single, None
@@ -381,6 +410,8 @@ def run_method(spec: CompareSpec, m: MethodSpec, log, progress=None) -> MethodRe
         )
         trajectories.append(est)
     res.trajectory = trajectories[0]
+    if keep_trajectories:
+        res.trajectories = trajectories
     res.landmarks = maps.mean[0][maps.active[0] & maps.confirmed[0]]
     bad = [r["seed"] for r in res.rows if r["status"] != "ok"]
     if bad:
@@ -400,6 +431,7 @@ SUMMARY_KEYS = (
     "rmse_aligned_best",
     "n_landmarks",
     "n_confirmed",
+    "smoother_s",
 )
 
 
@@ -430,7 +462,8 @@ def summarise(res: MethodResult) -> dict:
 
 def markdown_table(rows: list[dict]) -> str:
     """The Table I layout: RMSE (median, IQR and worst seed over seeds; a failed seed counts as an
-    infinite error), ms per scan, landmarks, paper's figures."""
+    infinite error), ms per scan, landmarks, paper's figures. A smoothed method is followed by a
+    row of the filter's own estimate of the same runs (``rmse_*_best``)."""
     lines = [
         "| method | seeds | RMSE fixed [m] median (IQR) | worst | RMSE aligned [m] median (IQR) | worst | "
         "ms per scan | confirmed landmarks | paper RMSE [m] | paper ms per step |",
@@ -451,6 +484,12 @@ def markdown_table(rows: list[dict]) -> str:
             f"{iqr('rmse_aligned')} | {fmt(r['rmse_aligned_worst'], 2)} | {fmt(r['ms_per_scan'], 2)} | "
             f"{fmt(r['n_confirmed_median'], 0)} | {fmt(r['paper_rmse'])} | {fmt(r['paper_ms'], 2)} |"
         )
+        if "rmse_fixed_path_median" in r and "rmse_fixed_best_median" in r:  # smoothed: the filter's own estimate
+            lines.append(
+                f"| {r['method']}: the filter's own estimate, same runs | {seeds} | {iqr('rmse_fixed_best')} | "
+                f"{fmt(r['rmse_fixed_best_worst'], 2)} | {iqr('rmse_aligned_best')} | "
+                f"{fmt(r['rmse_aligned_best_worst'], 2)} | | | | |"
+            )
     return "\n".join(lines) + "\n"
 
 
