@@ -37,16 +37,24 @@ def _oriented_differences(est: np.ndarray, tru: np.ndarray) -> tuple[np.ndarray,
     return d_rho, np.where(flip, _wrap_np(d_alpha + np.pi), d_alpha)
 
 
-def _hungarian(cost: np.ndarray, gate: float) -> np.ndarray:
-    """``(L,)`` the estimate row assigned to each column (-1: none): the one-to-one assignment
-    minimising the sum of ``min(cost, gate)``, pairs with ``cost > gate`` dropped."""
+def gated_assignment(cost: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
+    """The one-to-one assignment minimising the sum of ``min(cost, gate)`` (scipy's
+    ``linear_sum_assignment``) over an ``(E, L)`` cost matrix: its pairs ``(rows, cols)`` with
+    ``cost <= gate`` (pairs beyond the gate dropped; none for an empty matrix)."""
     from scipy.optimize import linear_sum_assignment
 
+    if cost.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rows, cols = linear_sum_assignment(np.minimum(cost, gate))
+    keep = cost[rows, cols] <= gate
+    return rows[keep], cols[keep]
+
+
+def _hungarian(cost: np.ndarray, gate: float) -> np.ndarray:
+    """``(L,)`` the estimate row assigned to each column (-1: none) by :func:`gated_assignment`."""
     match = np.full(cost.shape[1], -1, dtype=np.int64)
-    if cost.size:
-        rows, cols = linear_sum_assignment(np.minimum(cost, gate))
-        keep = cost[rows, cols] <= gate
-        match[cols[keep]] = rows[keep]
+    rows, cols = gated_assignment(cost, gate)
+    match[cols] = rows
     return match
 
 

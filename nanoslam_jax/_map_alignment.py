@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from ._feature_metrics import gated_assignment
 from .metrics import _rmse, rigid_align, rotation_matrix
 
 __all__ = ["map_alignment_metrics"]
@@ -94,14 +95,9 @@ def _first_alignments(
 
 def _assign(aligned: np.ndarray, tru: np.ndarray, radius: float) -> np.ndarray:
     """One-to-one pairs ``(est index, true index)`` within ``radius``: the assignment minimising
-    the sum of ``min(d^2, radius^2)`` (scipy's ``linear_sum_assignment``), pairs beyond ``radius``
-    dropped."""
-    from scipy.optimize import linear_sum_assignment
-
+    the sum of ``min(d^2, radius^2)`` (:func:`gated_assignment`), pairs beyond ``radius`` dropped."""
     d2 = np.sum((aligned[:, None, :] - tru[None, :, :]) ** 2, axis=-1)
-    rows, cols = linear_sum_assignment(np.minimum(d2, radius**2))
-    keep = d2[rows, cols] <= radius**2
-    return np.stack([rows[keep], cols[keep]], axis=1)
+    return np.stack(gated_assignment(d2, radius**2), axis=1)
 
 
 def map_alignment_metrics(

@@ -25,6 +25,7 @@ from ._cache import compile_stats
 from ._version import __version__
 from .config import Config, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
+from .data._mrclam import sighting_map as _project_sightings
 from .filter import (
     Params,
     Static,
@@ -194,11 +195,8 @@ def sighting_map(poses: np.ndarray, segments: Segments) -> tuple[np.ndarray, np.
     ids = np.asarray(segments.z_id)
     use = np.asarray(segments.z_mask) & (ids >= 0)
     p = np.broadcast_to(np.asarray(poses, dtype=float)[:, None, :], z.shape[:2] + (3,))[use]
-    heading = p[:, 2] + z[use][:, 1]
-    points = p[:, :2] + z[use][:, :1] * np.column_stack([np.cos(heading), np.sin(heading)])
-    seen, which, counts = np.unique(ids[use], return_inverse=True, return_counts=True)
-    xy = np.column_stack([np.bincount(which, points[:, k], seen.size) for k in range(2)]) / counts[:, None]
-    return seen, xy
+    m = _project_sightings(p, z[use][:, 0], z[use][:, 1], ids[use])
+    return m.ids, m.xy
 
 
 #: Columns of ``map.csv`` (and, with ``filter.association: known``, :data:`MAP_ID_COLUMN` last).

@@ -290,10 +290,26 @@ def dead_reckoning_map(raw: RawLog) -> SightingMap:
         raise ValueError(f"log {raw.source!r} has no detection_ids: the dead-reckoning map needs known landmark ids")
     ids = np.asarray(raw.detection_ids, dtype=np.int64)
     det = np.asarray(raw.detections, dtype=float)[ids >= 0]
-    ids = ids[ids >= 0]
-    pose = unicycle_poses(raw.dr, det[:, 0])
-    heading = pose[:, 2] + det[:, 2]
-    points = pose[:, :2] + det[:, 1:2] * np.column_stack([np.cos(heading), np.sin(heading)])
-    seen, which, counts = np.unique(ids, return_inverse=True, return_counts=True)
+    return sighting_map(unicycle_poses(raw.dr, det[:, 0]), det[:, 1], det[:, 2], ids[ids >= 0])
+
+
+def sighting_map(poses: np.ndarray, ranges: np.ndarray, bearings: np.ndarray, ids: np.ndarray) -> SightingMap:
+    """Range-bearing sightings of known landmark ids projected from the poses they were taken at,
+    averaged per id: the map a path alone gives.
+
+    Args:
+        poses: ``(n, 3)`` the sensor's pose ``(x, y, phi)`` at each sighting.
+        ranges: ``(n,)`` the range of each sighting (m).
+        bearings: ``(n,)`` its bearing in the sensor frame (rad).
+        ids: ``(n,)`` its landmark id (every one known).
+
+    Returns:
+        The :class:`SightingMap`, in the frame of the poses.
+    """
+    pose = np.asarray(poses, dtype=float).reshape(-1, 3)
+    heading = pose[:, 2] + np.asarray(bearings, dtype=float)
+    r = np.asarray(ranges, dtype=float)[:, None]
+    points = pose[:, :2] + r * np.column_stack([np.cos(heading), np.sin(heading)])
+    seen, which, counts = np.unique(np.asarray(ids, dtype=np.int64), return_inverse=True, return_counts=True)
     xy = np.column_stack([np.bincount(which, points[:, k], seen.size) for k in range(2)]) / counts[:, None]
     return SightingMap(seen, xy, counts)
