@@ -300,8 +300,24 @@ def _map_of(maps, i: int) -> MapEstimate:
     return MapEstimate(np.asarray(maps.mean[i])[act], np.asarray(maps.confirmed[i])[act], ids)
 
 
+def filter_key(cfg: Config, seeds) -> str:
+    """What a method's filter runs depend on: its config without the offline smoother (and the name)
+    and the seeds. Rows of a comparison with the same key share their filter runs (``run_method``'s
+    ``cache``), e.g. the smoother ablations of configs/recommended.yaml."""
+    d = config_to_dict(cfg)
+    for k in ("smoother", "name"):
+        d.pop(k, None)
+    return json.dumps([d, [int(s) for s in seeds]], sort_keys=True, default=str)
+
+
 def run_method(
-    spec: CompareSpec, m: MethodSpec, log, progress=None, timed: bool = True, keep_trajectories: bool = False
+    spec: CompareSpec,
+    m: MethodSpec,
+    log,
+    progress=None,
+    timed: bool = True,
+    keep_trajectories: bool = False,
+    cache: Optional[dict] = None,
 ) -> MethodResult:
     """Run one method over the seeds (vmapped) and once more, timed, for the time per scan; with
     ``smoother.enabled`` each seed's run is smoothed after the batch; every seed is scored
@@ -316,6 +332,9 @@ def run_method(
             time columns are NaN).
         keep_trajectories: keep every seed's scored trajectory in ``trajectories`` (else only the
             first seed's, in ``trajectory``).
+        cache: filter runs by :func:`filter_key` (and kind), reused instead of run again: a row
+            that differs from an earlier one only in its smoother settings smooths and scores the
+            same runs. None: nothing is shared.
     """
     cfg = method_config(spec, m)
     method = cfg.filter.method
@@ -350,8 +369,20 @@ def run_method(
             res.status, res.reason = "failed", reason
         return res
 
+    key = filter_key(cfg, seeds)
+
+    def cached(kind: str, compute):
+        if cache is None:
+            return compute()
+        if (key, kind) not in cache:
+            cache[(key, kind)] = compute()
+        return cache[(key, kind)]
+
     if timed:  # one run of the first seed, chunk by chunk
-        single = run_filter(static, params, seg, spec.first_seed, chunk=min(spec.timing_chunk, n), timed=True)
+        single = cached(
+            "timed",
+            lambda: run_filter(static, params, seg, spec.first_seed, chunk=min(spec.timing_chunk, n), timed=True),
+        )
         res.compile_s = single.compile_s
         res.ms_per_scan = 1e3 * single.run_s / n
         sizes = np.minimum(single.chunk_size, n - single.chunk_size * np.arange(len(single.chunk_s)))
@@ -359,27 +390,32 @@ def run_method(
         mids = np.minimum(single.chunk_size * np.arange(len(sizes)) + sizes // 2, n - 1)
         res.chunk_t = t[mids]
     elif len(seeds) == 1:
-        single = run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk)
+        single = cached("single", lambda: run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk))
 
     if len(seeds) == 1:
         run, index = single, None
         if cfg.smoother.enabled and cfg.smoother.map_history and single.chunk_size != min(cfg.output.chunk, n):
             # The smoother's map history is the map at the end of each chunk of output.chunk
             # segments: the scored run is chunked as `nanoslam run` chunks it.
-            single = run = run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk)
+            single = run = cached(
+                "single", lambda: run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk)
+            )
         maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
         overflow = np.asarray(single.state.overflow)[None]
         est_all = reported_trajectory(static.estimate, single.outputs, single.state)[None]
         best_all, mean_all = (np.asarray(a)[None] for a in (single.outputs.best_pose, single.outputs.mean_pose))
         res.batch_run_s = single.run_s
     else:
-        run = run_batch(
-            static,
-            stack_params([params] * len(seeds)),
-            seg,
-            np.asarray(seeds),
-            chunk=cfg.output.chunk,
-            progress=progress,
+        run = cached(
+            "batch",
+            lambda: run_batch(
+                static,
+                stack_params([params] * len(seeds)),
+                seg,
+                np.asarray(seeds),
+                chunk=cfg.output.chunk,
+                progress=progress,
+            ),
         )
         index = 0
         maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
@@ -545,8 +581,20 @@ def run_compare(
     }
     (out / "compare.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
 
+    def seeds_of(c: Config) -> list[int]:
+        return (
+            [spec.first_seed]
+            if deterministic(c.filter.method)
+            else list(range(spec.first_seed, spec.first_seed + spec.seeds))
+        )
+
+    # Rows that differ only in the smoother share their filter runs; each is kept while a later row needs it.
+    keys = [filter_key(configs[m.label], seeds_of(configs[m.label])) for m in spec.methods]
+    shared: dict = {}
     results: list[MethodResult] = []
     for i, m in enumerate(spec.methods):
+        for kk in [kk for kk in shared if kk[0] not in keys[i:]]:
+            del shared[kk]
         cfg = configs[m.label]
         safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in m.label)
         (out / "configs" / f"{safe}.yaml").write_text(
@@ -560,14 +608,10 @@ def run_compare(
             k = key_of(cfg)
             if k not in logs:
                 logs[k] = load_log(cfg, data_dir)
-            res = run_method(spec, m, logs[k])
+            res = run_method(spec, m, logs[k], cache=shared)
         except Exception as e:  # recorded, the comparison goes on
             reason = f"{type(e).__name__}: {e}"
-            seeds = (
-                [spec.first_seed]
-                if deterministic(cfg.filter.method)
-                else range(spec.first_seed, spec.first_seed + spec.seeds)
-            )
+            seeds = seeds_of(cfg)
             res = MethodResult(
                 m,
                 cfg.filter.method,

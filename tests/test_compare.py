@@ -109,3 +109,67 @@ def test_a_smoothed_method_is_followed_by_the_filters_own_estimate():
     assert cells[3] == "5.000 (4.000-6.000)" and cells[4] == "7.00"
     assert cells[5] == "4.500 (3.500-5.500)" and cells[6] == "6.50"
     assert math.isclose(float(lines[2].split("|")[3].split()[0]), 2.92)  # the smoothed path's median
+
+
+@pytest.mark.slow
+def test_rows_differing_only_in_the_smoother_share_their_filter_runs(tmp_path, monkeypatch):
+    """Two smoothed rows (map history on, off) of the same filter run it once (one batch, one timing
+    run); the second row's figures equal those of a comparison that runs it alone."""
+    import io
+
+    import nanoslam_jax.compare as compare
+
+    calls = {"batch": 0, "single": 0}
+    run_batch, run_filter = compare.run_batch, compare.run_filter
+
+    def counting_batch(*a, **k):
+        calls["batch"] += 1
+        return run_batch(*a, **k)
+
+    def counting_filter(*a, **k):
+        calls["single"] += 1
+        return run_filter(*a, **k)
+
+    monkeypatch.setattr(compare, "run_batch", counting_batch)
+    monkeypatch.setattr(compare, "run_filter", counting_filter)
+    sim = [
+        "data.kind=simulated",
+        "sim.duration=30",
+        "data.max_dr_per_segment=2",
+        "filter.capacity=96",
+        "filter.window=24",
+        "filter.n_particles=4",
+        "filter.method=fastslam1",
+        "output.progress=false",
+        "filter.row_buckets=never",
+        "output.chunk=40",
+    ]
+    rows = [{"label": "history", "set": []}, {"label": "no history", "set": ["smoother.map_history=false"]}]
+
+    def compare_rows(name, methods):
+        f = tmp_path / f"{name}.yaml"
+        f.write_text(
+            yaml.safe_dump(
+                {
+                    "name": name,
+                    "base": str(CONFIGS / "victoria_park_best.yaml"),
+                    "seeds": 2,
+                    "set": sim,
+                    "timing_chunk": 40,
+                    "methods": methods,
+                }
+            )
+        )
+        return {
+            r["method"]: r
+            for r in compare.run_compare(load_compare_spec(f), tmp_path / name, plots=False, stream=io.StringIO())
+        }
+
+    both = compare_rows("both", rows)
+    assert calls == {"batch": 1, "single": 1}
+    alone = compare_rows("alone", rows[1:])
+    assert calls == {"batch": 2, "single": 2}
+    for k in ("rmse_fixed_median", "rmse_aligned_worst", "rmse_fixed_best_median", "rmse_fixed_path_median"):
+        assert both["no history"][k] == alone["no history"][k], k
+    assert both["history"]["rmse_fixed_best_median"] == both["no history"]["rmse_fixed_best_median"]
+    assert both["history"]["n_failed"] == both["no history"]["n_failed"] == 0
