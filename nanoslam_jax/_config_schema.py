@@ -59,14 +59,16 @@ class DataConfig:
         12, lo=2, static=True, doc="DR pieces per segment; longer gaps between scans are split with empty segments"
     )
     t_end: Optional[float] = _f(None, lo=0.0, lo_open=True, static=True, doc="use the log only up to this time (s)")
-    detections: Literal["file", "laser", "laser_lines"] = _f(
+    detections: Literal["file", "laser", "laser_lines", "laser_circles"] = _f(
         "file",
         static=True,
         doc="'file': the detections of measurements.dat; 'laser': detect the trees in the log's raw scans "
         "(LASER.txt or aa3_lsr2.mat) on load with the detector section (what `nanoslam detect` writes); "
         "'laser_lines': the line segments the front end fits to the raw scans, at least "
         "detector.min_line_length long, as (rho, alpha) of the segment's line in the sensor frame (for "
-        "model.measurement line; data.min_range and data.max_range apply to rho)",
+        "model.measurement line; data.min_range and data.max_range apply to rho); 'laser_circles': the arcs "
+        "(round pillars) the front end fits, as the range and bearing of the centre and the radius (for "
+        "model.measurement circle)",
     )
 
 
@@ -101,7 +103,8 @@ class ModelConfig:
         doc="measurement model: 'range_bearing' (range and bearing to a point landmark; noise from section "
         "noise, footprint from data.min_range, data.max_range, map.fov_deg and the map.view_margin keys), "
         "'line' (a wall as a line (rho, alpha), detected as a segment's line in the sensor frame; parameters "
-        "in model.measurement_params), 'circle' (an arc (xc, yc, R); not run by the filter yet), or an import "
+        "in model.measurement_params), 'circle' (an arc or round pillar (xc, yc, R), detected as its centre's "
+        "range and bearing and its radius; parameters in model.measurement_params), or an import "
         "path 'module:Class' of a nanoslam_jax.models.AbstractMeasurementModel subclass",
     )
     measurement_params: Optional[dict] = _f(

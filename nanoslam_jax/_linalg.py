@@ -8,7 +8,7 @@ functions act on the last two axes and broadcast over leading axes.
 from typing import cast
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 _TINY = 1e-300
 
@@ -141,6 +141,49 @@ def quad_form(v: Float[Array, "... n"], a: Float[Array, "... n n"]) -> Float[Arr
     return dot(v, mv(a, v))
 
 
-def gaussian_logpdf(nu: Float[Array, "... 2"], s: Float[Array, "... 2 2"]) -> Float[Array, "..."]:
-    """``log N(nu; 0, S)`` for 2-vectors."""
-    return -0.5 * (quad_form(nu, inv2(s)) + logdet_spd(s)) - jnp.log(2.0 * jnp.pi)
+def inv_small(a: Float[Array, "... n n"]) -> Float[Array, "... n n"]:
+    """Inverse of tiny matrices: the closed forms for 1x1, 2x2 and 3x3 (:func:`inv2`, :func:`inv3`),
+    ``jnp.linalg.inv`` beyond."""
+    n = a.shape[-1]
+    if n == 1:
+        return 1.0 / a
+    if n == 2:
+        return inv2(a)
+    if n == 3:
+        return inv3(a)
+    return jnp.linalg.inv(a)
+
+
+def chol_small(a: Float[Array, "... n n"]) -> Float[Array, "... n n"]:
+    """Lower Cholesky factor of symmetric positive semi-definite tiny matrices: the closed forms
+    with floored pivots for 1x1 to 3x3 (:func:`chol2`, :func:`chol3`), ``jnp.linalg.cholesky`` beyond."""
+    n = a.shape[-1]
+    if n == 1:
+        return jnp.sqrt(jnp.maximum(a, _TINY))
+    if n == 2:
+        return chol2(a)
+    if n == 3:
+        return chol3(a)
+    return jnp.linalg.cholesky(a)
+
+
+def is_pd_small(a: Float[Array, "... n n"]) -> Bool[Array, "..."]:
+    """Whether symmetric tiny matrices are positive definite (Sylvester's criterion: every leading
+    principal minor positive; closed forms up to 3x3, an eigenvalue test beyond)."""
+    n = a.shape[-1]
+    if n == 1:
+        return a[..., 0, 0] > 0
+    if n == 2:
+        return (a[..., 0, 0] > 0) & (det2(a) > 0)
+    if n == 3:
+        return (a[..., 0, 0] > 0) & (det2(a[..., :2, :2]) > 0) & (det3(a) > 0)
+    return jnp.all(jnp.linalg.eigvalsh(a) > 0, axis=-1)
+
+
+def gaussian_logpdf(nu: Float[Array, "... d"], s: Float[Array, "... d d"]) -> Float[Array, "..."]:
+    """``log N(nu; 0, S)`` for tiny vectors (the closed forms up to 3-vectors)."""
+    d = nu.shape[-1]
+    if d == 2:
+        return -0.5 * (quad_form(nu, inv2(s)) + logdet_spd(s)) - jnp.log(2.0 * jnp.pi)
+    logdet = logdet_spd(s) if d == 3 else jnp.linalg.slogdet(s)[1]
+    return -0.5 * (quad_form(nu, inv_small(s)) + logdet) - 0.5 * d * jnp.log(2.0 * jnp.pi)

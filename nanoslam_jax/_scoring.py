@@ -115,7 +115,8 @@ class MapEstimate(NamedTuple):
     """A run's reported map, for :func:`score_run`.
 
     Attributes:
-        xy: ``(L, 2)`` its active landmarks (tentative and confirmed).
+        xy: ``(L, l)`` its active landmarks (tentative and confirmed): their states, of which
+            the first two are a point's or a circle's position (a line's ``(rho, alpha)``).
         confirmed: ``(L,)`` which of them are confirmed (only those are scored).
         ids: ``(L,)`` the detection id each landmark carries (known association), or None.
     """
@@ -188,7 +189,8 @@ def score_run(
         walls, the ``summary`` of :func:`~nanoslam_jax.metrics.feature_map_errors` over the
         confirmed lines: ``line_slope_*``, ``line_intercept_*``, ``line_rho_*``, ``line_alpha_*``,
         ``corner_*`` (median and worst), ``n_lines``, ``n_lines_matched``, ``n_corners``,
-        ``n_corners_matched``, and ``n_lines_est``).
+        ``n_corners_matched``, and ``n_lines_est``; for a map of circles against its true pillars,
+        ``arc_centre_*``, ``arc_radius_*``, ``n_arcs``, ``n_arcs_matched`` and ``n_arcs_est``).
     """
     t = np.asarray(log.segments.time)
     gps = _gps(log)
@@ -209,12 +211,18 @@ def score_run(
     if finite and truth is not None and est.ndim == 2 and est.shape[1] >= 3:
         out["rmse_heading_deg"] = rmse_heading_deg(t, est[:, 2], truth)
     if landmarks is not None:
-        xy, conf = np.asarray(landmarks.xy, float).reshape(-1, 2), np.asarray(landmarks.confirmed, bool)
+        conf = np.asarray(landmarks.confirmed, bool)
+        states = np.asarray(landmarks.xy, float).reshape(conf.shape[0], -1)
+        xy = states[:, :2]
         out.update(map_summary(xy, conf, log.map_truth, metrics.map_radius, alignment))
         if log.survey is not None:
             out.update(survey_summary(xy, conf, log.survey.xy, metrics.map_radius, landmarks.ids, log.survey.ids))
         features = getattr(log, "feature_truth", None)
-        if features is not None:  # a map of lines (rho, alpha): the second paper's Table 1
+        if features is not None and states.shape[1] == 3:  # a map of circles (xc, yc, R): Table 1's arcs
+            none = np.zeros((0, 2))
+            table = feature_map_errors(none, none, est_arcs=states[conf], true_arcs=features.arcs)["summary"]
+            out.update({k: v for k, v in table.items() if "arc" in k}, n_arcs_est=int(conf.sum()))
+        elif features is not None:  # a map of lines (rho, alpha): the second paper's Table 1
             table = feature_map_errors(xy[conf], features.lines, corners=features.corners)["summary"]
             out.update(table, n_lines_est=int(conf.sum()))
     return out

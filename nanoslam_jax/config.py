@@ -223,10 +223,17 @@ def _check_consistency(cfg: Config, where: str) -> None:
             f"{where}key 'data.detections': model.measurement line takes line segments; expected "
             f"'laser_lines' with data.kind {d.kind!r}, got {d.detections!r}"
         )
-    if lines_in and d.kind == "simulated":
+    circles_in = d.detections == "laser_circles"
+    if circles_in != (cfg.model.measurement == "circle") and (circles_in or d.kind == "indoor"):
+        raise ConfigError(
+            f"{where}key 'model.measurement': data.detections laser_circles gives circles (range, bearing, "
+            f"radius) and model.measurement circle takes them; got data.detections {d.detections!r} with "
+            f"model.measurement {cfg.model.measurement!r}"
+        )
+    if (lines_in or circles_in) and d.kind == "simulated":
         raise ConfigError(
             f"{where}key 'data.detections': the simulated park log has no raw scans; expected 'file' "
-            "with data.kind simulated (or data.kind indoor for line segments), got 'laser_lines'"
+            f"with data.kind simulated (or data.kind indoor for line segments and circles), got {d.detections!r}"
         )
     mp = cfg.map
     if mp.manage and mp.p_false >= mp.p_detect:

@@ -50,6 +50,7 @@ from .metrics import (
     rmse_heading_deg,
 )
 from ._scoring import MapEstimate, companion_tracks, score_run
+from .models import measurement_model_class
 from .smoother import smooth_filter_run, smoother_metrics
 
 
@@ -105,11 +106,27 @@ def with_scan_detections(raw: RawLog, scans, kind: str, detector) -> RawLog:
     """``raw`` with its detections replaced by what the front end finds in the raw ``scans`` with the
     ``detector`` settings: ``kind`` ``'laser'``: the trees (``time, range, bearing, diameter``);
     ``'laser_lines'``: the line segments (``time, rho, alpha, length``,
-    :func:`~nanoslam_jax.frontend.detect_lines`)."""
-    from .frontend import detect_lines, detect_trees
+    :func:`~nanoslam_jax.frontend.detect_lines`); ``'laser_circles'``: the arcs
+    (:func:`circle_table`)."""
+    from .frontend import detect_lines, detect_trees, extract_features
 
+    if kind == "laser_circles":
+        return dataclasses.replace(raw, detections=circle_table(extract_features(scans, detector)), detection_ids=None)
     detect = detect_lines if kind == "laser_lines" else detect_trees
     return dataclasses.replace(raw, detections=detect(scans, detector), detection_ids=None)
+
+
+def circle_table(features) -> np.ndarray:
+    """The front end's arcs (:attr:`~nanoslam_jax.frontend.Features.circles`) as detections of the
+    ``circle`` measurement model: ``(K, 5)`` rows ``time, range, bearing, radius, diameter`` (the
+    range and bearing of the circle's centre in the sensor frame, 0 ahead, left positive; its
+    radius; twice the radius), ordered by time, then beam."""
+    c = features.circles
+    order = np.lexsort((c.first_beam, c.scan))
+    rng, bearing = np.hypot(c.cx, c.cy)[order], np.arctan2(c.cy, c.cx)[order]
+    radius = np.asarray(c.radius, float)[order]
+    rows = np.stack([features.time[c.scan[order]], rng, bearing, radius, 2.0 * radius], axis=1)
+    return rows.reshape(-1, 5)
 
 
 def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
@@ -156,6 +173,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
             k_max=d.k_max,
             max_dr_per_segment=d.max_dr_per_segment,
             t_end=d.t_end,
+            measurement_dim=measurement_model_class(cfg.model.measurement).measurement_dim,
         )
     except ValueError as e:
         if d.detections == "laser_lines" and "no laser scan" in str(e):
@@ -165,7 +183,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
             ) from None
         raise
     lines = cfg.model.measurement == "line"  # a map of lines: scored against the true walls, not points
-    features = features if lines else None
+    features = features if lines or cfg.model.measurement == "circle" else None
     map_truth = None
     if raw.truth_landmarks is not None and raw.truth_poses is not None and not lines:
         t = np.asarray(segments.time)[np.asarray(segments.z_mask).any(axis=1)]
@@ -217,8 +235,20 @@ MAP_COLUMNS = [
 MAP_ID_COLUMN = "id"
 
 
+def map_columns(dim: int = 2) -> list[str]:
+    """The columns of ``map.csv`` for landmarks of ``dim`` values (the measurement model's
+    ``landmark_dim``): :data:`MAP_COLUMNS` with the values past the first two after ``y``, as
+    ``m2``, ``m3``, ... (a circle's radius: ``m2``); the covariance columns are those of the first
+    two values."""
+    return MAP_COLUMNS[:2] + [f"m{i}" for i in range(2, dim)] + MAP_COLUMNS[2:]
+
+
+def _landmark_dim(cfg: Config) -> int:
+    return measurement_model_class(cfg.model.measurement).landmark_dim
+
+
 def map_table(lm) -> np.ndarray:
-    """The rows of ``map.csv`` (:data:`MAP_COLUMNS`) of a reported map's active landmarks (host arrays):
+    """The rows of ``map.csv`` (:func:`map_columns`) of a reported map's active landmarks (host arrays):
     ``existence`` is the existence probability, ``confirmed`` 1 or 0 (0: tentative); a map whose
     landmarks carry ids (known association) has their id as a last column."""
     act = np.asarray(lm.active)
@@ -376,7 +406,8 @@ class RunResult:
         _write_csv(out / "trajectory.csv", cols, table)
         write_tum(out / "trajectory.tum", t, est)
         if self.landmarks is not None:
-            cols = MAP_COLUMNS + [MAP_ID_COLUMN] * (self.landmarks.shape[1] > len(MAP_COLUMNS))
+            cols = map_columns(_landmark_dim(cfg))
+            cols = cols + [MAP_ID_COLUMN] * (self.landmarks.shape[1] > len(cols))
             _write_csv(out / "map.csv", cols, self.landmarks, fmt="%.9g")
         (out / "metrics.json").write_text(json.dumps(_json_safe(self.metrics), indent=2) + "\n")
         if (cfg.output.plots if plots is None else plots) and self.finite:
@@ -498,8 +529,10 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
     }
     lm = None
     if landmarks is not None:
-        ids = landmarks[:, len(MAP_COLUMNS)] if landmarks.shape[1] > len(MAP_COLUMNS) else None
-        lm = MapEstimate(landmarks[:, :2], landmarks[:, MAP_COLUMNS.index("confirmed")] > 0, ids)
+        dim = _landmark_dim(cfg)
+        cols = map_columns(dim)
+        ids = landmarks[:, len(cols)] if landmarks.shape[1] > len(cols) else None
+        lm = MapEstimate(landmarks[:, :dim], landmarks[:, cols.index("confirmed")] > 0, ids)
     # The one scorer of every command: the estimate against GPS, the map, and (for path: the
     # filter's own estimate; after the smoother: the path it started from) the other trajectories.
     others = None if other is None else companion_tracks(static.estimate, best_pose, mean, unsmoothed)
@@ -568,7 +601,7 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
     label = "GPS (relative frame)" if log.frame == "relative" else "truth"
     if cfg.model.measurement == "line":  # a map of lines (rho, alpha): no points to draw
         landmarks = None
-    confirmed = None if landmarks is None else landmarks[:, MAP_COLUMNS.index("confirmed")] > 0
+    confirmed = None if landmarks is None else landmarks[:, map_columns(_landmark_dim(cfg)).index("confirmed")] > 0
     # True landmarks in another frame than the path (a surveyed map, e.g. MRCLAM's) are not drawn.
     true_landmarks = log.raw.truth_landmarks if log.frame == "slam" and landmarks is not None else None
     plot_trajectory(

@@ -4,6 +4,7 @@ finite differences, the measurement plug-ins' inverse models, a filter with line
 room written here, and the Table 1 metrics on hand-built maps with known offsets."""
 
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +28,7 @@ from nanoslam_jax.models import (
     beam_range_line,
     beam_range_slope_intercept,
     beam_range_vertical,
+    check_measurement_model,
     line_from_slope_intercept,
     line_from_vertical,
     line_to_sensor,
@@ -375,7 +377,7 @@ def test_line_segment_detection_and_visibility():
 # configuration and the engine
 
 
-def test_line_model_by_config_name_and_circles_refused_with_the_reason():
+def test_line_model_by_config_name_and_unequal_dimensions_refused_with_the_reason():
     cfg = load_config(
         None,
         [
@@ -388,8 +390,14 @@ def test_line_model_by_config_name_and_circles_refused_with_the_reason():
     assert isinstance(params.measurement, LineSegment)
     np.testing.assert_allclose(params.R, np.diag([0.03**2, math.radians(1.0) ** 2]))
     np.testing.assert_allclose(params.measurement.offset, [-0.18, 0.0])
-    with pytest.raises(ConfigError, match="model.measurement.*landmark_dim 3"):
-        load_config(None, ["model.measurement=circle"])
+    _, params = settings_from_config(load_config(None, ["model.measurement=circle"]), 4)
+    assert isinstance(params.measurement, Circle) and params.R.shape == (3, 3)
+
+    class PartialCircle(Circle):  # a detection that does not determine the landmark
+        measurement_dim: ClassVar[int] = 2
+
+    with pytest.raises(ValueError, match="model.measurement.*landmark_dim 3 and measurement_dim 2"):
+        check_measurement_model(PartialCircle, "fastslam2")
     with pytest.raises(ConfigError, match="model.measurement.*nasrukf"):
         load_config(None, ["model.measurement=line", "filter.method=nasrukf"])
     with pytest.raises(ConfigError, match="model.measurement_params"):

@@ -97,15 +97,16 @@ def _dr_pieces(
 
 
 def _detections(
-    ranges_bearings: Float[np.ndarray, "m 4"],
+    ranges_bearings: Float[np.ndarray, "m c"],
     scan_of_det: Int[np.ndarray, " m"],
     scan_times: Float[np.ndarray, " scans"],
     segment_of_scan: Int[np.ndarray, " scans"],
     n_segments: int,
     k_max: Optional[int],
     range_rule: str,
+    measurement_dim: int = 2,
 ) -> tuple[
-    Float[np.ndarray, "segments k_max 2"],
+    Float[np.ndarray, "segments k_max d"],
     Bool[np.ndarray, "segments k_max"],
     Float[np.ndarray, "segments k_max"],
     Int[np.ndarray, "segments k_max"],
@@ -113,13 +114,15 @@ def _detections(
     """The padded detections ``(z, z_mask, diam, z_id)`` of every segment, file order kept within a scan.
 
     Args:
-        ranges_bearings: kept detections ``(range, bearing, diameter, landmark id or -1)``.
+        ranges_bearings: kept detections ``(z, diameter, landmark id or -1)``, ``z`` of
+            ``measurement_dim`` values (range and bearing for range-bearing).
         scan_of_det: index of each kept detection's scan.
         scan_times: distinct scan times (for messages).
         segment_of_scan: index of each scan's own segment.
         n_segments: number of output segments.
         k_max: padded detections per segment; ``None``: the most in any scan (at least 1).
         range_rule: the range filter in words (for messages).
+        measurement_dim: the values of a detection.
 
     Raises:
         ValueError: a scan has more than an explicit ``k_max`` kept detections.
@@ -142,7 +145,8 @@ def _detections(
     z_mask = np.zeros((n_segments, k_max), dtype=bool)
     z[segment_of_scan[scans], slot] = ranges_bearings[order]
     z_mask[segment_of_scan[scans], slot] = True
-    return z[..., :2], z_mask, z[..., 2], np.where(z_mask, z[..., 3], -1).astype(np.int32)
+    d = measurement_dim
+    return z[..., :d], z_mask, z[..., d], np.where(z_mask, z[..., d + 1], -1).astype(np.int32)
 
 
 def make_segments(
@@ -153,6 +157,7 @@ def make_segments(
     k_max: Optional[int] = None,
     max_dr_per_segment: int = 12,
     t_end: Optional[float] = None,
+    measurement_dim: int = 2,
 ) -> Segments:
     """Cut a log into fixed-shape segments, one per laser scan (plus splits of long gaps).
 
@@ -171,10 +176,14 @@ def make_segments(
             range filter (at least 1). Never truncates: a scan with more raises.
         max_dr_per_segment: DR pieces per segment (padding and split threshold).
         t_end: keep only scans at or before this time (s); ``None``: the whole log.
+        measurement_dim: the values of a detection (the measurement model's ``measurement_dim``):
+            the log's detection rows are ``time``, the detection's ``measurement_dim`` values
+            (the first its range, which the range filter reads) and a last one (a tree's
+            diameter).
 
     Returns:
         :class:`Segments` of numpy arrays: ``time (S,)``, ``dt (S, D)``, ``u (S, D, 2)``,
-        ``dr_mask (S, D)``, ``z (S, K, 2)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)``, ``z_id (S, K)`` (-1: unknown) with ``D = max_dr_per_segment``
+        ``dr_mask (S, D)``, ``z (S, K, measurement_dim)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)``, ``z_id (S, K)`` (-1: unknown) with ``D = max_dr_per_segment``
         and ``K = k_max``; padding is zero with the mask False.
 
     Raises:
@@ -184,6 +193,11 @@ def make_segments(
     """
     _check_inputs(raw, min_range, max_range, k_max, max_dr_per_segment)
     det = raw.detections
+    if det.ndim != 2 or det.shape[1] != measurement_dim + 2:
+        raise ValueError(
+            f"log {raw.source!r}: detections of {measurement_dim} values need rows of {measurement_dim + 2} "
+            f"columns (time, the detection, a diameter or length), got shape {det.shape}"
+        )
     if t_end is not None:
         det = det[det[:, 0] <= t_end]
     if det.shape[0] == 0:
@@ -197,7 +211,7 @@ def make_segments(
     ids = np.full(raw.detections.shape[0], -1.0) if raw.detection_ids is None else np.asarray(raw.detection_ids, float)
     if t_end is not None:
         ids = ids[raw.detections[:, 0] <= t_end]
-    rows = np.c_[det[keep, 1:4], ids[keep]]
+    rows = np.c_[det[keep, 1:], ids[keep]]
     z, z_mask, diam, z_id = _detections(
         rows,
         scan_of_det[keep],
@@ -206,6 +220,7 @@ def make_segments(
         layout["time"].size,
         k_max,
         f"{min_range} <= range < {max_range} m",
+        measurement_dim,
     )
     # Numpy arrays: the segments live on the host until a run transfers them (jax arrays under jit).
     fields: dict[str, Any] = dict(

@@ -17,7 +17,10 @@ class RawLog:
         dr: ``(N, 3)`` dead reckoning ``time_s, ve_mps, alpha_rad``, strictly increasing time.
         detections: ``(M, 4)`` tree detections ``time_s, range_m, bearing_rad, diameter_m`` with
             the bearing already in the **vehicle frame** (file bearing minus pi/2, wrapped);
-            rows sharing a time form one scan; time non-decreasing.
+            rows sharing a time form one scan; time non-decreasing. Detections of another
+            measurement model have ``(M, 2 + d)`` rows: the time, the ``d`` values of the
+            detection (a line's ``rho, alpha``; a circle's centre range, bearing and radius) and
+            a last value (a segment's length, a circle's diameter).
         gps: ``(G, 3)`` GPS fixes ``time_s, x_m, y_m`` in the frame of ``gps.dat``.
         truth_poses: ``(T, 4)`` true laser poses ``time_s, x, y, phi`` (simulated logs only).
         truth_landmarks: ``(L, 2)`` true landmark positions (simulated logs only).
@@ -57,7 +60,8 @@ class Segments(NamedTuple):
         dt: integration interval of each DR piece (s).
         u: controls ``(ve, alpha)`` of each DR piece.
         dr_mask: which DR pieces are real.
-        z: detections ``(range, bearing)``, bearing in the vehicle frame, wrapped.
+        z: detections ``(range, bearing)``, bearing in the vehicle frame, wrapped (``d``: the
+            measurement model's ``measurement_dim`` values).
         z_mask: which detections are real.
         diam: the tree diameter reported with each detection (m; the 4th column of
             ``measurements.dat``; 0 for padding).
@@ -72,7 +76,7 @@ class Segments(NamedTuple):
     dt: Float[Array, "segments dr"]
     u: Float[Array, "segments dr 2"]
     dr_mask: Bool[Array, "segments dr"]
-    z: Float[Array, "segments k_max 2"]
+    z: Float[Array, "segments k_max d"]
     z_mask: Bool[Array, "segments k_max"]
     diam: Float[Array, "segments k_max"]
     is_scan: Bool[Array, " segments"]

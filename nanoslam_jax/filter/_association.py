@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import inv2, quad_form, sandwich, sym
+from .._linalg import inv_small, quad_form, sandwich, sym
 from .._trig import computed_once
 from ..models import (
     AbstractMeasurementModel,
@@ -39,11 +39,11 @@ class Association(NamedTuple):
 def predicted_measurements(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
-    mean: Float[Array, "slots 2"],
-    cov: Float[Array, "slots 2 2"],
-    R: Float[Array, "2 2"],
+    mean: Float[Array, "slots l"],
+    cov: Float[Array, "slots l l"],
+    R: Float[Array, "d d"],
     model: AbstractMeasurementModel | None = None,
-) -> tuple[Float[Array, "slots 2"], Float[Array, "slots 2 2"]]:
+) -> tuple[Float[Array, "slots d"], Float[Array, "slots d d"]]:
     """Predicted detection and innovation covariance ``Gx P Gx' + Gm Sigma Gm' + R`` of each slot
     (``model``: the measurement model, default range-bearing)."""
     model = RangeBearing() if model is None else model
@@ -56,9 +56,9 @@ def predicted_measurements(
 def innovation_information(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
-    mean: Float[Array, "slots 2"],
-    cov: Float[Array, "slots 2 2"],
-    R: Float[Array, "2 2"],
+    mean: Float[Array, "slots l"],
+    cov: Float[Array, "slots l l"],
+    R: Float[Array, "d d"],
     model: AbstractMeasurementModel | None = None,
 ):
     """:func:`predicted_measurements` and the inverse of ``S``.
@@ -72,7 +72,7 @@ def innovation_information(
     """
     if model is not None and not is_range_bearing(model):
         z_hat, S = predicted_measurements(x, P, mean, cov, R, model)
-        return z_hat, inv2(sym(S))
+        return z_hat, inv_small(sym(S))
     (zr, zb), J = range_bearing_jacobian_components(x[0], x[1], x[2], mean[:, 0], mean[:, 1])
 
     def s(a, b):  # (Gx P Gx' + Gm cov Gm' + R)[a, b]
@@ -91,9 +91,9 @@ def associate(
     local: LandmarkMap,
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
-    z: Float[Array, "k_max 2"],
+    z: Float[Array, "k_max d"],
     z_mask: Bool[Array, " k_max"],
-    R: Float[Array, "2 2"],
+    R: Float[Array, "d d"],
     gate: Float[Array, ""],
     new_landmark: Float[Array, ""],
     sequential: bool = True,
@@ -182,7 +182,7 @@ def nearest_neighbours(
     z_hat: tuple[Float[Array, " slots"], Float[Array, " slots"]] | Float[Array, "slots d"],
     s_inv: tuple[Float[Array, " slots"], Float[Array, " slots"], Float[Array, " slots"]] | Float[Array, "slots d d"],
     active: Bool[Array, " window"],
-    z: Float[Array, "k_max 2"],
+    z: Float[Array, "k_max d"],
     z_mask: Bool[Array, " k_max"],
     gate: Float[Array, ""],
     new_landmark: Float[Array, ""],

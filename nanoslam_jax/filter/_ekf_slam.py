@@ -1,11 +1,12 @@
 """EKF-SLAM: one joint Gaussian over the pose and all landmarks (docs/method/ekf-slam.md).
 
 The state is a fixed-capacity joint Gaussian ``N(mean, cov)`` over
-``(px, py, phi, m_0x, m_0y, ..., m_{C-1}x, m_{C-1}y)``, ``n = 3 + 2 C``, with an ``active`` mask
-(the operations on it are in :mod:`._joint_gaussian`). An inactive slot has mean 0, an identity
-2x2 diagonal block and zero cross-covariance with everything: it affects nothing, so the results
-do not depend on the capacity. ``count`` is one past the highest active slot: every landmark lies
-below it, and the covariance update touches only the leading ``3 + 2 count`` rows and columns.
+``(px, py, phi, m_0, ..., m_{C-1})``, ``n = 3 + l C`` with ``l`` the measurement model's
+``landmark_dim`` (2 for points), with an ``active`` mask (the operations on it are in
+:mod:`._joint_gaussian`). An inactive slot has mean 0, an identity diagonal block and zero
+cross-covariance with everything: it affects nothing, so the results do not depend on the
+capacity. ``count`` is one past the highest active slot: every landmark lies below it, and the
+covariance update touches only the leading ``3 + l count`` rows and columns.
 
 Per segment (:func:`ekf_slam_step`):
 
@@ -32,7 +33,7 @@ Per segment (:func:`ekf_slam_step`):
    marginalised out of the joint Gaussian, when its existence falls below the removal threshold
    or it stays tentative too long. Without management every new landmark is confirmed and
    permanent.
-4. The covariance update is the symmetric rank-2 form ``P <- P - V'V`` (exactly symmetric, no
+4. The covariance update is the symmetric rank-d form ``P <- P - V'V`` (exactly symmetric, no
    n x n product) over the tiles of the leading part that can hold landmarks. Positive
    semi-definiteness is not enforced beyond that: ``S`` is symmetrised and its Cholesky factor
    has floored pivots, and a non-finite state is reported (``n_nonfinite``), never hidden.
@@ -70,7 +71,7 @@ class EkfSlamState(NamedTuple):
     """The EKF-SLAM state carried from one segment to the next.
 
     Attributes:
-        mean: joint mean ``(px, py, phi, m_0, ..., m_{C-1})``, ``n = 3 + 2 C``.
+        mean: joint mean ``(px, py, phi, m_0, ..., m_{C-1})``, ``n = 3 + l C``.
         cov: joint covariance (exactly symmetric).
         landmarks: the per-landmark bookkeeping (``active``, ``hits``, ``misses``, ``log_odds``,
             ``confirmed``, ``born``, ``diam``, ``diam_var``) as a :class:`LandmarkMap` whose
@@ -92,9 +93,12 @@ class EkfSlamState(NamedTuple):
     scan: Int[Array, ""]
 
     def landmark_map(self) -> LandmarkMap:
-        """The landmark marginals (means and 2x2 blocks of the joint Gaussian) with the bookkeeping."""
+        """The landmark marginals (means and diagonal blocks of the joint Gaussian) with the bookkeeping."""
         capacity = self.landmarks.active.shape[0]
-        return self.landmarks._replace(mean=landmark_means(self.mean), cov=landmark_blocks(self.cov, capacity))
+        dim = (self.mean.shape[0] - 3) // capacity
+        return self.landmarks._replace(
+            mean=landmark_means(self.mean, dim), cov=landmark_blocks(self.cov, capacity, dim)
+        )
 
 
 def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSlamState:
@@ -106,12 +110,13 @@ def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSl
         key: PRNG key (carried, unused).
     """
     c = static.capacity
-    n = 3 + 2 * c
-    diag = jnp.concatenate([jnp.full((3,), params.init_cov, dtype=float), jnp.ones(2 * c)])
+    dim = params.measurement.landmark_dim
+    n = 3 + dim * c
+    diag = jnp.concatenate([jnp.full((3,), params.init_cov, dtype=float), jnp.ones(dim * c)])
     zero = jnp.zeros((), jnp.int32)
     # The bookkeeping of an empty map; its mean and covariance are placeholders of one element.
-    book = LandmarkMap.empty(c, ident=static.association == "known")._replace(
-        mean=jnp.zeros((1, 2)), cov=jnp.zeros((1, 2, 2))
+    book = LandmarkMap.empty(c, ident=static.association == "known", dim=dim)._replace(
+        mean=jnp.zeros((1, dim)), cov=jnp.zeros((1, dim, dim))
     )
     return EkfSlamState(
         mean=jnp.zeros(n),
@@ -176,12 +181,13 @@ def _high_water(active: Bool[Array, " capacity"]) -> Int[Array, ""]:
 def _remove(mean, cov, book: LandmarkMap, remove: Bool[Array, " capacity"]):
     """Marginalise every landmark in ``remove`` out of the joint Gaussian (a loop over them only)."""
     capacity = remove.shape[0]
+    dim = (mean.shape[0] - 3) // capacity
     n_remove = jnp.sum(remove).astype(jnp.int32)
     slots, _ = first_true(remove, capacity)
 
     def body(i, mc):
         m, c = mc
-        return ekf_slam_marginalise(m, c, slots[i])
+        return ekf_slam_marginalise(m, c, slots[i], dim=dim)
 
     mean, cov = jax.lax.fori_loop(0, n_remove, body, (mean, cov))
     return mean, cov, book._replace(active=book.active & ~remove)
@@ -211,6 +217,7 @@ def ekf_slam_step(
     """
     capacity = static.capacity
     R, mp, model = params.R, params.map, params.measurement
+    dim = model.landmark_dim
     var_d = jnp.square(mp.sigma_diameter)
     valid = jnp.asarray(valid)
     # A padding segment has no real DR piece (dr_mask False): the prediction is then exact identity.
@@ -250,7 +257,7 @@ def ekf_slam_step(
         add = new & room
         # No conditionals around the big buffers (they would copy P): masked operations whose
         # covariance work is skipped (update: zero tiles; augment: dropped scatters).
-        mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R, size=3 + 2 * c.count, apply=matched, model=model)
+        mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R, size=3 + dim * c.count, apply=matched, model=model)
         mean, cov = ekf_slam_augment(mean, cov, zk, free, R, apply=add, model=model)
         # Bookkeeping of the one slot that changes (scatters to ``capacity`` are dropped).
         b = c.book
@@ -293,7 +300,7 @@ def ekf_slam_step(
         # Existence of the landmarks near the updated pose mean (gathered as the particle filters'
         # local window); those created in this scan are not tested.
         old = book0.active
-        full = book._replace(mean=landmark_means(mean), cov=landmark_blocks(cov, capacity), active=old)
+        full = book._replace(mean=landmark_means(mean, dim), cov=landmark_blocks(cov, capacity, dim), active=old)
         radius = params.max_range + params.window_margin
         local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius, model=params.measurement)
         local = manage_window(

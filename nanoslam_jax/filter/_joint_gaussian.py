@@ -1,7 +1,8 @@
 """Operations on EKF-SLAM's joint Gaussian over the pose and a fixed-capacity landmark vector.
 
-The state is ``N(mean, cov)`` over ``(px, py, phi, m_0x, m_0y, ..., m_{C-1}x, m_{C-1}y)``,
-``n = 3 + 2 C``. An inactive slot has mean 0, an identity 2x2 diagonal block and zero
+The state is ``N(mean, cov)`` over ``(px, py, phi, m_0, ..., m_{C-1})``, ``n = 3 + l C`` with
+``l`` the measurement model's ``landmark_dim`` (a point's ``(x, y)``: 2). An inactive slot has
+mean 0, an identity ``l x l`` diagonal block and zero
 cross-covariance with everything: it enters no innovation covariance and no gain, so it affects
 nothing. Prediction (:func:`ekf_slam_predict`), innovations against every slot
 (:func:`slot_innovations`), the joint update (:func:`ekf_slam_update`, a rank-2 downdate over the
@@ -16,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import chol2, inv2, mm, mmt, mt, quad_form, sandwich, sym
+from .._linalg import chol_small, inv_small, mm, mmt, mt, quad_form, sandwich, sym
 from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 from ._params import Params
 
@@ -26,21 +27,26 @@ def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
     return RangeBearing() if model is None else model
 
 
-def landmark_means(mean: Float[Array, " n"]) -> Float[Array, "capacity 2"]:
-    """The landmark part of the joint mean as ``(capacity, 2)`` positions."""
-    return mean[3:].reshape(-1, 2)
+def landmark_means(mean: Float[Array, " n"], dim: int = 2) -> Float[Array, "capacity l"]:
+    """The landmark part of the joint mean as ``(capacity, dim)`` landmarks (``dim``: the
+    measurement model's ``landmark_dim``)."""
+    return mean[3:].reshape(-1, dim)
 
 
-def landmark_blocks(cov: Float[Array, "n n"], capacity: int) -> Float[Array, "capacity 2 2"]:
-    """The 2x2 diagonal blocks (landmark marginal covariances) of the joint covariance.
+def landmark_blocks(cov: Float[Array, "n n"], capacity: int, dim: int = 2) -> Float[Array, "capacity l l"]:
+    """The ``dim x dim`` diagonal blocks (landmark marginal covariances) of the joint covariance.
 
     Args:
         cov: joint covariance.
         capacity: number of landmark slots.
+        dim: values per landmark (the measurement model's ``landmark_dim``).
     """
-    i = 3 + 2 * jnp.arange(capacity)
-    a, b, c = cov[i, i], cov[i, i + 1], cov[i + 1, i + 1]
-    return jnp.stack([jnp.stack([a, b], -1), jnp.stack([b, c], -1)], -2)
+    i = 3 + dim * jnp.arange(capacity)
+    if dim == 2:
+        a, b, c = cov[i, i], cov[i, i + 1], cov[i + 1, i + 1]
+        return jnp.stack([jnp.stack([a, b], -1), jnp.stack([b, c], -1)], -2)
+    r = i[:, None] + jnp.arange(dim)
+    return cov[r[:, :, None], r[:, None, :]]
 
 
 def ekf_slam_predict(
@@ -88,34 +94,39 @@ def ekf_slam_predict(
 def slot_innovations(
     mean: Float[Array, " n"],
     cov: Float[Array, "n n"],
-    z: Float[Array, "2"],
-    R: Float[Array, "2 2"],
+    z: Float[Array, " d"],
+    R: Float[Array, "d d"],
     usable: Bool[Array, " capacity"],
     model: AbstractMeasurementModel | None = None,
-) -> tuple[Float[Array, "capacity 2"], Float[Array, "capacity 2 2"]]:
+) -> tuple[Float[Array, "capacity d"], Float[Array, "capacity d d"]]:
     """Innovation and innovation covariance of detection ``z`` against every landmark slot.
 
     ``S_j = H_j P H_j' + R`` with ``H_j = [Gx, 0.., Gm, 0..]`` (autodiff Jacobians at the
     current mean), assembled from the pose block, the pose-landmark cross block and the
     landmark block of slot ``j``: O(capacity). Slots not ``usable`` are evaluated at a dummy
-    landmark 1 m from the pose (finite values; the caller masks them).
+    landmark (for a point 1 m from the pose; for another model its first two components there and
+    the rest 1: finite values, which the caller masks).
 
     Args:
         mean, cov: joint Gaussian.
-        z: the detection ``(r, beta)``.
+        z: the detection (``(r, beta)`` for range-bearing).
         R: measurement noise covariance.
         usable: slots to evaluate at their mean.
         model: the measurement model (default range-bearing).
     """
     model = _model(model)
     capacity = usable.shape[0]
+    dim = model.landmark_dim
     x = mean[:3]
-    lm = jnp.where(usable[:, None], landmark_means(mean), x[:2] + jnp.array([1.0, 0.0]))
+    dummy = x[:2] + jnp.array([1.0, 0.0])
+    if dim != 2:
+        dummy = jnp.concatenate([dummy, jnp.ones(dim - 2, dummy.dtype)])
+    lm = jnp.where(usable[:, None], landmark_means(mean, dim), dummy)
     z_hat = jax.vmap(model.h, (None, 0))(x, lm)
     Gx, Gm = jax.vmap(model.jacobians, (None, 0))(x, lm)
     Pxx = cov[:3, :3]
-    Pxl = jnp.transpose(cov[:3, 3:].reshape(3, capacity, 2), (1, 0, 2))  # (C, 3, 2)
-    Pll = landmark_blocks(cov, capacity)
+    Pxl = jnp.transpose(cov[:3, 3:].reshape(3, capacity, dim), (1, 0, 2))  # (C, 3, dim)
+    Pll = landmark_blocks(cov, capacity, dim)
     C = mmt(mm(Gx, Pxl), Gm)
     S = sandwich(Gx, Pxx[None]) + C + mt(C) + sandwich(Gm, Pll) + R
     nu = jax.vmap(model.innovation, (None, 0))(z, z_hat)
@@ -125,8 +136,8 @@ def slot_innovations(
 def association_distances(
     mean: Float[Array, " n"],
     cov: Float[Array, "n n"],
-    z: Float[Array, "2"],
-    R: Float[Array, "2 2"],
+    z: Float[Array, " d"],
+    R: Float[Array, "d d"],
     available: Bool[Array, " capacity"],
     diam_term: Float[Array, " capacity"] | float = 0.0,
     model: AbstractMeasurementModel | None = None,
@@ -135,30 +146,29 @@ def association_distances(
     ``diam_term`` (the tree-diameter term of each slot, or 0); ``model``: the measurement model
     (default range-bearing)."""
     nu, S = slot_innovations(mean, cov, z, R, available, model)
-    return jnp.where(available, quad_form(nu, inv2(S)) + diam_term, jnp.inf)
+    return jnp.where(available, quad_form(nu, inv_small(S)) + diam_term, jnp.inf)
 
 
 #: Side of the square blocks in which the covariance update touches only the active part of P.
 BLOCK = 128
 
 
-def rank2_downdate(
+def low_rank_downdate(
     cov: Float[Array, "n n"],
-    v0: Float[Array, " n"],
-    v1: Float[Array, " n"],
+    vs: tuple[Float[Array, " n"], ...],
     size: Int[Array, ""] | int | None = None,
     block: int = BLOCK,
 ) -> Float[Array, "n n"]:
-    """``cov - (v0 v0' + v1 v1')`` on the leading ``size x size`` part of ``cov``.
+    """``cov - sum_i v_i v_i'`` on the leading ``size x size`` part of ``cov``.
 
     The update is applied in ``block x block`` tiles by a loop over the tiles that meet the
-    leading part (cost O(size^2), not O(n^2)); each element is ``P_ab - (v0_a v0_b + v1_a v1_b)``,
+    leading part (cost O(size^2), not O(n^2)); each element is ``P_ab - sum_i v_ia v_ib``,
     so a symmetric ``cov`` stays exactly symmetric. Entries outside the leading part are left
-    as they are (the caller guarantees ``v0``, ``v1`` vanish there, so this is the full update).
+    as they are (the caller guarantees the ``v_i`` vanish there, so this is the full update).
 
     Args:
         cov: the matrix to update.
-        v0, v1: the two update vectors.
+        vs: the update vectors (one per dimension of the detection).
         size: leading rows/columns to update (default: all); may be traced. 0 updates nothing.
         block: tile side.
     """
@@ -173,39 +183,64 @@ def rank2_downdate(
         r_nom, c_nom = bi * B, bj * B
         # The last tile is clamped inside the matrix; rows/columns of earlier tiles are masked.
         r0, c0 = jnp.minimum(r_nom, n - B), jnp.minimum(c_nom, n - B)
-        a0, a1 = jax.lax.dynamic_slice(v0, (r0,), (B,)), jax.lax.dynamic_slice(v1, (r0,), (B,))
-        b0, b1 = jax.lax.dynamic_slice(v0, (c0,), (B,)), jax.lax.dynamic_slice(v1, (c0,), (B,))
+        a = [jax.lax.dynamic_slice(v, (r0,), (B,)) for v in vs]
+        b = [jax.lax.dynamic_slice(v, (c0,), (B,)) for v in vs]
         keep = ((r0 + idx) >= r_nom)[:, None] & ((c0 + idx) >= c_nom)[None, :]
-        d = a0[:, None] * b0[None, :] + a1[:, None] * b1[None, :]
+        d = a[0][:, None] * b[0][None, :]
+        for ai, bi_ in zip(a[1:], b[1:]):
+            d = d + ai[:, None] * bi_[None, :]
         tile = jax.lax.dynamic_slice(P, (r0, c0), (B, B))
         return jax.lax.dynamic_update_slice(P, tile - jnp.where(keep, d, 0.0), (r0, c0))
 
     return jax.lax.fori_loop(0, nb * nb, body, cov)
 
 
+def rank2_downdate(
+    cov: Float[Array, "n n"],
+    v0: Float[Array, " n"],
+    v1: Float[Array, " n"],
+    size: Int[Array, ""] | int | None = None,
+    block: int = BLOCK,
+) -> Float[Array, "n n"]:
+    """``cov - (v0 v0' + v1 v1')`` on the leading ``size x size`` part of ``cov``
+    (:func:`low_rank_downdate` of two vectors)."""
+    return low_rank_downdate(cov, (v0, v1), size, block)
+
+
+def _forward_substitution(L: Float[Array, "d d"], rows: list) -> list:
+    """``L^-1 B`` for lower-triangular ``L``, with ``B`` given as its rows (arrays of any shape)."""
+    out: list = []
+    for i, r in enumerate(rows):
+        acc = r
+        for j, o in enumerate(out):
+            acc = acc - L[i, j] * o
+        out.append(acc / L[i, i])
+    return out
+
+
 def ekf_slam_update(
     mean: Float[Array, " n"],
     cov: Float[Array, "n n"],
-    z: Float[Array, "2"],
+    z: Float[Array, " d"],
     slot: Int[Array, ""] | int,
-    R: Float[Array, "2 2"],
+    R: Float[Array, "d d"],
     size: Int[Array, ""] | int | None = None,
     apply: Bool[Array, ""] | bool = True,
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """EKF update of the joint state with detection ``z`` of landmark ``slot``.
 
-    ``W = H P`` (2 x n) is formed from the pose rows and the landmark's two rows of ``P``;
+    ``W = H P`` (d x n) is formed from the pose rows and the landmark's ``l`` rows of ``P``;
     ``S = W H' + R = L L'``; ``V = L^-1 W``; then ``mean += V' L^-1 nu`` and ``P -= V'V``
-    (the symmetric rank-2 form of ``P - K S K'``, exactly symmetric, O(n^2); see
-    :func:`rank2_downdate`).
+    (the symmetric rank-d form of ``P - K S K'``, exactly symmetric, O(n^2); see
+    :func:`low_rank_downdate`).
 
     Args:
         mean, cov: joint Gaussian.
-        z: the detection ``(r, beta)`` (bearing residual wrapped).
+        z: the detection (``(r, beta)`` for range-bearing; angular residuals wrapped).
         slot: the landmark slot it is associated with.
         R: measurement noise covariance.
-        size: leading rows/columns of ``P`` that can be non-zero in ``W`` (``3 + 2 count``
+        size: leading rows/columns of ``P`` that can be non-zero in ``W`` (``3 + l count``
             with the active slots a prefix; default: all). Only that part of ``P`` is touched.
         apply: when False the state is returned unchanged (no covariance work is done).
         model: the measurement model (default range-bearing).
@@ -215,34 +250,34 @@ def ekf_slam_update(
     """
     model = _model(model)
     n = mean.shape[0]
+    dim, d = model.landmark_dim, z.shape[-1]
     apply = jnp.asarray(apply)
-    row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
+    row = (3 + dim * jnp.asarray(slot)).astype(jnp.int32)
     z0 = jnp.zeros((), jnp.int32)
     x = mean[:3]
-    m = jax.lax.dynamic_slice(mean, (row,), (2,))
+    m = jax.lax.dynamic_slice(mean, (row,), (dim,))
     Gx, Gm = model.jacobians(x, m)
     nu = model.innovation(z, model.h(x, m))
-    W = Gx @ cov[:3, :] + Gm @ jax.lax.dynamic_slice(cov, (row, z0), (2, n))
-    S = sym(mmt(W[:, :3], Gx) + mmt(jax.lax.dynamic_slice(W, (z0, row), (2, 2)), Gm) + R)
-    L = chol2(S)
-    l11, l21, l22 = L[0, 0], L[1, 0], L[1, 1]
-    v0 = W[0] / l11
-    v1 = (W[1] - l21 * v0) / l22
-    w0 = nu[0] / l11
-    w1 = (nu[1] - l21 * w0) / l22
-    updated = mean + v0 * w0 + v1 * w1
+    W = Gx @ cov[:3, :] + Gm @ jax.lax.dynamic_slice(cov, (row, z0), (dim, n))
+    S = sym(mmt(W[:, :3], Gx) + mmt(jax.lax.dynamic_slice(W, (z0, row), (d, dim)), Gm) + R)
+    L = chol_small(S)
+    v = _forward_substitution(L, [W[i] for i in range(d)])
+    w = _forward_substitution(L, [nu[i] for i in range(d)])
+    updated = mean
+    for vi, wi in zip(v, w):
+        updated = updated + vi * wi
     mean = jnp.where(apply, updated.at[2].set(wrap_angle(updated[2])), mean)
     size = n if size is None else size
-    cov = rank2_downdate(cov, v0, v1, jnp.where(apply, size, 0))
+    cov = low_rank_downdate(cov, tuple(v), jnp.where(apply, size, 0))
     return mean, cov
 
 
 def ekf_slam_augment(
     mean: Float[Array, " n"],
     cov: Float[Array, "n n"],
-    z: Float[Array, "2"],
+    z: Float[Array, " d"],
     slot: Int[Array, ""] | int,
-    R: Float[Array, "2 2"],
+    R: Float[Array, "d d"],
     apply: Bool[Array, ""] | bool = True,
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
@@ -251,11 +286,11 @@ def ekf_slam_augment(
     With ``m = h^-1(x, z)`` and its Jacobians ``Gx`` (pose) and ``Gz`` (detection) by autodiff:
     ``P_mm = Gx P_xx Gx' + Gz R Gz'`` and ``P_m,rest = Gx P_x,rest`` (the slot's old values are
     those of an inactive slot: zero cross-covariance, so ``P_m,rest`` is zero there too).
-    O(n): two rows, two columns and a 2x2 block are written.
+    O(n): ``l`` rows, ``l`` columns and an ``l x l`` block are written.
 
     Args:
         mean, cov: joint Gaussian; ``slot`` must be inactive.
-        z: the detection ``(r, beta)``.
+        z: the detection.
         slot: the slot that receives the landmark (``< capacity``).
         R: measurement noise covariance.
         apply: when False nothing is written.
@@ -263,16 +298,17 @@ def ekf_slam_augment(
     """
     model = _model(model)
     n = mean.shape[0]
+    dim = model.landmark_dim
     apply = jnp.asarray(apply)
-    row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
+    row = (3 + dim * jnp.asarray(slot)).astype(jnp.int32)
     x = mean[:3]
     m = model.landmark_from(x, z)
     Gx, Gz = model.inverse_jacobians(x, z)
-    cross = Gx @ cov[:3, :]  # (2, n)
+    cross = Gx @ cov[:3, :]  # (l, n)
     Pmm = sym(mmt(cross[:, :3], Gx) + sandwich(Gz, R))
     # Scatters with out-of-range indices when not applying: no write, and no read of the old
     # values (reading them back into a masked write would make XLA copy the whole matrix).
-    idx = jnp.where(apply, row + jnp.arange(2, dtype=jnp.int32), n)
+    idx = jnp.where(apply, row + jnp.arange(dim, dtype=jnp.int32), n)
     cov = cov.at[idx, :].set(cross, mode="drop")
     cov = cov.at[:, idx].set(cross.T, mode="drop")
     cov = cov.at[idx[:, None], idx[None, :]].set(Pmm, mode="drop")
@@ -285,21 +321,23 @@ def ekf_slam_marginalise(
     cov: Float[Array, "n n"],
     slot: Int[Array, ""] | int,
     apply: Bool[Array, ""] | bool = True,
+    dim: int = 2,
 ) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
     """Remove landmark ``slot`` from the joint Gaussian (marginalise it out) and free its slot.
 
     The marginal of a Gaussian over the other variables is the same Gaussian with the landmark's
     rows and columns deleted; here they are reset to those of an inactive slot (mean 0, identity
-    2x2 block, zero cross-covariance), which affects nothing. O(n): two rows, two columns.
+    block, zero cross-covariance), which affects nothing. O(n): ``dim`` rows and columns.
 
     Args:
         mean, cov: joint Gaussian.
         slot: the landmark slot to free.
         apply: when False nothing is written.
+        dim: values per landmark (the measurement model's ``landmark_dim``).
     """
     n = mean.shape[0]
-    row = (3 + 2 * jnp.asarray(slot)).astype(jnp.int32)
-    idx = jnp.where(jnp.asarray(apply), row + jnp.arange(2, dtype=jnp.int32), n)
+    row = (3 + dim * jnp.asarray(slot)).astype(jnp.int32)
+    idx = jnp.where(jnp.asarray(apply), row + jnp.arange(dim, dtype=jnp.int32), n)
     cov = cov.at[idx, :].set(0.0, mode="drop").at[:, idx].set(0.0, mode="drop")
-    cov = cov.at[idx[:, None], idx[None, :]].set(jnp.eye(2, dtype=cov.dtype), mode="drop")
+    cov = cov.at[idx[:, None], idx[None, :]].set(jnp.eye(dim, dtype=cov.dtype), mode="drop")
     return mean.at[idx].set(0.0, mode="drop"), cov

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._batching import batch_max
-from .._linalg import chol2, det2, gaussian_logpdf, inv2, mm, mmt, mt, mv, sandwich, sym
+from .._linalg import chol_small, gaussian_logpdf, inv_small, is_pd_small, mm, mmt, mt, mv, sandwich, sym
 from .._trig import computed_once
 from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 from ..quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
@@ -91,7 +91,8 @@ def gather_window(
     if slots < capacity:
         idx = jnp.where(idx < slots, idx, capacity)  # unused window slots point at ``capacity``
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
-    local = local._replace(active=idx < capacity, cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(2)))
+    eye = jnp.eye(lm.cov.shape[-1])
+    local = local._replace(active=idx < capacity, cov=jnp.where((idx < capacity)[:, None, None], local.cov, eye))
     return local, idx, jnp.maximum(n_near - window, 0)
 
 
@@ -137,8 +138,8 @@ def scatter_window(
 def update_slots(
     lm: LandmarkMap,
     slots: Int[Array, " k"],
-    mean: Float[Array, "k 2"],
-    cov: Float[Array, "k 2 2"],
+    mean: Float[Array, "k l"],
+    cov: Float[Array, "k l l"],
     diam: Float[Array, " k"] | None = None,
     diam_var: Float[Array, " k"] | None = None,
 ) -> LandmarkMap:
@@ -217,25 +218,26 @@ def add_landmarks(
 
 
 def init_landmark(
-    x: Float[Array, "3"], z: Float[Array, "2"], R: Float[Array, "2 2"], model: AbstractMeasurementModel | None = None
-) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+    x: Float[Array, "3"], z: Float[Array, " d"], R: Float[Array, "d d"], model: AbstractMeasurementModel | None = None
+) -> tuple[Float[Array, " l"], Float[Array, "l l"]]:
     """New landmark from pose ``x`` and detection ``z`` (eq. 16): ``g^-1(x, z)``, ``Gm^-1 R Gm^-T``
-    (``g`` the measurement model, default range-bearing)."""
+    (``g`` the measurement model, default range-bearing; ``Gm`` square: ``landmark_dim ==
+    measurement_dim``)."""
     model = _model(model)
     m = computed_once(model.landmark_from(x, z))
     _, Gm = model.jacobians(x, m)
-    Gi = inv2(Gm)
+    Gi = inv_small(Gm)
     return m, sym(sandwich(Gi, R))
 
 
 def ekf_update_loglik(
     x: Float[Array, "3"],
-    z: Float[Array, "2"],
-    mean: Float[Array, "2"],
-    cov: Float[Array, "2 2"],
-    R: Float[Array, "2 2"],
+    z: Float[Array, " d"],
+    mean: Float[Array, " l"],
+    cov: Float[Array, "l l"],
+    R: Float[Array, "d d"],
     model: AbstractMeasurementModel | None = None,
-) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
+) -> tuple[Float[Array, " l"], Float[Array, "l l"], Float[Array, ""]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form), and the
     detection's log-likelihood ``log N(z; g(x, mean), Gm cov Gm' + R)`` from the same quantities
     (``g`` the measurement model, default range-bearing)."""
@@ -243,59 +245,59 @@ def ekf_update_loglik(
     z_hat = computed_once(model.h(x, mean))
     _, Gm = model.jacobians(x, mean)
     S = sandwich(Gm, cov) + R
-    K = mm(mm(cov, mt(Gm)), inv2(S))
-    IKG = jnp.eye(2) - mm(K, Gm)
+    K = mm(mm(cov, mt(Gm)), inv_small(S))
+    IKG = jnp.eye(mean.shape[-1]) - mm(K, Gm)
     nu = model.innovation(z, z_hat)
     return mean + mv(K, nu), sym(sandwich(IKG, cov) + sandwich(K, R)), gaussian_logpdf(nu, S)
 
 
 def ekf_update(
     x: Float[Array, "3"],
-    z: Float[Array, "2"],
-    mean: Float[Array, "2"],
-    cov: Float[Array, "2 2"],
-    R: Float[Array, "2 2"],
+    z: Float[Array, " d"],
+    mean: Float[Array, " l"],
+    cov: Float[Array, "l l"],
+    R: Float[Array, "d d"],
     model: AbstractMeasurementModel | None = None,
-) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+) -> tuple[Float[Array, " l"], Float[Array, "l l"]]:
     """EKF update of one landmark at pose ``x`` with detection ``z`` (Joseph form)."""
     return ekf_update_loglik(x, z, mean, cov, R, model)[:2]
 
 
 def _unscented_landmark_points(
-    centre: Float[Array, "2"], cov: Float[Array, "2 2"], alpha, beta, kappa
-) -> tuple[Float[Array, "5 2"], Float[Array, "5"], Float[Array, "5"]]:
-    """The ``2n + 1 = 5`` unscented sigma points of ``N(centre, cov)`` in 2-D and their weights."""
-    xi, wm, wc = Unscented(alpha=alpha, beta=beta, kappa=kappa).unit_points(2)
-    return centre + mmt(xi, chol2(sym(cov))), wm, wc
+    centre: Float[Array, " n"], cov: Float[Array, "n n"], alpha, beta, kappa
+) -> tuple[Float[Array, "p n"], Float[Array, " p"], Float[Array, " p"]]:
+    """The ``p = 2n + 1`` unscented sigma points of ``N(centre, cov)`` and their weights."""
+    xi, wm, wc = Unscented(alpha=alpha, beta=beta, kappa=kappa).unit_points(centre.shape[-1])
+    return centre + mmt(xi, chol_small(sym(cov))), wm, wc
 
 
 def ukf_update_loglik(
     x: Float[Array, "3"],
-    z: Float[Array, "2"],
-    mean: Float[Array, "2"],
-    cov: Float[Array, "2 2"],
-    R: Float[Array, "2 2"],
+    z: Float[Array, " d"],
+    mean: Float[Array, " l"],
+    cov: Float[Array, "l l"],
+    R: Float[Array, "d d"],
     alpha: Float[ArrayLike, ""],
     beta: Float[ArrayLike, ""],
     kappa: Float[ArrayLike, ""],
     *,
     model: AbstractMeasurementModel | None = None,
-    h: Callable[[Float[Array, "3"], Float[Array, "2"]], Float[Array, "2"]] | None = None,
+    h: Callable[[Float[Array, "3"], Float[Array, " l"]], Float[Array, " d"]] | None = None,
     z_angle_index: int | None = 1,
-) -> tuple[Float[Array, "2"], Float[Array, "2 2"], Float[Array, ""]]:
+) -> tuple[Float[Array, " l"], Float[Array, "l l"], Float[Array, ""]]:
     """Unscented (UKF) update of one landmark at pose ``x`` with detection ``z`` (UFastSLAM).
 
-    Sigma points of ``N(mean, cov)`` go through the range-bearing model; the predicted
+    Sigma points of ``N(mean, cov)`` go through the measurement model; the predicted
     detection is their weighted mean relative to the centre point's prediction (bearing
     deviations wrapped), ``S = Pzz + R``, ``K = Pmz S^-1``, ``mean + K nu`` and
     ``cov - K S K'`` (symmetrised; ``cov`` is kept should the result not be positive definite).
 
     Args:
         x: the (sampled) pose (3,).
-        z: the detection ``(range, bearing)`` (2,).
-        mean: the landmark mean (2,).
-        cov: the landmark covariance (2, 2).
-        R: measurement noise covariance (2, 2).
+        z: the detection (d,).
+        mean: the landmark mean (l,).
+        cov: the landmark covariance (l, l).
+        R: measurement noise covariance (d, d).
         alpha, beta, kappa: unscented parameters (scalars; may be traced).
         model: the measurement model (default range-bearing): its ``h`` and its angular
             components (deviations and the innovation wrapped).
@@ -319,24 +321,24 @@ def ukf_update_loglik(
     dz_mean, Pzz = sigma_point_stats(dZ, wm, wc)
     Pmz = sigma_point_cross_cov(M, mean, dZ, dz_mean, wc)
     S = sym(Pzz + R)
-    K = mm(Pmz, inv2(S))
+    K = mm(Pmz, inv_small(S))
     nu = z - (Z[0] + dz_mean)
     for i in angles:
         nu = nu.at[i].set(wrap_angle(nu[i]))
     new_cov = sym(cov - mmt(mm(K, S), K))
-    pd = (new_cov[0, 0] > 0) & (det2(new_cov) > 0)
+    pd = is_pd_small(new_cov)
     return mean + mv(K, nu), jnp.where(pd, new_cov, cov), gaussian_logpdf(nu, S)
 
 
 def ukf_init_landmark(
     x: Float[Array, "3"],
-    z: Float[Array, "2"],
-    R: Float[Array, "2 2"],
+    z: Float[Array, " d"],
+    R: Float[Array, "d d"],
     alpha: Float[ArrayLike, ""],
     beta: Float[ArrayLike, ""],
     kappa: Float[ArrayLike, ""],
     model: AbstractMeasurementModel | None = None,
-) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+) -> tuple[Float[Array, " l"], Float[Array, "l l"]]:
     """New landmark by the unscented transform of the inverse model over ``z ~ N(z, R)`` (UFastSLAM).
 
     The unscented counterpart of :func:`init_landmark` (eq. 16): sigma points of the detection
@@ -344,8 +346,8 @@ def ukf_init_landmark(
 
     Args:
         x: the (sampled) pose (3,).
-        z: the detection ``(range, bearing)`` (2,).
-        R: measurement noise covariance (2, 2).
+        z: the detection (d,).
+        R: measurement noise covariance (d, d).
         alpha, beta, kappa: unscented parameters (scalars; may be traced).
         model: the measurement model (default range-bearing), whose inverse is used.
     """

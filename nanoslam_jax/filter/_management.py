@@ -108,7 +108,7 @@ def manage_window(
     local: LandmarkMap,
     pose: Float[Array, "3"],
     seen: Bool[Array, " window"],
-    z: Float[Array, "k 2"],
+    z: Float[Array, "k d"],
     z_mask: Bool[Array, " k"],
     diam: Float[Array, " k"],
     observed: Bool[Array, ""] | bool,
@@ -206,8 +206,8 @@ def drop_stale(lm: LandmarkMap, scan: Int[Array, ""] | int, mp: MapParams) -> La
 
 
 def new_landmarks(
-    mean: Float[Array, "k 2"],
-    cov: Float[Array, "k 2 2"],
+    mean: Float[Array, "k l"],
+    cov: Float[Array, "k l l"],
     is_new: Bool[Array, " k"],
     extra_hits: Int[Array, " k"],
     diam: Float[Array, " k"],

@@ -37,10 +37,10 @@ class RowResults(NamedTuple):
     pose: Float[Array, "3"]
     ll: Float[Array, " k"]
     llp: Float[Array, " k"]
-    new_mean: Float[Array, "k 2"]
-    new_cov: Float[Array, "k 2 2"]
-    upd_mean: Float[Array, "k 2"]
-    upd_cov: Float[Array, "k 2 2"]
+    new_mean: Float[Array, "k l"]
+    new_cov: Float[Array, "k l l"]
+    upd_mean: Float[Array, "k l"]
+    upd_cov: Float[Array, "k l l"]
 
 
 def row_work(
@@ -49,7 +49,7 @@ def row_work(
     proposal: AbstractProposal,
     x0: Float[Array, "3"],
     P0: Float[Array, "3 3"],
-    R: Float[Array, "2 2"],
+    R: Float[Array, "d d"],
     det: Detections,
     existing: Bool[Array, " k"],
     ps: Int[Array, " k"],
@@ -104,7 +104,7 @@ def rows_over_buckets(
     proposal: AbstractProposal,
     x0: Float[Array, "3"],
     P0: Float[Array, "3 3"],
-    R: Float[Array, "2 2"],
+    R: Float[Array, "d d"],
     det: Detections,
     existing: Bool[Array, " k"],
     ps: Int[Array, " k"],
@@ -143,9 +143,9 @@ def rows_over_buckets(
                 ll=pad(out.ll, 0.0),
                 llp=pad(out.llp, 0.0),
                 new_mean=pad(out.new_mean, 0.0),
-                new_cov=pad(out.new_cov, jnp.eye(2)),
+                new_cov=pad(out.new_cov, jnp.eye(out.new_cov.shape[-1])),
                 upd_mean=pad(out.upd_mean, 0.0),
-                upd_cov=pad(out.upd_cov, jnp.eye(2)),
+                upd_cov=pad(out.upd_cov, jnp.eye(out.upd_cov.shape[-1])),
             )
 
         return rows

@@ -203,12 +203,12 @@ class MapHistory(NamedTuple):
     here (:func:`nanoslam_jax.smoother.held_landmarks`).
 
     Attributes:
-        mean: the landmark slots' positions (a leading batch axis after the chunk axis for
+        mean: the landmark slots' states (a leading batch axis after the chunk axis for
             :func:`run_batch`).
         held: which slots held a confirmed landmark.
     """
 
-    mean: Float[np.ndarray, "chunks *batch slots 2"]
+    mean: Float[np.ndarray, "chunks *batch slots l"]
     held: Bool[np.ndarray, "chunks *batch slots"]
 
 
@@ -235,7 +235,7 @@ class FilterRun(NamedTuple):
     history: MapHistory | None = None
 
 
-def _best_map(state: Any) -> tuple[Float[Array, "slots 2"], Bool[Array, " slots"]]:
+def _best_map(state: Any) -> tuple[Float[Array, "slots l"], Bool[Array, " slots"]]:
     lm = reported_map(state)  # the fields not returned are not computed under jit
     return lm.mean, lm.active & lm.confirmed
 

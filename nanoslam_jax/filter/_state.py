@@ -14,8 +14,9 @@ class LandmarkMap(NamedTuple):
     """Fixed-capacity landmark arrays of one particle (or stacked: leading particle axis).
 
     Attributes:
-        mean: landmark positions.
-        cov: landmark covariances.
+        mean: landmark states (``l``: the measurement model's ``landmark_dim``; a point's position,
+            a line's ``(rho, alpha)``, a circle's ``(xc, yc, R)``).
+        cov: their covariances.
         active: which slots hold a landmark (tentative or confirmed).
         hits: detections associated with each landmark (the one that started it included).
         misses: scans in which the landmark was in view, not hidden and not detected.
@@ -28,8 +29,8 @@ class LandmarkMap(NamedTuple):
             known``), or None (no field: the ids are not kept).
     """
 
-    mean: Float[Array, "*particles slots 2"]
-    cov: Float[Array, "*particles slots 2 2"]
+    mean: Float[Array, "*particles slots l"]
+    cov: Float[Array, "*particles slots l l"]
     active: Bool[Array, "*particles slots"]
     hits: Int[Array, "*particles slots"]
     misses: Int[Array, "*particles slots"]
@@ -41,13 +42,14 @@ class LandmarkMap(NamedTuple):
     ident: Int[Array, "*particles slots"] | None = None
 
     @staticmethod
-    def empty(slots: int, batch: tuple[int, ...] = (), ident: bool = False) -> "LandmarkMap":
-        """An empty map with ``slots`` slots (and optional leading batch axes); ``ident``: with
-        the ``ident`` field (all -1)."""
+    def empty(slots: int, batch: tuple[int, ...] = (), ident: bool = False, dim: int = 2) -> "LandmarkMap":
+        """An empty map with ``slots`` slots (and optional leading batch axes) of landmarks of
+        ``dim`` values (a measurement model's ``landmark_dim``); ``ident``: with the ``ident``
+        field (all -1)."""
         shape = batch + (slots,)
         return LandmarkMap(
-            mean=jnp.zeros(shape + (2,)),
-            cov=jnp.broadcast_to(jnp.eye(2), shape + (2, 2)),
+            mean=jnp.zeros(shape + (dim,)),
+            cov=jnp.broadcast_to(jnp.eye(dim), shape + (dim, dim)),
             active=jnp.zeros(shape, bool),
             hits=jnp.zeros(shape, jnp.int32),
             misses=jnp.zeros(shape, jnp.int32),
@@ -68,7 +70,8 @@ class Particles(NamedTuple):
         pose_cov: each particle's last proposal covariance (used when ``prior_cov='carry'``).
         log_w: normalised log-weights (logsumexp = 0).
         landmarks: per-particle maps.
-        noise: each particle's measurement-noise variances (range, bearing): the configured ones, or
+        noise: each particle's measurement-noise variances (the diagonal of ``R``; range and bearing
+            for range-bearing detections): the configured ones, or
             its adaptive estimate (``noise.adaptive``).
         noise_count: residuals each particle's adaptive estimate has seen.
     """
@@ -77,7 +80,7 @@ class Particles(NamedTuple):
     pose_cov: Float[Array, "particles 3 3"]
     log_w: Float[Array, " particles"]
     landmarks: LandmarkMap
-    noise: Float[Array, "particles 2"]
+    noise: Float[Array, "particles d"]
     noise_count: Int[Array, " particles"]
 
 
@@ -108,7 +111,9 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         pose=jnp.zeros((n, 3)),
         pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
         log_w=jnp.full((n,), -jnp.log(n)),
-        landmarks=LandmarkMap.empty(static.capacity, (n,), ident=static.association == "known"),
+        landmarks=LandmarkMap.empty(
+            static.capacity, (n,), ident=static.association == "known", dim=params.measurement.landmark_dim
+        ),
         noise=jnp.broadcast_to(jnp.diagonal(params.R), (n, params.measurement.measurement_dim)),
         noise_count=jnp.zeros(n, jnp.int32),
     )

@@ -92,7 +92,7 @@ class _ParticleOut(NamedTuple):
     overflow: Int[Array, ""]
     n_landmarks: Int[Array, ""]
     n_confirmed: Int[Array, ""]
-    noise: Float[Array, "2"]
+    noise: Float[Array, " d"]
     noise_count: Int[Array, ""]
 
 
@@ -106,7 +106,7 @@ def particle_update(
     dt: Float[Array, " dr"],
     u: Float[Array, "dr 2"],
     dr_mask: Bool[Array, " dr"],
-    z: Float[Array, "k 2"],
+    z: Float[Array, "k d"],
     z_mask: Bool[Array, " k"],
     eps: Float[Array, "3"],
     valid: Bool[Array, ""] | bool = True,
@@ -114,7 +114,7 @@ def particle_update(
     slot_bucket: Int[Array, ""] | None = None,
     diam: Float[Array, " k"] | None = None,
     scan: Int[Array, ""] | int = 0,
-    noise: Float[Array, "2"] | None = None,
+    noise: Float[Array, " d"] | None = None,
     noise_count: Int[Array, ""] | None = None,
     z_id: Int[Array, " k"] | None = None,
 ) -> _ParticleOut:

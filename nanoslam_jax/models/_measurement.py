@@ -287,17 +287,18 @@ def check_measurement_model(
 ) -> None:
     """Raise a ValueError naming ``model.measurement`` when the filter cannot run ``model``.
 
-    The filter's maps hold landmarks of ``landmark_dim == 2`` with detections of
-    ``measurement_dim == 2`` (a new landmark is started through the inverse model, whose Jacobian
-    must be square); detections carry no auxiliary input yet (``aux_dim == 0``); NASRUKF
-    (``filter.method: nasrukf``) and the smoother run range-bearing models only.
+    The filter's maps hold landmarks of the model's ``landmark_dim``; a detection has
+    ``measurement_dim`` values, as many (a new landmark is started through the inverse model,
+    whose Jacobian must be square); detections carry no auxiliary input yet (``aux_dim == 0``);
+    NASRUKF (``filter.method: nasrukf``) and the smoother run range-bearing models only.
     """
     cls = model if isinstance(model, type) else type(model)
     name = cls.__name__
-    if cls.landmark_dim != 2 or cls.measurement_dim != 2:
+    if cls.landmark_dim < 1 or cls.landmark_dim != cls.measurement_dim:
         raise ValueError(
             f"key 'model.measurement': {name} has landmark_dim {cls.landmark_dim} and measurement_dim "
-            f"{cls.measurement_dim}; the filter's maps hold 2-D landmarks with 2-D detections"
+            f"{cls.measurement_dim}; the filter starts a landmark from one detection through the inverse "
+            "model and needs them equal (and at least 1)"
         )
     if cls.aux_dim != 0:
         raise ValueError(

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._linalg import inv2, sandwich
+from .._linalg import inv_small, sandwich
 from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 
 
@@ -18,15 +18,15 @@ class Detections(NamedTuple):
     """The detections of one scan that are associated with existing landmarks.
 
     Attributes:
-        z: detections ``(range, bearing)``.
+        z: detections (``(range, bearing)`` for range-bearing).
         mean: the associated landmark means.
         cov: the associated landmark covariances.
         mask: which rows are real associations.
     """
 
-    z: Float[Array, "k 2"]
-    mean: Float[Array, "k 2"]
-    cov: Float[Array, "k 2 2"]
+    z: Float[Array, "k d"]
+    mean: Float[Array, "k l"]
+    cov: Float[Array, "k l l"]
     mask: Bool[Array, " k"]
 
 
@@ -59,7 +59,7 @@ class AbstractProposal(eqx.Module):
 
     @abc.abstractmethod
     def __call__(
-        self, x0: Float[Array, "3"], P0: Float[Array, "3 3"], det: Detections, R: Float[Array, "2 2"]
+        self, x0: Float[Array, "3"], P0: Float[Array, "3 3"], det: Detections, R: Float[Array, "d d"]
     ) -> ProposalResult:
         """Args: the prior mean ``x0`` and covariance ``P0``, the associated detections, the noise ``R``."""
 
@@ -94,14 +94,14 @@ range_bearing_residuals = measurement_residuals
 def noise_information(
     x0: Float[Array, "3"],
     det: Detections,
-    R: Float[Array, "2 2"],
+    R: Float[Array, "d d"],
     landmark_noise: bool,
     model: AbstractMeasurementModel | None = None,
-) -> Float[Array, "k 2 2"]:
+) -> Float[Array, "k d d"]:
     """Inverse noise of each detection: ``R^-1``, or ``(R + Gm Sigma Gm')^-1`` at the prior mean
     (``Gm`` of the measurement model, default range-bearing)."""
     if not landmark_noise:
-        return jnp.broadcast_to(inv2(R), det.z.shape[:1] + R.shape)
+        return jnp.broadcast_to(inv_small(R), det.z.shape[:1] + R.shape)
     model = RangeBearing() if model is None else model
     _, Gm = jax.vmap(model.jacobians, (None, 0))(x0, det.mean)
-    return inv2(sandwich(Gm, det.cov) + R)
+    return inv_small(sandwich(Gm, det.cov) + R)

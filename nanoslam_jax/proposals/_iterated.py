@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from .._linalg import chol2, chol3, inv3, sym
+from .._linalg import chol3, chol_small, inv3, sym
 from ..models import AbstractMeasurementModel, RangeBearing
 from ._base import (
     AbstractProposal,
@@ -69,7 +69,7 @@ def map_estimate(
     """
     U0 = chol3(prior.precision).T
     weights = jnp.where(mask[:, None, None], weights, jnp.eye(weights.shape[-1]))  # masked rows may be non-finite
-    Uk = jnp.swapaxes(chol2(weights), -1, -2) * mask[:, None, None]
+    Uk = jnp.swapaxes(chol_small(weights), -1, -2) * mask[:, None, None]
 
     def fn(x, args):
         rp = U0 @ diff(x, prior.mean)

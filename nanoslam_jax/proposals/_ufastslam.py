@@ -3,7 +3,7 @@
 The prior (unscented transform over the pose augmented with control noise) is shared by all
 methods (``filter/_prior.py``). What is specific to UFastSLAM is here: the proposal processes
 the scan's associated detections one after another, each by an unscented Kalman update of the
-pose over the augmented state ``[pose (3); landmark (2)]`` with block-diagonal covariance
+pose over the augmented state ``[pose (3); landmark (l)]`` with block-diagonal covariance
 ``diag(P, Sigma_k)``, so the landmark's uncertainty enters through the sigma points rather
 than through a Jacobian (``S = Pzz + R``). The landmark updates (``filter/_landmarks.py``,
 :func:`~nanoslam_jax.filter._landmarks.ukf_update_loglik`) are unscented too.
@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .._linalg import chol2, chol3, det2, det3, inv2, mm, mmt, mv, sym
+from .._linalg import chol3, chol_small, det2, det3, inv_small, mm, mmt, mv, sym
 from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
 from ..quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
 from ._base import AbstractProposal, Detections, ProposalResult
@@ -37,25 +37,26 @@ def _is_pd3(P: Float[Array, "3 3"]) -> Bool[Array, ""]:
     return (P[0, 0] > 0) & (det2(P[:2, :2]) > 0) & (det3(P) > 0)
 
 
-def _block_chol(P: Float[Array, "3 3"], Sigma: Float[Array, "2 2"]) -> Float[Array, "5 5"]:
-    """Lower Cholesky factor of ``diag(P, Sigma)`` (block-diagonal, closed-form factors)."""
-    L = jnp.zeros((5, 5), P.dtype)
-    return L.at[:3, :3].set(chol3(sym(P))).at[3:, 3:].set(chol2(sym(Sigma)))
+def _block_chol(P: Float[Array, "3 3"], Sigma: Float[Array, "l l"]) -> Float[Array, "n n"]:
+    """Lower Cholesky factor of ``diag(P, Sigma)``, ``n = 3 + l`` (block-diagonal, closed-form factors)."""
+    n = 3 + Sigma.shape[-1]
+    L = jnp.zeros((n, n), P.dtype)
+    return L.at[:3, :3].set(chol3(sym(P))).at[3:, 3:].set(chol_small(sym(Sigma)))
 
 
 def unscented_measurement_update(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
-    h: Callable[[Float[Array, "3"], Float[Array, "2"]], Float[Array, "2"]],
-    z: Float[Array, "2"],
-    m_mean: Float[Array, "2"],
-    m_cov: Float[Array, "2 2"],
-    R: Float[Array, "2 2"],
+    h: Callable[[Float[Array, "3"], Float[Array, " l"]], Float[Array, " d"]],
+    z: Float[Array, " d"],
+    m_mean: Float[Array, " l"],
+    m_cov: Float[Array, "l l"],
+    R: Float[Array, "d d"],
     rule: Unscented,
     *,
     z_angle_index: int | tuple[int, ...] | None = 1,
     x_angle_index: int | None = 2,
-) -> tuple[Float[Array, "3"], Float[Array, "3 3"], Float[Array, "2"], Float[Array, "2 2"]]:
+) -> tuple[Float[Array, "3"], Float[Array, "3 3"], Float[Array, " d"], Float[Array, "d d"]]:
     """One unscented Kalman update of the pose with one detection of an uncertain landmark.
 
     Sigma points of the rule are drawn over the augmented state ``[x; m] ~ N([x; m_mean],
@@ -68,10 +69,10 @@ def unscented_measurement_update(
         x: pose mean (3,).
         P: pose covariance (3, 3).
         h: measurement function ``h(pose, landmark) -> z_hat``.
-        z: the detection (2,).
-        m_mean: the landmark mean (2,).
-        m_cov: the landmark covariance (2, 2).
-        R: measurement noise covariance (2, 2).
+        z: the detection (d,).
+        m_mean: the landmark mean (l,).
+        m_cov: the landmark covariance (l, l).
+        R: measurement noise covariance (d, d).
         rule: the unscented rule (``alpha, beta, kappa``; may be traced).
         z_angle_index: static index (or tuple of indices) of the angle components of ``z``
             (wrapped), or None.
@@ -82,9 +83,9 @@ def unscented_measurement_update(
         previous ``P`` is kept if the update would leave it not positive definite), the
         innovation and its covariance.
     """
-    xi, wm, wc = rule.unit_points(5)
     centre = jnp.concatenate([x, m_mean])
-    X = centre + mmt(xi, _block_chol(P, m_cov))  # (11, 5): X_i = centre + L xi_i
+    xi, wm, wc = rule.unit_points(centre.shape[-1])
+    X = centre + mmt(xi, _block_chol(P, m_cov))  # (2n + 1, n): X_i = centre + L xi_i
     Z = jax.vmap(h)(X[:, :3], X[:, 3:])
     dZ = Z - Z[0]
     angles = _indices(z_angle_index)
@@ -94,7 +95,7 @@ def unscented_measurement_update(
     z_hat = Z[0] + dz_mean
     Pxz = sigma_point_cross_cov(X[:, :3], x, dZ, dz_mean, wc)
     S = sym(Pzz + R)
-    K = mm(Pxz, inv2(S))
+    K = mm(Pxz, inv_small(S))
     nu = z - z_hat
     for i in angles:
         nu = nu.at[i].set(wrap_angle(nu[i]))
@@ -109,12 +110,12 @@ def unscented_measurement_update(
 def unscented_sequential_update(
     x0: Float[Array, "3"],
     P0: Float[Array, "3 3"],
-    h: Callable[[Float[Array, "3"], Float[Array, "2"]], Float[Array, "2"]],
-    z: Float[Array, "k 2"],
-    m_mean: Float[Array, "k 2"],
-    m_cov: Float[Array, "k 2 2"],
+    h: Callable[[Float[Array, "3"], Float[Array, " l"]], Float[Array, " d"]],
+    z: Float[Array, "k d"],
+    m_mean: Float[Array, "k l"],
+    m_cov: Float[Array, "k l l"],
     mask: Bool[Array, " k"],
-    R: Float[Array, "2 2"],
+    R: Float[Array, "d d"],
     alpha: Float[ArrayLike, ""],
     beta: Float[ArrayLike, ""],
     kappa: Float[ArrayLike, ""],
@@ -133,11 +134,11 @@ def unscented_sequential_update(
         x0: prior pose mean (3,).
         P0: prior pose covariance (3, 3).
         h: measurement function ``h(pose, landmark) -> z_hat``.
-        z: detections (k, 2).
-        m_mean: the associated landmark means (k, 2).
-        m_cov: the associated landmark covariances (k, 2, 2).
+        z: detections (k, d).
+        m_mean: the associated landmark means (k, l).
+        m_cov: the associated landmark covariances (k, l, l).
         mask: which rows are real associations (k,).
-        R: measurement noise covariance (2, 2).
+        R: measurement noise covariance (d, d).
         alpha, beta, kappa: unscented parameters (scalars; may be traced).
         z_angle_index: static index (or tuple of indices) of the angle components of a
             detection, or None.
