@@ -59,16 +59,26 @@ class DataConfig:
         12, lo=2, static=True, doc="DR pieces per segment; longer gaps between scans are split with empty segments"
     )
     t_end: Optional[float] = _f(None, lo=0.0, lo_open=True, static=True, doc="use the log only up to this time (s)")
-    detections: Literal["file", "laser", "laser_lines", "laser_circles"] = _f(
+    detections: Literal["file", "laser", "laser_lines", "laser_beams", "laser_circles"] = _f(
         "file",
         static=True,
         doc="'file': the detections of measurements.dat; 'laser': detect the trees in the log's raw scans "
         "(LASER.txt or aa3_lsr2.mat) on load with the detector section (what `nanoslam detect` writes); "
         "'laser_lines': the line segments the front end fits to the raw scans, at least "
         "detector.min_line_length long, as (rho, alpha) of the segment's line in the sensor frame (for "
-        "model.measurement line; data.min_range and data.max_range apply to rho); 'laser_circles': the arcs "
+        "model.measurement line; data.min_range and data.max_range apply to rho); 'laser_beams': every "
+        "return the front end puts on a line segment or an arc, one detection per beam (range, beam angle), "
+        "for NASRUKF's per-beam measurement (nasrukf.measurement beams; data.min_range and data.max_range "
+        "apply to the range, data.k_max counts beams); 'laser_circles': the arcs "
         "(round pillars) the front end fits, as the range and bearing of the centre and the radius (for "
         "model.measurement circle)",
+    )
+    beam_step: int = _f(
+        1,
+        lo=1,
+        static=True,
+        doc="data.detections laser_beams: keep every beam_step-th beam of the scanner (beam index divisible by "
+        "it); 1: every beam",
     )
 
 
@@ -450,6 +460,67 @@ class NasrukfConfig:
         hi=1.0,
         doc="smallest eigenvalue of the adaptive process-noise scale Lambda: the estimate stays at or above this "
         "fraction of the configured noise in every direction",
+    )
+    measurement: Literal["detections", "beams"] = _f(
+        "detections",
+        static=True,
+        doc="'detections': a feature's measurement is a detection (a tree's range and bearing, data.detections "
+        "file or laser); 'beams': the paper's per-beam range rho(k) along the beam angle phi(k) against line "
+        "and arc features (eq. 14-17; data.detections laser_beams), each feature's beams stacked as one "
+        "vector measurement; docs/method/nasrukf-beams.md",
+    )
+    line_form: Literal["normal", "slope_intercept"] = _f(
+        "normal",
+        static=True,
+        doc="measurement beams: a line's state, 'normal' (rho, alpha), every line alike; 'slope_intercept': the "
+        "paper's y = a x + b (eq. 14), or x = c (eq. 15) for a line steeper than 1000",
+    )
+    sigma_beam: float = _f(
+        0.01,
+        lo=0.0,
+        lo_open=True,
+        doc="measurement beams: the range noise of one beam (m); the adaptive estimate (noise.adaptive) starts here",
+    )
+    beam_gate: float = _f(
+        0.06,
+        lo=0.0,
+        lo_open=True,
+        doc="measurement beams: a beam is associated with the feature whose predicted range (eq. 14-16, at the "
+        "prior pose) is nearest its measured range, if nearer than this (m)",
+    )
+    beams_per_feature: int = _f(
+        16,
+        lo=1,
+        static=True,
+        doc="measurement beams: a feature's update stacks at most this many of its associated beams of a scan "
+        "(evenly spread over them)",
+    )
+    arc_capacity: int = _f(8, lo=1, static=True, doc="measurement beams: arc feature slots (lines: filter.capacity)")
+    max_groups: int = _f(
+        32,
+        lo=1,
+        static=True,
+        doc="measurement beams: front-end features (line segments and arcs) a scan holds at most; also the slots "
+        "of the buffer of unmatched features (n_new)",
+    )
+    n_new: int = _f(
+        1,
+        lo=1,
+        doc="measurement beams: the paper's N_new: a front-end segment or arc that no feature explains is stored, "
+        "and a feature is created once this many such data of the same line or arc have been stored (1: at once)",
+    )
+    merge_gate: float = _f(
+        0.15,
+        lo=0.0,
+        lo_open=True,
+        doc="measurement beams: unmatched segments (arcs) are data of the same stored line (arc) when their "
+        "lines differ by less than this, |d rho| + 1 m |d alpha| (centres by less than this, m)",
+    )
+    static_scans: int = _f(
+        40,
+        lo=0,
+        doc="measurement beams: static initialisation: the first scans, at most this many and only while the "
+        "odometry reports no motion, hold the pose at the origin and build the initial features (0: none)",
     )
 
 

@@ -268,6 +268,23 @@ def _check_consistency(cfg: Config, where: str) -> None:
         raise ConfigError(
             f"{where}key 'nasrukf.process_forgetting': expected a value < 1, got {cfg.nasrukf.process_forgetting}"
         )
+    beams_in, beams_filter = d.detections == "laser_beams", cfg.nasrukf.measurement == "beams"
+    if beams_in and not (beams_filter and cfg.filter.method == "nasrukf"):
+        raise ConfigError(
+            f"{where}key 'data.detections': laser_beams gives one range per beam, which only NASRUKF's "
+            "per-beam measurement takes; expected filter.method nasrukf with nasrukf.measurement beams, got "
+            f"filter.method {cfg.filter.method!r} and nasrukf.measurement {cfg.nasrukf.measurement!r}"
+        )
+    if beams_filter and cfg.filter.method == "nasrukf" and not beams_in:
+        raise ConfigError(
+            f"{where}key 'nasrukf.measurement': 'beams' measures line and arc features beam by beam; expected "
+            f"data.detections laser_beams (raw scans), got {d.detections!r}"
+        )
+    if beams_in and d.kind == "simulated":
+        raise ConfigError(
+            f"{where}key 'data.detections': the simulated park log has no raw scans; expected data.kind indoor "
+            "(or a log directory with raw scans) for laser_beams"
+        )
     if cfg.nasrukf.adaptive_process and cfg.filter.method != "nasrukf":
         raise ConfigError(
             f"{where}key 'nasrukf.adaptive_process': the adaptive process-noise estimate is "

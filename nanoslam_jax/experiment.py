@@ -102,14 +102,21 @@ def with_laser_detections(raw: RawLog, directory, detector) -> RawLog:
     return with_scan_detections(raw, load_laser(directory), "laser", detector)
 
 
-def with_scan_detections(raw: RawLog, scans, kind: str, detector) -> RawLog:
+def with_scan_detections(raw: RawLog, scans, kind: str, detector, beam_step: int = 1) -> RawLog:
     """``raw`` with its detections replaced by what the front end finds in the raw ``scans`` with the
     ``detector`` settings: ``kind`` ``'laser'``: the trees (``time, range, bearing, diameter``);
     ``'laser_lines'``: the line segments (``time, rho, alpha, length``,
     :func:`~nanoslam_jax.frontend.detect_lines`); ``'laser_circles'``: the arcs
-    (:func:`circle_table`)."""
+    (:func:`circle_table`); ``'laser_beams'``: the returns on segments and arcs, one per beam
+    (``time, range, beam angle, diameter``, every ``beam_step``-th beam,
+    :func:`~nanoslam_jax.data._beams.beam_detections`)."""
     from .frontend import detect_lines, detect_trees, extract_features
 
+    if kind == "laser_beams":  # one detection per beam on a segment or arc, the feature's index as its id
+        from .data._beams import beam_detections
+
+        rows, group = beam_detections(scans, detector, beam_step)
+        return dataclasses.replace(raw, detections=rows, detection_ids=group)
     if kind == "laser_circles":
         return dataclasses.replace(raw, detections=circle_table(extract_features(scans, detector)), detection_ids=None)
     detect = detect_lines if kind == "laser_lines" else detect_trees
@@ -149,7 +156,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         raw, frame, features = indoor.raw, "slam", feature_truth(indoor.world)
         source = f"simulated indoor ({indoor.world.template}, seed {cfg.indoor.seed})"
         if cfg.data.detections != "file":
-            raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector)
+            raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
     else:
         from .data import load_laser
         from .simulate_indoor import read_feature_truth
@@ -160,7 +167,9 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         else:
             raw = load_victoria_park(directory, cfg.data.format, detections=cfg.data.detections == "file")
         if cfg.data.detections != "file":
-            raw = with_scan_detections(raw, load_laser(directory), cfg.data.detections, cfg.detector)
+            raw = with_scan_detections(
+                raw, load_laser(directory), cfg.data.detections, cfg.detector, cfg.data.beam_step
+            )
         frame = "slam" if raw.truth_poses is not None else "relative"
         source = raw.source or str(directory)
         features = read_feature_truth(directory)
@@ -182,7 +191,15 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
                 f"({cfg.detector.min_line_length} m) long"
             ) from None
         raise
-    lines = cfg.model.measurement == "line"  # a map of lines: scored against the true walls, not points
+    if d.detections == "laser_beams":
+        most = int(np.max(np.where(segments.z_mask, segments.z_id, -1), initial=-1)) + 1
+        if most > cfg.nasrukf.max_groups:
+            raise ValueError(
+                f"key 'nasrukf.max_groups': a scan of {source} holds {most} line segments and arcs, more than "
+                f"nasrukf.max_groups ({cfg.nasrukf.max_groups}); raise it to at least {most}"
+            )
+    # a map of lines: scored against the true walls, not points (NASRUKF's per-beam features are lines and arcs)
+    lines = cfg.model.measurement == "line" or d.detections == "laser_beams"
     features = features if lines or cfg.model.measurement == "circle" else None
     map_truth = None
     if raw.truth_landmarks is not None and raw.truth_poses is not None and not lines:
@@ -599,7 +616,7 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
         relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" and len(gps) else gps[:, 1:3]
     )
     label = "GPS (relative frame)" if log.frame == "relative" else "truth"
-    if cfg.model.measurement == "line":  # a map of lines (rho, alpha): no points to draw
+    if cfg.model.measurement == "line" or cfg.data.detections == "laser_beams":  # lines (rho, alpha): no points
         landmarks = None
     confirmed = None if landmarks is None else landmarks[:, map_columns(_landmark_dim(cfg)).index("confirmed")] > 0
     # True landmarks in another frame than the path (a surveyed map, e.g. MRCLAM's) are not drawn.

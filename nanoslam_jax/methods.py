@@ -222,12 +222,20 @@ def _ekf_step(static, params, state, seg, valid):
 
 
 def _nasrukf_init(static, params, key):
+    if static.nasrukf_measurement == "beams":
+        from .filter._nasrukf_beams_state import init_beam_state
+
+        return init_beam_state(static, params, key)
     from .filter._nasrukf_state import init_nasrukf_state
 
     return init_nasrukf_state(static, params, key)
 
 
 def _nasrukf_step(static, params, state, seg, valid):
+    if static.nasrukf_measurement == "beams":
+        from .filter._nasrukf_beams import beam_step
+
+        return beam_step(static, params, state, seg, valid)
     from .filter._nasrukf import nasrukf_step
 
     return nasrukf_step(static, params, state, seg, valid)

@@ -96,7 +96,10 @@ def feature_dim(static: Static) -> int:
 
 
 def configured_noise(static: Static, params: Params) -> Float[Array, " mz"]:
-    """The configured measurement-noise variances (range, bearing, and diameter for arcs)."""
+    """The configured measurement-noise variances (range, bearing, and diameter for arcs; the range of
+    one beam with ``nasrukf.measurement: beams``)."""
+    if static.nasrukf_measurement == "beams" and params.beams is not None:
+        return jnp.square(jnp.asarray(params.beams.sigma_beam, float))[None]
     sig = [params.sigma_r, params.sigma_beta] + ([params.map.sigma_diameter] if static.nasrukf_feature == "arc" else [])
     return jnp.square(jnp.stack([jnp.asarray(s, float) for s in sig]))
 

@@ -61,6 +61,11 @@ class Static:
     adaptive_noise: bool = False
     nasrukf_feature: str = "point"
     adaptive_process: bool = False
+    nasrukf_measurement: str = "detections"
+    nasrukf_line_form: str = "normal"
+    nasrukf_beams_per_feature: int = 16
+    nasrukf_arc_capacity: int = 8
+    nasrukf_groups: int = 32
 
     @property
     def window_size(self) -> int:
@@ -113,6 +118,24 @@ class MapParams(NamedTuple):
     sigma_diameter: Float[Array, ""]
 
 
+class BeamParams(NamedTuple):
+    """Traced hyperparameters of NASRUKF's per-beam measurement (``nasrukf.measurement: beams``).
+
+    Attributes:
+        sigma_beam: range noise of one beam (m).
+        beam_gate: largest difference of a beam's range from a feature's predicted range (m).
+        n_new: stored unmatched data of a line or arc before a feature is created.
+        merge_gate: distance under which unmatched data are of the same line or arc (m).
+        static_scans: scans of static initialisation at most.
+    """
+
+    sigma_beam: Float[Array, ""]
+    beam_gate: Float[Array, ""]
+    n_new: Float[Array, ""]
+    merge_gate: Float[Array, ""]
+    static_scans: Float[Array, ""]
+
+
 def _logit(p: float) -> float:
     """``log(p / (1 - p))`` with the limits 0 -> -inf and 1 -> inf."""
     if p <= 0.0:
@@ -146,6 +169,7 @@ class Params(NamedTuple):
         new_feature_hits: NASRUKF's ``N_new``: detections a feature needs before it updates the pose.
         process_forgetting: forgetting factor ``b`` of NASRUKF's adaptive process-noise estimate.
         process_floor: smallest eigenvalue of that estimate's scale, a fraction of the configured noise.
+        beams: NASRUKF's per-beam measurement settings (:class:`BeamParams`), or None when it is not used.
         method: the traced parameters of a registered method that declares them (``filter.method_params``
             over the method's defaults), by name; empty for the built-in methods.
     """
@@ -174,6 +198,7 @@ class Params(NamedTuple):
     process_forgetting: Float[Array, ""]
     process_floor: Float[Array, ""]
     method: dict = {}
+    beams: "BeamParams | None" = None
 
     @property
     def R(self) -> Float[Array, "d d"]:
@@ -279,6 +304,11 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         adaptive_noise=nz.adaptive,
         nasrukf_feature=cfg.nasrukf.feature,
         adaptive_process=cfg.nasrukf.adaptive_process,
+        nasrukf_measurement=cfg.nasrukf.measurement,
+        nasrukf_line_form=cfg.nasrukf.line_form,
+        nasrukf_beams_per_feature=cfg.nasrukf.beams_per_feature,
+        nasrukf_arc_capacity=cfg.nasrukf.arc_capacity,
+        nasrukf_groups=cfg.nasrukf.max_groups,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     mp = cfg.map
@@ -321,5 +351,14 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         process_forgetting=a(cfg.nasrukf.process_forgetting),
         process_floor=a(cfg.nasrukf.process_floor),
         method={k: a(v) for k, v in get_method(f.method).method_params(f.method_params).items()},
+        beams=BeamParams(
+            sigma_beam=a(cfg.nasrukf.sigma_beam),
+            beam_gate=a(cfg.nasrukf.beam_gate),
+            n_new=a(cfg.nasrukf.n_new),
+            merge_gate=a(cfg.nasrukf.merge_gate),
+            static_scans=a(cfg.nasrukf.static_scans),
+        )
+        if cfg.nasrukf.measurement == "beams"
+        else None,
     )
     return static, params

@@ -366,7 +366,9 @@ def adaptive_noise_summary(noise: ArrayLike, configured: ArrayLike, floor_fracti
     at_floor = np.mean(noise <= floor * (1.0 + 1e-9), axis=0)
     sigma = np.sqrt(np.median(noise, axis=0))
     names = _COMPONENTS[: noise.shape[-1]]
-    metrics = {"noise_sigma_r_final": float(sigma[0]), "noise_sigma_beta_deg_final": math.degrees(sigma[1])}
+    metrics = {"noise_sigma_r_final": float(sigma[0])}
+    if noise.shape[-1] > 1:
+        metrics["noise_sigma_beta_deg_final"] = math.degrees(sigma[1])
     if noise.shape[-1] > 2:
         metrics["noise_sigma_diameter_final"] = float(sigma[2])
     metrics.update({f"noise_at_floor_{n}": float(f) for n, f in zip(names, at_floor)})
