@@ -27,11 +27,42 @@ if os.environ.get("NANOSLAM_TYPECHECK", "1") != "0":
 DATA_FIXTURES = ("vp_dir", "mrclam_dir")
 
 
+#: Modules that compile the most filter programs, in the order pytest-xdist hands them out first
+#: (it gives whole modules to its workers, in collection order: ``--dist loadfile
+#: --no-loadscope-reorder`` in pyproject.toml). A long module started last would run alone while
+#: the other worker idles; started first, the many short modules fill in behind it. The others
+#: keep pytest's order. A module missing from this list only costs balance, never a test.
+LONG_MODULES = (
+    "test_methods.py",
+    "test_cache.py",
+    "test_filter.py",
+    "test_cli.py",
+    "test_motion_models.py",
+    "test_study.py",
+    "test_mrclam.py",
+    "test_sweep.py",
+    "test_nasrukf.py",
+    "test_landmarks.py",
+    "test_ufastslam.py",
+    "test_adaptive_process.py",
+    "test_smoother.py",
+    "test_frontend.py",
+    "test_best_config.py",
+    "test_measurement_models.py",
+    "test_path.py",
+    "test_known_association.py",
+    "test_ekf_slam.py",
+    "test_management.py",
+)
+
+
 def pytest_collection_modifyitems(config, items):
-    """A test that uses a real-dataset fixture is marked ``data``."""
+    """A test that uses a real-dataset fixture is marked ``data``; the long modules go first."""
     for item in items:
         if any(name in DATA_FIXTURES for name in getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.data)
+    rank = {name: i for i, name in enumerate(LONG_MODULES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_MODULES)))  # stable: order within kept
 
 
 @pytest.fixture(scope="session", autouse=True)
