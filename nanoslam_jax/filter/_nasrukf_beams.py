@@ -19,7 +19,10 @@ representation, time update, fusion and feedback of :mod:`._nasrukf`. Per segmen
 3. **Measurement update** of every feature with beams (vmapped): its joint state's beams stacked
    as one vector measurement (at most ``nasrukf.beams_per_feature``, evenly spread), the
    square-root UKF update of eq. 10-12 (:func:`stacked_update`). With ``noise.adaptive`` the beam
-   noise is first re-estimated (eq. 11) from each feature's residuals in turn.
+   noise is re-estimated with eq. 11's weights from each feature's residuals in turn: after the
+   updates from the residuals ``z - h(x+)`` plus their predicted variance (``nasrukf.noise_residual:
+   posterior``), or as eq. 11 before each update from the innovations less their predicted
+   variance (``innovation``).
 4. **Fusion** of the updated joint states' poses (eq. 4-5, :func:`~._nasrukf.fuse_poses`, features
    with at least ``nasrukf.new_feature_hits`` earlier scans) and **feedback** to every feature; the
    adaptive process noise from the fused corrections (as :mod:`._nasrukf`).
@@ -174,6 +177,20 @@ def _feature_update(feats: BeamFeatures, gid, x0, S0, r, phi, best, assoc, size,
     return ys, Ls, zs, ps, use, preds
 
 
+def _posterior_rows(ys, Ls, dat, h_of, vertical, rule):
+    """Each updated feature's RMS residual ``z - h(x+)`` after its update and its mean predicted
+    variance there (from the posterior's sigma points), as rows of the noise estimate."""
+    _, _, zs, ps, use, _ = dat
+
+    def one(y, L, z, p, u, v):
+        pred = predict_measurement(y, L, lambda yy: jnp.where(u, h_of(yy, p, v), 0.0), rule)
+        n = jnp.maximum(jnp.sum(u), 1)
+        e2 = jnp.sum(jnp.where(u, jnp.square(z - pred.z_hat), 0.0)) / n
+        return jnp.sqrt(e2)[None], (jnp.sum(jnp.where(u, pred.variance(), 0.0)) / n)[None]
+
+    return jax.vmap(one)(ys, Ls, zs, ps, use, vertical)
+
+
 def beam_step(
     static: Static, params: Params, state: NasrukfBeamState, seg, valid: Bool[Array, ""]
 ) -> tuple[NasrukfBeamState, StepOutput]:
@@ -258,15 +275,18 @@ def beam_step(
     nuL, pvL, updL = residual_rows(Ldat)
     nuA, pvA, updA = residual_rows(Adat)
     noise, noise_count = state.noise, state.noise_count
-    if static.adaptive_noise:
+    rows_use = jnp.concatenate([updL, updA])
+    floor = params.noise_floor * jnp.square(bp.sigma_beam)[None]
+    innovation = static.adaptive_noise and static.nasrukf_noise_residual == "innovation"
+    if innovation:  # eq. 11 before each update: the innovations less the predicted variance
         rows, noise, noise_count = adaptive_noise_rows(
             noise,
             noise_count,
             jnp.concatenate([nuL, nuA]),
             jnp.concatenate([pvL, pvA]),
-            jnp.concatenate([updL, updA]),
+            rows_use,
             params.forgetting,
-            params.noise_floor * jnp.square(bp.sigma_beam)[None],
+            floor,
         )
         varL, varA = rows[: wL.shape[0], 0], rows[wL.shape[0] :, 0]
     else:
@@ -284,6 +304,18 @@ def beam_step(
 
     yL, LL = run_updates(Ldat, varL, h_line, subL.vertical, line_angles)
     yA, LA = run_updates(Adat, varA, h_arc, subA.vertical, (2,))
+    if static.adaptive_noise and not innovation:  # eq. 11's weights on the residuals after the update
+        eL = _posterior_rows(yL, LL, Ldat, h_line, subL.vertical, rule)
+        eA = _posterior_rows(yA, LA, Adat, h_arc, subA.vertical, rule)
+        _, noise, noise_count = adaptive_noise_rows(
+            noise,
+            noise_count,
+            jnp.concatenate([eL[0], eA[0]]),
+            -jnp.concatenate([eL[1], eA[1]]),
+            rows_use,
+            params.forgetting,
+            floor,
+        )
     updL, updA = updL & seenL, updA & seenA
 
     # 4. Fusion and feedback.

@@ -66,6 +66,7 @@ class Static:
     nasrukf_beams_per_feature: int = 16
     nasrukf_arc_capacity: int = 8
     nasrukf_groups: int = 32
+    nasrukf_noise_residual: str = "posterior"
 
     @property
     def window_size(self) -> int:
@@ -309,6 +310,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         nasrukf_beams_per_feature=cfg.nasrukf.beams_per_feature,
         nasrukf_arc_capacity=cfg.nasrukf.arc_capacity,
         nasrukf_groups=cfg.nasrukf.max_groups,
+        nasrukf_noise_residual=cfg.nasrukf.noise_residual,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     mp = cfg.map
