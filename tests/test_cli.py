@@ -265,12 +265,13 @@ def test_default_out_dir_is_named_after_the_config(tmp_path, monkeypatch, capsys
 
 # --------------------------------------------------------------------------- the embedded default (NANO-SLAM)
 
-DEFAULT_OVERRIDES = ["data.t_end=30", "filter.n_particles=3"]
+# The short run of tests/test_motion_models.py (SHORT): its NANO-SLAM program is shared.
+DEFAULT_OVERRIDES = ["sim.duration=15", "filter.n_particles=5"]
 
 
 @pytest.fixture(scope="module")
 def default_run(tmp_path_factory):
-    """``nanoslam run --set data.t_end=30 --set filter.n_particles=3`` without --out, in an empty cwd."""
+    """``nanoslam run --set sim.duration=15 --set filter.n_particles=5`` without --out, in an empty cwd."""
     cwd = tmp_path_factory.mktemp("default_run")
     argv = ["run", "--quiet"] + [a for o in DEFAULT_OVERRIDES for a in ("--set", o)]
     with pytest.MonkeyPatch.context() as mp:
@@ -320,7 +321,7 @@ def test_default_run_reports_error_against_ground_truth(default_run):
     # Map figures over the confirmed landmarks against the trees the true path could see.
     assert 0 < m["map_n_true"] < cfg.sim.n_trees and m["map_n_est"] == m["n_confirmed"] <= m["n_landmarks"]
     traj = _trajectory(d)
-    assert traj[-1, 0] <= 30.0
+    assert traj[-1, 0] <= 15.0
     assert (d / "map.csv").read_text().splitlines()[0] == (
         "x,y,cov_xx,cov_xy,cov_yy,hits,misses,existence,confirmed,diameter,diameter_sd"
     )
@@ -331,10 +332,10 @@ def test_set_overrides_reach_the_run(default_run):
     cwd, _ = default_run
     (d,) = list((cwd / "results").iterdir())
     _, written = _written_config(d)
-    assert written.filter.n_particles == 3
-    assert written.data.t_end == 30.0
-    assert yaml.safe_load((d / "config.yaml").read_text())["filter"]["n_particles"] == 3
-    assert _metrics(d)["n_particles"] == 3
+    assert written.filter.n_particles == 5
+    assert written.sim.duration == 15.0
+    assert yaml.safe_load((d / "config.yaml").read_text())["filter"]["n_particles"] == 5
+    assert _metrics(d)["n_particles"] == 5
 
 
 @pytest.mark.slow
@@ -434,11 +435,12 @@ def test_nasrukf_run_writes_the_result_directory(tmp_path, capsys):
     """``nanoslam run --set filter.method=nasrukf`` on a simulated log: the same result directory,
     metrics and figures as the particle methods, without the ESS figure (no particles)."""
     out = tmp_path / "nasrukf"
-    overrides = ["filter.method=nasrukf", "data.t_end=20", "filter.capacity=128"]
+    # the simulated run of tests/test_nasrukf.py (SIM, chunks of CHUNK segments): its program is shared
+    overrides = ["sim.duration=60", "filter.method=nasrukf", "filter.capacity=256", "data.k_max=12", "output.chunk=100"]
     rc, _, err = _call(capsys, ["run", "--out", str(out), "--quiet"] + [a for o in overrides for a in ("--set", o)])
     assert rc == 0, err
     m = _check_result_dir(out, load_config(None, overrides), filter_run=False)
-    assert m["method"] == "nasrukf" and m["capacity"] == 128
+    assert m["method"] == "nasrukf" and m["capacity"] == 256
     assert m["rmse_fixed"] < 0.5 and m["n_landmarks"] > 10 and m["resample_count"] == 0
     assert (out / "map.csv").read_text().splitlines()[0].startswith("x,y,cov_xx,cov_xy,cov_yy,hits,")
     assert not (out / "ess.png").exists()

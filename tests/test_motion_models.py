@@ -17,12 +17,13 @@ import pytest
 
 import nanoslam_jax as ns
 from nanoslam_jax import filters
+from nanoslam_jax.cli import main as cli_main
 from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax.data import make_segments
+from nanoslam_jax.experiment import load_log
 from nanoslam_jax.filter import predict, run_filter, settings_from_config
 from nanoslam_jax.filter._prior import _ut_piece
 from nanoslam_jax.models import AbstractMotionModel, AbstractRateModel, Ackermann, Unicycle
-from nanoslam_jax.simulate import simulate, simulate_config
+from nanoslam_jax.simulate import simulate_config
 
 
 class TestCar(AbstractMotionModel):
@@ -124,8 +125,13 @@ class _Plain(AbstractMotionModel):
         return self.inner.noise_sqrt(dt)
 
 
+#: The short simulated run of this module's filter tests: the built-in car's NANO-SLAM program on
+#: it is compiled once and shared by them (in this process: the run through the CLI too).
+SHORT = ["sim.duration=15", "filter.n_particles=5", "output.plots=false"]
+
+
 def _short_real_like_config(extra=()):
-    return load_config(None, ["sim.duration=40", "filter.n_particles=6", "output.plots=false", *extra])
+    return load_config(None, [*SHORT, *extra])
 
 
 @pytest.mark.slow
@@ -133,8 +139,7 @@ def test_model_written_in_a_test_module_equals_the_builtin_car():
     """A user's model passed as an object gives the built-in car's run (to rounding: its step is
     written with other trigonometric functions)."""
     cfg = _short_real_like_config()
-    raw = simulate(cfg.sim, cfg.vehicle)
-    seg = make_segments(raw, max_range=cfg.data.max_range)
+    seg = load_log(cfg).segments
     static, params = settings_from_config(cfg, seg.k_max)
     mine = TestCar(sigma_v=params.motion.sigma_v, sigma_alpha=params.motion.sigma_alpha)
     a = run_filter(static, params, seg, 3)
@@ -145,7 +150,8 @@ def test_model_written_in_a_test_module_equals_the_builtin_car():
 @pytest.mark.slow
 def test_model_named_by_import_path_runs_through_the_cli(tmp_path):
     """A model in a file outside the package, named in YAML by import path with its parameters,
-    runs through ``nanoslam run`` and gives the built-in car's numbers."""
+    runs through ``nanoslam run`` (a fresh process, as a user runs it) and gives the numbers of
+    the built-in car's run (this process)."""
     (tmp_path / "my_robot.py").write_text(
         textwrap.dedent("""
         import math
@@ -169,7 +175,7 @@ def test_model_named_by_import_path_runs_through_the_cli(tmp_path):
                 return jnp.diag(jnp.stack([self.sigma_v, self.sigma_alpha]))
         """)
     )
-    common = ["--set", "sim.duration=20", "--set", "filter.n_particles=4", "--quiet", "--set", "output.plots=false"]
+    common = [*(a for o in SHORT for a in ("--set", o)), "--quiet"]
     env = {**__import__("os").environ, "PYTHONPATH": str(tmp_path)}
     mine = [
         "--set",
@@ -179,16 +185,17 @@ def test_model_named_by_import_path_runs_through_the_cli(tmp_path):
         "--set",
         f"model.motion_params.sigma_alpha={math.radians(6.0)}",
     ]
-    out = {}
-    for name, extra in (("mine", mine), ("builtin", [])):
-        subprocess.run(
-            [sys.executable, "-m", "nanoslam_jax.cli", "run", *common, *extra, "--out", str(tmp_path / name)],
-            check=True,
-            env=env,
-            capture_output=True,
-            text=True,
-        )
-        out[name] = np.loadtxt(tmp_path / name / "trajectory.csv", delimiter=",", skiprows=1)
+    subprocess.run(
+        [sys.executable, "-m", "nanoslam_jax.cli", "run", *common, *mine, "--out", str(tmp_path / "mine")],
+        check=True,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert cli_main(["run", *common, "--out", str(tmp_path / "builtin")]) == 0
+    out = {
+        name: np.loadtxt(tmp_path / name / "trajectory.csv", delimiter=",", skiprows=1) for name in ("mine", "builtin")
+    }
     np.testing.assert_allclose(out["mine"], out["builtin"], atol=2e-6)
     # the TUM export beside it: time x y z qx qy qz qw, heading as a yaw quaternion
     tum = np.loadtxt(tmp_path / "mine" / "trajectory.tum")
@@ -251,9 +258,8 @@ def test_simulated_differential_drive_log_slam_beats_dead_reckoning():
 @pytest.mark.parametrize("method", ["nano", "ekf_slam"])
 @pytest.mark.slow
 def test_stepping_the_built_filter_equals_the_batch_run(method):
-    cfg = load_config(None, ["sim.duration=15", "filter.n_particles=5", f"filter.method={method}"])
-    raw = simulate(cfg.sim, cfg.vehicle)
-    seg = make_segments(raw, max_range=cfg.data.max_range)
+    cfg = load_config(None, [*SHORT, f"filter.method={method}"])
+    seg = load_log(cfg).segments
     flt = filters.build(cfg, k_max=seg.k_max)
     state = flt.init(jax.random.key(cfg.seed))
     poses = []
