@@ -59,7 +59,7 @@ class DataConfig:
         12, lo=2, static=True, doc="DR pieces per segment; longer gaps between scans are split with empty segments"
     )
     t_end: Optional[float] = _f(None, lo=0.0, lo_open=True, static=True, doc="use the log only up to this time (s)")
-    detections: Literal["file", "laser", "laser_lines", "laser_beams", "laser_circles"] = _f(
+    detections: Literal["file", "laser", "laser_lines", "laser_beams", "laser_circles", "laser_features"] = _f(
         "file",
         static=True,
         doc="'file': the detections of measurements.dat; 'laser': detect the trees in the log's raw scans "
@@ -69,9 +69,10 @@ class DataConfig:
         "model.measurement line; data.min_range and data.max_range apply to rho); 'laser_beams': every "
         "return the front end puts on a line segment or an arc, one detection per beam (range, beam angle), "
         "for NASRUKF's per-beam measurement (nasrukf.measurement beams; data.min_range and data.max_range "
-        "apply to the range, data.k_max counts beams); 'laser_circles': the arcs "
-        "(round pillars) the front end fits, as the range and bearing of the centre and the radius (for "
-        "model.measurement circle)",
+        "apply to the range, data.k_max counts beams); 'laser_circles': the arcs (round pillars) the front end "
+        "fits, as the range and bearing of the centre and the radius (for model.measurement circle); "
+        "'laser_features': the line segments and the arcs, each with its type, in one map (for model.measurement "
+        "line+circle)",
     )
     beam_step: int = _f(
         1,
@@ -114,7 +115,9 @@ class ModelConfig:
         "noise, footprint from data.min_range, data.max_range, map.fov_deg and the map.view_margin keys), "
         "'line' (a wall as a line (rho, alpha), detected as a segment's line in the sensor frame; parameters "
         "in model.measurement_params), 'circle' (an arc or round pillar (xc, yc, R), detected as its centre's "
-        "range and bearing and its radius; parameters in model.measurement_params), or an import "
+        "range and bearing and its radius; parameters in model.measurement_params), several of them joined by "
+        "'+' in one map ('line+circle': walls and pillars; parameters in model.measurement_params.line and "
+        "model.measurement_params.circle), or an import "
         "path 'module:Class' of a nanoslam_jax.models.AbstractMeasurementModel subclass",
     )
     measurement_params: Optional[dict] = _f(

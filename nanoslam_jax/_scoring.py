@@ -119,11 +119,14 @@ class MapEstimate(NamedTuple):
             the first two are a point's or a circle's position (a line's ``(rho, alpha)``).
         confirmed: ``(L,)`` which of them are confirmed (only those are scored).
         ids: ``(L,)`` the detection id each landmark carries (known association), or None.
+        kinds: ``(L,)`` each landmark's type name (``'line'``, ``'circle'``: a map of several
+            types), or None (one type).
     """
 
     xy: np.ndarray
     confirmed: np.ndarray
     ids: Optional[np.ndarray] = None
+    kinds: Optional[np.ndarray] = None
 
 
 def _gps(log) -> np.ndarray:
@@ -218,7 +221,14 @@ def score_run(
         if log.survey is not None:
             out.update(survey_summary(xy, conf, log.survey.xy, metrics.map_radius, landmarks.ids, log.survey.ids))
         features = getattr(log, "feature_truth", None)
-        if features is not None and states.shape[1] == 3:  # a map of circles (xc, yc, R): Table 1's arcs
+        if features is not None and landmarks.kinds is not None:  # lines and circles: Table 1's lines and arcs
+            kinds = np.asarray(landmarks.kinds)
+            lines, arcs = states[conf & (kinds == "line"), :2], states[conf & (kinds == "circle"), :3]
+            table = feature_map_errors(
+                lines, features.lines, est_arcs=arcs, true_arcs=features.arcs, corners=features.corners
+            )["summary"]
+            out.update(table, n_lines_est=len(lines), n_arcs_est=len(arcs))
+        elif features is not None and states.shape[1] == 3:  # a map of circles (xc, yc, R): Table 1's arcs
             none = np.zeros((0, 2))
             table = feature_map_errors(none, none, est_arcs=states[conf], true_arcs=features.arcs)["summary"]
             out.update({k: v for k, v in table.items() if "arc" in k}, n_arcs_est=int(conf.sum()))

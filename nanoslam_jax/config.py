@@ -151,7 +151,10 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
     if tp is dict:
         if not isinstance(value, dict):
             raise ConfigError(f"{where}key '{key}': expected a mapping of names to numbers, got {value!r}")
-        return {str(k): _coerce(v, float, f"{key}.{k}", where) for k, v in value.items()}
+        # A value may itself be a mapping of names to numbers (a composite measurement model's per-type parameters).
+        return {
+            str(k): _coerce(v, dict if isinstance(v, dict) else float, f"{key}.{k}", where) for k, v in value.items()
+        }
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"{where}key '{key}': expected a string, got {value!r}")
@@ -230,7 +233,19 @@ def _check_consistency(cfg: Config, where: str) -> None:
             f"radius) and model.measurement circle takes them; got data.detections {d.detections!r} with "
             f"model.measurement {cfg.model.measurement!r}"
         )
-    if (lines_in or circles_in) and d.kind == "simulated":
+    features_in = d.detections == "laser_features"
+    if features_in != (cfg.model.measurement == "line+circle") and (features_in or d.kind == "indoor"):
+        raise ConfigError(
+            f"{where}key 'model.measurement': data.detections laser_features gives line segments and circles "
+            f"with their types and model.measurement line+circle takes them; got data.detections "
+            f"{d.detections!r} with model.measurement {cfg.model.measurement!r}"
+        )
+    if "+" in cfg.model.measurement and cfg.noise.adaptive:
+        raise ConfigError(
+            f"{where}key 'noise.adaptive': the adaptive noise estimate is of one detection type; a map of several "
+            f"types (model.measurement {cfg.model.measurement!r}) takes each type's configured noise"
+        )
+    if (lines_in or circles_in or features_in) and d.kind == "simulated":
         raise ConfigError(
             f"{where}key 'data.detections': the simulated park log has no raw scans; expected 'file' "
             f"with data.kind simulated (or data.kind indoor for line segments and circles), got {d.detections!r}"
@@ -318,6 +333,7 @@ def _check_consistency(cfg: Config, where: str) -> None:
     from .models import (
         AbstractMeasurementModel,
         AbstractMotionModel,
+        Composite,
         check_measurement_model,
         measurement_model_class,
         motion_model_class,
@@ -335,6 +351,7 @@ def _check_consistency(cfg: Config, where: str) -> None:
         if (
             cfg.model.measurement_params
             and measurement.from_config.__func__ is not AbstractMeasurementModel.from_config.__func__
+            and not issubclass(measurement, Composite)  # one mapping of parameters per type
         ):
             raise ValueError(
                 f"key 'model.measurement_params': the built-in model {cfg.model.measurement!r} takes "

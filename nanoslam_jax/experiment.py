@@ -50,7 +50,7 @@ from .metrics import (
     rmse_heading_deg,
 )
 from ._scoring import MapEstimate, companion_tracks, score_run
-from .models import measurement_model_class
+from .models import Composite, measurement_model_from_config
 from .smoother import smooth_filter_run, smoother_metrics
 
 
@@ -107,7 +107,8 @@ def with_scan_detections(raw: RawLog, scans, kind: str, detector, beam_step: int
     ``detector`` settings: ``kind`` ``'laser'``: the trees (``time, range, bearing, diameter``);
     ``'laser_lines'``: the line segments (``time, rho, alpha, length``,
     :func:`~nanoslam_jax.frontend.detect_lines`); ``'laser_circles'``: the arcs
-    (:func:`circle_table`); ``'laser_beams'``: the returns on segments and arcs, one per beam
+    (:func:`circle_table`); ``'laser_features'``: both, with their types (:func:`feature_table`);
+    ``'laser_beams'``: the returns on segments and arcs, one per beam
     (``time, range, beam angle, diameter``, every ``beam_step``-th beam,
     :func:`~nanoslam_jax.data._beams.beam_detections`)."""
     from .frontend import detect_lines, detect_trees, extract_features
@@ -119,6 +120,9 @@ def with_scan_detections(raw: RawLog, scans, kind: str, detector, beam_step: int
         return dataclasses.replace(raw, detections=rows, detection_ids=group)
     if kind == "laser_circles":
         return dataclasses.replace(raw, detections=circle_table(extract_features(scans, detector)), detection_ids=None)
+    if kind == "laser_features":
+        rows, kinds = feature_table(extract_features(scans, detector))
+        return dataclasses.replace(raw, detections=rows, detection_ids=None, detection_kinds=kinds)
     detect = detect_lines if kind == "laser_lines" else detect_trees
     return dataclasses.replace(raw, detections=detect(scans, detector), detection_ids=None)
 
@@ -134,6 +138,20 @@ def circle_table(features) -> np.ndarray:
     radius = np.asarray(c.radius, float)[order]
     rows = np.stack([features.time[c.scan[order]], rng, bearing, radius, 2.0 * radius], axis=1)
     return rows.reshape(-1, 5)
+
+
+def feature_table(features) -> tuple[np.ndarray, np.ndarray]:
+    """The front end's line segments and arcs as detections of the composite ``line+circle``
+    measurement model: ``(M, 5)`` rows ``time, z (3 values), length or diameter`` (a segment's
+    ``rho, alpha, 0`` and length, :meth:`~nanoslam_jax.frontend.Features.line_table`; an arc's
+    range and bearing of its centre, radius and diameter, :func:`circle_table`) ordered by time
+    (segments before arcs within a scan), and each row's kind (0: line, 1: circle)."""
+    lines = features.line_table()
+    lines = np.c_[lines[:, :3], np.zeros(len(lines)), lines[:, 3]]
+    rows = np.concatenate([lines, circle_table(features)])
+    kinds = np.concatenate([np.zeros(len(lines), np.int64), np.ones(len(rows) - len(lines), np.int64)])
+    order = np.argsort(rows[:, 0], kind="stable")
+    return rows[order], kinds[order]
 
 
 def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
@@ -182,7 +200,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
             k_max=d.k_max,
             max_dr_per_segment=d.max_dr_per_segment,
             t_end=d.t_end,
-            measurement_dim=measurement_model_class(cfg.model.measurement).measurement_dim,
+            measurement_dim=measurement_model_from_config(cfg).measurement_dim,
         )
     except ValueError as e:
         if d.detections == "laser_lines" and "no laser scan" in str(e):
@@ -199,8 +217,8 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
                 f"nasrukf.max_groups ({cfg.nasrukf.max_groups}); raise it to at least {most}"
             )
     # a map of lines: scored against the true walls, not points (NASRUKF's per-beam features are lines and arcs)
-    lines = cfg.model.measurement == "line" or d.detections == "laser_beams"
-    features = features if lines or cfg.model.measurement == "circle" else None
+    lines = cfg.model.measurement == "line" or d.detections == "laser_beams" or "+" in cfg.model.measurement
+    features = features if lines or cfg.model.measurement in ("circle", "line+circle") else None
     map_truth = None
     if raw.truth_landmarks is not None and raw.truth_poses is not None and not lines:
         t = np.asarray(segments.time)[np.asarray(segments.z_mask).any(axis=1)]
@@ -252,16 +270,19 @@ MAP_COLUMNS = [
 MAP_ID_COLUMN = "id"
 
 
-def map_columns(dim: int = 2) -> list[str]:
+def map_columns(dim: int = 2, kinds: bool = False) -> list[str]:
     """The columns of ``map.csv`` for landmarks of ``dim`` values (the measurement model's
     ``landmark_dim``): :data:`MAP_COLUMNS` with the values past the first two after ``y``, as
-    ``m2``, ``m3``, ... (a circle's radius: ``m2``); the covariance columns are those of the first
-    two values."""
-    return MAP_COLUMNS[:2] + [f"m{i}" for i in range(2, dim)] + MAP_COLUMNS[2:]
+    ``m2``, ``m3``, ... (a circle's radius: ``m2``), then with ``kinds`` (a composite model's map)
+    each landmark's type ``kind`` (the index of its model); the covariance columns are those of the
+    first two values."""
+    return MAP_COLUMNS[:2] + [f"m{i}" for i in range(2, dim)] + ["kind"] * kinds + MAP_COLUMNS[2:]
 
 
-def _landmark_dim(cfg: Config) -> int:
-    return measurement_model_class(cfg.model.measurement).landmark_dim
+def _map_layout(cfg: Config) -> tuple[int, tuple[str, ...] | None]:
+    """The landmark dimension of ``cfg``'s measurement model and, for a composite, its types' names."""
+    model = measurement_model_from_config(cfg)
+    return model.landmark_dim, (model.names if isinstance(model, Composite) else None)
 
 
 def map_table(lm) -> np.ndarray:
@@ -271,8 +292,10 @@ def map_table(lm) -> np.ndarray:
     act = np.asarray(lm.active)
     cov = np.asarray(lm.cov)[act]
     existence = 1.0 / (1.0 + np.exp(-np.asarray(lm.log_odds, float)[act]))
+    kind = getattr(lm, "kind", None)
     table = np.c_[
         np.asarray(lm.mean)[act],
+        np.asarray(kind)[act] if kind is not None else np.zeros((int(act.sum()), 0)),
         cov[:, 0, 0],
         cov[:, 0, 1],
         cov[:, 1, 1],
@@ -423,7 +446,8 @@ class RunResult:
         _write_csv(out / "trajectory.csv", cols, table)
         write_tum(out / "trajectory.tum", t, est)
         if self.landmarks is not None:
-            cols = map_columns(_landmark_dim(cfg))
+            dim, names = _map_layout(cfg)
+            cols = map_columns(dim, names is not None)
             cols = cols + [MAP_ID_COLUMN] * (self.landmarks.shape[1] > len(cols))
             _write_csv(out / "map.csv", cols, self.landmarks, fmt="%.9g")
         (out / "metrics.json").write_text(json.dumps(_json_safe(self.metrics), indent=2) + "\n")
@@ -546,10 +570,11 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
     }
     lm = None
     if landmarks is not None:
-        dim = _landmark_dim(cfg)
-        cols = map_columns(dim)
+        dim, names = _map_layout(cfg)
+        cols = map_columns(dim, names is not None)
         ids = landmarks[:, len(cols)] if landmarks.shape[1] > len(cols) else None
-        lm = MapEstimate(landmarks[:, :dim], landmarks[:, cols.index("confirmed")] > 0, ids)
+        kinds = None if names is None else np.asarray(names)[landmarks[:, dim].astype(int)]
+        lm = MapEstimate(landmarks[:, :dim], landmarks[:, cols.index("confirmed")] > 0, ids, kinds)
     # The one scorer of every command: the estimate against GPS, the map, and (for path: the
     # filter's own estimate; after the smoother: the path it started from) the other trajectories.
     others = None if other is None else companion_tracks(static.estimate, best_pose, mean, unsmoothed)
@@ -616,9 +641,11 @@ def _plots(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses):
         relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" and len(gps) else gps[:, 1:3]
     )
     label = "GPS (relative frame)" if log.frame == "relative" else "truth"
-    if cfg.model.measurement == "line" or cfg.data.detections == "laser_beams":  # lines (rho, alpha): no points
+    lines = cfg.model.measurement == "line" or "+" in cfg.model.measurement or cfg.data.detections == "laser_beams"
+    if lines:  # lines (rho, alpha): no points to draw
         landmarks = None
-    confirmed = None if landmarks is None else landmarks[:, map_columns(_landmark_dim(cfg)).index("confirmed")] > 0
+    dim, names = _map_layout(cfg)
+    confirmed = None if landmarks is None else landmarks[:, map_columns(dim, names is not None).index("confirmed")] > 0
     # True landmarks in another frame than the path (a surveyed map, e.g. MRCLAM's) are not drawn.
     true_landmarks = log.raw.truth_landmarks if log.frame == "slam" and landmarks is not None else None
     plot_trajectory(

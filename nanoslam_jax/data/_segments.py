@@ -110,8 +110,10 @@ def _detections(
     Bool[np.ndarray, "segments k_max"],
     Float[np.ndarray, "segments k_max"],
     Int[np.ndarray, "segments k_max"],
+    Float[np.ndarray, "segments k_max e"],
 ]:
-    """The padded detections ``(z, z_mask, diam, z_id)`` of every segment, file order kept within a scan.
+    """The padded detections ``(z, z_mask, diam, z_id, extra)`` of every segment, file order kept
+    within a scan (``extra``: the rows' columns after the id; padding 0).
 
     Args:
         ranges_bearings: kept detections ``(z, diameter, landmark id or -1)``, ``z`` of
@@ -146,7 +148,7 @@ def _detections(
     z[segment_of_scan[scans], slot] = ranges_bearings[order]
     z_mask[segment_of_scan[scans], slot] = True
     d = measurement_dim
-    return z[..., :d], z_mask, z[..., d], np.where(z_mask, z[..., d + 1], -1).astype(np.int32)
+    return z[..., :d], z_mask, z[..., d], np.where(z_mask, z[..., d + 1], -1).astype(np.int32), z[..., d + 2 :]
 
 
 def make_segments(
@@ -183,7 +185,7 @@ def make_segments(
 
     Returns:
         :class:`Segments` of numpy arrays: ``time (S,)``, ``dt (S, D)``, ``u (S, D, 2)``,
-        ``dr_mask (S, D)``, ``z (S, K, measurement_dim)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)``, ``z_id (S, K)`` (-1: unknown) with ``D = max_dr_per_segment``
+        ``dr_mask (S, D)``, ``z (S, K, measurement_dim)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)``, ``z_id (S, K)`` (-1: unknown), ``z_kind (S, K)`` (0 for one type) with ``D = max_dr_per_segment``
         and ``K = k_max``; padding is zero with the mask False.
 
     Raises:
@@ -209,10 +211,14 @@ def make_segments(
     dt, u, dr_mask = _dr_pieces(raw.dr, layout, max_dr_per_segment)
     keep = (det[:, 1] >= min_range) & (det[:, 1] < max_range)
     ids = np.full(raw.detections.shape[0], -1.0) if raw.detection_ids is None else np.asarray(raw.detection_ids, float)
+    kinds = None if raw.detection_kinds is None else np.asarray(raw.detection_kinds, float)
     if t_end is not None:
         ids = ids[raw.detections[:, 0] <= t_end]
+        kinds = None if kinds is None else kinds[raw.detections[:, 0] <= t_end]
     rows = np.c_[det[keep, 1:], ids[keep]]
-    z, z_mask, diam, z_id = _detections(
+    if kinds is not None:  # the kind travels as one more column, after the id
+        rows = np.c_[rows, kinds[keep]]
+    z, z_mask, diam, z_id, extra = _detections(
         rows,
         scan_of_det[keep],
         scan_times,
@@ -234,6 +240,7 @@ def make_segments(
         is_scan=layout["is_scan"],
         z_id=z_id,
     )
+    fields["z_kind"] = extra[..., 0].astype(np.int32) if kinds is not None else np.zeros_like(z_id)
     return Segments(**fields)
 
 

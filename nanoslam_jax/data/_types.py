@@ -30,6 +30,9 @@ class RawLog:
             barcodes), -1 where not; None: unknown for every detection.
         landmark_ids: ``(L,)`` the id of each row of ``truth_landmarks`` (the ids of
             ``detection_ids``); None: the row index.
+        detection_kinds: ``(M,)`` each detection's landmark type (the index of its model in a
+            :class:`~nanoslam_jax.models.Composite` measurement model; its values past its type's
+            ``measurement_dim`` are 0), or None: one type.
     """
 
     dr: np.ndarray
@@ -41,6 +44,7 @@ class RawLog:
     source: str = ""
     detection_ids: Optional[np.ndarray] = None
     landmark_ids: Optional[np.ndarray] = None
+    detection_kinds: Optional[np.ndarray] = None
 
     @property
     def scan_times(self) -> np.ndarray:
@@ -70,6 +74,8 @@ class Segments(NamedTuple):
             was not detected.
         z_id: the landmark id of each detection where the log knows it, else -1 (used by
             ``filter.association: known``).
+        z_kind: each detection's landmark type (a composite measurement model; 0 for padding and
+            for a log of one type; None where the segments were built without it).
     """
 
     time: Float[Array, " segments"]
@@ -81,6 +87,7 @@ class Segments(NamedTuple):
     diam: Float[Array, "segments k_max"]
     is_scan: Bool[Array, " segments"]
     z_id: Int[Array, "segments k_max"]
+    z_kind: Optional[Int[Array, "segments k_max"]] = None
 
     @property
     def n_segments(self) -> int:

@@ -13,8 +13,11 @@ from .._trig import computed_once
 from ..models import (
     AbstractMeasurementModel,
     RangeBearing,
+    is_composite,
     is_range_bearing,
     range_bearing_jacobian_components,
+    row_models,
+    row_noise,
     wrap_angle,
 )
 from ._landmarks import init_landmark, window_prefixes
@@ -43,13 +46,16 @@ def predicted_measurements(
     cov: Float[Array, "slots l l"],
     R: Float[Array, "d d"],
     model: AbstractMeasurementModel | None = None,
+    kind: Int[Array, " slots"] | None = None,
 ) -> tuple[Float[Array, "slots d"], Float[Array, "slots d d"]]:
     """Predicted detection and innovation covariance ``Gx P Gx' + Gm Sigma Gm' + R`` of each slot
-    (``model``: the measurement model, default range-bearing)."""
+    (``model``: the measurement model, default range-bearing; for a composite, ``kind``: each
+    slot's type, whose model and noise it takes)."""
     model = RangeBearing() if model is None else model
-    z_hat = jax.vmap(model.h, (None, 0))(x, mean)
-    Gx, Gm = jax.vmap(model.jacobians, (None, 0))(x, mean)
-    S = sandwich(Gx, P) + sandwich(Gm, cov) + R
+    rows, ax = row_models(model, kind)
+    z_hat = jax.vmap(lambda md, m: md.h(x, m), (ax, 0))(rows, mean)
+    Gx, Gm = jax.vmap(lambda md, m: md.jacobians(x, m), (ax, 0))(rows, mean)
+    S = sandwich(Gx, P) + sandwich(Gm, cov) + row_noise(rows, ax, R)[0]
     return z_hat, S
 
 
@@ -60,8 +66,10 @@ def innovation_information(
     cov: Float[Array, "slots l l"],
     R: Float[Array, "d d"],
     model: AbstractMeasurementModel | None = None,
+    kind: Int[Array, " slots"] | None = None,
 ):
-    """:func:`predicted_measurements` and the inverse of ``S``.
+    """:func:`predicted_measurements` and the inverse of ``S`` (``kind``: each slot's type, for a
+    composite model).
 
     Returns:
         For a range-bearing ``model`` (the default), one array per component: ``(r, beta)``
@@ -71,7 +79,7 @@ def innovation_information(
         other model: ``z_hat`` ``(slots, d)`` and ``S^-1`` ``(slots, d, d)`` (autodiff Jacobians).
     """
     if model is not None and not is_range_bearing(model):
-        z_hat, S = predicted_measurements(x, P, mean, cov, R, model)
+        z_hat, S = predicted_measurements(x, P, mean, cov, R, model, kind)
         return z_hat, inv_small(sym(S))
     (zr, zb), J = range_bearing_jacobian_components(x[0], x[1], x[2], mean[:, 0], mean[:, 1])
 
@@ -102,6 +110,7 @@ def associate(
     sigma_diameter: Float[Array, ""] | float = 1.0,
     ids: Int[Array, " k_max"] | None = None,
     model: AbstractMeasurementModel | None = None,
+    z_kind: Int[Array, " k_max"] | None = None,
 ) -> Association:
     """Nearest-neighbour association with a chi-square gate and a new-landmark threshold, or by
     known landmark ids.
@@ -130,11 +139,23 @@ def associate(
             one when none has it (its provisional landmark carries the id); a detection without an
             id is not associated. The distances are not used (``d2`` is 0 for a match).
         model: the measurement model (default range-bearing).
+        z_kind: each detection's type, for a :class:`~nanoslam_jax.models.Composite` model (the
+            local map then has the ``kind`` field): a detection is associated only with the
+            landmarks of its type.
     """
     # Provisional landmarks, one per detection, initialised at the prior mean.
-    prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, None, None))(x, z, R, model)
+    rows, ax = row_models(RangeBearing() if model is None else model, z_kind)
+    R_rows, r_ax = row_noise(rows, ax, R)
+    prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, r_ax, ax))(x, z, R_rows, rows)
     mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
-    z_hat, s_inv = innovation_information(x, P, mean, cov, R, model)
+    kind_term = None
+    if z_kind is not None and is_composite(model):
+        if local.kind is None:
+            raise ValueError(
+                "a composite model's association needs a map with the kind field (LandmarkMap.empty(..., kinds=True))"
+            )
+        kind_term = (z_kind, jnp.concatenate([local.kind, z_kind]))
+    z_hat, s_inv = innovation_information(x, P, mean, cov, R, model, None if kind_term is None else kind_term[1])
     diam_term = None
     if diam is not None:
         var_d = jnp.square(sigma_diameter)
@@ -149,7 +170,7 @@ def associate(
             )
         id_term = (ids, jnp.concatenate([local.ident, ids]))
     return nearest_neighbours(
-        z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term, id_term, model
+        z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term, id_term, model, kind_term
     )
 
 
@@ -190,6 +211,7 @@ def nearest_neighbours(
     diam_term: tuple | None = None,
     id_term: tuple | None = None,
     model: AbstractMeasurementModel | None = None,
+    kind_term: tuple | None = None,
 ) -> Association:
     """The association rule of :func:`associate`, given every slot's predicted detection and
     innovation information (for filters whose innovation covariances are their own, e.g. NASRUKF's
@@ -213,6 +235,8 @@ def nearest_neighbours(
         model: the measurement model of a generic ``(z_hat, s_inv)`` (arrays from
             :func:`innovation_information`: its ``innovation`` gives the residuals); unused
             for the range-bearing components.
+        kind_term: ``(z_kind, slot_kind)``: each detection's and each slot's type (a composite
+            ``model``): a detection is at infinity from every slot of another type; None: one type.
     """
     k_max = z.shape[0]
     window = active.shape[0]
@@ -227,29 +251,31 @@ def nearest_neighbours(
     else:
         diam, slot_diam, slot_info, use_diameter = diam_term
 
+    z_kind, slot_kind = (None, None) if kind_term is None else kind_term
     if id_term is not None:
         z_id, slot_id = id_term
         z_mask = z_mask & (z_id >= 0)
         diam = z_id  # each detection's id reaches ``distances`` in place of its diameter
 
-        def distances(zk, ik):
+        def distances(zk, ik, kk):
             return jnp.where(slot_id == ik, 0.0, jnp.inf).astype(z.dtype)
     elif not components:
         assert model is not None and not isinstance(z_hat, tuple) and not isinstance(s_inv, tuple)
 
-        def distances(zk, dk):
-            nu = jax.vmap(model.innovation, (None, 0))(zk, z_hat)
-            d2 = quad_form(nu, s_inv)
-            return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
+        def distances(zk, dk, kk):
+            md = model if slot_kind is None else model.of_kind(kk)  # type: ignore[attr-defined]  # a Composite
+            nu = jax.vmap(md.innovation, (None, 0))(zk, z_hat)
+            d2 = quad_form(nu, s_inv) + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
+            return d2 if slot_kind is None else jnp.where(slot_kind == kk, d2, jnp.inf)
     else:
 
-        def distances(zk, dk):
+        def distances(zk, dk, kk):
             nr, nb = zk[0] - zr, wrap_angle(zk[1] - zb)
             d2 = nr * (a00 * nr + a01 * nb) + nb * (a01 * nr + a11 * nb)
             return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
 
     if not sequential:
-        d2 = jax.vmap(distances)(z, diam)
+        d2 = jax.vmap(distances)(z, diam, z_kind)
         d2 = jnp.where(active[None, :], d2, jnp.inf)
         j = jnp.argmin(d2, axis=1)
         best = jnp.take_along_axis(d2, j[:, None], 1)[:, 0]
@@ -266,7 +292,7 @@ def nearest_neighbours(
     def body(k, carry):
         avail, slot, is_new, d2_best = carry
         zk, mk = z[k], z_mask[k]
-        d2 = jnp.where(avail, distances(zk, diam[k]), jnp.inf)
+        d2 = jnp.where(avail, distances(zk, diam[k], None if z_kind is None else z_kind[k]), jnp.inf)
         best = jnp.min(d2)
         # The first slot attaining the minimum, by two min-reductions (cheaper than argmin on CPU).
         j = jnp.min(jnp.where(d2 == best, slots, slots.shape[0] - 1))

@@ -61,6 +61,7 @@ from ._joint_gaussian import (
     landmark_means,
 )
 from ._landmarks import first_true, gather_window, scatter_window
+from ..models import is_composite
 from ._management import diameter_update, drop_stale, manage_window
 from ._params import Params, Static
 from ._state import LandmarkMap
@@ -115,9 +116,9 @@ def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSl
     diag = jnp.concatenate([jnp.full((3,), params.init_cov, dtype=float), jnp.ones(dim * c)])
     zero = jnp.zeros((), jnp.int32)
     # The bookkeeping of an empty map; its mean and covariance are placeholders of one element.
-    book = LandmarkMap.empty(c, ident=static.association == "known", dim=dim)._replace(
-        mean=jnp.zeros((1, dim)), cov=jnp.zeros((1, dim, dim))
-    )
+    book = LandmarkMap.empty(
+        c, ident=static.association == "known", dim=dim, kinds=is_composite(params.measurement)
+    )._replace(mean=jnp.zeros((1, dim)), cov=jnp.zeros((1, dim, dim)))
     return EkfSlamState(
         mean=jnp.zeros(n),
         cov=jnp.diag(diag),
@@ -161,8 +162,17 @@ def _batch_association(
     """Non-sequential association with the existing landmarks (the closest claimant wins)."""
     k_max = z_mask.shape[0]
     terms = jax.vmap(_diameter_terms, (None, 0, None))(book, seg.diam, params)
-    d2 = jax.vmap(association_distances, (None, None, 0, None, None, 0, None))(
-        mean, cov, seg.z, params.R, book.active, terms, params.measurement
+    composite = is_composite(params.measurement)
+    d2 = jax.vmap(association_distances, (None, None, 0, None, None, 0, None, None, 0 if composite else None))(
+        mean,
+        cov,
+        seg.z,
+        params.R,
+        book.active,
+        terms,
+        params.measurement,
+        book.kind if composite else None,
+        seg.z_kind if composite else None,
     )
     j = jnp.argmin(d2, axis=1)
     best = jnp.min(d2, axis=1)
@@ -236,16 +246,26 @@ def ekf_slam_step(
     elif not static.sequential:
         pre_slot, pre_matched, pre_new = _batch_association(mean, cov, seg, z_mask, state.landmarks, params)
 
+    composite = is_composite(model)
+    z_kind = seg.z_kind
+    assert z_kind is not None or not composite, "a composite model's segments have z_kind"
+
     def body(i, c: _Carry) -> _Carry:
         k = order[i]
         zk, dk = seg.z[k], seg.diam[k]
+        # A composite's detection is updated and starts a landmark by its type's model and noise.
+        kk = z_kind[k] if z_kind is not None and composite else None
+        model_k = model.of_kind(kk) if composite else model  # type: ignore[attr-defined]  # a Composite
+        R_k = model_k.noise_cov() if composite else R
         if known:  # the landmark started by this id, or a new one
             same = c.book.active & (c.book.ident == seg.z_id[k])
             j = jnp.argmax(same).astype(jnp.int32)
             matched = jnp.any(same)
             new = ~matched
         elif static.sequential:
-            d2 = association_distances(c.mean, c.cov, zk, R, c.available, _diameter_terms(c.book, dk, params), model)
+            d2 = association_distances(
+                c.mean, c.cov, zk, R, c.available, _diameter_terms(c.book, dk, params), model, c.book.kind, kk
+            )
             j = jnp.argmin(d2).astype(jnp.int32)
             best = jnp.min(d2)
             matched = best < params.gate
@@ -257,8 +277,8 @@ def ekf_slam_step(
         add = new & room
         # No conditionals around the big buffers (they would copy P): masked operations whose
         # covariance work is skipped (update: zero tiles; augment: dropped scatters).
-        mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R, size=3 + dim * c.count, apply=matched, model=model)
-        mean, cov = ekf_slam_augment(mean, cov, zk, free, R, apply=add, model=model)
+        mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R_k, size=3 + dim * c.count, apply=matched, model=model_k)
+        mean, cov = ekf_slam_augment(mean, cov, zk, free, R_k, apply=add, model=model_k)
         # Bookkeeping of the one slot that changes (scatters to ``capacity`` are dropped).
         b = c.book
         jc = jnp.where(matched, j, capacity)
@@ -274,6 +294,7 @@ def ekf_slam_step(
             diam=b.diam.at[jc].set(d_new, mode="drop").at[fc].set(dk, mode="drop"),
             diam_var=b.diam_var.at[jc].set(dv_new, mode="drop").at[fc].set(var_d, mode="drop"),
             ident=None if b.ident is None else b.ident.at[fc].set(seg.z_id[k], mode="drop"),
+            kind=None if b.kind is None else b.kind.at[fc].set(kk, mode="drop"),
         )
         claimed = matched & (slots == j)
         created = add & (slots == free)

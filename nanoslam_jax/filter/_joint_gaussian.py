@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol_small, inv_small, mm, mmt, mt, quad_form, sandwich, sym
-from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
+from ..models import AbstractMeasurementModel, RangeBearing, row_models, row_noise, wrap_angle
 from ._params import Params
 
 
@@ -91,6 +91,12 @@ def ekf_slam_predict(
     return mean.at[:3].set(x), cov
 
 
+def _dummy_landmark(x: Float[Array, "3"], dim: int) -> Float[Array, " l"]:
+    """A finite landmark to evaluate unused slots at: 1 m ahead of the pose in x, further values 1."""
+    dummy = x[:2] + jnp.array([1.0, 0.0])
+    return dummy if dim == 2 else jnp.concatenate([dummy, jnp.ones(dim - 2, dummy.dtype)])
+
+
 def slot_innovations(
     mean: Float[Array, " n"],
     cov: Float[Array, "n n"],
@@ -98,6 +104,8 @@ def slot_innovations(
     R: Float[Array, "d d"],
     usable: Bool[Array, " capacity"],
     model: AbstractMeasurementModel | None = None,
+    slot_kind: Int[Array, " capacity"] | None = None,
+    z_kind: Int[Array, ""] | None = None,
 ) -> tuple[Float[Array, "capacity d"], Float[Array, "capacity d d"]]:
     """Innovation and innovation covariance of detection ``z`` against every landmark slot.
 
@@ -113,23 +121,25 @@ def slot_innovations(
         R: measurement noise covariance.
         usable: slots to evaluate at their mean.
         model: the measurement model (default range-bearing).
+        slot_kind, z_kind: each slot's and the detection's type, for a composite ``model`` (each
+            slot predicted by its type's model with its noise; the innovation by the detection's).
     """
     model = _model(model)
     capacity = usable.shape[0]
     dim = model.landmark_dim
     x = mean[:3]
-    dummy = x[:2] + jnp.array([1.0, 0.0])
-    if dim != 2:
-        dummy = jnp.concatenate([dummy, jnp.ones(dim - 2, dummy.dtype)])
-    lm = jnp.where(usable[:, None], landmark_means(mean, dim), dummy)
-    z_hat = jax.vmap(model.h, (None, 0))(x, lm)
-    Gx, Gm = jax.vmap(model.jacobians, (None, 0))(x, lm)
+    lm = jnp.where(usable[:, None], landmark_means(mean, dim), _dummy_landmark(x, dim))
+    rows, ax = row_models(model, slot_kind)
+    z_hat = jax.vmap(lambda md, m: md.h(x, m), (ax, 0))(rows, lm)
+    Gx, Gm = jax.vmap(lambda md, m: md.jacobians(x, m), (ax, 0))(rows, lm)
+    R = row_noise(rows, ax, R)[0]
     Pxx = cov[:3, :3]
     Pxl = jnp.transpose(cov[:3, 3:].reshape(3, capacity, dim), (1, 0, 2))  # (C, 3, dim)
     Pll = landmark_blocks(cov, capacity, dim)
     C = mmt(mm(Gx, Pxl), Gm)
     S = sandwich(Gx, Pxx[None]) + C + mt(C) + sandwich(Gm, Pll) + R
-    nu = jax.vmap(model.innovation, (None, 0))(z, z_hat)
+    detection = model if ax is None else model.of_kind(z_kind)  # type: ignore[attr-defined]  # a Composite
+    nu = jax.vmap(detection.innovation, (None, 0))(z, z_hat)
     return nu, S
 
 
@@ -141,11 +151,16 @@ def association_distances(
     available: Bool[Array, " capacity"],
     diam_term: Float[Array, " capacity"] | float = 0.0,
     model: AbstractMeasurementModel | None = None,
+    slot_kind: Int[Array, " capacity"] | None = None,
+    z_kind: Int[Array, ""] | None = None,
 ) -> Float[Array, " capacity"]:
     """Squared Mahalanobis distance of ``z`` to every available landmark (inf elsewhere), plus
     ``diam_term`` (the tree-diameter term of each slot, or 0); ``model``: the measurement model
-    (default range-bearing)."""
-    nu, S = slot_innovations(mean, cov, z, R, available, model)
+    (default range-bearing); ``slot_kind``, ``z_kind``: the slots' and the detection's types for a
+    composite model (a slot of another type is not available)."""
+    if slot_kind is not None and z_kind is not None:
+        available = available & (slot_kind == z_kind)
+    nu, S = slot_innovations(mean, cov, z, R, available, model, slot_kind, z_kind)
     return jnp.where(available, quad_form(nu, inv_small(S)) + diam_term, jnp.inf)
 
 
@@ -207,15 +222,22 @@ def rank2_downdate(
     return low_rank_downdate(cov, (v0, v1), size, block)
 
 
-def _forward_substitution(L: Float[Array, "d d"], rows: list) -> list:
-    """``L^-1 B`` for lower-triangular ``L``, with ``B`` given as its rows (arrays of any shape)."""
-    out: list = []
-    for i, r in enumerate(rows):
-        acc = r
-        for j, o in enumerate(out):
-            acc = acc - L[i, j] * o
-        out.append(acc / L[i, i])
-    return out
+def _forward_substitution(L: Float[Array, "d d"]):
+    """``b -> L^-1 b`` for lower-triangular ``L`` (``d x d``), with ``b`` given by its rows
+    (``row(i)``, arrays of any shape). The entries of ``L`` are read once, row by row."""
+    d = L.shape[0]
+    entries = {(i, j): L[i, j] for i in range(d) for j in range(i + 1)}
+
+    def solve(row) -> list:
+        out: list = []
+        for i in range(d):
+            acc = row(i)
+            for j in range(i):
+                acc = acc - entries[i, j] * out[j]
+            out.append(acc / entries[i, i])
+        return out
+
+    return solve
 
 
 def ekf_slam_update(
@@ -261,8 +283,9 @@ def ekf_slam_update(
     W = Gx @ cov[:3, :] + Gm @ jax.lax.dynamic_slice(cov, (row, z0), (dim, n))
     S = sym(mmt(W[:, :3], Gx) + mmt(jax.lax.dynamic_slice(W, (z0, row), (d, dim)), Gm) + R)
     L = chol_small(S)
-    v = _forward_substitution(L, [W[i] for i in range(d)])
-    w = _forward_substitution(L, [nu[i] for i in range(d)])
+    solve = _forward_substitution(L)
+    v = solve(lambda i: W[i])
+    w = solve(lambda i: nu[i])
     updated = mean
     for vi, wi in zip(v, w):
         updated = updated + vi * wi

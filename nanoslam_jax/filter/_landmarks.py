@@ -21,7 +21,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from .._batching import batch_max
 from .._linalg import chol_small, gaussian_logpdf, inv_small, is_pd_small, mm, mmt, mt, mv, sandwich, sym
 from .._trig import computed_once
-from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
+from ..models import AbstractMeasurementModel, Composite, OfKind, RangeBearing, wrap_angle
 from ..quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
 from ._state import LandmarkMap
 
@@ -85,14 +85,20 @@ def gather_window(
     """
     capacity = lm.active.shape[0]
     slots = capacity if slots is None else min(slots, capacity)
-    d2 = _model(model).window_distance2(position, lm.mean[:slots])
+    model = _model(model)
+    if isinstance(model, Composite):  # each landmark by its type's distance
+        assert lm.kind is not None, "a composite model's map has the kind field"
+        model = model.of_kind(lm.kind[:slots])
+    d2 = model.window_distance2(position, lm.mean[:slots])
     near = lm.active[:slots] & (d2 < jnp.square(radius))
     idx, n_near = first_true(near, window)
     if slots < capacity:
         idx = jnp.where(idx < slots, idx, capacity)  # unused window slots point at ``capacity``
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
-    eye = jnp.eye(lm.cov.shape[-1])
-    local = local._replace(active=idx < capacity, cov=jnp.where((idx < capacity)[:, None, None], local.cov, eye))
+    dim = lm.cov.shape[-1]
+    local = local._replace(
+        active=idx < capacity, cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(dim))
+    )
     return local, idx, jnp.maximum(n_near - window, 0)
 
 
@@ -222,11 +228,16 @@ def init_landmark(
 ) -> tuple[Float[Array, " l"], Float[Array, "l l"]]:
     """New landmark from pose ``x`` and detection ``z`` (eq. 16): ``g^-1(x, z)``, ``Gm^-1 R Gm^-T``
     (``g`` the measurement model, default range-bearing; ``Gm`` square: ``landmark_dim ==
-    measurement_dim``)."""
+    measurement_dim``). A type of a composite (:class:`~nanoslam_jax.models.OfKind`) whose
+    landmarks are padded has no inverse of ``Gm`` (its padding is not measured): ``Gm^-1`` is then
+    the Jacobian of ``g^-1`` in ``z``, which starts the padding with the padding's noise."""
     model = _model(model)
     m = computed_once(model.landmark_from(x, z))
-    _, Gm = model.jacobians(x, m)
-    Gi = inv_small(Gm)
+    if isinstance(model, OfKind):
+        _, Gi = model.inverse_jacobians(x, z)
+    else:
+        _, Gm = model.jacobians(x, m)
+        Gi = inv_small(Gm)
     return m, sym(sandwich(Gi, R))
 
 

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._trig import atan2, computed_once
-from ..models import AbstractMeasurementModel, RangeBearing, is_range_bearing, range_bearing
+from ..models import AbstractMeasurementModel, RangeBearing, is_range_bearing, range_bearing, row_models
 from ._landmarks import window_prefixes
 from ._params import MapParams
 from ._state import LandmarkMap
@@ -141,7 +141,8 @@ def manage_window(
         z_pred = jax.vmap(range_bearing, (None, 0))(pose, local.mean)
         visible = in_view(z_pred, model)
     else:
-        visible = jax.vmap(model.visible, (None, 0))(pose, local.mean)
+        rows, ax = row_models(model, local.kind)  # a composite's landmarks: each by its type
+        visible = jax.vmap(lambda md, m: md.visible(pose, m), (ax, 0))(rows, local.mean)
     missed = observed & local.active & ~seen & visible
     if occlusion and is_range_bearing(model):
         occ_z = jnp.concatenate([z, z_pred])
@@ -216,6 +217,7 @@ def new_landmarks(
     mp: MapParams,
     manage: bool,
     ident: Int[Array, " k"] | None = None,
+    kind: Int[Array, " k"] | None = None,
 ) -> LandmarkMap:
     """The landmarks a scan starts, as they leave the scan.
 
@@ -231,6 +233,7 @@ def new_landmarks(
             a hit per further detection) and is confirmed if it already qualifies; without it,
             every new landmark is confirmed.
         ident: each candidate's landmark id (known association), or None (the map keeps no ids).
+        kind: each candidate's type (a composite measurement model), or None (the map keeps none).
     """
     k = is_new.shape[0]
     hits = is_new.astype(jnp.int32) + extra_hits
@@ -248,4 +251,5 @@ def new_landmarks(
         diam=diam,
         diam_var=diam_var,
         ident=None if ident is None else ident.astype(jnp.int32),
+        kind=None if kind is None else kind.astype(jnp.int32),
     )

@@ -12,7 +12,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import chol3, gaussian_logpdf, mv
 from .._trig import computed_once
-from ..models import wrap_angle
+from ..models import row_models, row_noise, wrap_angle
 from ..proposals import AbstractProposal, Detections, ProposalResult
 from ._association import predicted_measurements
 from ._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
@@ -69,8 +69,11 @@ def row_work(
     # Weight of the associations with existing landmarks (eq. 17, or the marginal at the prior).
     xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
     model = params.measurement
-    z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R, model)
-    ll = gaussian_logpdf(jax.vmap(model.innovation)(det.z, z_hat), S)
+    # A composite's rows each take their type's model and noise (one shared model otherwise).
+    rows, ax = row_models(model, det.kind)
+    R_rows, r_ax = row_noise(rows, ax, R)
+    z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R, model, det.kind)
+    ll = gaussian_logpdf(jax.vmap(lambda md, z, zh: md.innovation(z, zh), (ax, 0, 0))(rows, det.z, z_hat), S)
     # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM).
     unscented = static.landmark_update == "unscented"
     ut = (params.ut_alpha, params.ut_beta, params.ut_kappa)
@@ -79,7 +82,7 @@ def row_work(
             x_s, det.z, R, *ut, model
         )
     else:
-        new_mean, new_cov = jax.vmap(init_landmark, (None, 0, None, None))(x_s, det.z, R, model)
+        new_mean, new_cov = jax.vmap(init_landmark, (None, 0, r_ax, ax))(x_s, det.z, R_rows, rows)
     # EKF (UFastSLAM: unscented) updates at the sampled pose; each landmark is matched at most once
     # per scan. A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
     cur_mean = jnp.where(existing[:, None], det.mean, new_mean[ps])
@@ -90,8 +93,8 @@ def row_work(
             x_s, det.z, cur_mean, cur_cov, R, *ut
         )
     else:
-        upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, None, None))(
-            x_s, det.z, cur_mean, cur_cov, R, model
+        upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, r_ax, ax))(
+            x_s, det.z, cur_mean, cur_cov, R_rows, rows
         )
     # Both computed before the masked sums (a reduction fusion does not vectorise its operand).
     ll, llp = computed_once((ll, llp))

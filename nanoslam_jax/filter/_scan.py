@@ -248,7 +248,8 @@ def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
     n = segments.time.shape[0]
     valid = np.arange(length) < n
     pad = lambda a: np.concatenate([a, np.zeros((length - n,) + a.shape[1:], a.dtype)]) if length > n else a  # noqa: E731
-    return Segments(*(pad(np.asarray(a)) for a in segments)), valid  # type: ignore[arg-type]  # numpy on the host
+    padded = (None if a is None else pad(np.asarray(a)) for a in segments)
+    return Segments(*padded), valid  # type: ignore[arg-type]  # numpy on the host
 
 
 def _drive(

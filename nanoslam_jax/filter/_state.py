@@ -7,6 +7,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key
 
+from ..models import is_composite
 from ._params import Params, Static
 
 
@@ -27,6 +28,8 @@ class LandmarkMap(NamedTuple):
         diam_var: variance of the diameter estimate (m^2).
         ident: the landmark id of the detection that started each landmark (``filter.association:
             known``), or None (no field: the ids are not kept).
+        kind: each landmark's type, the index of its model in a
+            :class:`~nanoslam_jax.models.Composite` measurement model, or None (one type).
     """
 
     mean: Float[Array, "*particles slots l"]
@@ -40,12 +43,15 @@ class LandmarkMap(NamedTuple):
     diam: Float[Array, "*particles slots"]
     diam_var: Float[Array, "*particles slots"]
     ident: Int[Array, "*particles slots"] | None = None
+    kind: Int[Array, "*particles slots"] | None = None
 
     @staticmethod
-    def empty(slots: int, batch: tuple[int, ...] = (), ident: bool = False, dim: int = 2) -> "LandmarkMap":
+    def empty(
+        slots: int, batch: tuple[int, ...] = (), ident: bool = False, dim: int = 2, kinds: bool = False
+    ) -> "LandmarkMap":
         """An empty map with ``slots`` slots (and optional leading batch axes) of landmarks of
         ``dim`` values (a measurement model's ``landmark_dim``); ``ident``: with the ``ident``
-        field (all -1)."""
+        field (all -1); ``kinds``: with the ``kind`` field (all 0)."""
         shape = batch + (slots,)
         return LandmarkMap(
             mean=jnp.zeros(shape + (dim,)),
@@ -59,6 +65,7 @@ class LandmarkMap(NamedTuple):
             diam=jnp.zeros(shape),
             diam_var=jnp.ones(shape),
             ident=jnp.full(shape, -1, jnp.int32) if ident else None,
+            kind=jnp.zeros(shape, jnp.int32) if kinds else None,
         )
 
 
@@ -112,7 +119,11 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
         log_w=jnp.full((n,), -jnp.log(n)),
         landmarks=LandmarkMap.empty(
-            static.capacity, (n,), ident=static.association == "known", dim=params.measurement.landmark_dim
+            static.capacity,
+            (n,),
+            ident=static.association == "known",
+            dim=params.measurement.landmark_dim,
+            kinds=is_composite(params.measurement),
         ),
         noise=jnp.broadcast_to(jnp.diagonal(params.R), (n, params.measurement.measurement_dim)),
         noise_count=jnp.zeros(n, jnp.int32),

@@ -15,7 +15,7 @@ from jaxtyping import Array, Bool, Float, Int
 from .._batching import batch_max, take_if
 from .._trig import computed_once
 from ..data import Segments
-from ..models import circular_mean
+from ..models import circular_mean, is_composite
 from ..proposals import AbstractProposal, Detections
 from ._association import associate, associate_window_prefix, predicted_measurements
 from ._landmarks import (
@@ -117,6 +117,7 @@ def particle_update(
     noise: Float[Array, " d"] | None = None,
     noise_count: Int[Array, ""] | None = None,
     z_id: Int[Array, " k"] | None = None,
+    z_kind: Int[Array, " k"] | None = None,
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
 
@@ -149,6 +150,9 @@ def particle_update(
     use the result.
 
     ``z_id``: each detection's landmark id, used with ``static.association == 'known'``.
+
+    ``z_kind``: each detection's type, for a :class:`~nanoslam_jax.models.Composite` measurement
+    model (None: one type).
     """
     mp = params.map
     model = params.measurement
@@ -189,6 +193,7 @@ def particle_update(
         sigma_diameter=mp.sigma_diameter,
         ids=z_id if static.association == "known" else None,
         model=model,
+        z_kind=z_kind,
     )
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
@@ -199,7 +204,7 @@ def particle_update(
     trusted = (local.confirmed[ws] | mp.use_tentative) if static.manage else jnp.ones(K, bool)
     used = existing & trusted
     # Rows that match no used landmark are masked out everywhere they are used.
-    det = Detections(z, local.mean[ws], local.cov[ws], used)
+    det = Detections(z, local.mean[ws], local.cov[ws], used, z_kind)
     if static.adaptive_noise:
         z_prior, S_prior = predicted_measurements(x0, P0, local.mean[ws], local.cov[ws], R, model)
         _, noise, noise_count = adaptive_noise_rows(
@@ -254,6 +259,7 @@ def particle_update(
         mp=mp,
         manage=static.manage,
         ident=z_id if static.association == "known" else None,
+        kind=z_kind,
     )
 
     if static.manage:
@@ -421,7 +427,9 @@ def _step(
     # sweep's vmap: of the batch), where the local windows are searched.
     in_use = slots_in_use(p.landmarks)
     slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
-    out = jax.vmap(particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0, None))(
+    out = jax.vmap(
+        particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0, None, None)
+    )(
         static,
         params,
         proposal,
@@ -442,6 +450,7 @@ def _step(
         mine(p.noise),
         mine(p.noise_count),
         seg.z_id,
+        seg.z_kind if is_composite(params.measurement) else None,
     )
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))

@@ -37,6 +37,14 @@ from ._lines import (
     sensor_pose as sensor_pose,
     slope_intercept_from_line as slope_intercept_from_line,
 )
+from ._composite import (
+    PAD_VARIANCE as PAD_VARIANCE,
+    Composite as Composite,
+    OfKind as OfKind,
+    is_composite as is_composite,
+    row_models as row_models,
+    row_noise as row_noise,
+)
 from ._range_bearing import (
     innovation as innovation,
     inverse_range_bearing as inverse_range_bearing,
@@ -86,6 +94,12 @@ __all__ = [
     "beam_range_slope_intercept",
     "beam_range_vertical",
     "beam_range_circle",
+    "Composite",
+    "OfKind",
+    "PAD_VARIANCE",
+    "is_composite",
+    "row_models",
+    "row_noise",
     "VehicleParams",
     "vehicle_step",
     "vehicle_move",

@@ -268,12 +268,20 @@ MEASUREMENT_MODELS: dict[str, type[AbstractMeasurementModel]] = {
 
 def measurement_model_class(name: str) -> type[AbstractMeasurementModel]:
     """The measurement model class for ``model.measurement``: a built-in name or an import path
-    ``package.module:ClassName`` of a subclass of :class:`AbstractMeasurementModel`.
+    ``package.module:ClassName`` of a subclass of :class:`AbstractMeasurementModel`; several of
+    them joined by ``+`` (``line+circle``): :class:`~nanoslam_jax.models.Composite`, a map of
+    several landmark types.
 
     Raises:
         ValueError: naming the key, when the name is unknown, cannot be imported or is not a
             measurement model class.
     """
+    if "+" in name:
+        from ._composite import Composite, composite_names
+
+        for part in composite_names(name):
+            measurement_model_class(part)
+        return Composite
     return _model_class(name, "model.measurement", "measurement model", MEASUREMENT_MODELS, AbstractMeasurementModel)
 
 
@@ -292,8 +300,17 @@ def check_measurement_model(
     whose Jacobian must be square); detections carry no auxiliary input yet (``aux_dim == 0``);
     NASRUKF (``filter.method: nasrukf``) and the smoother run range-bearing models only.
     """
+    from ._composite import Composite
+
     cls = model if isinstance(model, type) else type(model)
     name = cls.__name__
+    if issubclass(cls, Composite):  # its types are checked when it is built
+        if method in ("ufastslam", "nasrukf") or smoother:
+            raise ValueError(
+                "key 'model.measurement': a map of several landmark types runs with ekf_slam, fastslam1, "
+                f"fastslam2, iterated and nano, not with {'the smoother' if smoother else method}"
+            )
+        return
     if cls.landmark_dim < 1 or cls.landmark_dim != cls.measurement_dim:
         raise ValueError(
             f"key 'model.measurement': {name} has landmark_dim {cls.landmark_dim} and measurement_dim "

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .._linalg import inv_small, sandwich
-from ..models import AbstractMeasurementModel, RangeBearing, wrap_angle
+from ..models import AbstractMeasurementModel, RangeBearing, row_models, row_noise, wrap_angle
 
 
 class Detections(NamedTuple):
@@ -22,12 +22,15 @@ class Detections(NamedTuple):
         mean: the associated landmark means.
         cov: the associated landmark covariances.
         mask: which rows are real associations.
+        kind: each row's type (a :class:`~nanoslam_jax.models.Composite` measurement model), or
+            None (one type).
     """
 
     z: Float[Array, "k d"]
     mean: Float[Array, "k l"]
     cov: Float[Array, "k l l"]
     mask: Bool[Array, " k"]
+    kind: Int[Array, " k"] | None = None
 
 
 class ProposalResult(NamedTuple):
@@ -78,11 +81,11 @@ def wrap_pose(x: Float[Array, "3"]) -> Float[Array, "3"]:
 def measurement_residuals(det: Detections, model: AbstractMeasurementModel | None = None):
     """``x -> z_k - g(x, m_k)`` (angular components wrapped) for all rows of ``det``, ``g`` the
     measurement model (default range-bearing)."""
-    model = RangeBearing() if model is None else model
+    rows, ax = row_models(RangeBearing() if model is None else model, det.kind)
 
     def residual(x):
-        z_hat = jax.vmap(model.h, (None, 0))(x, det.mean)
-        return jax.vmap(model.innovation)(det.z, z_hat)
+        z_hat = jax.vmap(lambda md, m: md.h(x, m), (ax, 0))(rows, det.mean)
+        return jax.vmap(lambda md, z, zh: md.innovation(z, zh), (ax, 0, 0))(rows, det.z, z_hat)
 
     return residual
 
@@ -100,8 +103,9 @@ def noise_information(
 ) -> Float[Array, "k d d"]:
     """Inverse noise of each detection: ``R^-1``, or ``(R + Gm Sigma Gm')^-1`` at the prior mean
     (``Gm`` of the measurement model, default range-bearing)."""
+    rows, ax = row_models(RangeBearing() if model is None else model, det.kind)
+    R, _ = row_noise(rows, ax, R)
     if not landmark_noise:
-        return jnp.broadcast_to(inv_small(R), det.z.shape[:1] + R.shape)
-    model = RangeBearing() if model is None else model
-    _, Gm = jax.vmap(model.jacobians, (None, 0))(x0, det.mean)
+        return jnp.broadcast_to(inv_small(R), det.z.shape[:1] + R.shape[-2:])
+    _, Gm = jax.vmap(lambda md, m: md.jacobians(x0, m), (ax, 0))(rows, det.mean)
     return inv_small(sandwich(Gm, det.cov) + R)

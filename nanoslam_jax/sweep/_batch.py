@@ -311,7 +311,7 @@ def _program_key(task: BatchTask, segments: Segments) -> tuple:
         task.devices,
         task.batch,
         task.history_chunk,
-        tuple((a.shape, str(a.dtype)) for a in segments),
+        tuple((a.shape, str(a.dtype)) for a in segments if a is not None),
     )
 
 
