@@ -310,7 +310,7 @@ def test_association_over_the_window_prefix_equals_the_whole_window(sequential):
     assert any(int(full(*sc).slot[4]) == Wp + 3 for sc in scenes) == sequential  # the provisional slot
     assert any(int(s) in range(16, 64) for sc in scenes for s in full(*sc).slot)  # matches past the first bucket
     batch = jax.tree.map(lambda *a: jnp.stack(a), *[scene(n) for n in (1, 5, 16, 17, 0, 30, 32, 2)])
-    got, want = jax.jit(jax.vmap(prefix))(*batch), jax.vmap(full)(*batch)
+    got, want = jax.jit(jax.vmap(prefix))(*batch), jax.jit(jax.vmap(full))(*batch)
     for f in ("slot", "is_new", "d2"):
         np.testing.assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f"batch {f}")
     assert "cond[" in str(jax.make_jaxpr(jax.vmap(prefix))(*batch))  # a branch, not every prefix computed
