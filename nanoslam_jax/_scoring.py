@@ -215,7 +215,8 @@ def score_run(
         out["rmse_heading_deg"] = rmse_heading_deg(t, est[:, 2], truth)
     if landmarks is not None:
         conf = np.asarray(landmarks.confirmed, bool)
-        states = np.asarray(landmarks.xy, float).reshape(conf.shape[0], -1)
+        states = np.asarray(landmarks.xy, float)
+        states = states.reshape(conf.shape[0], -1) if states.size else np.zeros((conf.shape[0], 2))
         xy = states[:, :2]
         out.update(map_summary(xy, conf, log.map_truth, metrics.map_radius, alignment))
         if log.survey is not None:

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import load_config
+from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.experiment import execute, load_log, map_columns
 from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
 from nanoslam_jax.filter._association import associate
@@ -154,3 +154,25 @@ def test_walls_and_pillars_in_one_map_match_the_truth(method):
     assert set(np.unique(kinds)) == {0.0, 1.0}
     # A line's padded third value stays 0.
     np.testing.assert_array_equal(res.landmarks[kinds == 0, 2], 0.0)
+
+
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        (["model.measurement=line"], "data.detections.*laser_lines"),
+        (["filter.method=ufastslam"], "model.measurement.*not with ufastslam"),
+        (["model.measurement_params={line: {sigma_r: 1}}"], r"model.measurement_params\.line.*sigma_r"),
+        (["model.measurement_params={arc: {sigma_r: 1}}"], "model.measurement_params.*one mapping per type"),
+        (["noise.adaptive=true"], "noise.adaptive"),
+    ],
+)
+def test_a_map_of_several_types_refuses_what_it_cannot_run_naming_the_key(overrides, match):
+    base = ["data.kind=indoor", "data.detections=laser_features", "model.measurement=line+circle"]
+    with pytest.raises(ConfigError, match=match):
+        load_config(None, base + overrides)
+    with pytest.raises(ConfigError, match="model.measurement.*'arc' is not a built-in"):
+        load_config(None, ["model.measurement=line+arc"])
+    cfg = load_config(None, base + ["model.measurement_params={circle: {sigma_radius: 0.05}}"])
+    _, params = settings_from_config(cfg, 4)
+    assert isinstance(params.measurement, Composite) and params.measurement.names == ("line", "circle")
+    assert float(params.measurement.types[1].sigma_radius) == 0.05

@@ -129,7 +129,12 @@ class Composite(AbstractMeasurementModel):
             if not isinstance(sub, dict):
                 raise ValueError(f"key 'model.measurement_params.{name}': expected a mapping, got {sub!r}")
             model = dataclasses.replace(cfg.model, measurement=name, measurement_params=sub or None)
-            types.append(measurement_model_class(name).from_config(dataclasses.replace(cfg, model=model)))
+            try:
+                types.append(measurement_model_class(name).from_config(dataclasses.replace(cfg, model=model)))
+            except ValueError as e:  # name the type's own mapping
+                raise ValueError(
+                    str(e).replace("'model.measurement_params'", f"'model.measurement_params.{name}'")
+                ) from None
         return cls(tuple(types), tuple(names))
 
 
