@@ -54,6 +54,7 @@ def _kalman(m, P, z_minus_pred, R):
     return m + K @ z_minus_pred, (np.eye(3) - K) @ P, ll
 
 
+@pytest.mark.slow  # four programs compiled
 def test_three_dimensional_landmark_updates_equal_the_kalman_filter():
     model = Shifted3(jnp.array([0.04, 0.09, 0.01]))
     R = np.diag([0.04, 0.09, 0.01])
