@@ -506,14 +506,14 @@ class NasrukfConfig:
         doc="measurement beams: front-end features (line segments and arcs) a scan holds at most; also the slots "
         "of the buffer of unmatched features (n_new)",
     )
-    noise_residual: Literal["posterior", "innovation"] = _f(
-        "posterior",
+    noise_residual: Literal["innovation", "posterior"] = _f(
+        "innovation",
         static=True,
         doc="measurement beams, noise.adaptive: the beam noise estimate with eq. 11's weights d_k from each "
-        "updated feature's residuals: 'posterior': after its update, mean (z - h(x+))^2 plus the predicted "
-        "variance there (never below the noise's share of the residual); 'innovation': eq. 11 as printed, "
-        "before its update, the innovations' mean square less their predicted variance (falls to "
-        "noise.adaptive_floor when the state's covariance is overestimated, e.g. a too large process noise)",
+        "updated feature's residuals: 'innovation': eq. 11 as printed, before its update, the innovations' "
+        "mean square less their predicted variance (falls to noise.adaptive_floor when the state's covariance "
+        "is overestimated, e.g. a too large process noise); 'posterior': after its update, mean (z - h(x+))^2 "
+        "plus the predicted variance there",
     )
     n_new: int = _f(
         1,
