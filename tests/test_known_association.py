@@ -15,6 +15,10 @@ SETTINGS = [
     "filter.n_particles=6",
     "filter.association=known",
     "output.plots=false",
+    # chunks and detection rows fixed (this log's k_max): the last test's known-association run is
+    # then NANO-SLAM's program of the first test, loaded instead of compiled
+    "data.k_max=13",
+    "output.chunk=100",
 ]
 
 
@@ -51,9 +55,11 @@ def test_known_and_nearest_differ_only_by_the_rule():
         "sim.duration=30",
         "sim.clutter_rate=0",
         "sim.n_trees=60",
-        "filter.n_particles=4",
+        "filter.n_particles=6",
         "map.manage=false",
         "output.plots=false",
+        "data.k_max=13",
+        "output.chunk=100",
     ]
     near = ns.run(overrides=base)
     known = ns.run(overrides=base + ["filter.association=known"])
