@@ -20,10 +20,12 @@ from nanoslam_jax.config import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-# Run configs; comparisons (table*.yaml), sweeps (sweep*.yaml) and studies (accuracy_vs_compute*.yaml)
-# have their own schemas and tests.
+# Run configs; comparisons (``methods``), sweeps (``grid``, ``random``) and studies (``study``) have
+# their own schemas and tests.
 CONFIGS = sorted(
-    p for p in (ROOT / "configs").glob("*.yaml") if not p.name.startswith(("table", "sweep", "accuracy_vs_compute"))
+    p
+    for p in (ROOT / "configs").glob("*.yaml")
+    if not {"methods", "grid", "random", "study"} & set(yaml.safe_load(p.read_text()) or {})
 )
 
 
