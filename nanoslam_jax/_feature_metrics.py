@@ -9,6 +9,7 @@ __all__ = [
     "line_feature_errors",
     "arc_feature_errors",
     "point_feature_errors",
+    "break_point_line_errors",
     "line_intersections",
     "feature_map_errors",
 ]
@@ -192,6 +193,51 @@ def point_feature_errors(est_points: np.ndarray, true_points: np.ndarray, gate: 
     }
 
 
+def _point_line_distances(points: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """``(K, L)`` the distance of each point to each line ``(rho, alpha)``."""
+    c, s = np.cos(lines[None, :, 1]), np.sin(lines[None, :, 1])
+    return np.abs(points[:, None, 0] * c + points[:, None, 1] * s - lines[None, :, 0])
+
+
+def break_point_line_errors(
+    est_lines: np.ndarray, true_lines: np.ndarray, line_match: np.ndarray, break_points: np.ndarray, tol: float = 0.01
+) -> dict:
+    """Errors of break points where the map holds lines but no segment ends: each true break point's
+    distance to the estimated line matched to its own wall's line.
+
+    A map of lines ``(rho, alpha)`` places a wall's end nowhere along the wall; what it places is the
+    wall across it. The error of a break point is the distance between it and the estimate of the
+    wall it ends (the estimated line's point nearest it), the wall being the true line that passes
+    within ``tol`` of it (the nearest one).
+
+    Args:
+        est_lines: ``(E, 2)`` estimated lines.
+        true_lines: ``(L, 2)`` true lines.
+        line_match: ``(L,)`` the estimate matched to each true line, -1 for none
+            (:func:`line_feature_errors`'s ``match``).
+        break_points: ``(K, 2)`` true break points.
+        tol: the largest distance (m) of a break point from its wall's true line.
+
+    Returns:
+        A dict: ``line`` ``(K,)`` the true line of each break point (-1: none within ``tol``),
+        ``error`` ``(K,)`` the distances (m; NaN where the line is unmatched or there is none),
+        ``n_true``, ``n_matched``.
+    """
+    est, tru = _lines_np(est_lines), _lines_np(true_lines)
+    pts = np.asarray(break_points, dtype=float).reshape(-1, 2) if np.size(break_points) else np.zeros((0, 2))
+    line = np.full(pts.shape[0], -1, dtype=np.int64)
+    err = np.full(pts.shape[0], np.nan)
+    if pts.shape[0] and tru.shape[0]:
+        d = _point_line_distances(pts, tru)
+        near = np.argmin(d, axis=1)
+        line = np.where(d[np.arange(pts.shape[0]), near] <= tol, near, -1)
+        m = np.where(line >= 0, np.asarray(line_match)[np.maximum(line, 0)], -1)
+        ok = m >= 0
+        if ok.any():
+            err[ok] = np.diagonal(_point_line_distances(pts[ok], est[m[ok]]))
+    return {"line": line, "error": err, "n_true": int(pts.shape[0]), "n_matched": int(np.isfinite(err).sum())}
+
+
 def line_intersections(lines_a: np.ndarray, lines_b: np.ndarray) -> np.ndarray:
     """``(K, 2)`` the intersection of each pair of lines in normal form (NaN where parallel).
 
@@ -237,8 +283,10 @@ def feature_map_errors(
     is where two true lines meet (``corners`` names them); its estimate is where their matched
     estimated lines meet (:func:`line_intersections`), so a corner error is the map's error where
     the walls meet, and a corner of an unmatched line has none. Break points (a wall's end at a
-    range discontinuity) are points: the estimated ones (e.g. the ends of the estimated walls'
-    segments) are matched to the true ones by :func:`point_feature_errors`.
+    range discontinuity) are points: estimated ones (e.g. the ends of the estimated walls'
+    segments) are matched to the true ones by :func:`point_feature_errors`; without them (a map of
+    lines alone) a break point's error is its distance to its wall's estimated line
+    (:func:`break_point_line_errors`).
 
     Args:
         est_lines: ``(E, 2)`` estimated lines ``(rho, alpha)``.
@@ -247,7 +295,7 @@ def feature_map_errors(
         true_arcs: ``(A, 3)`` true arcs, or None.
         corners: ``(K, 2)`` rows of indices into ``true_lines`` of the two lines meeting at each
             corner, or None.
-        est_break_points: ``(B', 2)`` estimated break points, or None.
+        est_break_points: ``(B', 2)`` estimated break points, or None (the map's lines alone).
         true_break_points: ``(B, 2)`` true break points, or None.
         line_gate, lever, max_slope: see :func:`line_feature_errors`.
         arc_gate: see :func:`arc_feature_errors`.
@@ -257,11 +305,12 @@ def feature_map_errors(
         A dict: ``lines`` (:func:`line_feature_errors`), ``arcs`` (:func:`arc_feature_errors`, or
         None), ``corners`` (``error`` ``(K,)`` distances, NaN where a line is unmatched or the
         lines are parallel; ``true`` and ``estimate`` ``(K, 2)``; or None), ``break_points``
-        (:func:`point_feature_errors`, or None), and ``summary``: for each of ``line_slope``,
-        ``line_intercept``, ``line_rho``, ``line_alpha``, ``arc_centre``, ``arc_radius``,
+        (:func:`point_feature_errors` or :func:`break_point_line_errors`, or None), and
+        ``summary``: for each of ``line_slope``, ``line_intercept``, ``line_rho``, ``line_alpha``, ``arc_centre``, ``arc_radius``,
         ``corner``, ``break_point`` the median and the worst absolute error over the matched
         features (``<name>_median``, ``<name>_worst``; NaN when there are none) and the counts
-        ``n_<kind>`` and ``n_<kind>_matched``. Unmatched features enter the counts only.
+        ``n_<kind>`` and ``n_<kind>_matched``. Unmatched features enter the counts only; the
+        arcs', corners' and break points' entries are there when their truth is given.
 
     Raises:
         ValueError: when ``corners`` names a line that ``true_lines`` does not hold.
@@ -303,9 +352,12 @@ def feature_map_errors(
         summary["corner_median"], summary["corner_worst"] = _summary(err)
     breaks = None
     if true_break_points is not None:
-        breaks = point_feature_errors(
-            np.zeros((0, 2)) if est_break_points is None else est_break_points, true_break_points, point_gate
+        breaks = (
+            break_point_line_errors(est_lines, true_lines, lines["match"], true_break_points)
+            if est_break_points is None
+            else point_feature_errors(est_break_points, true_break_points, point_gate)
         )
+    if breaks is not None:
         summary["n_break_points"], summary["n_break_points_matched"] = breaks["n_true"], breaks["n_matched"]
         summary["break_point_median"], summary["break_point_worst"] = _summary(breaks["error"])
     return {"lines": lines, "arcs": arcs, "corners": corner, "break_points": breaks, "summary": summary}

@@ -57,6 +57,7 @@ __all__ = [
     "seed_summary",
     "summarize_runs",
     "summary_stats",
+    "with_arcs",
     "write_rows_csv",
 ]
 
@@ -73,6 +74,8 @@ HIGHER_IS_BETTER = frozenset(
         "survey_dr_over_slam",
         "n_lines_matched",
         "n_corners_matched",
+        "n_arcs_matched",
+        "n_break_points_matched",
     }
 )
 #: Prefixes and names of the errors (lower is better; a failed seed counts as ``+inf``).
@@ -91,6 +94,9 @@ _ERROR_PREFIXES = (
     "line_rho_",
     "line_alpha_",
     "corner_",
+    "arc_centre_",
+    "arc_radius_",
+    "break_point_",
 )
 _ERRORS = frozenset({"mean_error", "max_error", "final_error"})
 
@@ -127,6 +133,27 @@ class MapEstimate(NamedTuple):
     confirmed: np.ndarray
     ids: Optional[np.ndarray] = None
     kinds: Optional[np.ndarray] = None
+
+
+def with_arcs(lines: MapEstimate, arcs: np.ndarray, active: np.ndarray) -> MapEstimate:
+    """A map of lines (NASRUKF's per-beam features) with the filter's arcs beside them, as one map
+    of several types (``kinds`` ``'line'`` and ``'circle'``) for :func:`score_run`.
+
+    Args:
+        lines: the lines ``(rho, alpha)`` (``kinds`` None).
+        arcs: ``(A, 3)`` the arc slots ``(xc, yc, R)``.
+        active: ``(A,)`` which slots hold an arc (all of them scored as confirmed).
+    """
+    act = np.asarray(active, bool)
+    a = np.asarray(arcs, float).reshape(-1, 3)[act]
+    xy = np.asarray(lines.xy, float).reshape(len(lines.confirmed), -1)[:, :2]
+    ids = None if lines.ids is None else np.r_[np.asarray(lines.ids, float), np.full(len(a), -1.0)]
+    return MapEstimate(
+        np.r_[np.c_[xy, np.zeros(len(xy))], a],
+        np.r_[np.asarray(lines.confirmed, bool), np.ones(len(a), bool)],
+        ids,
+        np.array(["line"] * len(xy) + ["circle"] * len(a)),
+    )
 
 
 def _gps(log) -> np.ndarray:
@@ -191,8 +218,10 @@ def score_run(
         true trees, ``survey_*`` against a survey; for a map of lines against an indoor log's true
         walls, the ``summary`` of :func:`~nanoslam_jax.metrics.feature_map_errors` over the
         confirmed lines: ``line_slope_*``, ``line_intercept_*``, ``line_rho_*``, ``line_alpha_*``,
-        ``corner_*`` (median and worst), ``n_lines``, ``n_lines_matched``, ``n_corners``,
-        ``n_corners_matched``, and ``n_lines_est``; for a map of circles against its true pillars,
+        ``corner_*``, ``break_point_*`` (median and worst), ``n_lines``, ``n_lines_matched``,
+        ``n_corners``, ``n_corners_matched``, ``n_break_points``, ``n_break_points_matched`` and
+        ``n_lines_est``; with arcs in the map (:func:`with_arcs`) or in the truth also the arcs'
+        figures below; for a map of circles against its true pillars,
         ``arc_centre_*``, ``arc_radius_*``, ``n_arcs``, ``n_arcs_matched`` and ``n_arcs_est``).
     """
     t = np.asarray(log.segments.time)
@@ -226,7 +255,12 @@ def score_run(
             kinds = np.asarray(landmarks.kinds)
             lines, arcs = states[conf & (kinds == "line"), :2], states[conf & (kinds == "circle"), :3]
             table = feature_map_errors(
-                lines, features.lines, est_arcs=arcs, true_arcs=features.arcs, corners=features.corners
+                lines,
+                features.lines,
+                est_arcs=arcs,
+                true_arcs=features.arcs,
+                corners=features.corners,
+                true_break_points=features.break_points,
             )["summary"]
             out.update(table, n_lines_est=len(lines), n_arcs_est=len(arcs))
         elif features is not None and states.shape[1] == 3:  # a map of circles (xc, yc, R): Table 1's arcs
@@ -234,7 +268,9 @@ def score_run(
             table = feature_map_errors(none, none, est_arcs=states[conf], true_arcs=features.arcs)["summary"]
             out.update({k: v for k, v in table.items() if "arc" in k}, n_arcs_est=int(conf.sum()))
         elif features is not None:  # a map of lines (rho, alpha): the second paper's Table 1
-            table = feature_map_errors(xy[conf], features.lines, corners=features.corners)["summary"]
+            table = feature_map_errors(
+                xy[conf], features.lines, corners=features.corners, true_break_points=features.break_points
+            )["summary"]
             out.update(table, n_lines_est=int(conf.sum()))
     return out
 

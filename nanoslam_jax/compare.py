@@ -22,6 +22,11 @@ A row's ``base`` replaces the comparison's base for that row (its ``set`` and th
 ``set`` still apply), so rows of different configs can be compared on the same seeds
 (``configs/recommended.yaml``).
 
+``seed_keys: [indoor.seed]`` makes each seed its own world: every row runs once per seed with
+``seed`` and those keys set to it, all rows of a seed on the same simulated log, each run the run
+of ``nanoslam run``; the feature map's table (the second paper's Table 1) and its Figures 5 and 6
+are written too (:mod:`nanoslam_jax._compare_worlds`, ``configs/nasrukf_indoor_study.yaml``).
+
 For each method the seeds run vmapped in one compiled program (:func:`filter.run_batch`); a
 separate single run of the first seed, timed chunk by chunk, gives the computation time per
 scan (the table's ms per scan and Fig. 5). EKF-SLAM, NASRUKF and dead reckoning are deterministic
@@ -99,6 +104,7 @@ __all__ = [
     "deterministic",
     "filter_key",
     "int_at_least",
+    "log_key",
     "load_compare_spec",
     "markdown_table",
     "method_config",
@@ -110,6 +116,7 @@ __all__ = [
     "seed_config",
     "str_list",
     "summarise",
+    "write_resolved",
 ]
 
 RMSE_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
@@ -311,10 +318,37 @@ SUMMARY_KEYS = (
 )
 
 
+#: The heading and the feature map's columns (the second paper's Table 1), summarised where runs report them.
+FEATURE_KEYS = (
+    "rmse_heading_deg",
+    *(
+        f"{k}_{s}"
+        for k in ("line_slope", "line_intercept", "arc_centre", "arc_radius", "corner", "break_point")
+        for s in ("median", "worst")
+    ),
+    *(
+        f"n_{k}"
+        for k in (
+            "lines",
+            "lines_matched",
+            "lines_est",
+            "arcs",
+            "arcs_matched",
+            "arcs_est",
+            "corners",
+            "corners_matched",
+            "break_points",
+            "break_points_matched",
+        )
+    ),
+)
+
+
 def summarise(res: MethodResult) -> dict:
     """One table row: median, quartiles and worst seed over the seeds, failed seeds counted
     (:func:`~nanoslam_jax._scoring.summarize_runs`)."""
     keys = [k for k in SUMMARY_KEYS if k in RMSE_KEYS or k.startswith("n_") or any(k in r for r in res.rows)]
+    keys += [k for k in FEATURE_KEYS if any(k in r for r in res.rows)]
     st = summarize_runs(res.rows, keys, stats=("median", "q1", "q3", "worst"))
     out: dict[str, Any] = {
         "method": res.spec.label,
@@ -369,6 +403,37 @@ def markdown_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def log_key(cfg: Config) -> str:
+    """What a config's log depends on: configs with the same key run on the same log."""
+    d = config_to_dict(cfg)
+    return json.dumps(
+        [d[k] for k in ("data", "sim", "indoor", "vehicle", "detector")] + [cfg.model.measurement], sort_keys=True
+    )
+
+
+def write_resolved(out: Path, spec: CompareSpec) -> None:
+    """Create the comparison directory and write ``compare.yaml``: the resolved comparison with the versions."""
+    from .experiment import versions
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "configs").mkdir(exist_ok=True)
+    resolved = {
+        "name": spec.name,
+        "base": spec.base,
+        "seeds": spec.seeds,
+        "first_seed": spec.first_seed,
+        "seed_keys": list(spec.seed_keys),
+        "timing_chunk": spec.timing_chunk,
+        "set": list(spec.set),
+        "methods": [dataclasses.asdict(m) | {"set": list(m.set)} for m in spec.methods],
+        "version": __version__,
+        "versions": versions(),
+        "source": spec.source,
+        "written": _dt.datetime.now().isoformat(timespec="seconds"),
+    }
+    (out / "compare.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+
+
 def run_compare(
     spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] = None, plots: bool = True, stream=sys.stderr
 ) -> list[dict]:
@@ -384,19 +449,22 @@ def run_compare(
     Returns:
         The table rows (also in ``table1.csv``).
     """
-    from .experiment import load_log, versions
+    from .experiment import load_log
 
+    if spec.seed_keys:  # each seed its own log: one run per seed and row
+        from ._compare_worlds import run_worlds
+
+        if data_dir is not None:
+            raise ConfigError(
+                f"{spec.source}: key 'seed_keys' gives every seed its own simulated log, and --data names one log; "
+                f"drop --data, or drop seed_keys to run the seeds on that log"
+            )
+        return run_worlds(spec, Path(out_dir), plots, stream)
     out = Path(out_dir)
     configs = {m.label: method_config(spec, m) for m in spec.methods}
     logs: dict[str, Any] = {}
     first = next(iter(configs.values()))
-
-    def key_of(c):
-        return json.dumps(
-            [config_to_dict(c)[k] for k in ("data", "sim", "indoor", "vehicle", "detector")] + [c.model.measurement],
-            sort_keys=True,
-        )
-
+    key_of = log_key
     logs[key_of(first)] = load_log(first, data_dir)  # a bad log fails before anything is written
     if not len(logs[key_of(first)].raw.gps):
         raise ConfigError(
@@ -404,22 +472,7 @@ def run_compare(
             f"{logs[key_of(first)].source} has none; score its map with `nanoslam sweep` "
             f"(metric: survey_rmse) or `nanoslam run`"
         )
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "configs").mkdir(exist_ok=True)
-    resolved = {
-        "name": spec.name,
-        "base": spec.base,
-        "seeds": spec.seeds,
-        "first_seed": spec.first_seed,
-        "timing_chunk": spec.timing_chunk,
-        "set": list(spec.set),
-        "methods": [dataclasses.asdict(m) | {"set": list(m.set)} for m in spec.methods],
-        "version": __version__,
-        "versions": versions(),
-        "source": spec.source,
-        "written": _dt.datetime.now().isoformat(timespec="seconds"),
-    }
-    (out / "compare.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+    write_resolved(out, spec)
 
     def seeds_of(c: Config) -> list[int]:
         return (
@@ -475,17 +528,20 @@ def run_compare(
     return [summarise(r) for r in results]
 
 
-def _write_outputs(out: Path, spec: CompareSpec, results: list[MethodResult]) -> None:
+def _write_outputs(
+    out: Path, spec: CompareSpec, results: list[MethodResult], header: str = "", extra: str = ""
+) -> None:
+    """``table1.csv``, ``runs.csv``, ``table1.md`` (``header``, the RMSE table, then ``extra``) and ``summary.json``."""
     table = [summarise(r) for r in results]
     write_rows_csv(out / "table1.csv", table)
     runs = [{"method": r.spec.label, "filter_method": r.method, **row} for r in results for row in r.rows]
     if runs:
         write_rows_csv(out / "runs.csv", runs)
-    header = (
+    header = header or (
         f"# {spec.name}: {len(spec.methods)} methods, {spec.seeds} seeds "
         f"({spec.first_seed}..{spec.first_seed + spec.seeds - 1}; EKF-SLAM, NASRUKF and dead reckoning are deterministic: one run)\n\n"
     )
-    (out / "table1.md").write_text(header + markdown_table(table))
+    (out / "table1.md").write_text(header + markdown_table(table) + extra)
     # JSON has no inf: an infinite median (failed seeds) is written as the string "inf", NaN as null.
     safe = lambda v: (None if math.isnan(v) else str(v)) if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
     (out / "summary.json").write_text(

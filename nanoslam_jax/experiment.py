@@ -49,7 +49,7 @@ from .metrics import (
     relative_gps,
     rmse_heading_deg,
 )
-from ._scoring import MapEstimate, companion_tracks, score_run
+from ._scoring import MapEstimate, companion_tracks, score_run, with_arcs
 from .models import Composite, measurement_model_from_config
 from .smoother import smooth_filter_run, smoother_metrics
 
@@ -470,19 +470,22 @@ def write_tum(path: str | Path, times: np.ndarray, poses: np.ndarray) -> None:
     np.savetxt(path, rows, fmt="%.9f", delimiter=" ", header="time x y z qx qy qz qw")
 
 
-def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool] = None) -> RunResult:
+def execute(
+    cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool] = None, log: Optional[LoadedLog] = None
+) -> RunResult:
     """Run ``cfg`` in memory: load the log, run the filter (and the smoother), score it.
 
     Args:
         cfg: the run configuration.
         data_dir: log directory overriding ``data.path``.
         progress: show a progress indicator (default: ``output.progress``).
+        log: the log of ``cfg`` already loaded (:func:`load_log`; None: load it).
 
     Returns:
         The :class:`RunResult`; its ``metrics["finite"]`` says whether the estimate stayed finite.
     """
     stats0 = compile_stats()
-    log = load_log(cfg, data_dir)
+    log = load_log(cfg, data_dir) if log is None else log
     seg = log.segments
     static, params = settings_from_config(cfg, seg.k_max)
     t = np.asarray(seg.time)
@@ -575,6 +578,8 @@ def execute(cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool
         ids = landmarks[:, len(cols)] if landmarks.shape[1] > len(cols) else None
         kinds = None if names is None else np.asarray(names)[landmarks[:, dim].astype(int)]
         lm = MapEstimate(landmarks[:, :dim], landmarks[:, cols.index("confirmed")] > 0, ids, kinds)
+        if (arc_table := getattr(state, "arc_table", None)) is not None:  # NASRUKF's per-beam arcs
+            lm = with_arcs(lm, *(np.asarray(a) for a in arc_table()))
     # The one scorer of every command: the estimate against GPS, the map, and (for path: the
     # filter's own estimate; after the smoother: the path it started from) the other trajectories.
     others = None if other is None else companion_tracks(static.estimate, best_pose, mean, unsmoothed)

@@ -1,4 +1,5 @@
-"""Figures of a run: trajectory and map against GPS (paper Fig. 3), error over time (Fig. 4), ESS."""
+"""Figures of a run: trajectory and map against GPS (paper Fig. 3), error over time (Fig. 4), ESS; the
+second paper's Figures 5 (pose errors over many runs) and 6 (a map of walls and arcs with the track)."""
 
 from __future__ import annotations
 
@@ -146,4 +147,87 @@ def plot_trajectory_grid(
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_error_bands(
+    path: Path,
+    t: np.ndarray,
+    panels: Sequence[tuple[str, Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]]]],
+    title: str = "",
+) -> None:
+    """Errors over time over many runs, one panel per error (the second paper's Figure 5): each
+    method's median as a line and a band between two quantiles.
+
+    Args:
+        path: output PNG.
+        t: ``(T,)`` times (s).
+        panels: ``(ylabel, curves)`` per panel, each curve ``(label, median, low, high)`` of ``(T,)``
+            values (an infinite value, a failed run's, is not drawn).
+        title: the figure's title.
+    """
+    fig, axes = plt.subplots(len(panels), 1, figsize=(9, 3.2 * len(panels)), sharex=True, squeeze=False)
+    for ax, (ylabel, curves) in zip(axes[:, 0], panels):
+        for i, (label, med, lo, hi) in enumerate(curves):
+            color = f"C{i}"
+            ax.fill_between(t, lo, hi, color=color, alpha=0.2, lw=0)
+            ax.plot(t, med, lw=1.0, color=color, label=label)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+    axes[-1, 0].set_xlabel("time [s]")
+    axes[0, 0].set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def plot_feature_map(
+    path: Path,
+    true_path: np.ndarray,
+    true_walls: np.ndarray,
+    true_arcs: np.ndarray,
+    est_path: np.ndarray,
+    est_walls: np.ndarray,
+    est_arcs: np.ndarray,
+    title: str = "",
+    label: str = "estimate",
+) -> None:
+    """A map of walls and arcs with the track, estimate over truth (the second paper's Figure 6).
+
+    Args:
+        path: output PNG.
+        true_path: ``(N, 2)`` the true positions.
+        true_walls: ``(W, 4)`` the true walls as segments ``x0, y0, x1, y1``.
+        true_arcs: ``(P, 3)`` the true circles ``xc, yc, R``.
+        est_path: ``(T, 2)`` the estimated positions.
+        est_walls: ``(E, 4)`` the estimated walls as segments.
+        est_arcs: ``(A, 3)`` the estimated circles.
+        title: the figure's title.
+        label: the estimate's name in the legend.
+    """
+    fig, ax = plt.subplots(figsize=(8, 8))
+    th = np.linspace(0.0, 2.0 * np.pi, 181)
+
+    def walls(segs, style, color, lw, name):
+        for i, s in enumerate(np.asarray(segs, float).reshape(-1, 4)):
+            ax.plot(s[[0, 2]], s[[1, 3]], style, color=color, lw=lw, label=name if i == 0 else None)
+
+    def circles(arcs, style, color, lw):
+        for c in np.asarray(arcs, float).reshape(-1, 3):
+            ax.plot(c[0] + c[2] * np.cos(th), c[1] + c[2] * np.sin(th), style, color=color, lw=lw)
+
+    walls(true_walls, "-", "k", 2.0, "true walls and pillar")
+    circles(true_arcs, "-", "k", 2.0)
+    ax.plot(true_path[:, 0], true_path[:, 1], "-", color="0.5", lw=1.2, label="true track")
+    walls(est_walls, "--", "C3", 1.2, f"{label}: walls and arcs")
+    circles(est_arcs, "--", "C3", 1.2)
+    ax.plot(est_path[:, 0], est_path[:, 1], "--", color="C0", lw=1.0, label=f"{label}: track")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
     plt.close(fig)
