@@ -4,6 +4,7 @@ Table 1 of the feature map from the one scorer, Figures 5 and 6, the failed-run 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 from pathlib import Path
 from types import SimpleNamespace
@@ -48,7 +49,7 @@ def test_table1_of_the_one_scorer_gives_the_offsets_built_into_a_map_of_lines_an
     est = MapEstimate(lines, np.ones(4, bool))
     arcs = np.array([[9.0, 9.0, 1.0], [4.0 + 0.006, 2.0 - 0.008, 0.3 + 0.004]])
     lm = with_arcs(est, arcs, np.array([False, True]))
-    assert list(lm.kinds) == ["line"] * 4 + ["circle"]
+    assert lm.kinds is not None and list(lm.kinds) == ["line"] * 4 + ["circle"]
     m = score_run(_log(ROOM), np.c_[np.linspace(0, 1, 11) + 1.0, np.full(11, 2.0), np.zeros(11)], _metrics(), lm)
     assert (m["n_lines_matched"], m["n_arcs_matched"], m["n_corners_matched"], m["n_break_points_matched"]) == (
         4,
@@ -147,8 +148,6 @@ def test_the_study_on_two_tiny_worlds_writes_figures_and_a_table_of_the_plain_ru
     study = load_compare_spec(
         ROOT / "configs" / "nasrukf_indoor_study.yaml", ("indoor.duration=2.5", "nasrukf.static_scans=10"), seeds=2
     )
-    import dataclasses
-
     spec = dataclasses.replace(study, methods=(study.methods[0], study.methods[2]))  # NASRUKF and EKF-SLAM
     out = tmp_path / "study"
     rows = run_compare(spec, out, plots=True)
@@ -158,13 +157,8 @@ def test_the_study_on_two_tiny_worlds_writes_figures_and_a_table_of_the_plain_ru
     text = (out / "table1.md").read_text()
     assert "the second paper's Table 1" in text and "| NASRUKF adaptive | 2 |" in text
     runs = list(csv.DictReader((out / "runs.csv").open()))
-    assert [(r["method"], r["seed"]) for r in runs] == [
-        ("NASRUKF adaptive", "100"),
-        ("EKF-SLAM line+circle", "100"),
-        ("NASRUKF adaptive", "101"),
-        ("EKF-SLAM line+circle", "101"),
-    ] or sorted((r["method"], r["seed"]) for r in runs) == sorted(
-        [(m.label, str(s)) for m in spec.methods for s in (100, 101)]
+    assert sorted((r["method"], r["seed"]) for r in runs) == sorted(
+        (m.label, str(s)) for m in spec.methods for s in (100, 101)
     )
     keys = ("rmse_fixed", "rmse_heading_deg", "line_intercept_median", "line_slope_median", "corner_median", "n_lines")
     for r in runs:
