@@ -20,6 +20,7 @@ from typing import Any, Optional
 import jax
 import numpy as np
 import yaml
+from scipy.special import expit
 
 from ._cache import compile_stats
 from ._version import __version__
@@ -291,7 +292,7 @@ def map_table(lm) -> np.ndarray:
     landmarks carry ids (known association) has their id as a last column."""
     act = np.asarray(lm.active)
     cov = np.asarray(lm.cov)[act]
-    existence = 1.0 / (1.0 + np.exp(-np.asarray(lm.log_odds, float)[act]))
+    existence = expit(np.asarray(lm.log_odds, float)[act])
     kind = getattr(lm, "kind", None)
     table = np.c_[
         np.asarray(lm.mean)[act],
