@@ -254,6 +254,7 @@ def _figures(out: Path, spec: CompareSpec, results: list, tracks: list, maps: di
             t,
             panels,
             f"{spec.name}: median and IQR over {len(tracks[0])} worlds at each time",
+            logy=True,
         )
     if maps:
         values = run_values(results[0].rows, "rmse_fixed")

@@ -3,6 +3,7 @@ second paper's Figures 5 (pose errors over many runs) and 6 (a map of walls and 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -155,6 +156,7 @@ def plot_error_bands(
     t: np.ndarray,
     panels: Sequence[tuple[str, Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]]]],
     title: str = "",
+    logy: bool = False,
 ) -> None:
     """Errors over time over many runs, one panel per error (the second paper's Figure 5): each
     method's median as a line and a band between two quantiles.
@@ -165,6 +167,8 @@ def plot_error_bands(
         panels: ``(ylabel, curves)`` per panel, each curve ``(label, median, low, high)`` of ``(T,)``
             values (an infinite value, a failed run's, is not drawn).
         title: the figure's title.
+        logy: logarithmic y axes spanning three decades below the highest band (errors of methods
+            that differ by orders of magnitude).
     """
     fig, axes = plt.subplots(len(panels), 1, figsize=(9, 3.2 * len(panels)), sharex=True, squeeze=False)
     for ax, (ylabel, curves) in zip(axes[:, 0], panels):
@@ -173,8 +177,12 @@ def plot_error_bands(
             ax.fill_between(t, lo, hi, color=color, alpha=0.2, lw=0)
             ax.plot(t, med, lw=1.0, color=color, label=label)
         ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+        top = max((float(np.nanmax(c[3])) for c in curves if np.isfinite(c[3]).any()), default=math.nan)
+        if logy and math.isfinite(top) and top > 0:  # three decades below the highest band
+            ax.set_yscale("log")
+            ax.set_ylim(top * 1e-3, top * 1.5)
+        ax.grid(alpha=0.3, which="both" if logy else "major")
+        ax.legend(fontsize=8, loc="lower right" if logy else "upper right")
     axes[-1, 0].set_xlabel("time [s]")
     axes[0, 0].set_title(title, fontsize=10)
     fig.tight_layout()
