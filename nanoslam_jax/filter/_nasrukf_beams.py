@@ -156,6 +156,11 @@ def _select(sel: Bool[Array, " k"], size: int) -> tuple[Array, Bool[Array, " siz
     return idx, jnp.arange(size) < jnp.sum(take)
 
 
+def _zeros_like(shapes):
+    """Zeros of the shapes and dtypes of a pytree of :class:`jax.ShapeDtypeStruct`."""
+    return jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+
+
 def _busiest(counts: Array, active: Bool[Array, " c"], size: int) -> tuple[Array, Bool[Array, " size"]]:
     """The ``size`` active slots with the most associated beams (indices) and which of them have any."""
     top, idx = jax.lax.top_k(jnp.where(active, counts, -1), size)
@@ -272,9 +277,8 @@ def beam_step(
         pv = jnp.sum(jnp.where(use, jax.vmap(SigmaMeasurement.variance)(preds), 0.0), axis=1) / n
         return jnp.sqrt(nu2)[:, None], pv[:, None], jnp.any(use, axis=1)
 
-    nuL, pvL, updL = residual_rows(Ldat)
-    nuA, pvA, updA = residual_rows(Adat)
     noise, noise_count = state.noise, state.noise_count
+    (nuL, pvL, updL), (nuA, pvA, updA) = residual_rows(Ldat), residual_rows(Adat)
     rows_use = jnp.concatenate([updL, updA])
     floor = params.noise_floor * jnp.square(bp.sigma_beam)[None]
     innovation = static.adaptive_noise and static.nasrukf_noise_residual == "innovation"
@@ -362,11 +366,12 @@ def beam_step(
     arcs = feedback(arcs0, wA, yA, LA, updA, ())
 
     # 5. New features from the front-end segments and arcs no feature explains.
-    gidx = jnp.arange(G)
-    members = ok[None, :] & (group[None, :] == gidx[:, None])
-    fits = jax.vmap(fit_group, (None, None, 0, None))(r, phi, members, noise[0])
+    members = ok[None, :] & (group[None, :] == jnp.arange(G)[:, None])
     is_arc = jax.ops.segment_max(jnp.where(ok, seg.diam, 0.0), group, G) > 0
     unexplained = (n_group >= 3) & (2 * n_assoc < n_group)
+    # the fits are read only for the unexplained groups: a scan with none skips them
+    fit_all = lambda: jax.vmap(fit_group, (None, None, 0, None))(r, phi, members, noise[0])  # noqa: E731
+    fits = jax.lax.cond(jnp.any(unexplained & valid), fit_all, lambda: _zeros_like(jax.eval_shape(fit_all)))
     world_line = jax.vmap(line_to_world, (0, None))(fits.line, x_g)
     c, s = jnp.cos(x_g[2]), jnp.sin(x_g[2])
     world_arc = jnp.stack(
@@ -405,12 +410,17 @@ def beam_step(
         nsq = jnp.linalg.cholesky(cov + 1e-12 * jnp.eye(3))
         return srukf_transform(x_g, S_g, lambda p, w: place_arc(p, w, z), nsq, rule, angles=(2,))
 
-    # the first NEW_PER_SCAN starters of each kind (a later one is stored again in the next scan)
-    gL = jnp.nonzero(starts & ~is_arc, size=NEW_PER_SCAN, fill_value=G)[0]
-    gA = jnp.nonzero(starts & is_arc, size=NEW_PER_SCAN, fill_value=G)[0]
-    gLc, gAc = jnp.clip(gL, 0, G - 1), jnp.clip(gA, 0, G - 1)
-    ny, nL, nv = jax.vmap(init_line)(fits.line[gLc], fits.line_cov[gLc])
-    ay, aL = jax.vmap(init_arc)(fits.arc[gAc], fits.arc_cov[gAc])
+    def create(lines, arcs):
+        """The first NEW_PER_SCAN starters of each kind made features (a later one is stored
+        again in the next scan); the features added and those dropped for want of a slot."""
+        gL = jnp.nonzero(starts & ~is_arc, size=NEW_PER_SCAN, fill_value=G)[0]
+        gA = jnp.nonzero(starts & is_arc, size=NEW_PER_SCAN, fill_value=G)[0]
+        gLc, gAc = jnp.clip(gL, 0, G - 1), jnp.clip(gA, 0, G - 1)
+        ny, nL, nv = jax.vmap(init_line)(fits.line[gLc], fits.line_cov[gLc])
+        ay, aL = jax.vmap(init_arc)(fits.arc[gAc], fits.arc_cov[gAc])
+        lines, addL, overL = insert(lines, gL < G, ny, nL, nv)
+        arcs, addA, overA = insert(arcs, gA < G, ay, aL, jnp.zeros(NEW_PER_SCAN, bool))
+        return lines, arcs, (addL + addA).astype(jnp.int32), (overL + overA).astype(jnp.int32)
 
     def insert(feats: BeamFeatures, create, y, L, vertical):
         cap, k = feats.mean.shape[0], create.shape[0]
@@ -424,8 +434,10 @@ def beam_step(
         feats = jax.tree.map(lambda a, b: a.at[dest].set(b, mode="drop"), feats, new)
         return feats, jnp.sum(create & (dest < cap)), jnp.sum(create & (dest >= cap))
 
-    lines, addL, overL = insert(lines, gL < G, ny, nL, nv)
-    arcs, addA, overA = insert(arcs, gA < G, ay, aL, jnp.zeros(NEW_PER_SCAN, bool))
+    none = jnp.zeros((), jnp.int32)
+    lines, arcs, added, over = jax.lax.cond(
+        jnp.any(starts), create, lambda lines, arcs: (lines, arcs, none, none), lines, arcs
+    )
 
     keep = lambda new_value, old: jax.tree.map(lambda a, b: jnp.where(valid, a, b), new_value, old)  # noqa: E731
     count = jnp.sum(lines.active) + jnp.sum(arcs.active)
@@ -444,7 +456,7 @@ def beam_step(
         count=jnp.where(valid, count, state.count).astype(jnp.int32),
         key=state.key,
         resample_count=state.resample_count,
-        overflow=state.overflow + jnp.where(valid, overL + overA, 0).astype(jnp.int32),
+        overflow=state.overflow + jnp.where(valid, over, 0).astype(jnp.int32),
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
         slope_form=state.slope_form,
     )
@@ -462,9 +474,9 @@ def beam_step(
         n_capped=zero,
         n_nonfinite=(~finite).astype(jnp.int32),
         n_associated=jnp.sum(assoc).astype(x.dtype),
-        n_new=(addL + addA).astype(x.dtype),
+        n_new=added.astype(x.dtype),
         window_overflow=zero,
-        overflow=(overL + overA).astype(jnp.int32),
+        overflow=over.astype(jnp.int32),
         weight_reset=jnp.zeros((), bool),
     )
     return new_state, record
