@@ -506,14 +506,17 @@ class NasrukfConfig:
         doc="measurement beams: front-end features (line segments and arcs) a scan holds at most; also the slots "
         "of the buffer of unmatched features (n_new)",
     )
-    noise_residual: Literal["innovation", "posterior"] = _f(
-        "innovation",
+    noise_residual: Literal["innovation", "posterior", "projected"] = _f(
+        "projected",
         static=True,
         doc="measurement beams, noise.adaptive: the beam noise estimate with eq. 11's weights d_k from each "
-        "updated feature's residuals: 'innovation': eq. 11 as printed, before its update, the innovations' "
-        "mean square less their predicted variance (falls to noise.adaptive_floor when the state's covariance "
-        "is overestimated, e.g. a too large process noise); 'posterior': after its update, mean (z - h(x+))^2 "
-        "plus the predicted variance there",
+        "updated feature's residuals: 'projected' (the default): before its update, the innovations with the "
+        "part the state's uncertainty explains projected out, whose mean square is the beam noise whatever "
+        "that uncertainty; 'innovation': eq. 11 as printed, before its update, the innovations' mean square "
+        "less their predicted variance (falls to noise.adaptive_floor when the state's covariance is "
+        "overestimated, e.g. a too large process noise); 'posterior': after its update, mean (z - h(x+))^2 "
+        "plus the predicted variance there. With nasrukf.adaptive_process the last two trade the beam noise "
+        "against the estimated process noise and the two estimates run away (docs/method/nasrukf-beams-results.md)",
     )
     n_new: int = _f(
         1,

@@ -182,6 +182,42 @@ def _feature_update(feats: BeamFeatures, gid, x0, S0, r, phi, best, assoc, size,
     return ys, Ls, zs, ps, use, preds
 
 
+def projected_rows(
+    dat, variance: Float[Array, ""]
+) -> tuple[Float[Array, "w 1"], Float[Array, "w 1"], Bool[Array, " w"]]:
+    """Each feature's innovations with the part the state's uncertainty can explain removed, as
+    rows of the noise estimate (``nasrukf.noise_residual: projected``).
+
+    A feature's ``b`` innovations ``nu`` have covariance ``H P H' + r I``. Projected onto the
+    orthogonal complement of the columns of ``H P^(1/2)`` (here the sigma points' odd
+    deviations, ``sqrt(2 wc) (dz_i - dz_(i+n)) / 2``: the linear part), they keep ``r I`` alone:
+    ``E |nu_perp|^2 = r (b - k)`` with ``k`` the directions projected out, whatever ``P`` is. So
+    the estimate does not trade the beam noise against the process noise (the innovation form's
+    ``nu^2 - H P H'`` does: an overestimated ``P`` drives it to the floor, and the process-noise
+    estimate, fed by updates that trust the beams too much, grows without bound). Directions the
+    state moves the predictions by less than ``1e-3 variance`` are left in (they add at most that).
+
+    Args:
+        dat: the window's predictions and data (:func:`_feature_update`).
+        variance: the current noise estimate (the threshold's scale).
+
+    Returns:
+        ``sqrt(|nu_perp|^2 / (b - k))`` and 0 (no predicted variance to subtract) per feature,
+        and whether it has at least one degree of freedom left.
+    """
+    _, _, zs, _, use, preds = dat
+    n = preds.dx.shape[-1]
+    nu = jnp.where(use, zs - preds.z_hat, 0.0)
+    D = (preds.dz[:, 1 : n + 1] - preds.dz[:, n + 1 :]) * (0.5 * jnp.sqrt(2.0 * preds.wc[:, 1, None, None]))
+    vals, vecs = jnp.linalg.eigh(D @ jnp.swapaxes(D, 1, 2))
+    keep = vals > 1e-3 * variance
+    c = jnp.einsum("wnk,wnb,wb->wk", vecs, D, nu)
+    along = jnp.sum(jnp.where(keep, jnp.square(c) / jnp.where(keep, vals, 1.0), 0.0), axis=1)
+    dof = jnp.sum(use, axis=1) - jnp.sum(keep, axis=1)
+    e2 = jnp.maximum(jnp.sum(jnp.square(nu), axis=1) - along, 0.0) / jnp.maximum(dof, 1)
+    return jnp.sqrt(e2)[:, None], jnp.zeros_like(e2)[:, None], dof >= 1
+
+
 def _posterior_rows(ys, Ls, dat, h_of, vertical, rule):
     """Each updated feature's RMS residual ``z - h(x+)`` after its update and its mean predicted
     variance there (from the posterior's sigma points), as rows of the noise estimate."""
@@ -280,9 +316,12 @@ def beam_step(
     noise, noise_count = state.noise, state.noise_count
     (nuL, pvL, updL), (nuA, pvA, updA) = residual_rows(Ldat), residual_rows(Adat)
     rows_use = jnp.concatenate([updL, updA])
+    if static.nasrukf_noise_residual == "projected":
+        (nuL, pvL, dofL), (nuA, pvA, dofA) = (projected_rows(d, noise[0]) for d in (Ldat, Adat))
+        rows_use = rows_use & jnp.concatenate([dofL, dofA])
     floor = params.noise_floor * jnp.square(bp.sigma_beam)[None]
-    innovation = static.adaptive_noise and static.nasrukf_noise_residual == "innovation"
-    if innovation:  # eq. 11 before each update: the innovations less the predicted variance
+    innovation = static.adaptive_noise and static.nasrukf_noise_residual in ("innovation", "projected")
+    if innovation:  # eq. 11 before each update (the innovations less the predicted variance, or projected)
         rows, noise, noise_count = adaptive_noise_rows(
             noise,
             noise_count,
