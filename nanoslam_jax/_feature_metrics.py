@@ -41,12 +41,13 @@ def _oriented_differences(est: np.ndarray, tru: np.ndarray) -> tuple[np.ndarray,
 def gated_assignment(cost: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
     """The one-to-one assignment minimising the sum of ``min(cost, gate)`` (scipy's
     ``linear_sum_assignment``) over an ``(E, L)`` cost matrix: its pairs ``(rows, cols)`` with
-    ``cost <= gate`` (pairs beyond the gate dropped; none for an empty matrix)."""
+    ``cost <= gate`` (pairs beyond the gate dropped; none for an empty matrix). A non-finite cost
+    (an estimate of a diverged run) is beyond the gate."""
     from scipy.optimize import linear_sum_assignment
 
     if cost.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    rows, cols = linear_sum_assignment(np.minimum(cost, gate))
+    rows, cols = linear_sum_assignment(np.where(cost <= gate, cost, gate))
     keep = cost[rows, cols] <= gate
     return rows[keep], cols[keep]
 

@@ -574,3 +574,13 @@ def test_table1_metrics_leave_far_features_unmatched_and_intersect_lines():
     assert np.isnan(line_intersections([[2.0, 0.0]], [[3.0, 0.0]])).all()
     with pytest.raises(ValueError, match="corners"):
         feature_map_errors(np.zeros((0, 2)), np.array([[2.0, 0.0]]), corners=[[0, 1]])
+
+
+def test_table1_metrics_of_a_diverged_map_leave_its_non_finite_lines_unmatched():
+    """A run that went non-finite is scored (its NaN lines match nothing), not stopped by the
+    assignment."""
+    true = np.array([[2.0, 0.0], [3.0, np.pi / 2]])
+    est = np.array([[np.nan, np.nan], [3.01, np.pi / 2], [np.inf, 0.0]])
+    err = line_feature_errors(est, true, gate=0.5)
+    assert err["n_matched"] == 1 and list(err["match"]) == [-1, 1]
+    np.testing.assert_allclose(err["rho_error"][1], 0.01, atol=1e-12)
