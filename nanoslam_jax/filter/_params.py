@@ -66,7 +66,7 @@ class Static:
     nasrukf_beams_per_feature: int = 16
     nasrukf_arc_capacity: int = 8
     nasrukf_groups: int = 32
-    nasrukf_noise_residual: str = "innovation"
+    nasrukf_noise_residual: str = "projected"
 
     @property
     def window_size(self) -> int:
