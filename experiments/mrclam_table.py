@@ -51,11 +51,19 @@ def main() -> None:
     p.add_argument("sweep", nargs="+", help="sweep output directories (each holding results.csv)")
     p.add_argument("--data", help="the MRCLAM dataset directory (default: as configs/mrclam.yaml finds it)")
     args = p.parse_args()
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "mrclam.yaml")
     rows = []
     for d in args.sweep:
+        # settings a sweep fixes for all its runs (its `set:`) are in its resolved base config
+        base = Path(d) / "base_config.yaml"
+        fixed = load_config(base) if base.is_file() else cfg
+        defaults = {
+            "data.robot": str(fixed.data.robot),
+            "filter.association": fixed.filter.association,
+            "filter.method": fixed.filter.method,
+        }
         with open(Path(d) / "results.csv") as f:
-            rows += list(csv.DictReader(f))
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "mrclam.yaml")
+            rows += [{**defaults, **{k: v for k, v in r.items() if v != ""}} for r in csv.DictReader(f)]
     directory = resolve_data_dir(cfg, args.data)
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
