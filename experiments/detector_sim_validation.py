@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "experiments"))
 
+from _seeds import parse_seeds  # noqa: E402
 from detector_validation import match  # noqa: E402
 
 from nanoslam_jax.config import load_config  # noqa: E402
@@ -136,17 +137,9 @@ def evaluate(log, det: np.ndarray) -> dict:
     }
 
 
-def parse_seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b or a) + 1))
-    return out
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--seeds", default="100-107", help="simulation seeds (e.g. 100-107 or 1,5,9)")
+    p.add_argument("--seeds", type=parse_seeds, default="100-107", help="simulation seeds (e.g. 100-107 or 1,5,9)")
     p.add_argument("--duration", type=float, default=240.0, help="seconds driven per log (sim.duration)")
     p.add_argument("--config", help="YAML config whose detector and sim sections are used")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -165,7 +158,7 @@ def main(argv=None) -> int:
     )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     pooled = {"ours": [], "naive": []}
-    for seed in parse_seeds(args.seeds):
+    for seed in args.seeds:
         t0 = time.perf_counter()
         log = simulate_laser(dataclasses.replace(s, seed=seed), cfg.vehicle)
         t1 = time.perf_counter()

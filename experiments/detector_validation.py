@@ -24,6 +24,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _seeds import format_seeds, parse_seeds  # noqa: E402
+
 from nanoslam_jax.config import load_config  # noqa: E402
 from nanoslam_jax.data import load_laser, load_victoria_park  # noqa: E402
 from nanoslam_jax.frontend import extract_features  # noqa: E402
@@ -189,15 +191,6 @@ def extras_figure(path: str, scans, feats, ref: np.ndarray, rows: np.ndarray, ki
     plt.close(fig)
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``"16-31"`` or ``"1,2,5"`` as a list of seeds."""
-    out = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
-
-
 def control_log(data: str, out: str, sigma: float = 0.001, seed: int = 0) -> str:
     """Write ``data``'s log with ``sigma`` (m) of Gaussian noise added to every detection's range: a
     change no detector could matter by, to show how far SLAM's medians move from it alone."""
@@ -302,7 +295,7 @@ def main(argv=None) -> int:
         metavar="CONFIG",
         help="also run SLAM from both detection sets with these configs (default: configs/victoria_park_nano.yaml)",
     )
-    p.add_argument("--seeds", default="16-31", help="seeds of the SLAM runs, e.g. 16-31 or 0,1,2")
+    p.add_argument("--seeds", type=parse_seeds, default="16-31", help="seeds of the SLAM runs, e.g. 16-31 or 0,1,2")
     p.add_argument("--out", default=None, help="directory for the detected log (default: a temporary one)")
     p.add_argument(
         "--control",
@@ -362,8 +355,8 @@ def main(argv=None) -> int:
         if args.ablate:
             logs.update(ablation_logs(args.data, detected, args.ablate))
         for config in args.slam or ["configs/victoria_park_nano.yaml"]:
-            print(f"\nSLAM, {config}, seeds {args.seeds}")
-            slam_table(config, logs, parse_seeds(args.seeds), slam_overrides)
+            print(f"\nSLAM, {config}, seeds {format_seeds(args.seeds)}")
+            slam_table(config, logs, args.seeds, slam_overrides)
     return 0
 
 

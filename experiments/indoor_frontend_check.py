@@ -29,19 +29,13 @@ import time
 
 import numpy as np
 
+from _seeds import format_seeds, parse_seeds
+
 from nanoslam_jax.config import ConfigError, load_config
 from nanoslam_jax.frontend import extract_features
 from nanoslam_jax.frontend._types import EDGE_FARTHER, EDGE_NO_RETURN
 from nanoslam_jax.simulate_indoor import hessian_lines, simulate_indoor
 from nanoslam_jax.simulate_laser import KIND_WALL
-
-
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out.extend(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def _world(pose: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -141,7 +135,7 @@ def table(rows: dict[str, list[dict[str, np.ndarray]]]) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seeds", default="0-15", help="indoor.seed values, e.g. 0-15 or 1,4,9")
+    p.add_argument("--seeds", type=parse_seeds, default="0-15", help="indoor.seed values, e.g. 0-15 or 1,4,9")
     p.add_argument("--duration", type=float, default=60.0, help="seconds per log (indoor.duration)")
     p.add_argument("--every", type=int, default=10, help="check every n-th scan")
     p.add_argument(
@@ -160,7 +154,7 @@ def main(argv=None) -> int:
         return 2
     t0 = time.perf_counter()
     rows: dict[str, list] = {}
-    for seed in _seeds(args.seeds):
+    for seed in args.seeds:
         ind = dataclasses.replace(cfg.indoor, seed=seed, duration=args.duration)
         log = simulate_indoor(ind)
         r = check(log, cfg.detector, args.every)
@@ -169,7 +163,7 @@ def main(argv=None) -> int:
     rows = {k: rows[k] for k in sorted(rows, key=lambda k: (k == "all", k))}
     sets = " ".join(f"--set {o}" for o in args.overrides)
     print(
-        f"indoor_frontend_check.py --seeds {args.seeds} --duration {args.duration:g} --every {args.every} {sets}".rstrip()
+        f"indoor_frontend_check.py --seeds {format_seeds(args.seeds)} --duration {args.duration:g} --every {args.every} {sets}".rstrip()
         + f" ({time.perf_counter() - t0:.0f} s)\n"
     )
     print(table(rows))

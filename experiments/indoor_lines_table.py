@@ -16,6 +16,8 @@ import argparse
 import sys
 import time
 
+from _seeds import parse_seeds
+
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import execute
 from nanoslam_jax.metrics import seed_summary
@@ -32,18 +34,13 @@ COLUMNS = (
 )
 
 
-def _seeds(text: str) -> list[int]:
-    lo, _, hi = text.partition("-")
-    return list(range(int(lo), int(hi or lo) + 1))
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default="configs/indoor_lines.yaml")
-    ap.add_argument("--seeds", default="1-8", help="seeds, e.g. 1-8")
+    ap.add_argument("--seeds", type=parse_seeds, default="1-8", help="seeds, e.g. 1-8")
     ap.add_argument("--set", action="append", default=[], help="config override key=value")
     args = ap.parse_args(argv)
-    seeds = _seeds(args.seeds)
+    seeds = args.seeds
     rows, failed = [], []
     header = (
         "| seed | world | "

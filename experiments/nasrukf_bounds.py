@@ -36,6 +36,8 @@ import time
 
 import numpy as np
 
+from _seeds import format_seeds, parse_seeds
+
 from nanoslam_jax.config import load_config
 from nanoslam_jax.experiment import execute
 
@@ -43,14 +45,6 @@ CONFIG = "configs/nasrukf_indoor.yaml"
 #: The simulator's odometry noise outside slip: sigma_v (m/s), sigma_omega (deg/s), and the slip factor.
 SIM_SIGMA_V, SIM_SIGMA_OMEGA_DEG, SLIP_FACTOR = 0.01, 1.0, 5.0
 NON_ADAPTIVE = ["noise.adaptive=false", "nasrukf.adaptive_process=false"]
-
-
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out.extend(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def _odometry(scale: float) -> list[str]:
@@ -141,7 +135,7 @@ def summary(runs: dict[str, list[dict]]) -> None:
 
 
 def noise_study(args) -> dict:
-    seeds = _seeds(args.seeds)
+    seeds = args.seeds
     variants = noise_variants(args.slip)
     if args.variants:
         variants = {k: variants[k] for k in args.variants.split(",")}
@@ -172,7 +166,7 @@ def noise_study(args) -> dict:
 
 
 def random_walk_study(args) -> dict:
-    seeds = _seeds(args.seeds)
+    seeds = args.seeds
     xs = [float(v) for v in args.sigma_xy.split(",")]
     ps = [float(v) for v in args.sigma_phi.split(",")]
     common = [f"indoor.duration={args.duration}", *args.set]
@@ -185,7 +179,9 @@ def random_walk_study(args) -> dict:
                 f"random_walk.sigma_phi_deg={sp}",
             ]
     runs: dict[str, list[dict]] = {v: [] for v in variants}
-    print(f"{args.duration:.0f} s logs, seeds {args.seeds}; position RMSE (cm) / heading RMSE (deg) / largest heading")
+    print(
+        f"{args.duration:.0f} s logs, seeds {format_seeds(args.seeds)}; position RMSE (cm) / heading RMSE (deg) / largest heading"
+    )
     print("error (deg) at t (s)\n")
     print("| variant | " + " | ".join(str(s) for s in seeds) + " |")
     print("|---|" + "---:|" * len(seeds))
@@ -207,12 +203,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="study", required=True)
     n = sub.add_parser("noise", help="adaptive, wrong and right process noise, paired over seeds")
-    n.add_argument("--seeds", default="100-115")
+    n.add_argument("--seeds", type=parse_seeds, default="100-115")
     n.add_argument("--duration", type=float, default=60.0)
     n.add_argument("--slip", type=float, default=0.2, help="indoor.slip_fraction (0: no slip)")
     n.add_argument("--variants", help="comma-separated subset of the variants (default: all)")
     r = sub.add_parser("random-walk", help="model.motion random_walk over its sigmas on tuning seeds")
-    r.add_argument("--seeds", default="200-203")
+    r.add_argument("--seeds", type=parse_seeds, default="200-203")
     r.add_argument("--duration", type=float, default=20.0)
     r.add_argument("--sigma-xy", default="0.05,0.3")
     r.add_argument("--sigma-phi", default="5,20,80")
