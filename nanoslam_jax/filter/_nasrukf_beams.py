@@ -314,20 +314,21 @@ def beam_step(
         return jnp.sqrt(nu2)[:, None], pv[:, None], jnp.any(use, axis=1)
 
     noise, noise_count = state.noise, state.noise_count
-    (nuL, pvL, updL), (nuA, pvA, updA) = residual_rows(Ldat), residual_rows(Adat)
+    updL, updA = jnp.any(Ldat[4], axis=1), jnp.any(Adat[4], axis=1)
     rows_use = jnp.concatenate([updL, updA])
-    if static.nasrukf_noise_residual == "projected":
-        (nuL, pvL, dofL), (nuA, pvA, dofA) = (projected_rows(d, noise[0]) for d in (Ldat, Adat))
-        rows_use = rows_use & jnp.concatenate([dofL, dofA])
     floor = params.noise_floor * jnp.square(bp.sigma_beam)[None]
-    innovation = static.adaptive_noise and static.nasrukf_noise_residual in ("innovation", "projected")
-    if innovation:  # eq. 11 before each update (the innovations less the predicted variance, or projected)
+    before_update = static.adaptive_noise and static.nasrukf_noise_residual != "posterior"
+    if before_update:  # eq. 11 before each update: the innovations less their predicted variance, or projected
+        if static.nasrukf_noise_residual == "projected":
+            (nuL, pvL, okL), (nuA, pvA, okA) = (projected_rows(d, noise[0]) for d in (Ldat, Adat))
+        else:
+            (nuL, pvL, okL), (nuA, pvA, okA) = residual_rows(Ldat), residual_rows(Adat)
         rows, noise, noise_count = adaptive_noise_rows(
             noise,
             noise_count,
             jnp.concatenate([nuL, nuA]),
             jnp.concatenate([pvL, pvA]),
-            rows_use,
+            rows_use & jnp.concatenate([okL, okA]),
             params.forgetting,
             floor,
         )
@@ -347,7 +348,7 @@ def beam_step(
 
     yL, LL = run_updates(Ldat, varL, h_line, subL.vertical, line_angles)
     yA, LA = run_updates(Adat, varA, h_arc, subA.vertical, (2,))
-    if static.adaptive_noise and not innovation:  # eq. 11's weights on the residuals after the update
+    if static.adaptive_noise and not before_update:  # eq. 11's weights on the residuals after the update
         eL = _posterior_rows(yL, LL, Ldat, h_line, subL.vertical, rule)
         eA = _posterior_rows(yA, LA, Adat, h_arc, subA.vertical, rule)
         _, noise, noise_count = adaptive_noise_rows(
