@@ -32,6 +32,11 @@ from typing import Literal
 
 import numpy as np
 
+from ._config_schema import MetricsConfig
+
+#: The configuration's ``metrics`` section: the one source of the protocol's defaults here.
+_METRICS = MetricsConfig()
+
 __all__ = [
     "GPS_DAT_ROTATION_DEG",
     "rotation_matrix",
@@ -101,7 +106,10 @@ def interpolate_at(times: np.ndarray, est_t: np.ndarray, est_xy: np.ndarray) -> 
 
 
 def relative_gps(
-    gps_xy: np.ndarray, rotation_deg: float = -35.4, *, source_rotation_deg: float = GPS_DAT_ROTATION_DEG
+    gps_xy: np.ndarray,
+    rotation_deg: float = _METRICS.gps_rotation_deg,
+    *,
+    source_rotation_deg: float = GPS_DAT_ROTATION_DEG,
 ) -> np.ndarray:
     """The relative-GPS frame: GPS minus its first fix, rotated.
 
@@ -151,7 +159,7 @@ def rigid_align(est: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return R, t, est @ R.T + t
 
 
-def jump_mask(gps_t: np.ndarray, gps_xy: np.ndarray, max_speed: float = 8.0) -> np.ndarray:
+def jump_mask(gps_t: np.ndarray, gps_xy: np.ndarray, max_speed: float = _METRICS.jump_speed) -> np.ndarray:
     """Which GPS fixes to keep once jumps are removed.
 
     The rule, applied in time order: the first fix is kept; fix ``i`` is kept when the speed
@@ -225,7 +233,7 @@ def error_over_time(
     est_xy: np.ndarray,
     gps: np.ndarray,
     *,
-    rotation_deg: float = -35.4,
+    rotation_deg: float = _METRICS.gps_rotation_deg,
     frame: Literal["relative", "slam"] = "relative",
     source_rotation_deg: float = GPS_DAT_ROTATION_DEG,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -254,7 +262,7 @@ def evaluate(
     est_xy: np.ndarray,
     gps: np.ndarray,
     *,
-    rotation_deg: float = -35.4,
+    rotation_deg: float = _METRICS.gps_rotation_deg,
     jump_speed: float = 8.0,
     frame: Literal["relative", "slam"] = "relative",
     source_rotation_deg: float = GPS_DAT_ROTATION_DEG,
@@ -430,7 +438,7 @@ def observable_landmarks(
     return inside.sum(axis=0) >= min_scans
 
 
-def map_quality(est_landmarks: np.ndarray, true_landmarks: np.ndarray, radius: float = 1.0) -> dict:
+def map_quality(est_landmarks: np.ndarray, true_landmarks: np.ndarray, radius: float = _METRICS.map_radius) -> dict:
     """Map-quality figures of a simulated log (what ``metrics.json`` reports as ``map_*``).
 
     Args:

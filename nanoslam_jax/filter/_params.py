@@ -26,47 +26,55 @@ from ..models import (
 )
 
 
+#: The configuration's defaults, the one source of :class:`Static`'s.
+_C = Config()
+
+
 @dataclasses.dataclass(frozen=True)
 class Static:
-    """Settings that fix array shapes or program structure (hashable)."""
+    """Settings that fix array shapes or program structure (hashable).
 
-    method: str = "nano"
-    n_particles: int = 10
-    capacity: int = 512
-    window: int = 64
+    Its defaults are the configuration's: ``Static()`` equals the static part of
+    ``settings_from_config(Config(), Static().k_max)``.
+    """
+
+    method: str = _C.filter.method
+    n_particles: int = _C.filter.n_particles
+    capacity: int = _C.filter.capacity
+    window: int = _C.filter.window
     k_max: int = 14
     row_buckets: tuple[int, ...] = ()
     devices: int = 1
-    prior: str = "unscented"
-    prior_cov: str = "reset"
-    sequential: bool = True
-    association: str = "nearest"
-    weight: str = "product"
-    resampler: str = "systematic"
-    estimate: str = "best"
-    manage: bool = True
-    occlusion: bool = True
-    quadrature: str = "cubature"
-    gh_order: int = 3
-    hessian: str = "gauss_newton"
-    max_iter: int = 10
-    landmark_noise: bool = False
-    nano_init: str = "prior"
-    nano_solver: str = "while_loop"
+    prior: str = _C.filter.prior
+    prior_cov: str = _C.filter.prior_cov
+    sequential: bool = _C.filter.sequential
+    association: str = _C.filter.association
+    weight: str = _C.filter.weight
+    resampler: str = _C.filter.resampler
+    estimate: str = _C.filter.estimate
+    manage: bool = _C.map.manage
+    occlusion: bool = _C.map.occlusion
+    quadrature: str = _C.nano.quadrature
+    gh_order: int = _C.nano.gh_order
+    hessian: str = _C.nano.hessian
+    max_iter: int = _C.nano.max_iter
+    landmark_noise: bool = _C.nano.landmark_noise
+    nano_init: str = _C.nano.init
+    nano_solver: str = _C.nano.solver
     landmark_update: str = "ekf"
-    iterated_solver: str = "gauss_newton"
-    iterated_max_iter: int = 10
-    iterated_tol: float = 1e-8
-    iterated_landmark_noise: bool = True
-    adaptive_noise: bool = False
-    nasrukf_feature: str = "point"
-    adaptive_process: bool = False
-    nasrukf_measurement: str = "detections"
-    nasrukf_line_form: str = "normal"
-    nasrukf_beams_per_feature: int = 16
-    nasrukf_arc_capacity: int = 8
-    nasrukf_groups: int = 32
-    nasrukf_noise_residual: str = "projected"
+    iterated_solver: str = _C.iterated.solver
+    iterated_max_iter: int = _C.iterated.max_iter
+    iterated_tol: float = _C.iterated.tol
+    iterated_landmark_noise: bool = _C.iterated.landmark_noise
+    adaptive_noise: bool = _C.noise.adaptive
+    nasrukf_feature: str = _C.nasrukf.feature
+    adaptive_process: bool = _C.nasrukf.adaptive_process
+    nasrukf_measurement: str = _C.nasrukf.measurement
+    nasrukf_line_form: str = _C.nasrukf.line_form
+    nasrukf_beams_per_feature: int = _C.nasrukf.beams_per_feature
+    nasrukf_arc_capacity: int = _C.nasrukf.arc_capacity
+    nasrukf_groups: int = _C.nasrukf.max_groups
+    nasrukf_noise_residual: str = _C.nasrukf.noise_residual
 
     @property
     def window_size(self) -> int:

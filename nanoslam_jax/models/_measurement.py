@@ -34,9 +34,9 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeGuard
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from .._config_schema import DataConfig, MapConfig, NoiseConfig
 from ._angles import wrap_angle
 from ._motion import _f, _model_class
 from ._range_bearing import (
@@ -179,13 +179,19 @@ class AbstractMeasurementModel(eqx.Module):
             raise ValueError(f"key 'model.measurement_params': cannot build {cls.__name__}: {e}") from None
 
 
+# The configuration's defaults are the one source of the built-in model's defaults:
+# ``RangeBearing()`` equals ``RangeBearing.from_config(Config())``.
+_NOISE, _DATA, _MAP = NoiseConfig(), DataConfig(), MapConfig()
+
+
 class RangeBearing(AbstractMeasurementModel):
     """Range and bearing to a point landmark ``m = (mx, my)``: ``z = (|m - p|, atan2(m - p) - phi)``,
     the bearing relative to the sensor's forward axis and wrapped.
 
     The sensor detects a point at ranges in ``(min_range, max_range)`` and bearings within
     ``half_fov``; :meth:`visible` shrinks that footprint by ``view_margin`` (range) and
-    ``view_margin_angle`` (bearing), so that a landmark near the edge counts no miss.
+    ``view_margin_angle`` (bearing), so that a landmark near the edge counts no miss. The defaults
+    are the configuration's (``noise``, ``data`` and ``map`` sections): Victoria Park's laser.
 
     Attributes:
         sigma_r: range noise (m).
@@ -199,13 +205,13 @@ class RangeBearing(AbstractMeasurementModel):
 
     angles: ClassVar[tuple[int, ...]] = (1,)
 
-    sigma_r: Float[Array, ""] = eqx.field(default=0.3, converter=_f)
-    sigma_beta: Float[Array, ""] = eqx.field(default=math.radians(1.0), converter=_f)
-    min_range: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    max_range: Float[Array, ""] = eqx.field(default=np.inf, converter=_f)
-    half_fov: Float[Array, ""] = eqx.field(default=math.pi, converter=_f)
-    view_margin: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    view_margin_angle: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
+    sigma_r: Float[Array, ""] = eqx.field(default=_NOISE.sigma_r, converter=_f)
+    sigma_beta: Float[Array, ""] = eqx.field(default=math.radians(_NOISE.sigma_beta_deg), converter=_f)
+    min_range: Float[Array, ""] = eqx.field(default=_DATA.min_range, converter=_f)
+    max_range: Float[Array, ""] = eqx.field(default=_DATA.max_range, converter=_f)
+    half_fov: Float[Array, ""] = eqx.field(default=math.radians(_MAP.fov_deg) / 2, converter=_f)
+    view_margin: Float[Array, ""] = eqx.field(default=_MAP.view_margin, converter=_f)
+    view_margin_angle: Float[Array, ""] = eqx.field(default=math.radians(_MAP.view_margin_deg), converter=_f)
 
     def h(self, x, m, aux=None):
         return range_bearing(x, m)

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._config_schema import NoiseConfig, RandomWalkConfig, UnicycleConfig, VehicleConfig
 from ._angles import wrap_angle
 from ._vehicle import VehicleParams, vehicle_move, vehicle_rates, vehicle_step
 
@@ -53,6 +54,11 @@ __all__ = [
     "motion_model_class",
     "motion_model_from_config",
 ]
+
+
+# The configuration's defaults are the one source of the built-in models' defaults:
+# ``Model()`` equals ``Model.from_config(Config())``.
+_VEHICLE, _NOISE, _UNICYCLE, _RANDOM_WALK = VehicleConfig(), NoiseConfig(), UnicycleConfig(), RandomWalkConfig()
 
 
 def _f(x: Any) -> Array | np.ndarray:
@@ -181,12 +187,12 @@ class Ackermann(AbstractRateModel):
 
     control_dim: ClassVar[int] = 2
 
-    wheelbase: Float[Array, ""] = eqx.field(default=2.83, converter=_f)
-    encoder_offset: Float[Array, ""] = eqx.field(default=0.76, converter=_f)
-    laser_a: Float[Array, ""] = eqx.field(default=3.78, converter=_f)
-    laser_b: Float[Array, ""] = eqx.field(default=0.50, converter=_f)
-    sigma_v: Float[Array, ""] = eqx.field(default=2.0, converter=_f)
-    sigma_alpha: Float[Array, ""] = eqx.field(default=math.radians(6.0), converter=_f)
+    wheelbase: Float[Array, ""] = eqx.field(default=_VEHICLE.wheelbase, converter=_f)
+    encoder_offset: Float[Array, ""] = eqx.field(default=_VEHICLE.encoder_offset, converter=_f)
+    laser_a: Float[Array, ""] = eqx.field(default=_VEHICLE.laser_a, converter=_f)
+    laser_b: Float[Array, ""] = eqx.field(default=_VEHICLE.laser_b, converter=_f)
+    sigma_v: Float[Array, ""] = eqx.field(default=_NOISE.sigma_v, converter=_f)
+    sigma_alpha: Float[Array, ""] = eqx.field(default=math.radians(_NOISE.sigma_alpha_deg), converter=_f)
 
     @property
     def vehicle(self) -> VehicleParams:
@@ -242,10 +248,10 @@ class Unicycle(AbstractRateModel):
 
     control_dim: ClassVar[int] = 2
 
-    sensor_x: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    sensor_y: Float[Array, ""] = eqx.field(default=0.0, converter=_f)
-    sigma_v: Float[Array, ""] = eqx.field(default=0.05, converter=_f)
-    sigma_omega: Float[Array, ""] = eqx.field(default=math.radians(5.0), converter=_f)
+    sensor_x: Float[Array, ""] = eqx.field(default=_UNICYCLE.sensor_x, converter=_f)
+    sensor_y: Float[Array, ""] = eqx.field(default=_UNICYCLE.sensor_y, converter=_f)
+    sigma_v: Float[Array, ""] = eqx.field(default=_UNICYCLE.sigma_v, converter=_f)
+    sigma_omega: Float[Array, ""] = eqx.field(default=math.radians(_UNICYCLE.sigma_omega_deg), converter=_f)
 
     def rates(self, u):
         return jnp.asarray(u)[:2]
@@ -278,8 +284,8 @@ class RandomWalk(AbstractMotionModel):
     noise: ClassVar[Literal["control", "additive"]] = "additive"
     rigid: ClassVar[bool] = True
 
-    sigma_xy: Float[Array, ""] = eqx.field(default=0.5, converter=_f)
-    sigma_phi: Float[Array, ""] = eqx.field(default=math.radians(10.0), converter=_f)
+    sigma_xy: Float[Array, ""] = eqx.field(default=_RANDOM_WALK.sigma_xy, converter=_f)
+    sigma_phi: Float[Array, ""] = eqx.field(default=math.radians(_RANDOM_WALK.sigma_phi_deg), converter=_f)
 
     def step(self, x, u, dt):
         x = jnp.asarray(x)

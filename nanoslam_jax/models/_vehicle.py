@@ -12,8 +12,12 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._config_schema import VehicleConfig
 from .._trig import sincos, tan
 from ._angles import wrap_angle
+
+#: The configuration's ``vehicle`` section: the one source of the defaults.
+_VEHICLE = VehicleConfig()
 
 
 class VehicleParams(NamedTuple):
@@ -26,10 +30,10 @@ class VehicleParams(NamedTuple):
         laser_b: b, laser position left of the centre line.
     """
 
-    wheelbase: Float[ArrayLike, ""] = 2.83
-    encoder_offset: Float[ArrayLike, ""] = 0.76
-    laser_a: Float[ArrayLike, ""] = 3.78
-    laser_b: Float[ArrayLike, ""] = 0.50
+    wheelbase: Float[ArrayLike, ""] = _VEHICLE.wheelbase
+    encoder_offset: Float[ArrayLike, ""] = _VEHICLE.encoder_offset
+    laser_a: Float[ArrayLike, ""] = _VEHICLE.laser_a
+    laser_b: Float[ArrayLike, ""] = _VEHICLE.laser_b
 
 
 def centre_speed(ve: Float[ArrayLike, ""], alpha: Float[ArrayLike, ""], params: VehicleParams) -> Float[Array, ""]:
