@@ -283,7 +283,14 @@ def _plugin_modules(static: Any, args: tuple) -> set[str]:
         if method is not None:
             mods |= {
                 f.__module__
-                for f in (method.proposal, method.init, method.step, method.shardable)
+                for f in (
+                    method.proposal,
+                    method.init,
+                    method.step,
+                    method.shardable,
+                    method.static_settings,
+                    method.traced_settings,
+                )
                 if f is not None and getattr(f, "__module__", None)
             }
     return {m for m in mods if m != __package__ and not m.startswith(__package__ + ".")}

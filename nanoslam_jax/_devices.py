@@ -60,10 +60,10 @@ def setup_run_devices(cfg) -> int:
     Returns:
         The number of JAX devices available.
     """
-    from .filter import particle_devices, shardable
+    from .filter import method_static, particle_devices, shardable
 
     cores = available_cores()
-    split_ok = shardable(cfg.filter.method, cfg.nano.init)
+    split_ok = shardable(cfg.filter.method, method_static(cfg))
     if (
         cores > 1
         and particle_devices(

@@ -28,6 +28,7 @@ from .config import Config, config_to_dict, resolve_data_dir
 from .data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
 from .data._mrclam import sighting_map as _project_sightings
 from .filter import (
+    NasrukfStatic,
     Params,
     Static,
     adaptive_noise_summary,
@@ -559,9 +560,9 @@ def execute(
             metrics.update(noise_metrics)
             if noise_warnings:
                 metrics.setdefault("warnings", []).extend(noise_warnings)
-        if static.adaptive_process:
+        if isinstance(static.method_settings, NasrukfStatic) and static.method_settings.adaptive_process:
             process_metrics, process_warnings = adaptive_process_summary(
-                np.asarray(run.state.process_scale), int(run.state.process_count), float(params.process_floor)
+                np.asarray(run.state.process_scale), int(run.state.process_count), float(params.method.process_floor)
             )
             metrics.update(process_metrics)
             if process_warnings:

@@ -18,10 +18,15 @@ own ``init`` and ``step``. Adding a proposal is one module that defines an
 
 after which ``filter.method: mine`` runs it (``nanoslam run``, ``compare``, ``sweep`` and the
 Python API), with its parameters from ``filter.method_params`` (traced: a sweep over them
-compiles once). A config file can name a method that a module registers by import path,
-``filter.method: my_package.proposal:METHOD`` (the module is imported, ``METHOD`` must be a
-:class:`Method`, and it is registered under that name). A proposal that evaluates the detections
-takes the run's measurement model from ``params.measurement`` (an
+compiles once). A method with a config section of its own (the built-in ones) declares it
+(:attr:`Method.section`) and builds its settings from the configuration: its static ones
+(:attr:`Method.static_settings`, a frozen dataclass kept in ``Static.method_settings``) and its
+traced ones (:attr:`Method.traced_settings`, a NamedTuple kept in ``Params.method`` and passed to
+its proposal), e.g. :class:`~nanoslam_jax.filter.NanoStatic` and
+:class:`~nanoslam_jax.filter.NanoParams`. A config file can name a method that a module registers
+by import path, ``filter.method: my_package.proposal:METHOD`` (the module is imported, ``METHOD``
+must be a :class:`Method`, and it is registered under that name). A proposal that evaluates the
+detections takes the run's measurement model from ``params.measurement`` (an
 :class:`~nanoslam_jax.models.AbstractMeasurementModel`), as the built-in ones do.
 """
 
@@ -29,10 +34,11 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Hashable, Mapping
 from typing import TYPE_CHECKING, Any, Literal, Optional
 
 if TYPE_CHECKING:
+    from .config import Config
     from .filter._params import Params, Static
 
 __all__ = ["Method", "register", "get_method", "method_names", "METHOD_KINDS"]
@@ -50,20 +56,31 @@ class Method:
         name: its ``filter.method`` name.
         kind: ``"particle"`` (built on the shared particle step, with :attr:`proposal`),
             ``"gaussian"`` (its own :attr:`init` and :attr:`step`) or ``"dead_reckoning"``.
-        proposal: ``proposal(static, params, method_params) -> AbstractProposal`` for a particle
-            method: the proposal with its traced hyperparameters (``method_params``: the mapping
-            of :attr:`defaults` updated by ``filter.method_params``, as traced scalars).
+        proposal: ``proposal(static, params, settings) -> AbstractProposal`` for a particle
+            method: the proposal with its traced hyperparameters (``settings``: its traced
+            settings ``params.method``, see :attr:`traced_settings`).
         init: ``init(static, params, key) -> state`` of a Gaussian method.
         step: ``step(static, params, state, segment, valid) -> (state, StepOutput)`` of a
             Gaussian method.
         landmark_update: how a particle method updates its landmarks: ``"ekf"`` (linearised) or
             ``"unscented"``.
         shardable: ``shardable(static) -> bool``: whether its per-particle work may be split over
-            devices (``shard_map``).
+            devices (``shard_map``), given the static settings (its own in
+            ``static.method_settings``).
         adaptive_noise: it offers the adaptive measurement-noise estimate (``noise.adaptive``).
         defaults: its traced parameters and their defaults (``filter.method_params`` overrides
-            them; unknown names are refused).
+            them; unknown names are refused), for a method without :attr:`traced_settings`.
         description: one line for the config reference and error messages.
+        section: the config section its settings are read from (``"nano"``, ``"iterated"``,
+            ``"nasrukf"``), None for none.
+        static_settings: ``static_settings(cfg) -> settings``: its static settings from the
+            configuration, a hashable value (a frozen dataclass) kept in
+            ``Static.method_settings``; changing them recompiles. It must not compute with JAX
+            (it runs before the devices are set up). None: it has none (``method_settings`` None).
+        traced_settings: ``traced_settings(cfg) -> settings``: its traced hyperparameters from the
+            configuration, a pytree of scalar arrays (a NamedTuple) kept in ``Params.method`` and
+            passed to :attr:`proposal`; a sweep over them compiles once. None: the mapping of
+            :attr:`defaults` updated by ``filter.method_params``, as traced scalars (a dict).
     """
 
     name: str
@@ -76,6 +93,9 @@ class Method:
     adaptive_noise: bool = False
     defaults: Mapping[str, float] = dataclasses.field(default_factory=dict)
     description: str = ""
+    section: Optional[str] = None
+    static_settings: Optional[Callable[["Config"], Hashable]] = None
+    traced_settings: Optional[Callable[["Config"], Any]] = None
 
     def __post_init__(self):
         if self.kind not in METHOD_KINDS:
@@ -102,6 +122,19 @@ class Method:
                 )
             out[k] = float(v)
         return out
+
+    def static_of(self, cfg: "Config") -> Hashable:
+        """Its static settings under ``cfg`` (:attr:`static_settings`; None when it has none)."""
+        return None if self.static_settings is None else self.static_settings(cfg)
+
+    def traced_of(self, cfg: "Config") -> Any:
+        """Its traced hyperparameters under ``cfg`` (:attr:`traced_settings`; without, the dict of
+        :attr:`method_params` of ``filter.method_params`` as float arrays)."""
+        if self.traced_settings is not None:
+            return self.traced_settings(cfg)
+        import jax.numpy as jnp
+
+        return {k: jnp.asarray(v, dtype=float) for k, v in self.method_params(cfg.filter.method_params).items()}
 
 
 _REGISTRY: dict[str, Method] = {}
@@ -153,28 +186,42 @@ def get_method(name: str) -> Method:
 # --------------------------------------------------------------------------- built-in methods
 
 
-def _nano(static: "Static", params: "Params", mp: dict):
+def _nano(static: "Static", params: "Params", mp: Any):
+    from .filter._method_settings import NanoStatic, settings_of
     from .proposals import NanoProposal
     from .quadrature import make_rule
 
-    rule = make_rule(
-        static.quadrature,
-        alpha=params.nano_alpha,
-        beta=params.nano_beta,
-        kappa=params.nano_kappa,
-        order=static.gh_order,
-    )
+    ns: NanoStatic = settings_of(static, NanoStatic)
+    rule = make_rule(ns.quadrature, alpha=mp.alpha, beta=mp.beta, kappa=mp.kappa, order=ns.gh_order)
     return NanoProposal(
         rule,
-        params.gamma,
-        params.step,
-        max_iter=static.max_iter,
-        hessian=static.hessian,
-        landmark_noise=static.landmark_noise,
-        init=static.nano_init,
-        solver=static.nano_solver,
+        mp.gamma,
+        mp.step,
+        max_iter=ns.max_iter,
+        hessian=ns.hessian,
+        landmark_noise=ns.landmark_noise,
+        init=ns.init,
+        solver=ns.solver,
         measurement=params.measurement,
     )
+
+
+def _nano_static(cfg):
+    from .filter._method_settings import NanoStatic
+
+    return NanoStatic.from_config(cfg)
+
+
+def _nano_traced(cfg):
+    from .filter._method_settings import NanoParams
+
+    return NanoParams.from_config(cfg)
+
+
+def _nano_shardable(static) -> bool:
+    from .filter._method_settings import NanoStatic, settings_of
+
+    return settings_of(static, NanoStatic).init != "gauss_newton"
 
 
 def _fastslam1(static, params, mp):
@@ -198,15 +245,23 @@ def _ufastslam(static, params, mp):
 
 
 def _iterated(static, params, mp):
+    from .filter._method_settings import IteratedStatic, settings_of
     from .proposals._iterated import IteratedProposal
 
+    it: IteratedStatic = settings_of(static, IteratedStatic)
     return IteratedProposal(
-        solver=static.iterated_solver,
-        max_iter=static.iterated_max_iter,
-        tol=static.iterated_tol,
-        landmark_noise=static.iterated_landmark_noise,
+        solver=it.solver,
+        max_iter=it.max_iter,
+        tol=it.tol,
+        landmark_noise=it.landmark_noise,
         measurement=params.measurement,
     )
+
+
+def _iterated_static(cfg):
+    from .filter._method_settings import IteratedStatic
+
+    return IteratedStatic.from_config(cfg)
 
 
 def _ekf_init(static, params, key):
@@ -221,8 +276,26 @@ def _ekf_step(static, params, state, seg, valid):
     return ekf_slam_step(static, params, state, seg, valid)
 
 
+def _nasrukf_beams(static) -> bool:
+    from .filter._method_settings import nasrukf_static
+
+    return nasrukf_static(static).measurement == "beams"
+
+
+def _nasrukf_static(cfg):
+    from .filter._method_settings import NasrukfStatic
+
+    return NasrukfStatic.from_config(cfg)
+
+
+def _nasrukf_traced(cfg):
+    from .filter._method_settings import NasrukfParams
+
+    return NasrukfParams.from_config(cfg)
+
+
 def _nasrukf_init(static, params, key):
-    if static.nasrukf_measurement == "beams":
+    if _nasrukf_beams(static):
         from .filter._nasrukf_beams_state import init_beam_state
 
         return init_beam_state(static, params, key)
@@ -232,7 +305,7 @@ def _nasrukf_init(static, params, key):
 
 
 def _nasrukf_step(static, params, state, seg, valid):
-    if static.nasrukf_measurement == "beams":
+    if _nasrukf_beams(static):
         from .filter._nasrukf_beams import beam_step
 
         return beam_step(static, params, state, seg, valid)
@@ -249,7 +322,10 @@ register(
         "nano",
         proposal=_nano,
         adaptive_noise=True,
-        shardable=lambda s: s.nano_init != "gauss_newton",
+        shardable=_nano_shardable,
+        section="nano",
+        static_settings=_nano_static,
+        traced_settings=_nano_traced,
         description="NANO-SLAM: the KL-optimal Gaussian proposal by natural-gradient iteration",
     )
 )
@@ -273,6 +349,8 @@ register(
         "iterated",
         proposal=_iterated,
         shardable=lambda s: False,
+        section="iterated",
+        static_settings=_iterated_static,
         description="the iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal",
     )
 )
@@ -284,6 +362,9 @@ register(
         init=_nasrukf_init,
         step=_nasrukf_step,
         adaptive_noise=True,
+        section="nasrukf",
+        static_settings=_nasrukf_static,
+        traced_settings=_nasrukf_traced,
         description="NASRUKF FastSLAM: adaptive square-root UKF per feature",
     )
 )

@@ -309,9 +309,9 @@ def test_config_rejects_bad_process_noise_settings(overrides, words):
 def test_off_by_default_and_static():
     cfg = load_config(None, ["filter.method=nasrukf"])
     static, params = settings_from_config(cfg, 4)
-    assert static.adaptive_process is False
-    assert float(params.process_forgetting) == cfg.nasrukf.process_forgetting
-    assert float(params.process_floor) == cfg.nasrukf.process_floor
+    assert static.method_settings.adaptive_process is False
+    assert float(params.method.process_forgetting) == cfg.nasrukf.process_forgetting
+    assert float(params.method.process_floor) == cfg.nasrukf.process_floor
 
 
 def test_summary_reports_the_ratios_and_the_floor():

@@ -553,7 +553,7 @@ def test_least_squares_methods_are_not_split_over_devices():
     """optimistix's least squares cannot run under shard_map (lineax issue #185; reproduced in
     tests/test_sweep.py), so a run of the iterated proposal or of NANO-SLAM initialised at the
     Gauss-Newton MAP keeps its particles on one device whatever ``filter.split_devices`` says."""
-    from nanoslam_jax.filter import shardable
+    from nanoslam_jax.filter import method_static, shardable
 
     over = ["filter.n_particles=1000", "filter.split_devices=always"]
     for extra, split in (
@@ -563,6 +563,6 @@ def test_least_squares_methods_are_not_split_over_devices():
         (["filter.method=fastslam2"], True),
     ):
         cfg = load_config(None, over + extra)
-        assert shardable(cfg.filter.method, cfg.nano.init) is split, extra
+        assert shardable(cfg.filter.method, method_static(cfg)) is split, extra
         static, _ = settings_from_config(cfg, 14)
         assert (static.devices > 1) is (split and len(jax.devices()) > 1), extra

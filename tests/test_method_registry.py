@@ -1,12 +1,25 @@
 """The method registry: a proposal registered from this test module (outside the package) runs
 through ``run`` and ``sweep``, with its traced parameter from ``filter.method_params``."""
 
+import dataclasses
+from typing import NamedTuple
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import nanoslam_jax as ns
-from nanoslam_jax.config import ConfigError, load_config
+from nanoslam_jax.config import Config, ConfigError, load_config
+from nanoslam_jax.filter import (
+    IteratedStatic,
+    NanoParams,
+    NanoStatic,
+    NasrukfParams,
+    NasrukfStatic,
+    Static,
+    make_proposal,
+    settings_from_config,
+)
 from nanoslam_jax.methods import Method, get_method, method_names, register
 from nanoslam_jax.proposals import AbstractProposal, ProposalResult
 from nanoslam_jax.sweep import read_results, run_sweep, sweep_from_dict
@@ -33,6 +46,73 @@ TOY = register(
 )
 
 BASE = ["sim.duration=20", "filter.n_particles=6", "output.plots=false"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ToyStatic:
+    """A toy method's static settings.
+
+    Attributes:
+        square: the covariance is scaled by ``scale`` squared.
+    """
+
+    square: bool
+
+
+class ToyParams(NamedTuple):
+    """A toy method's traced settings.
+
+    Attributes:
+        scale: the covariance's scale.
+    """
+
+    scale: jnp.ndarray
+
+
+NESTED = register(
+    Method(
+        "toy_nested_settings",
+        proposal=lambda static, params, mp: InflatedPrior(mp.scale**2 if static.method_settings.square else mp.scale),
+        section="nano",
+        static_settings=lambda cfg: ToyStatic(square=cfg.nano.max_iter > 1),
+        traced_settings=lambda cfg: ToyParams(scale=jnp.asarray(cfg.nano.step, dtype=float)),
+        description="the prior, its covariance scaled by nano.step (squared for nano.max_iter > 1)",
+    ),
+    replace=True,
+)
+
+
+def test_settings_are_nested_per_method():
+    """Each method's own settings sit in one field of Static and of Params; the shared ones stay flat."""
+    cfg = load_config(None, ["filter.method=nano", "nano.gamma=0.01"])
+    static, params = settings_from_config(cfg, 14)
+    assert static.method_settings == NanoStatic.from_config(cfg) and isinstance(params.method, NanoParams)
+    assert float(params.method.gamma) == 0.01 and hash(static) == hash(dataclasses.replace(static))
+    assert Static(method="nano").method_settings == NanoStatic.from_config(Config())
+    static, params = settings_from_config(load_config(None, ["filter.method=iterated"]), 14)
+    assert isinstance(static.method_settings, IteratedStatic) and params.method == {}
+    static, params = settings_from_config(load_config(None, ["filter.method=nasrukf"]), 14)
+    assert isinstance(static.method_settings, NasrukfStatic) and isinstance(params.method, NasrukfParams)
+    assert params.method.beams is None
+    # Another method's section does not reach a program: FastSLAM 2.0 carries no NANO settings.
+    a, pa = settings_from_config(load_config(None, ["filter.method=fastslam2"]), 14)
+    b, _ = settings_from_config(load_config(None, ["filter.method=fastslam2", "nano.max_iter=3"]), 14)
+    assert a == b and a.method_settings is None and pa.method == {}
+    # A method registered with defaults: no static settings, its traced ones the dict.
+    static, params = settings_from_config(load_config(None, ["filter.method=toy_inflated_prior"]), 14)
+    assert static.method_settings is None and set(params.method) == {"scale"}
+
+
+def test_registered_method_declares_its_own_settings():
+    """A registered method's static_settings and traced_settings build its nested settings, and its
+    proposal receives the traced ones."""
+    cfg = load_config(None, ["filter.method=toy_nested_settings", "nano.step=0.5", "nano.max_iter=1"])
+    static, params = settings_from_config(cfg, 14)
+    assert static.method_settings == ToyStatic(square=False) and float(params.method.scale) == 0.5
+    assert float(make_proposal(static, params).scale) == 0.5
+    static, params = settings_from_config(load_config(None, ["filter.method=toy_nested_settings", "nano.step=0.5"]), 14)
+    assert static.method_settings == ToyStatic(square=True) and float(make_proposal(static, params).scale) == 0.25
+    assert Static(method="toy_nested_settings").method_settings == ToyStatic(square=Config().nano.max_iter > 1)
 
 
 def test_registered_method_is_known_and_validated():

@@ -400,9 +400,7 @@ def test_ukf_landmark_update_bearing_across_pi():
 
 # One static configuration (and chunk length) for the simulated and the real log, so the chunk
 # program is compiled once for both (about 50 s on 2 busy CPU cores).
-# (nano.landmark_noise is NANO's option: off here so that the embedded default's static settings
-# equal the paper setting's.)
-SHARED = ["filter.method=ufastslam", "filter.n_particles=10", "data.k_max=14", "nano.landmark_noise=false"]
+SHARED = ["filter.method=ufastslam", "filter.n_particles=10", "data.k_max=14"]
 CHUNK = 141
 
 

@@ -16,10 +16,19 @@ from ._management import (
     manage_window as manage_window,
     occluded as occluded,
 )
+from ._method_settings import (
+    BeamParams as BeamParams,
+    IteratedStatic as IteratedStatic,
+    NanoParams as NanoParams,
+    NanoStatic as NanoStatic,
+    NasrukfParams as NasrukfParams,
+    NasrukfStatic as NasrukfStatic,
+)
 from ._params import (
     MapParams as MapParams,
     Params as Params,
     Static as Static,
+    method_static as method_static,
     particle_devices as particle_devices,
     shardable as shardable,
     row_buckets as row_buckets,

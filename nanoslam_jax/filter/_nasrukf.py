@@ -107,6 +107,7 @@ from ._srukf import (
     process_noise_basis,
     srukf_transform,
 )
+from ._method_settings import nasrukf_params, nasrukf_static
 from ._nasrukf_state import NasrukfFeatures, NasrukfState, configured_noise, feature_dim
 from ._step import StepOutput
 
@@ -308,9 +309,9 @@ def nasrukf_step(
 
     Args:
         static: static settings (``capacity``, ``window``, ``sequential``, ``adaptive_noise``,
-            ``nasrukf_feature``).
+            NASRUKF's ``feature`` and ``adaptive_process``).
         params: hyperparameters (noise, gates, unscented parameters, ``forgetting``,
-            ``noise_floor``, ``new_feature_hits``).
+            ``noise_floor``, NASRUKF's ``new_feature_hits``).
         state: the state at the previous segment.
         seg: one segment (a :class:`Segments` without the leading axis).
         valid: False for a padding segment: the state is then returned unchanged (exactly).
@@ -326,12 +327,13 @@ def nasrukf_step(
     valid = jnp.asarray(valid)
     capacity, K = static.capacity, seg.z.shape[0]
     W = min(static.window, capacity)
-    arc = static.nasrukf_feature == "arc"
+    ns, nk = nasrukf_static(static), nasrukf_params(params)
+    arc = ns.feature == "arc"
     noise = state.noise if static.adaptive_noise else configured_noise(static, params)
 
     # 1. Time update: the pose (with the estimated process noise), then every feature's part of its joint state.
     dr_mask = seg.dr_mask & valid
-    if static.adaptive_process:
+    if ns.adaptive_process:
         scale_sqrt = jnp.linalg.cholesky(state.process_scale)
         basis = process_noise_basis(state.process_basis, state.pose, seg.dt, seg.u, dr_mask, params.motion)
     else:
@@ -409,12 +411,12 @@ def nasrukf_step(
 
     # 5. Fusion of the pose estimates of the features with enough data, 6. feedback.
     hits_before = jnp.where(existing, local.landmarks.hits[ws], 1)
-    fuse = matched & (hits_before >= params.new_feature_hits)
+    fuse = matched & (hits_before >= nk.new_feature_hits)
     if static.manage:  # tentative features (and those started in this scan) move the pose only if asked
         fuse = fuse & ((existing & local.landmarks.confirmed[ws]) | mp.use_tentative)
     x_g, S_g = fuse_poses(x0, S0, post.x[:, :3], post.L[:, :3, :3], fuse)
     process_scale, process_count = state.process_scale, state.process_count
-    if static.adaptive_process:  # the estimated Q from the fused joint states' corrections and covariance changes
+    if ns.adaptive_process:  # the estimated Q from the fused joint states' corrections and covariance changes
         dx = jax.vmap(_minus, (0, None))(post.x[:, :3], x0)
         Pi = mmt(post.L[:, :3, :3], post.L[:, :3, :3])
         w = fuse.astype(x0.dtype)
@@ -423,7 +425,7 @@ def nasrukf_step(
         )
         updated = jnp.any(fuse)
         new_scale = adaptive_process_update(
-            process_scale, process_count, change, S0, basis, params.process_forgetting, params.process_floor
+            process_scale, process_count, change, S0, basis, nk.process_forgetting, nk.process_floor
         )
         process_scale = jnp.where(updated, new_scale, process_scale)
         process_count = process_count + updated.astype(process_count.dtype)

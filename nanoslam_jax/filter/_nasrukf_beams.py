@@ -61,6 +61,7 @@ from ._nasrukf_beams_state import (
     fit_group,
     line_param,
 )
+from ._method_settings import nasrukf_params, nasrukf_static
 from ._params import Params, Static
 from ._srukf import (
     SigmaMeasurement,
@@ -238,8 +239,8 @@ def beam_step(
     """One segment of NASRUKF with per-beam measurements (module docstring).
 
     Args:
-        static: static settings (``nasrukf_line_form``, ``nasrukf_beams_per_feature``, ...).
-        params: hyperparameters (``beams``, unscented parameters, noise estimates' settings).
+        static: static settings (NASRUKF's ``line_form``, ``beams_per_feature``, ...).
+        params: hyperparameters (NASRUKF's ``beams``, unscented parameters, noise estimates' settings).
         state: the state before the segment.
         seg: one segment of ``data.detections: laser_beams`` (``z = (range, phi)``, ``z_id`` the
             front-end feature within the scan, ``diam > 0`` on an arc).
@@ -248,16 +249,17 @@ def beam_step(
     Returns:
         The new state and the segment's :class:`~._step.StepOutput`.
     """
-    bp = params.beams
-    assert bp is not None, "nasrukf.measurement beams needs params.beams"
-    form, rule, G, M = static.nasrukf_line_form, _rule(params), static.nasrukf_groups, static.nasrukf_beams_per_feature
+    ns, nk = nasrukf_static(static), nasrukf_params(params)
+    bp = nk.beams
+    assert bp is not None, "nasrukf.measurement beams needs params.method.beams"
+    form, rule, G, M = ns.line_form, _rule(params), ns.groups, ns.beams_per_feature
     line_angles = (2, 4) if form == "normal" else (2,)
 
     # 1. Time update (held during static initialisation).
     at_rest = jnp.all(~seg.dr_mask | jnp.all(jnp.abs(seg.u) < AT_REST, axis=-1))
     static_now = ~state.moving & at_rest & (state.scan < bp.static_scans)
     moving = state.moving | ~static_now
-    scale_sqrt = jnp.linalg.cholesky(state.process_scale) if static.adaptive_process else None
+    scale_sqrt = jnp.linalg.cholesky(state.process_scale) if ns.adaptive_process else None
     xp, Sp, T, D = pose_time_update(state.pose, state.pose_sqrt, seg.dt, seg.u, seg.dr_mask, params, scale_sqrt)
     x0 = jnp.where(static_now, state.pose, xp)
     S0 = jnp.where(static_now, state.pose_sqrt, Sp)
@@ -266,7 +268,7 @@ def beam_step(
     lines0 = jax.tree.map(lambda a, b: jnp.where(static_now, a, b), state.lines, lines0)
     arcs0 = jax.tree.map(lambda a, b: jnp.where(static_now, a, b), state.arcs, arcs0)
     basis = state.process_basis
-    if static.adaptive_process:
+    if ns.adaptive_process:
         moved = process_noise_basis(basis, state.pose, seg.dt, seg.u, seg.dr_mask, params.motion)
         basis = jnp.where(static_now, basis, moved)
 
@@ -317,9 +319,9 @@ def beam_step(
     updL, updA = jnp.any(Ldat[4], axis=1), jnp.any(Adat[4], axis=1)
     rows_use = jnp.concatenate([updL, updA])
     floor = params.noise_floor * jnp.square(bp.sigma_beam)[None]
-    before_update = static.adaptive_noise and static.nasrukf_noise_residual != "posterior"
+    before_update = static.adaptive_noise and ns.noise_residual != "posterior"
     if before_update:  # eq. 11 before each update: the innovations less their predicted variance, or projected
-        if static.nasrukf_noise_residual == "projected":
+        if ns.noise_residual == "projected":
             (nuL, pvL, okL), (nuA, pvA, okA) = (projected_rows(d, noise[0]) for d in (Ldat, Adat))
         else:
             (nuL, pvL, okL), (nuA, pvA, okA) = residual_rows(Ldat), residual_rows(Adat)
@@ -363,8 +365,8 @@ def beam_step(
     updL, updA = updL & seenL, updA & seenA
 
     # 4. Fusion and feedback.
-    fuseL = updL & (subL.hits >= params.new_feature_hits)
-    fuseA = updA & (subA.hits >= params.new_feature_hits)
+    fuseL = updL & (subL.hits >= nk.new_feature_hits)
+    fuseA = updA & (subA.hits >= nk.new_feature_hits)
     xs = jnp.concatenate([yL[:, :3], yA[:, :3]])
     Lp = jnp.concatenate([LL[:, :3, :3], LA[:, :3, :3]])
     use = jnp.concatenate([fuseL, fuseA])
@@ -372,7 +374,7 @@ def beam_step(
     x_g = jnp.where(static_now, x0, x_f)
     S_g = jnp.where(static_now, S0, S_f)
     process_scale, process_count = state.process_scale, state.process_count
-    if static.adaptive_process:
+    if ns.adaptive_process:
         P0 = mmt(S0, S0)
         dx = jax.vmap(_minus, (0, None))(xs, x0)
         Pi = mmt(Lp, Lp)
@@ -381,7 +383,7 @@ def beam_step(
         change = change / jnp.maximum(jnp.sum(w), 1.0)
         updated = jnp.any(use) & ~static_now
         new_scale = adaptive_process_update(
-            process_scale, process_count, change, S0, basis, params.process_forgetting, params.process_floor
+            process_scale, process_count, change, S0, basis, nk.process_forgetting, nk.process_floor
         )
         process_scale = jnp.where(updated, new_scale, process_scale)
         process_count = process_count + updated.astype(process_count.dtype)

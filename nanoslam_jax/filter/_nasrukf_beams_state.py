@@ -18,6 +18,7 @@ from jaxtyping import Array, Bool, Float, Int, Key
 
 from ..models import wrap_angle
 from ..models._lines import line_from_slope_intercept, line_from_vertical, normalize_line, slope_intercept_from_line
+from ._method_settings import nasrukf_params, nasrukf_static
 from ._params import Params, Static
 from ._state import LandmarkMap
 
@@ -141,22 +142,23 @@ def init_beam_state(static: Static, params: Params, key: Key[Array, ""]) -> Nasr
     """The pose at the origin with covariance ``init_cov * I``, no features, the configured noise.
 
     Args:
-        static: static settings (``capacity``, ``nasrukf_arc_capacity``, ``nasrukf_groups``).
-        params: hyperparameters (``init_cov``, ``beams.sigma_beam``).
+        static: static settings (``capacity``, NASRUKF's ``arc_capacity`` and ``groups``).
+        params: hyperparameters (``init_cov``, NASRUKF's ``beams.sigma_beam``).
         key: PRNG key (carried, unused).
     """
-    assert params.beams is not None
-    g, w = static.nasrukf_groups, params.motion.noise_dim
+    ns, bp = nasrukf_static(static), nasrukf_params(params).beams
+    assert bp is not None
+    g, w = ns.groups, params.motion.noise_dim
     zero = jnp.zeros((), jnp.int32)
     return NasrukfBeamState(
         pose=jnp.zeros(3),
         pose_sqrt=jnp.sqrt(jnp.asarray(params.init_cov, float)) * jnp.eye(3),
         lines=BeamFeatures.empty(static.capacity, 2),
-        arcs=BeamFeatures.empty(static.nasrukf_arc_capacity, 3),
+        arcs=BeamFeatures.empty(ns.arc_capacity, 3),
         candidates=Candidates(
             jnp.full(g, EMPTY, jnp.int32), jnp.zeros((g, 3)), jnp.zeros(g, jnp.int32), jnp.zeros(g, jnp.int32)
         ),
-        noise=jnp.square(jnp.asarray(params.beams.sigma_beam, float))[None],
+        noise=jnp.square(jnp.asarray(bp.sigma_beam, float))[None],
         noise_count=zero,
         process_scale=jnp.eye(w),
         process_count=zero,
@@ -167,7 +169,7 @@ def init_beam_state(static: Static, params: Params, key: Key[Array, ""]) -> Nasr
         resample_count=zero,
         overflow=zero,
         scan=zero,
-        slope_form=jnp.asarray(static.nasrukf_line_form == "slope_intercept"),
+        slope_form=jnp.asarray(ns.line_form == "slope_intercept"),
     )
 
 

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, Key
 
 from .._linalg import mmt, sandwich, sym
+from ._method_settings import NasrukfParams, NasrukfStatic, nasrukf_static
 from ._params import Params, Static
 from ._state import LandmarkMap
 
@@ -92,15 +93,19 @@ class NasrukfState(NamedTuple):
 
 def feature_dim(static: Static) -> int:
     """Feature dimension: 2 (centre) or 3 (centre and radius)."""
-    return 3 if static.nasrukf_feature == "arc" else 2
+    return 3 if nasrukf_static(static).feature == "arc" else 2
 
 
 def configured_noise(static: Static, params: Params) -> Float[Array, " mz"]:
     """The configured measurement-noise variances (range, bearing, and diameter for arcs; the range of
-    one beam with ``nasrukf.measurement: beams``)."""
-    if static.nasrukf_measurement == "beams" and params.beams is not None:
-        return jnp.square(jnp.asarray(params.beams.sigma_beam, float))[None]
-    sig = [params.sigma_r, params.sigma_beta] + ([params.map.sigma_diameter] if static.nasrukf_feature == "arc" else [])
+    one beam with ``nasrukf.measurement: beams``). Only NASRUKF's settings add the diameter or
+    the beam."""
+    ns = static.method_settings
+    beams = params.method.beams if isinstance(params.method, NasrukfParams) else None
+    if isinstance(ns, NasrukfStatic) and ns.measurement == "beams" and beams is not None:
+        return jnp.square(jnp.asarray(beams.sigma_beam, float))[None]
+    arc = isinstance(ns, NasrukfStatic) and ns.feature == "arc"
+    sig = [params.sigma_r, params.sigma_beta] + ([params.map.sigma_diameter] if arc else [])
     return jnp.square(jnp.stack([jnp.asarray(s, float) for s in sig]))
 
 
@@ -109,7 +114,7 @@ def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> N
     (measurement and process).
 
     Args:
-        static: static settings (``capacity``, ``nasrukf_feature``).
+        static: static settings (``capacity``, NASRUKF's ``feature``).
         params: hyperparameters (``init_cov``, noise).
         key: PRNG key (carried, unused).
     """

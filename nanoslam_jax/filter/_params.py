@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
+from collections.abc import Hashable
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ..config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
 from ..methods import get_method
+from ._method_settings import BeamParams as BeamParams
 from ..models import (
     AbstractMeasurementModel,
     AbstractMotionModel,
@@ -30,12 +32,40 @@ from ..models import (
 _C = Config()
 
 
+class _FromMethod:
+    """The default of :attr:`Static.method_settings`: the method's settings under :data:`_C`."""
+
+    def __repr__(self) -> str:
+        return "<the method's settings under the default configuration>"
+
+
+_FROM_METHOD = _FromMethod()
+
+
 @dataclasses.dataclass(frozen=True)
 class Static:
     """Settings that fix array shapes or program structure (hashable).
 
     Its defaults are the configuration's: ``Static()`` equals the static part of
     ``settings_from_config(Config(), Static().k_max)``.
+
+    Attributes:
+        method: ``filter.method``.
+        n_particles: ``filter.n_particles``.
+        capacity: landmark slots per particle (``filter.capacity``).
+        window: landmarks per particle considered for association in a scan (``filter.window``).
+        k_max: detections per segment of the log.
+        row_buckets: detection-row counts the per-row work may run over (:func:`row_buckets`).
+        devices: JAX devices a run's particles are split over (:func:`particle_devices`).
+        prior, prior_cov, sequential, association, weight, resampler, estimate: the ``filter``
+            section's keys of those names.
+        manage, occlusion: ``map.manage`` and ``map.occlusion``.
+        landmark_update: ``"ekf"`` or ``"unscented"`` landmark updates (the method's).
+        adaptive_noise: the adaptive measurement-noise estimate is on (``noise.adaptive``).
+        method_settings: the method's own static settings, as its registration builds them from
+            the configuration (:attr:`~nanoslam_jax.methods.Method.static_settings`): a frozen
+            dataclass such as :class:`~nanoslam_jax.filter.NanoStatic`, or None for a method without.
+            Left out, those of the default configuration.
     """
 
     method: str = _C.filter.method
@@ -54,27 +84,13 @@ class Static:
     estimate: str = _C.filter.estimate
     manage: bool = _C.map.manage
     occlusion: bool = _C.map.occlusion
-    quadrature: str = _C.nano.quadrature
-    gh_order: int = _C.nano.gh_order
-    hessian: str = _C.nano.hessian
-    max_iter: int = _C.nano.max_iter
-    landmark_noise: bool = _C.nano.landmark_noise
-    nano_init: str = _C.nano.init
-    nano_solver: str = _C.nano.solver
     landmark_update: str = "ekf"
-    iterated_solver: str = _C.iterated.solver
-    iterated_max_iter: int = _C.iterated.max_iter
-    iterated_tol: float = _C.iterated.tol
-    iterated_landmark_noise: bool = _C.iterated.landmark_noise
     adaptive_noise: bool = _C.noise.adaptive
-    nasrukf_feature: str = _C.nasrukf.feature
-    adaptive_process: bool = _C.nasrukf.adaptive_process
-    nasrukf_measurement: str = _C.nasrukf.measurement
-    nasrukf_line_form: str = _C.nasrukf.line_form
-    nasrukf_beams_per_feature: int = _C.nasrukf.beams_per_feature
-    nasrukf_arc_capacity: int = _C.nasrukf.arc_capacity
-    nasrukf_groups: int = _C.nasrukf.max_groups
-    nasrukf_noise_residual: str = _C.nasrukf.noise_residual
+    method_settings: Hashable = _FROM_METHOD
+
+    def __post_init__(self):
+        if self.method_settings is _FROM_METHOD:
+            object.__setattr__(self, "method_settings", get_method(self.method).static_of(_C))
 
     @property
     def window_size(self) -> int:
@@ -127,24 +143,6 @@ class MapParams(NamedTuple):
     sigma_diameter: Float[Array, ""]
 
 
-class BeamParams(NamedTuple):
-    """Traced hyperparameters of NASRUKF's per-beam measurement (``nasrukf.measurement: beams``).
-
-    Attributes:
-        sigma_beam: range noise of one beam (m).
-        beam_gate: largest difference of a beam's range from a feature's predicted range (m).
-        n_new: stored unmatched data of a line or arc before a feature is created.
-        merge_gate: distance under which unmatched data are of the same line or arc (m).
-        static_scans: scans of static initialisation at most.
-    """
-
-    sigma_beam: Float[Array, ""]
-    beam_gate: Float[Array, ""]
-    n_new: Float[Array, ""]
-    merge_gate: Float[Array, ""]
-    static_scans: Float[Array, ""]
-
-
 def _logit(p: float) -> float:
     """``log(p / (1 - p))`` with the limits 0 -> -inf and 1 -> inf."""
     if p <= 0.0:
@@ -166,21 +164,17 @@ class Params(NamedTuple):
         new_landmark: d2 above which a detection starts a landmark.
         log_p0: log of the likelihood factor of a new landmark.
         resample_threshold: resample when ESS < threshold * N.
-        gamma: NANO KL stopping threshold.
-        step: NANO natural-gradient step (1 = undamped).
-        nano_alpha, nano_beta, nano_kappa: unscented parameters of the NANO quadrature.
         max_range: sensor range (m), used by the local window and the miss rule.
         window_margin: landmarks within ``max_range + window_margin`` of a particle's prior
             position enter its local window (m).
         map: landmark-management hyperparameters (see :class:`MapParams`).
         forgetting: forgetting factor ``b`` of the adaptive measurement-noise estimate.
         noise_floor: smallest adaptive noise variance, as a fraction of the configured one.
-        new_feature_hits: NASRUKF's ``N_new``: detections a feature needs before it updates the pose.
-        process_forgetting: forgetting factor ``b`` of NASRUKF's adaptive process-noise estimate.
-        process_floor: smallest eigenvalue of that estimate's scale, a fraction of the configured noise.
-        beams: NASRUKF's per-beam measurement settings (:class:`BeamParams`), or None when it is not used.
-        method: the traced parameters of a registered method that declares them (``filter.method_params``
-            over the method's defaults), by name; empty for the built-in methods.
+        method: the method's own traced hyperparameters, as its registration builds them from the
+            configuration (:attr:`~nanoslam_jax.methods.Method.traced_settings`): a NamedTuple such
+            as :class:`~nanoslam_jax.filter.NanoParams`, or for a method registered with
+            ``defaults`` the dict of them updated by ``filter.method_params`` (empty for a method
+            without).
     """
 
     motion: AbstractMotionModel
@@ -193,21 +187,12 @@ class Params(NamedTuple):
     new_landmark: Float[Array, ""]
     log_p0: Float[Array, ""]
     resample_threshold: Float[Array, ""]
-    gamma: Float[Array, ""]
-    step: Float[Array, ""]
-    nano_alpha: Float[Array, ""]
-    nano_beta: Float[Array, ""]
-    nano_kappa: Float[Array, ""]
     max_range: Float[Array, ""]
     window_margin: Float[Array, ""]
     map: "MapParams"
     forgetting: Float[Array, ""]
     noise_floor: Float[Array, ""]
-    new_feature_hits: Float[Array, ""]
-    process_forgetting: Float[Array, ""]
-    process_floor: Float[Array, ""]
-    method: dict = {}
-    beams: "BeamParams | None" = None
+    method: Any = {}
 
     @property
     def R(self) -> Float[Array, "d d"]:
@@ -245,18 +230,24 @@ def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
     return ROW_BUCKETS if on else ()
 
 
-def shardable(method: str, nano_init: str = "prior") -> bool:
+def shardable(method: str, settings: Hashable = _FROM_METHOD) -> bool:
     """Whether a method's per-particle work may run under ``shard_map`` (split over devices), as
-    its registration says (:class:`~nanoslam_jax.methods.Method`).
+    its registration says (:attr:`~nanoslam_jax.methods.Method.shardable`), given its static
+    settings (``Static.method_settings``; :func:`method_static` of a configuration; left out,
+    those of the default configuration).
 
     optimistix's least-squares solvers (method ``iterated``; NANO-SLAM with ``nano.init:
     gauss_newton``) cannot: lineax compares the residual's structure with its operator's, and
     inside ``shard_map`` the operator's carries a sharding the residual's lacks. Such runs stay on
     one device: a single run's particles are not split, nor is a sweep batch of them.
     """
-    from ..methods import get_method
+    return bool(get_method(method).shardable(Static(method=method, method_settings=settings)))
 
-    return bool(get_method(method).shardable(Static(method=method, nano_init=nano_init)))
+
+def method_static(cfg: Config) -> Hashable:
+    """The static settings of ``cfg``'s method (``Static.method_settings``), built by its
+    registration from ``cfg`` without any JAX computation."""
+    return get_method(cfg.filter.method).static_of(cfg)
 
 
 def particle_devices(setting: str, particles: int, devices: int | None = None, *, split_ok: bool = True) -> int:
@@ -280,7 +271,9 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         cfg: the run configuration.
         k_max: detections per segment of the log (from the segments' shape).
     """
-    f, n, nz = cfg.filter, cfg.nano, cfg.noise
+    f, nz = cfg.filter, cfg.noise
+    method = get_method(f.method)
+    settings = method.static_of(cfg)
     static = Static(
         method=f.method,
         n_particles=f.n_particles,
@@ -296,29 +289,11 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         estimate=f.estimate,
         manage=cfg.map.manage,
         occlusion=cfg.map.occlusion,
-        quadrature=n.quadrature,
-        gh_order=n.gh_order,
-        hessian=n.hessian,
-        max_iter=n.max_iter,
-        landmark_noise=n.landmark_noise,
-        nano_init=n.init,
-        nano_solver=n.solver,
-        landmark_update=get_method(f.method).landmark_update,
-        iterated_solver=cfg.iterated.solver,
-        iterated_max_iter=cfg.iterated.max_iter,
-        iterated_tol=cfg.iterated.tol,
-        iterated_landmark_noise=cfg.iterated.landmark_noise,
+        landmark_update=method.landmark_update,
         row_buckets=row_buckets(f.row_buckets, f.n_particles),
-        devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(f.method, n.init)),
+        devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(f.method, settings)),
         adaptive_noise=nz.adaptive,
-        nasrukf_feature=cfg.nasrukf.feature,
-        adaptive_process=cfg.nasrukf.adaptive_process,
-        nasrukf_measurement=cfg.nasrukf.measurement,
-        nasrukf_line_form=cfg.nasrukf.line_form,
-        nasrukf_beams_per_feature=cfg.nasrukf.beams_per_feature,
-        nasrukf_arc_capacity=cfg.nasrukf.arc_capacity,
-        nasrukf_groups=cfg.nasrukf.max_groups,
-        nasrukf_noise_residual=cfg.nasrukf.noise_residual,
+        method_settings=settings,
     )
     a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
     mp = cfg.map
@@ -347,28 +322,11 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         new_landmark=a(f.new_landmark),
         log_p0=a(math.log(f.p0)),
         resample_threshold=a(f.resample_threshold),
-        gamma=a(n.gamma),
-        step=a(n.step),
-        nano_alpha=a(n.ut_alpha),
-        nano_beta=a(n.ut_beta),
-        nano_kappa=a(n.ut_kappa),
         max_range=a(cfg.data.max_range),
         window_margin=a(f.window_margin),
         map=map_params,
         forgetting=a(nz.forgetting),
         noise_floor=a(nz.adaptive_floor),
-        new_feature_hits=a(cfg.nasrukf.new_feature_hits),
-        process_forgetting=a(cfg.nasrukf.process_forgetting),
-        process_floor=a(cfg.nasrukf.process_floor),
-        method={k: a(v) for k, v in get_method(f.method).method_params(f.method_params).items()},
-        beams=BeamParams(
-            sigma_beam=a(cfg.nasrukf.sigma_beam),
-            beam_gate=a(cfg.nasrukf.beam_gate),
-            n_new=a(cfg.nasrukf.n_new),
-            merge_gate=a(cfg.nasrukf.merge_gate),
-            static_scans=a(cfg.nasrukf.static_scans),
-        )
-        if cfg.nasrukf.measurement == "beams"
-        else None,
+        method=method.traced_of(cfg),
     )
     return static, params

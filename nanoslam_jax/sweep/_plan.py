@@ -138,7 +138,7 @@ def make_tasks(
         k_max = by_id[g.log_id].segments.k_max
         # optimistix's least squares fails under shard_map (see `shardable`): such a group's
         # batches run whole on one device.
-        split = devices if shardable(g.static.method, g.static.nano_init) else 1
+        split = devices if shardable(g.static.method, g.static.method_settings) else 1
         # The proposal's row buckets pay off by the particles one call carries (per device).
         per_call = g.static.n_particles * (max(1, g.batch // split) if vectorize == "vmap" else 1)
         static = dataclasses.replace(

@@ -25,7 +25,7 @@ from .._cache import enable_compile_cache
 from .._version import __version__
 from ..config import ConfigError
 from .._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
-from ..filter import NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS
+from ..filter import NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS, NasrukfStatic
 from ..methods import method_names
 from ._batch import BatchTask, LogData, _first_line, execute_batch, load_log_data, log_key
 from ._results import ResultsFile, read_results, select_best, summarize, write_best_yaml, write_summary
@@ -401,7 +401,9 @@ def run_sweep(
     if any(g.static.adaptive_noise for g in groups):  # where the adaptive noise estimates ended
         metric_keys += list(NOISE_SUMMARY_KEYS)
         if any(
-            g.static.adaptive_noise and g.static.method == "nasrukf" and g.static.nasrukf_feature == "arc"
+            g.static.adaptive_noise
+            and isinstance(g.static.method_settings, NasrukfStatic)
+            and g.static.method_settings.feature == "arc"
             for g in groups
         ):
             metric_keys += list(NOISE_ARC_SUMMARY_KEYS)
