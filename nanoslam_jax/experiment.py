@@ -42,7 +42,7 @@ from .filter import (
     settings_from_config,
     text_progress,
 )
-from .filter._scan import is_gaussian
+from .filter._scan import is_gaussian, resample_count
 from .metrics import (
     error_over_time,
     evaluate,
@@ -541,7 +541,7 @@ def execute(
         metrics.update(
             landmark_overflow=int(run.state.overflow),
             window_overflow_max=int(np.max(o.window_overflow)),
-            resample_count=int(run.state.resample_count),
+            resample_count=int(resample_count(run.state)),
             ess_mean=float(np.mean(o.ess)),
             ess_min=float(np.min(o.ess)),
             nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,

@@ -48,8 +48,9 @@ class Filter(NamedTuple):
         static: the settings that fix shapes and program structure.
         params: the traced hyperparameters, the motion and measurement models among them
             (``params.motion``, ``params.measurement``).
-        init: ``init(key) -> state``: the state a run starts from (a particle filter's, EKF-SLAM's
-            or NASRUKF's), jit-compiled.
+        init: ``init(key) -> state``: the state a run starts from (a particle filter's, which
+            carries ``key`` on, or a Gaussian method's, EKF-SLAM's or NASRUKF's, a
+            :class:`~nanoslam_jax.filter.GaussianState` that does not use it), jit-compiled.
         step: ``step(state, segment) -> (state, output)``: one segment of the log (a row of
             :class:`~nanoslam_jax.data.Segments`, without the leading axis), jit-compiled; the
             output holds the segment's estimates and diagnostics.

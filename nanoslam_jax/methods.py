@@ -59,9 +59,16 @@ class Method:
         proposal: ``proposal(static, params, settings) -> AbstractProposal`` for a particle
             method: the proposal with its traced hyperparameters (``settings``: its traced
             settings ``params.method``, see :attr:`traced_settings`).
-        init: ``init(static, params, key) -> state`` of a Gaussian method.
-        step: ``step(static, params, state, segment, valid) -> (state, StepOutput)`` of a
-            Gaussian method.
+        init: ``init(static, params) -> state`` of a Gaussian method: its first state, a
+            :class:`~nanoslam_jax.filter.GaussianState` (a pytree offering ``pose``,
+            ``pose_cov``, ``landmark_map()``, ``overflow`` and ``scan``). It takes no key: a
+            Gaussian method does not sample, and the driver keeps the run's key.
+        step: ``step(static, params, state, segment, valid) -> (state, GaussianStepOutput)`` of
+            a Gaussian method: one segment (``valid`` False: padding, the state unchanged), and
+            its record, a :class:`~nanoslam_jax.filter.GaussianStepOutput` (the pose mean and
+            covariance and the map's counts), which the driver turns into the common per-scan
+            :class:`~nanoslam_jax.filter.StepOutput` (one hypothesis: best pose = mean pose,
+            ESS 1, never resampled).
         landmark_update: how a particle method updates its landmarks: ``"ekf"`` (linearised) or
             ``"unscented"``.
         shardable: ``shardable(static) -> bool``: whether its per-particle work may be split over
@@ -264,10 +271,10 @@ def _iterated_static(cfg):
     return IteratedStatic.from_config(cfg)
 
 
-def _ekf_init(static, params, key):
+def _ekf_init(static, params):
     from .filter._ekf_slam import init_ekf_state
 
-    return init_ekf_state(static, params, key)
+    return init_ekf_state(static, params)
 
 
 def _ekf_step(static, params, state, seg, valid):
@@ -294,14 +301,14 @@ def _nasrukf_traced(cfg):
     return NasrukfParams.from_config(cfg)
 
 
-def _nasrukf_init(static, params, key):
+def _nasrukf_init(static, params):
     if _nasrukf_beams(static):
         from .filter._nasrukf_beams_state import init_beam_state
 
-        return init_beam_state(static, params, key)
+        return init_beam_state(static, params)
     from .filter._nasrukf_state import init_nasrukf_state
 
-    return init_nasrukf_state(static, params, key)
+    return init_nasrukf_state(static, params)
 
 
 def _nasrukf_step(static, params, state, seg, valid):

@@ -77,7 +77,7 @@ def assert_padding_is_noop(static, params, state, segments, chunk: int, pose):
     invalid = jnp.zeros(chunk, bool)
     scan = jax.jit(_scan.filter_scan, static_argnums=0)
     for s in (seg, jax.tree.map(jnp.zeros_like, seg)):
-        new, out = scan(static, params, s, state.key, state, invalid)
+        new, out = scan(static, params, s, None, state, invalid)
         skipped, _ = _scan._chunk(static, params, state, s, invalid)
         for result in (new, skipped):
             assert type(result) is type(state)

@@ -16,7 +16,15 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.config import load_config
-from nanoslam_jax.filter import EkfSlamState, _scan, reported_map, run_filter, settings_from_config
+from nanoslam_jax.filter import (
+    EkfSlamState,
+    GaussianState,
+    _scan,
+    reported_map,
+    resample_count,
+    run_filter,
+    settings_from_config,
+)
 from nanoslam_jax.filter import _joint_gaussian
 from nanoslam_jax.filter._joint_gaussian import landmark_blocks
 from nanoslam_jax.models import vehicle_step
@@ -302,7 +310,11 @@ def test_step_output_matches_particle_filter_dtypes(sim, sim_run):
         assert np.asarray(getattr(o, f)).dtype == np.float64, f
     assert np.asarray(o.resampled).dtype == bool and np.asarray(o.weight_reset).dtype == bool
     np.testing.assert_array_equal(np.asarray(o.ess), 1.0)
-    assert int(sim_run.state.resample_count) == 0
+    assert int(resample_count(sim_run.state)) == 0
+    st = sim_run.state  # the Gaussian protocol: the pose block of the joint Gaussian, no key
+    assert isinstance(st, GaussianState) and not hasattr(st, "key")
+    np.testing.assert_array_equal(np.asarray(st.pose), np.asarray(st.mean)[:3])
+    np.testing.assert_array_equal(np.asarray(st.pose_cov), np.asarray(st.cov)[:3, :3])
 
 
 @pytest.mark.slow

@@ -22,10 +22,12 @@ from nanoslam_jax.experiment import adaptive_noise_report, load_log
 from nanoslam_jax.filter import (
     NOISE_ARC_SUMMARY_KEYS,
     NOISE_SUMMARY_KEYS,
+    GaussianState,
     LandmarkMap,
     NasrukfState,
     _nasrukf,
     fuse_poses,
+    resample_count,
     run_filter,
     settings_from_config,
 )
@@ -255,7 +257,10 @@ def test_tracks_truth_and_maps_trees(sim, sim_run):
     assert np.all(np.triu(np.asarray(st.pose_sqrt), 1) == 0) and np.all(np.diag(np.asarray(st.pose_sqrt)) > 0)
     # No particles: the per-segment record says so, with the particle filter's dtypes.
     np.testing.assert_array_equal(np.asarray(o.ess), 1.0)
-    assert int(st.resample_count) == 0 and np.asarray(o.n_landmarks).dtype == np.int32
+    assert int(resample_count(st)) == 0 and np.asarray(o.n_landmarks).dtype == np.int32
+    assert isinstance(st, GaussianState) and not hasattr(st, "key")
+    P = np.asarray(st.pose_sqrt) @ np.asarray(st.pose_sqrt).T
+    np.testing.assert_allclose(np.asarray(st.pose_cov), P, rtol=1e-12, atol=1e-15)
     assert np.asarray(o.n_associated).dtype == np.float64
 
 

@@ -147,7 +147,7 @@ def main() -> None:
     stretch = jax.tree.map(jax.numpy.asarray, part(args.start, args.start + args.scans))
     valid = jax.numpy.ones(stretch.time.shape[0], bool)
     program = (
-        jax.jit(lambda pr, st, sg, v: filter_scan(static, pr, sg, st.key, st, v))
+        jax.jit(lambda pr, st, sg, v: filter_scan(static, pr, sg, None, st, v))
         .lower(params, state, stretch, valid)
         .compile()
     )

@@ -63,6 +63,7 @@ from ._scan import (
     make_proposal as make_proposal,
     relative_priors as relative_priors,
     reported_map as reported_map,
+    resample_count as resample_count,
     run_batch as run_batch,
     run_filter as run_filter,
     stack_params as stack_params,
@@ -76,6 +77,11 @@ from ._state import (
     init_state as init_state,
 )
 from ._step import StepOutput as StepOutput, filter_step as filter_step
+from ._gaussian import (
+    GaussianState as GaussianState,
+    GaussianStepOutput as GaussianStepOutput,
+    as_step_output as as_step_output,
+)
 from ._ekf_slam import EkfSlamState as EkfSlamState, init_ekf_state as init_ekf_state, ekf_slam_step as ekf_slam_step
 from ._nasrukf import fuse_poses as fuse_poses, nasrukf_step as nasrukf_step
 from ._nasrukf_state import (

@@ -48,7 +48,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, Key
+from jaxtyping import Array, Bool, Float, Int
 
 from ..data import Segments
 from ._joint_gaussian import (
@@ -65,11 +65,12 @@ from ..models import is_composite
 from ._management import diameter_update, drop_stale, manage_window
 from ._params import Params, Static
 from ._state import LandmarkMap
-from ._step import StepOutput
+from ._gaussian import GaussianStepOutput
 
 
 class EkfSlamState(NamedTuple):
-    """The EKF-SLAM state carried from one segment to the next.
+    """The EKF-SLAM state carried from one segment to the next (a
+    :class:`~._gaussian.GaussianState`).
 
     Attributes:
         mean: joint mean ``(px, py, phi, m_0, ..., m_{C-1})``, ``n = 3 + l C``.
@@ -78,8 +79,6 @@ class EkfSlamState(NamedTuple):
             ``confirmed``, ``born``, ``diam``, ``diam_var``) as a :class:`LandmarkMap` whose
             ``mean`` and ``cov`` are not used (they live in the joint Gaussian).
         count: one past the highest active slot (every landmark lies below it).
-        key: PRNG key (unused by the filter; carried for the driver).
-        resample_count: always 0 (no particles).
         overflow: new landmarks dropped so far because the state was full.
         scan: laser scans processed so far (the clock of ``born``).
     """
@@ -88,10 +87,18 @@ class EkfSlamState(NamedTuple):
     cov: Float[Array, "n n"]
     landmarks: LandmarkMap
     count: Int[Array, ""]  # type: ignore[assignment]  # the field shadows tuple.count
-    key: Key[Array, ""]
-    resample_count: Int[Array, ""]
     overflow: Int[Array, ""]
     scan: Int[Array, ""]
+
+    @property
+    def pose(self) -> Float[Array, "3"]:
+        """The pose mean (the joint mean's first three entries)."""
+        return self.mean[:3]
+
+    @property
+    def pose_cov(self) -> Float[Array, "3 3"]:
+        """The pose's marginal covariance (the joint covariance's leading block)."""
+        return self.cov[:3, :3]
 
     def landmark_map(self) -> LandmarkMap:
         """The landmark marginals (means and diagonal blocks of the joint Gaussian) with the bookkeeping."""
@@ -102,13 +109,12 @@ class EkfSlamState(NamedTuple):
         )
 
 
-def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSlamState:
+def init_ekf_state(static: Static, params: Params) -> EkfSlamState:
     """The pose at the origin with covariance ``init_cov * I``, no landmarks.
 
     Args:
         static: static settings (``capacity``).
         params: hyperparameters (``init_cov``).
-        key: PRNG key (carried, unused).
     """
     c = static.capacity
     dim = params.measurement.landmark_dim
@@ -124,8 +130,6 @@ def init_ekf_state(static: Static, params: Params, key: Key[Array, ""]) -> EkfSl
         cov=jnp.diag(diag),
         landmarks=book,
         count=zero,
-        key=key,
-        resample_count=zero,
         overflow=zero,
         scan=zero,
     )
@@ -209,7 +213,7 @@ def ekf_slam_step(
     state: EkfSlamState,
     seg: Segments,
     valid: Bool[Array, ""] | bool = True,
-) -> tuple[EkfSlamState, StepOutput]:
+) -> tuple[EkfSlamState, GaussianStepOutput]:
     """Advance EKF-SLAM through one segment: prediction, the scan's detections in order, then
     landmark management.
 
@@ -222,8 +226,8 @@ def ekf_slam_step(
             returned unchanged.
 
     Returns:
-        The new state and the segment's :class:`StepOutput` (``best_pose = mean_pose`` = the
-        pose mean, ``ess = 1``).
+        The new state and the segment's :class:`~._gaussian.GaussianStepOutput` (the pose mean
+        and its covariance).
     """
     capacity = static.capacity
     R, mp, model = params.R, params.map, params.measurement
@@ -343,7 +347,6 @@ def ekf_slam_step(
         book = managed._replace(active=old | created, mean=book.mean, cov=book.cov)
         mean, cov, book = _remove(mean, cov, book, remove)
         count = _high_water(book.active)
-    x = mean[:3]
     diag = jnp.diagonal(cov)
     finite = jnp.all(jnp.isfinite(mean)) & jnp.all(jnp.isfinite(diag))
     new_state = EkfSlamState(
@@ -351,25 +354,17 @@ def ekf_slam_step(
         cov=cov,
         landmarks=book,
         count=count,
-        key=state.key,
-        resample_count=state.resample_count,
         overflow=state.overflow + c.overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
     )
-    record = StepOutput(
-        best_pose=x,
-        mean_pose=x,
-        ess=jnp.ones((), dtype=x.dtype),
-        resampled=jnp.zeros((), bool),
+    record = GaussianStepOutput(
+        pose=new_state.pose,
+        pose_cov=new_state.pose_cov,
         n_landmarks=jnp.sum(book.active).astype(jnp.int32),
         n_confirmed=jnp.sum(book.active & book.confirmed).astype(jnp.int32),
-        iterations=jnp.zeros((), dtype=x.dtype),
-        n_capped=zero,
-        n_nonfinite=(~finite).astype(jnp.int32),
-        n_associated=c.n_associated.astype(x.dtype),
-        n_new=c.n_new.astype(x.dtype),
-        window_overflow=zero,
+        n_associated=c.n_associated,
+        n_new=c.n_new,
         overflow=c.overflow,
-        weight_reset=jnp.zeros((), bool),
+        n_nonfinite=(~finite).astype(jnp.int32),
     )
     return new_state, record

@@ -109,7 +109,7 @@ from ._srukf import (
 )
 from ._method_settings import nasrukf_params, nasrukf_static
 from ._nasrukf_state import NasrukfFeatures, NasrukfState, configured_noise, feature_dim
-from ._step import StepOutput
+from ._gaussian import GaussianStepOutput
 
 
 def _rule(params: Params) -> Unscented:
@@ -304,7 +304,7 @@ def nasrukf_step(
     state: NasrukfState,
     seg: Segments,
     valid: Bool[Array, ""] | bool = True,
-) -> tuple[NasrukfState, StepOutput]:
+) -> tuple[NasrukfState, GaussianStepOutput]:
     """Advance NASRUKF FastSLAM through one segment (see the module docstring).
 
     Args:
@@ -317,8 +317,8 @@ def nasrukf_step(
         valid: False for a padding segment: the state is then returned unchanged (exactly).
 
     Returns:
-        The new state and the segment's :class:`StepOutput` (``best_pose = mean_pose`` = the fused
-        pose, ``ess = 1``).
+        The new state and the segment's :class:`~._gaussian.GaussianStepOutput` (the fused pose
+        and its covariance).
     """
     if not is_range_bearing(params.measurement):
         raise ValueError(
@@ -513,30 +513,22 @@ def nasrukf_step(
         process_count=keep(process_count, state.process_count),
         process_basis=keep(basis, state.process_basis),
         count=jnp.where(valid, jnp.sum(feats.landmarks.active), state.count).astype(jnp.int32),
-        key=state.key,
-        resample_count=state.resample_count,
         overflow=state.overflow + overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
     )
     x = new_state.pose
-    zero = jnp.zeros((), jnp.int32)
     finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(new_state.pose_sqrt))
-    record = StepOutput(
-        best_pose=x,
-        mean_pose=x,
-        ess=jnp.ones((), x.dtype),
-        resampled=jnp.zeros((), bool),
-        n_landmarks=new_state.count.astype(jnp.int32),
+    record = GaussianStepOutput(
+        pose=x,
+        pose_cov=new_state.pose_cov,
+        n_landmarks=new_state.count,
         n_confirmed=jnp.sum(new_state.features.landmarks.active & new_state.features.landmarks.confirmed).astype(
             jnp.int32
         ),
-        iterations=jnp.zeros((), x.dtype),
-        n_capped=zero,
-        n_nonfinite=(~finite).astype(jnp.int32),
-        n_associated=jnp.sum(matched).astype(x.dtype),
-        n_new=added.astype(x.dtype),
-        window_overflow=jnp.maximum(n_near - W, 0).astype(jnp.int32),
+        n_associated=jnp.sum(matched).astype(jnp.int32),
+        n_new=added,
         overflow=overflow,
-        weight_reset=jnp.zeros((), bool),
+        n_nonfinite=(~finite).astype(jnp.int32),
+        window_overflow=jnp.maximum(n_near - W, 0).astype(jnp.int32),
     )
     return new_state, record

@@ -72,7 +72,7 @@ from ._srukf import (
     process_noise_basis,
     srukf_transform,
 )
-from ._step import StepOutput
+from ._gaussian import GaussianStepOutput
 
 #: Odometry below this (m/s, rad/s) is no motion (static initialisation).
 AT_REST = 1e-9
@@ -235,7 +235,7 @@ def _posterior_rows(ys, Ls, dat, h_of, vertical, rule):
 
 def beam_step(
     static: Static, params: Params, state: NasrukfBeamState, seg, valid: Bool[Array, ""]
-) -> tuple[NasrukfBeamState, StepOutput]:
+) -> tuple[NasrukfBeamState, GaussianStepOutput]:
     """One segment of NASRUKF with per-beam measurements (module docstring).
 
     Args:
@@ -247,7 +247,7 @@ def beam_step(
         valid: False for padding (the state is returned unchanged).
 
     Returns:
-        The new state and the segment's :class:`~._step.StepOutput`.
+        The new state and the segment's :class:`~._gaussian.GaussianStepOutput`.
     """
     ns, nk = nasrukf_static(static), nasrukf_params(params)
     bp = nk.beams
@@ -496,29 +496,20 @@ def beam_step(
         process_basis=keep(basis, state.process_basis),
         moving=keep(moving, state.moving),
         count=jnp.where(valid, count, state.count).astype(jnp.int32),
-        key=state.key,
-        resample_count=state.resample_count,
         overflow=state.overflow + jnp.where(valid, over, 0).astype(jnp.int32),
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
         slope_form=state.slope_form,
     )
     x = new_state.pose
-    zero = jnp.zeros((), jnp.int32)
     finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(new_state.pose_sqrt))
-    record = StepOutput(
-        best_pose=x,
-        mean_pose=x,
-        ess=jnp.ones((), x.dtype),
-        resampled=jnp.zeros((), bool),
+    record = GaussianStepOutput(
+        pose=x,
+        pose_cov=new_state.pose_cov,
         n_landmarks=new_state.count,
         n_confirmed=new_state.count,
-        iterations=jnp.zeros((), x.dtype),
-        n_capped=zero,
-        n_nonfinite=(~finite).astype(jnp.int32),
-        n_associated=jnp.sum(assoc).astype(x.dtype),
-        n_new=added.astype(x.dtype),
-        window_overflow=zero,
+        n_associated=jnp.sum(assoc).astype(jnp.int32),
+        n_new=added,
         overflow=over.astype(jnp.int32),
-        weight_reset=jnp.zeros((), bool),
+        n_nonfinite=(~finite).astype(jnp.int32),
     )
     return new_state, record

@@ -14,8 +14,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, Key
+from jaxtyping import Array, Bool, Float, Int
 
+from .._linalg import mmt
 from ..models import wrap_angle
 from ..models._lines import line_from_slope_intercept, line_from_vertical, normalize_line, slope_intercept_from_line
 from ._method_settings import nasrukf_params, nasrukf_static
@@ -85,7 +86,7 @@ class Candidates(NamedTuple):
 
 
 class NasrukfBeamState(NamedTuple):
-    """NASRUKF's state with per-beam measurements.
+    """NASRUKF's state with per-beam measurements (a :class:`~._gaussian.GaussianState`).
 
     Attributes:
         pose, pose_sqrt: the global (fused) pose and its lower square root.
@@ -97,7 +98,6 @@ class NasrukfBeamState(NamedTuple):
             :class:`~._nasrukf_state.NasrukfState` holds it.
         moving: static initialisation is over.
         count: active features (lines and arcs).
-        key, resample_count: carried for the driver (no particles).
         overflow: new features dropped because the slots were full.
         scan: scans processed so far.
         slope_form: the lines are in the paper's form (``nasrukf.line_form: slope_intercept``).
@@ -115,8 +115,6 @@ class NasrukfBeamState(NamedTuple):
     process_basis: Float[Array, "w w 3 3"]
     moving: Bool[Array, ""]
     count: Int[Array, ""]  # type: ignore[assignment]  # the field shadows tuple.count
-    key: Key[Array, ""]
-    resample_count: Int[Array, ""]
     overflow: Int[Array, ""]
     scan: Int[Array, ""]
     slope_form: Bool[Array, ""]
@@ -126,6 +124,11 @@ class NasrukfBeamState(NamedTuple):
         m, v = self.lines.mean, self.lines.vertical
         paper = jnp.where(v[:, None], line_from_vertical(m[:, 0]), line_from_slope_intercept(m[:, 0], m[:, 1]))
         return jnp.where(self.slope_form, paper, normalize_line(m))
+
+    @property
+    def pose_cov(self) -> Float[Array, "3 3"]:
+        """The pose covariance ``pose_sqrt pose_sqrt'``."""
+        return mmt(self.pose_sqrt, self.pose_sqrt)
 
     def landmark_map(self) -> LandmarkMap:
         """The lines as a map (``mean`` the normal form ``(rho, alpha)``), every active line confirmed."""
@@ -138,13 +141,12 @@ class NasrukfBeamState(NamedTuple):
         return self.arcs.mean, self.arcs.active
 
 
-def init_beam_state(static: Static, params: Params, key: Key[Array, ""]) -> NasrukfBeamState:
+def init_beam_state(static: Static, params: Params) -> NasrukfBeamState:
     """The pose at the origin with covariance ``init_cov * I``, no features, the configured noise.
 
     Args:
         static: static settings (``capacity``, NASRUKF's ``arc_capacity`` and ``groups``).
         params: hyperparameters (``init_cov``, NASRUKF's ``beams.sigma_beam``).
-        key: PRNG key (carried, unused).
     """
     ns, bp = nasrukf_static(static), nasrukf_params(params).beams
     assert bp is not None
@@ -165,8 +167,6 @@ def init_beam_state(static: Static, params: Params, key: Key[Array, ""]) -> Nasr
         process_basis=jnp.zeros((w, w, 3, 3)),
         moving=jnp.zeros((), bool),
         count=zero,
-        key=key,
-        resample_count=zero,
         overflow=zero,
         scan=zero,
         slope_form=jnp.asarray(ns.line_form == "slope_intercept"),

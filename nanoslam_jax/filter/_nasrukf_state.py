@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int, Key
+from jaxtyping import Array, Float, Int
 
 from .._linalg import mmt, sandwich, sym
 from ._method_settings import NasrukfParams, NasrukfStatic, nasrukf_static
@@ -46,7 +46,8 @@ class NasrukfFeatures(NamedTuple):
 
 
 class NasrukfState(NamedTuple):
-    """The NASRUKF state carried from one segment to the next.
+    """The NASRUKF state carried from one segment to the next (a
+    :class:`~._gaussian.GaussianState`).
 
     Attributes:
         pose: the global (fused) pose mean.
@@ -62,8 +63,6 @@ class NasrukfState(NamedTuple):
         process_basis: the linearised map from ``Lambda`` to the pose covariance added since the last
             update (:func:`~._srukf.process_noise_basis`; zeros unless the estimate is on).
         count: active features.
-        key: PRNG key (unused; carried for the driver).
-        resample_count: always 0 (no particles).
         overflow: new features dropped so far because the slots were full.
         scan: laser scans processed so far (the clock of ``born``).
     """
@@ -77,10 +76,13 @@ class NasrukfState(NamedTuple):
     process_count: Int[Array, ""]
     process_basis: Float[Array, "w w 3 3"]
     count: Int[Array, ""]  # type: ignore[assignment]  # the field shadows tuple.count
-    key: Key[Array, ""]
-    resample_count: Int[Array, ""]
     overflow: Int[Array, ""]
     scan: Int[Array, ""]
+
+    @property
+    def pose_cov(self) -> Float[Array, "3 3"]:
+        """The pose covariance ``pose_sqrt pose_sqrt'``."""
+        return mmt(self.pose_sqrt, self.pose_sqrt)
 
     def landmark_map(self) -> LandmarkMap:
         """The tree centres with their marginal covariances ``sqrt sqrt' + gain P gain'``."""
@@ -109,14 +111,13 @@ def configured_noise(static: Static, params: Params) -> Float[Array, " mz"]:
     return jnp.square(jnp.stack([jnp.asarray(s, float) for s in sig]))
 
 
-def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> NasrukfState:
+def init_nasrukf_state(static: Static, params: Params) -> NasrukfState:
     """The pose at the origin with covariance ``init_cov * I``, no features, the configured noise
     (measurement and process).
 
     Args:
         static: static settings (``capacity``, NASRUKF's ``feature``).
         params: hyperparameters (``init_cov``, noise).
-        key: PRNG key (carried, unused).
     """
     c, f, w = static.capacity, feature_dim(static), params.motion.noise_dim
     zero = jnp.zeros((), jnp.int32)
@@ -136,8 +137,6 @@ def init_nasrukf_state(static: Static, params: Params, key: Key[Array, ""]) -> N
         process_count=zero,
         process_basis=jnp.zeros((w, w, 3, 3)),
         count=zero,
-        key=key,
-        resample_count=zero,
         overflow=zero,
         scan=zero,
     )

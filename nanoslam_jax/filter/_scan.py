@@ -26,6 +26,7 @@ from ..methods import get_method, method_names
 from ..proposals import AbstractProposal
 from ._params import Params, Static
 from ._prior import predict_mean, relative_prior
+from ._gaussian import as_step_output
 from ._state import FilterState, LandmarkMap, init_state
 from ._step import StepOutput, filter_step
 
@@ -69,7 +70,8 @@ def _masked_step(static: Static, params: Params, state, inp: tuple):
     method = get_method(static.method)
     if method.kind == "gaussian":
         assert method.step is not None  # Method requires it of a Gaussian method
-        return method.step(static, params, state, seg, valid)
+        state, out = method.step(static, params, state, seg, valid)
+        return state, as_step_output(out)
     return filter_step(static, params, make_proposal(static, params), state, seg, valid, rel_prior)
 
 
@@ -95,13 +97,25 @@ def relative_priors(
 
 
 def initial_state(static: Static, params: Params, key: Key[Array, ""]):
-    """The state a run starts from: a :class:`FilterState`, an ``EkfSlamState`` for EKF-SLAM or a
-    ``NasrukfState`` for NASRUKF."""
+    """The state a run starts from: a :class:`FilterState` (its particles drawn with ``key``, which
+    it carries on), or a Gaussian method's :class:`~._gaussian.GaussianState` (an
+    ``EkfSlamState`` for EKF-SLAM, a ``NasrukfState`` for NASRUKF; ``key`` is not used: a
+    Gaussian method does not sample)."""
     method = get_method(static.method)
     if method.kind == "gaussian":
         assert method.init is not None  # Method requires it of a Gaussian method
-        return method.init(static, params, key)
+        return method.init(static, params)
     return init_state(static, params, key)
+
+
+def resample_count(state) -> Int[Array, "*batch"]:
+    """Resampling steps so far: a particle state's count, 0 for a Gaussian state (no particles).
+
+    Works on a single or a batched state (zeros of the batch's shape for a Gaussian one).
+    """
+    if isinstance(state, FilterState):
+        return state.resample_count
+    return jnp.zeros(jnp.shape(state.scan), jnp.int32)
 
 
 def reported_map(state) -> LandmarkMap:
@@ -119,7 +133,7 @@ def filter_scan(
     static: Static,
     params: Params,
     segments: Segments,
-    key: Key[Array, ""],
+    key: Optional[Key[Array, ""]],
     state: Optional[Any] = None,
     valid: Optional[Bool[Array, " segments"]] = None,
     skip_padding: bool = False,
@@ -130,7 +144,8 @@ def filter_scan(
         static: static settings (a static argument when jitted).
         params: traced hyperparameters.
         segments: the log's segments.
-        key: PRNG key (used when ``state`` is None to start, and for all sampling).
+        key: PRNG key of a fresh state (used only when ``state`` is None; a particle state
+            carries its key on, a Gaussian method does not sample).
         state: state to continue from (default: a fresh state from ``key``).
         valid: which segments are real (padding segments leave the state unchanged).
         skip_padding: stop after the last real segment (a loop with a traced trip count): the
@@ -141,6 +156,8 @@ def filter_scan(
         The final state and a :class:`StepOutput` per segment.
     """
     if state is None:
+        if key is None:
+            raise ValueError("filter_scan: a key is needed to start a fresh state (state None)")
         state = initial_state(static, params, key)
     if valid is None:
         valid = jnp.ones(segments.time.shape[0], bool)
@@ -175,7 +192,7 @@ def _scan_prefix(f, init, xs, length: Int[Array, ""]):
 
 @functools.partial(jax.jit, static_argnames=("static",))
 def _chunk(static: Static, params: Params, state: Any, segments: Segments, valid) -> tuple[Any, StepOutput]:
-    return filter_scan(static, params, segments, state.key, state, valid, skip_padding=True)
+    return filter_scan(static, params, segments, None, state, valid, skip_padding=True)
 
 
 @functools.partial(jax.jit, static_argnames=("static",))
@@ -185,7 +202,7 @@ def _init(static: Static, params: Params, key) -> Any:
 
 @functools.partial(jax.jit, static_argnames=("static",))
 def _chunk_batch(static: Static, params: Params, state: Any, segments: Segments, valid) -> tuple[Any, StepOutput]:
-    run = lambda p, s: filter_scan(static, p, segments, s.key, s, valid, skip_padding=True)  # noqa: E731
+    run = lambda p, s: filter_scan(static, p, segments, None, s, valid, skip_padding=True)  # noqa: E731
     return jax.vmap(run)(params, state)
 
 

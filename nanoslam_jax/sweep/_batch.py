@@ -33,6 +33,7 @@ from ..filter import (
     initial_state,
     noise_estimates,
     reported_map,
+    resample_count,
 )
 from ..smoother import Smoothed, SmootherSettings, held_landmarks, smooth_run, smoother_metrics
 
@@ -156,7 +157,7 @@ def _chunked_scan(static: Static, params: Params, key, segments: Segments, chunk
 
     def body(state, x):
         seg, ok = x
-        state, out = filter_scan(static, params, seg, state.key, state, ok, skip_padding=True)
+        state, out = filter_scan(static, params, seg, None, state, ok, skip_padding=True)
         lm = reported_map(state)
         return state, (out, lm.mean, lm.active & lm.confirmed)
 
@@ -192,7 +193,7 @@ def _member(static: Static, params: Params, seed, segments: Segments, history_ch
         window_overflow=rec("window_overflow", jnp.int32),
         weight_reset=rec("weight_reset", bool),
         overflow=getattr(state, "overflow", zero),
-        resample_count=getattr(state, "resample_count", zero),
+        resample_count=resample_count(state),
         map_mean=lm.mean,
         map_active=lm.active,
         map_confirmed=lm.confirmed,
