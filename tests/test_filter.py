@@ -163,7 +163,11 @@ def test_new_params_do_not_retrace(sim, runs, trace_counter):
     cfg, log, static, params = sim
     first = runs(0)
     n_traced = trace_counter["n"]
-    assert n_traced >= 1  # the counter saw the first trace of this module's static settings
+    if n_traced == 0:  # a cache directory filled before this session (NANOSLAM_CACHE_DIR) served the program
+        from nanoslam_jax._cache import _exported_dir
+
+        exported = _exported_dir()
+        assert exported is not None and any(exported.iterdir()), "nothing traced and no kept program"
     cfg2 = load_config(
         None, SIM_OVERRIDES + ["filter.gate=9.21", "filter.new_landmark=20.0", "nano.gamma=1e-3", "noise.sigma_r=0.6"]
     )

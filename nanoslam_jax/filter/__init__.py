@@ -1,4 +1,6 @@
-"""The Rao-Blackwellised particle filter shared by all particle methods."""
+"""The filters: the Rao-Blackwellised particle filter shared by all particle methods, the Gaussian
+methods (EKF-SLAM, NASRUKF) with their state protocol (:class:`GaussianState`), each method's
+nested settings, and the scan driver that runs any of them over a log."""
 
 from ._association import Association as Association, associate as associate
 from ._landmarks import (
