@@ -29,6 +29,15 @@ def _a(x: float) -> Array:
     return jnp.asarray(x, dtype=float)
 
 
+def _fields_from(cls: Any, section: Any, rename: dict[str, str] | None = None, convert: Any = None) -> dict[str, Any]:
+    """Each field of ``cls`` (a dataclass or NamedTuple) from the config ``section``'s key of the same
+    name (or the one ``rename`` gives), passed through ``convert`` when given."""
+    names = cls._fields if hasattr(cls, "_fields") else tuple(f.name for f in dataclasses.fields(cls))
+    rename = rename or {}
+    value = (lambda v: v) if convert is None else convert
+    return {n: value(getattr(section, rename.get(n, n))) for n in names}
+
+
 @dataclasses.dataclass(frozen=True)
 class NanoStatic:
     """NANO-SLAM's static settings (the ``nano`` section).
@@ -54,16 +63,7 @@ class NanoStatic:
     @classmethod
     def from_config(cls, cfg: Config) -> NanoStatic:
         """The settings of ``cfg.nano``."""
-        n = cfg.nano
-        return cls(
-            quadrature=n.quadrature,
-            gh_order=n.gh_order,
-            hessian=n.hessian,
-            max_iter=n.max_iter,
-            landmark_noise=n.landmark_noise,
-            init=n.init,
-            solver=n.solver,
-        )
+        return cls(**_fields_from(cls, cfg.nano))
 
 
 class NanoParams(NamedTuple):
@@ -85,8 +85,8 @@ class NanoParams(NamedTuple):
     @classmethod
     def from_config(cls, cfg: Config) -> NanoParams:
         """The hyperparameters of ``cfg.nano``, as traced scalars."""
-        n = cfg.nano
-        return cls(gamma=_a(n.gamma), step=_a(n.step), alpha=_a(n.ut_alpha), beta=_a(n.ut_beta), kappa=_a(n.ut_kappa))
+        ut = {"alpha": "ut_alpha", "beta": "ut_beta", "kappa": "ut_kappa"}
+        return cls(**_fields_from(cls, cfg.nano, ut, _a))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,8 +108,7 @@ class IteratedStatic:
     @classmethod
     def from_config(cls, cfg: Config) -> IteratedStatic:
         """The settings of ``cfg.iterated``."""
-        it = cfg.iterated
-        return cls(solver=it.solver, max_iter=it.max_iter, tol=it.tol, landmark_noise=it.landmark_noise)
+        return cls(**_fields_from(cls, cfg.iterated))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,17 +139,7 @@ class NasrukfStatic:
     @classmethod
     def from_config(cls, cfg: Config) -> NasrukfStatic:
         """The settings of ``cfg.nasrukf``."""
-        n = cfg.nasrukf
-        return cls(
-            feature=n.feature,
-            adaptive_process=n.adaptive_process,
-            measurement=n.measurement,
-            line_form=n.line_form,
-            beams_per_feature=n.beams_per_feature,
-            arc_capacity=n.arc_capacity,
-            groups=n.max_groups,
-            noise_residual=n.noise_residual,
-        )
+        return cls(**_fields_from(cls, cfg.nasrukf, {"groups": "max_groups"}))
 
 
 class BeamParams(NamedTuple):
@@ -190,17 +179,7 @@ class NasrukfParams(NamedTuple):
     def from_config(cls, cfg: Config) -> NasrukfParams:
         """The hyperparameters of ``cfg.nasrukf``, as traced scalars."""
         n = cfg.nasrukf
-        beams = (
-            BeamParams(
-                sigma_beam=_a(n.sigma_beam),
-                beam_gate=_a(n.beam_gate),
-                n_new=_a(n.n_new),
-                merge_gate=_a(n.merge_gate),
-                static_scans=_a(n.static_scans),
-            )
-            if n.measurement == "beams"
-            else None
-        )
+        beams = BeamParams(**_fields_from(BeamParams, n, convert=_a)) if n.measurement == "beams" else None
         return cls(
             new_feature_hits=_a(n.new_feature_hits),
             process_forgetting=_a(n.process_forgetting),
