@@ -1,7 +1,7 @@
 """MkDocs hooks: pages generated from the code and from measurement files, so they cannot drift.
 
 * ``<!-- nanoslam:config-reference -->`` becomes the config reference generated from the config
-  dataclasses (:func:`nanoslam_jax.config_reference.reference_markdown`, the generator behind
+  dataclasses (:func:`nanoslam_jax.app.config_reference.reference_markdown`, the generator behind
   ``nanoslam config``).
 * The package's docstrings use Sphinx roles (``:func:`run_filter```), which Markdown renders as
   text: ``on_page_content`` drops the role and keeps the code, shortened as ``~`` asks.
@@ -36,7 +36,7 @@ def _benchmark_markdown(part: str) -> str:
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
     if "<!-- nanoslam:config-reference -->" in markdown:
-        from nanoslam_jax.config_reference import reference_markdown
+        from nanoslam_jax.app.config_reference import reference_markdown
 
         markdown = markdown.replace("<!-- nanoslam:config-reference -->", reference_markdown(heading_level=2))
     for marker, part in (("<!-- nanoslam:benchmark -->", "rows"), ("<!-- nanoslam:second-run -->", "second_run")):

@@ -51,7 +51,7 @@ def _run(tree: Path, cache: Path, config: str, particles: int, extra: list[str],
     cmd = [
         sys.executable,
         "-m",
-        "nanoslam_jax.cli",
+        "nanoslam_jax.app.cli",
         "run",
         str(tree / config),
         "--out",

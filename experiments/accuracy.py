@@ -4,13 +4,13 @@
     python experiments/accuracy.py configs/victoria_park_nano.yaml --seeds 8 --set filter.estimate=mean
     python experiments/accuracy.py configs/victoria_park_best.yaml --seeds 32 --first-seed 100 --without-fix 1223.3
 
-The seeds run and are scored by the engine of `nanoslam compare` (``nanoslam_jax.compare.run_method``:
+The seeds run and are scored by the engine of `nanoslam compare` (``nanoslam_jax.app.compare.run_method``:
 S seeds vmapped in one compiled program, each smoothed when ``smoother.enabled``, each scored by
-``nanoslam_jax._scoring.score_run``), so its figures are those of a comparison file with this config
+``nanoslam_jax.eval._scoring.score_run``), so its figures are those of a comparison file with this config
 as its one row (configs/recommended.yaml holds the recommended configuration's rows). What this
 preset adds: the per-seed table, and with ``--without-fix T`` (repeatable) the two RMSEs with the
 GPS fix nearest each time T left out (``rmse_*_without``): how much of a figure single fixes make
-(the 136 m outlier at t = 1223.3 s, :mod:`nanoslam_jax.gps_floor`).
+(the 136 m outlier at t = 1223.3 s, :mod:`nanoslam_jax.eval.gps_floor`).
 
 Reports, per seed and summarised (median, interquartile range, min, max): ``rmse_fixed``,
 ``rmse_aligned`` and their ``*_clean`` variants (docs/method/victoria-park.md), the landmarks (all,
@@ -29,12 +29,12 @@ from pathlib import Path
 import numpy as np
 
 from nanoslam_jax import enable_compile_cache
-from nanoslam_jax._scoring import format_number, summarize_runs
-from nanoslam_jax.compare import CompareSpec, MethodSpec, method_config, run_method
-from nanoslam_jax.config import ConfigError
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import text_progress
-from nanoslam_jax.metrics import evaluate
+from nanoslam_jax.eval._scoring import format_number, summarize_runs
+from nanoslam_jax.app.compare import CompareSpec, MethodSpec, method_config, run_method
+from nanoslam_jax.app.config import ConfigError
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import text_progress
+from nanoslam_jax.eval.metrics import evaluate
 
 KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
 #: Columns reported when the runs have them (the filter's own estimate, the smoother's).

@@ -85,8 +85,8 @@ ROWS: dict[str, list[str]] = {
 def _segments(cfg, data: str | None, segments: int | None):
     """The log's segments (the first ``segments`` only, when given), after setting the devices up
     as ``nanoslam run`` does."""
-    from nanoslam_jax._devices import setup_run_devices
-    from nanoslam_jax.experiment import load_log
+    from nanoslam_jax.app._devices import setup_run_devices
+    from nanoslam_jax.app.experiment import load_log
 
     setup_run_devices(cfg)
     seg = load_log(cfg, data).segments
@@ -100,8 +100,8 @@ def run_one(
     ``repeats`` runs of the compiled program; ``compile_s``: the first run's)."""
     import jax
 
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
 
     cfg = load_config(config, overrides)
     seg = _segments(cfg, data, segments)
@@ -143,7 +143,16 @@ def second_run(config: str, data: str | None) -> dict:
         env.pop("JAX_COMPILATION_CACHE_DIR", None)
         runs = []
         for name in ("first", "second"):
-            cmd = [sys.executable, "-m", "nanoslam_jax.cli", "run", config, "--out", str(Path(tmp) / name), "--quiet"]
+            cmd = [
+                sys.executable,
+                "-m",
+                "nanoslam_jax.app.cli",
+                "run",
+                config,
+                "--out",
+                str(Path(tmp) / name),
+                "--quiet",
+            ]
             if data:
                 cmd += ["--data", data]
             load = os.getloadavg()[0]
@@ -178,8 +187,8 @@ def paired_timing(
     (see the ``management`` table in the module docstring); all variants share one process and log."""
     import statistics
 
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.filter import run_filter, settings_from_config
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.methods import run_filter, settings_from_config
 
     cfgs = {k: load_config(config, v) for k, v in variants.items()}
     seg = _segments(next(iter(cfgs.values())), data, segments)
@@ -218,9 +227,9 @@ def paired_timing(
 
 def data_timings(data: str | None) -> dict:
     """Seconds of the data pipeline's two steps (best of 5 after a warm-up); see the module docstring."""
-    from nanoslam_jax.config import SimConfig, VehicleConfig, load_config, resolve_data_dir
+    from nanoslam_jax.app.config import SimConfig, VehicleConfig, load_config, resolve_data_dir
     from nanoslam_jax.data import load_victoria_park, make_segments
-    from nanoslam_jax.simulate import simulate
+    from nanoslam_jax.sim.park import simulate
 
     real = load_victoria_park(resolve_data_dir(load_config(None), data))
     steps = {

@@ -11,7 +11,7 @@ vmapped in one program; each run is scored by the evaluation protocol against th
 noise-free dead reckoning on the same log, and its reported map (confirmed landmarks) against the
 trees its true path could see, in the SLAM frame and after the trajectory's rigid alignment.
 Prints one line per run and the medians, quartiles and worst cases. Runs are scored as every
-command scores one (``nanoslam_jax._scoring.score_run``) and summarised under its failed-seed rule
+command scores one (``nanoslam_jax.eval._scoring.score_run``) and summarised under its failed-seed rule
 (a run whose estimate became non-finite is counted and counts as the worst value).
 """
 
@@ -24,10 +24,10 @@ import time
 import jax
 import numpy as np
 
-from nanoslam_jax._scoring import MapEstimate, failure_reason, score_run, seed_summary
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import (
+from nanoslam_jax.eval._scoring import MapEstimate, failure_reason, score_run, seed_summary
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import (
     dead_reckoning,
     reported_map,
     reported_trajectory,

@@ -3,7 +3,7 @@
     .venv/bin/python experiments/detector_sim_validation.py [--seeds 100-107] [--duration 240]
         [--config CONFIG] [--set detector.key=value ...] [--set sim.key=value ...]
 
-For every seed, a simulated log with raw scans (:func:`nanoslam_jax.simulate_laser.simulate_laser`:
+For every seed, a simulated log with raw scans (:func:`nanoslam_jax.sim.laser.simulate_laser`:
 trees, walls, fences and bushes, with the sim section's range noise, dropouts and spurious returns)
 goes through the detector (:func:`nanoslam_jax.frontend.detect_trees`, the config's detector section)
 and through a naive baseline (clusters by range jumps, diameter from the angular width). Printed per
@@ -36,10 +36,10 @@ sys.path.insert(0, str(ROOT / "experiments"))
 from _seeds import parse_seeds  # noqa: E402
 from detector_validation import match  # noqa: E402
 
-from nanoslam_jax.config import load_config  # noqa: E402
+from nanoslam_jax.app.config import load_config  # noqa: E402
 from nanoslam_jax.data import LaserScans  # noqa: E402
 from nanoslam_jax.frontend import detect_trees  # noqa: E402
-from nanoslam_jax.simulate_laser import KIND_BUSH, KIND_FENCE, KIND_TREE, KIND_WALL, simulate_laser  # noqa: E402
+from nanoslam_jax.sim.laser import KIND_BUSH, KIND_FENCE, KIND_TREE, KIND_WALL, simulate_laser  # noqa: E402
 
 WITHIN, MIN_BEAMS = 30.0, 3
 FALSE_KINDS = ("tree (centre off)", "wall", "fence", "bush", "no surface: a spurious return")

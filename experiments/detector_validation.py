@@ -26,10 +26,10 @@ sys.path.insert(0, str(ROOT))
 
 from _seeds import format_seeds, parse_seeds  # noqa: E402
 
-from nanoslam_jax.config import load_config  # noqa: E402
+from nanoslam_jax.app.config import load_config  # noqa: E402
 from nanoslam_jax.data import load_laser, load_victoria_park  # noqa: E402
 from nanoslam_jax.frontend import extract_features  # noqa: E402
-from nanoslam_jax.models._angles import wrap_angle_np  # noqa: E402
+from nanoslam_jax.lib._angles import wrap_angle_np  # noqa: E402
 
 MATCH_RANGE, MATCH_BEARING_DEG, WITHIN = 0.5, 1.5, 30.0
 
@@ -242,7 +242,7 @@ def ablation_logs(data: str, detected: str, out: str) -> dict:
 def slam_table(config: str, logs: dict, seeds: list[int], overrides: list[str]) -> dict:
     """Run ``config`` for every seed on each log of ``logs`` (label -> directory; the first is the
     reference); print each run and a paired summary table against the first."""
-    from nanoslam_jax.experiment import execute
+    from nanoslam_jax.app.experiment import execute
 
     res = {}
     for label, directory in logs.items():

@@ -20,7 +20,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from nanoslam_jax.config import DetectorConfig  # noqa: E402
+from nanoslam_jax.app.config import DetectorConfig  # noqa: E402
 from nanoslam_jax.data import load_laser  # noqa: E402
 from nanoslam_jax.frontend import extract_features, extract_features_chunked  # noqa: E402
 

@@ -3,7 +3,7 @@
     python experiments/gps_floor.py                                   # the real log, paper setting
     python experiments/gps_floor.py configs/victoria_park_nano.yaml --json floor.json
 
-Prints a Markdown report (nanoslam_jax.gps_floor): GPS jumps and gaps, the short-term GPS error
+Prints a Markdown report (nanoslam_jax.eval.gps_floor): GPS jumps and gaps, the short-term GPS error
 against the dead-reckoning path fitted over short windows, the white noise, the fitted antenna
 offset and clock shift, and what the fixed frame's rotation uncertainty costs at the track's
 distances; then the floors of rmse_aligned and rmse_fixed.
@@ -16,9 +16,9 @@ import dataclasses
 import json
 from pathlib import Path
 
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.gps_floor import floor_markdown, gps_floor_of_log
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.eval.gps_floor import floor_markdown, gps_floor_of_log
 
 DEFAULT = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_nano.yaml"
 

@@ -21,8 +21,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nanoslam_jax.config import load_config  # noqa: E402
-from nanoslam_jax.simulate_indoor import BREAK_DOOR, simulate_indoor  # noqa: E402
+from nanoslam_jax.app.config import load_config  # noqa: E402
+from nanoslam_jax.sim.indoor import BREAK_DOOR, simulate_indoor  # noqa: E402
 
 
 def draw(ax, log, t_scan: float) -> None:

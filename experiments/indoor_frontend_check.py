@@ -3,7 +3,7 @@
     .venv/bin/python experiments/indoor_frontend_check.py [--seeds 0-15] [--duration 60] [--every 10]
         [--set indoor.key=value ...] [--set detector.key=value ...]
 
-For every seed an indoor log (:func:`nanoslam_jax.simulate_indoor.simulate_indoor`, the ``indoor`` section
+For every seed an indoor log (:func:`nanoslam_jax.sim.indoor.simulate_indoor`, the ``indoor`` section
 with the overrides) is simulated; every ``--every``-th scan goes through
 :func:`nanoslam_jax.frontend.extract_features` (the ``detector`` section) and its features are compared with
 the truth, in the world frame through the true laser pose of the scan:
@@ -31,11 +31,11 @@ import numpy as np
 
 from _seeds import format_seeds, parse_seeds
 
-from nanoslam_jax.config import ConfigError, load_config
+from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.frontend import extract_features
 from nanoslam_jax.frontend._types import EDGE_FARTHER, EDGE_NO_RETURN
-from nanoslam_jax.simulate_indoor import hessian_lines, simulate_indoor
-from nanoslam_jax.simulate_laser import KIND_WALL
+from nanoslam_jax.sim.indoor import hessian_lines, simulate_indoor
+from nanoslam_jax.sim.laser import KIND_WALL
 
 
 def _world(pose: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -4,10 +4,10 @@
     .venv/bin/python experiments/indoor_lines_table.py [--config configs/indoor_lines.yaml] [--seeds 1-8]
         [--set key=value ...]
 
-For every seed ``s`` the config runs (:func:`nanoslam_jax.experiment.execute`) with ``seed = s`` and
+For every seed ``s`` the config runs (:func:`nanoslam_jax.app.experiment.execute`) with ``seed = s`` and
 ``indoor.seed = s`` (a new world, drive, noise and filter seed each); each run's metrics are its
 ``metrics.json`` figures. Prints one row per seed and the median and worst over the seeds (a failed run
-counts as the worst, :func:`nanoslam_jax.metrics.seed_summary`), as a Markdown table.
+counts as the worst, :func:`nanoslam_jax.eval.metrics.seed_summary`), as a Markdown table.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import time
 
 from _seeds import parse_seeds
 
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import execute
-from nanoslam_jax.metrics import seed_summary
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import execute
+from nanoslam_jax.eval.metrics import seed_summary
 
 #: The columns: metric, header, scale, digits.
 COLUMNS = (

@@ -6,7 +6,7 @@
 For each robot: its log (nanoslam_jax.data.load_mrclam), the dead-reckoned path (the (v, omega)
 odometry integrated exactly), every landmark sighting projected from it and averaged per barcode
 (nanoslam_jax.data.dead_reckoning_map), and that map against the surveyed landmarks after the
-best rigid alignment, paired by landmark id (nanoslam_jax.metrics.map_alignment_metrics). Prints a
+best rigid alignment, paired by landmark id (nanoslam_jax.eval.metrics.map_alignment_metrics). Prints a
 Markdown table.
 """
 
@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nanoslam_jax.config import load_config, resolve_data_dir
+from nanoslam_jax.app.config import load_config, resolve_data_dir
 from nanoslam_jax.data import MRCLAM_ROBOTS, dead_reckoning_map, load_mrclam
-from nanoslam_jax.metrics import map_alignment_metrics
+from nanoslam_jax.eval.metrics import map_alignment_metrics
 
 
 def baseline(directory: Path, robot: int, match_radius: float) -> dict:

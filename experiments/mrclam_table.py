@@ -10,7 +10,7 @@ position (survey_rmse: median, interquartile range and worst over the seeds), la
 spurious (medians), the same RMSE pairing each landmark with the surveyed one of its barcode
 (known association), and the dead-reckoning map of the same robot (every sighting projected from
 the dead-reckoned path, averaged per barcode, paired by barcode) with its ratio to the median.
-Seeds are summarised under the failed-seed rule of every command (``nanoslam_jax._scoring``): a
+Seeds are summarised under the failed-seed rule of every command (``nanoslam_jax.eval._scoring``): a
 failed run (e.g. a landmark capacity overflow under the sweep's ``fail_on_overflow``) is counted in
 the row and counts as the worst value (an infinite RMSE, ``-inf`` landmarks found), so a median
 that more than half the seeds failed is ``inf`` (the finished runs' values are given beside it).
@@ -23,10 +23,10 @@ import csv
 import math
 from pathlib import Path
 
-from nanoslam_jax._scoring import format_number, summarize_runs
-from nanoslam_jax.config import load_config, resolve_data_dir
+from nanoslam_jax.eval._scoring import format_number, summarize_runs
+from nanoslam_jax.app.config import load_config, resolve_data_dir
 from nanoslam_jax.data import dead_reckoning_map, load_mrclam
-from nanoslam_jax.metrics import map_alignment_metrics
+from nanoslam_jax.eval.metrics import map_alignment_metrics
 
 #: Table labels and order of the methods and associations.
 METHODS = {

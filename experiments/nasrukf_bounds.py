@@ -38,8 +38,8 @@ import numpy as np
 
 from _seeds import format_seeds, parse_seeds
 
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import execute
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import execute
 
 CONFIG = "configs/nasrukf_indoor.yaml"
 #: The simulator's odometry noise outside slip: sigma_v (m/s), sigma_omega (deg/s), and the slip factor.
@@ -84,7 +84,7 @@ def run_one(sets: list[str]) -> dict:
 
 def _heading_errors(res) -> tuple[float, float] | None:
     """The largest heading error of a run (deg) and its time (s)."""
-    from nanoslam_jax.metrics import heading_errors
+    from nanoslam_jax.eval.metrics import heading_errors
 
     truth = res.log.raw.truth_poses
     if truth is None or not np.all(np.isfinite(res.trajectory)):

@@ -1,4 +1,4 @@
-"""Tune the offline smoother (:mod:`nanoslam_jax.smoother`): one batch of filter runs, every
+"""Tune the offline smoother (:mod:`nanoslam_jax.smoother._smoother`): one batch of filter runs, every
 combination of the smoother settings given, one Markdown table ranked by the targets' score.
 
     python experiments/smoother_tuning.py configs/victoria_park_best.yaml --seeds 16 \\
@@ -22,11 +22,11 @@ import json
 import numpy as np
 
 from nanoslam_jax import enable_compile_cache
-from nanoslam_jax._scoring import score_run, seed_summary
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
-from nanoslam_jax.smoother import SmootherSettings, smooth_run, smoother_map
+from nanoslam_jax.eval._scoring import score_run, seed_summary
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
+from nanoslam_jax.smoother._smoother import SmootherSettings, smooth_run, smoother_map
 from target_score import score as target_score  # experiments/ is on the path when this script runs
 
 

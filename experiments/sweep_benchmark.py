@@ -42,7 +42,7 @@ Every part compiles afresh (no persistent compilation cache), so the compile tim
 
 The package's defaults (``run.parallel: auto`` = devices, ``run.vectorize: auto`` = vmap)
 are the fastest modes this benchmark measured on a 2-core machine; see ``AUTO_PARALLEL`` in
-``nanoslam_jax/sweep/_runner.py`` and ``AUTO_VECTORIZE`` in ``nanoslam_jax/sweep/_plan.py``.
+``nanoslam_jax/app/sweep/_runner.py`` and ``AUTO_VECTORIZE`` in ``nanoslam_jax/app/sweep/_plan.py``.
 """
 
 from __future__ import annotations
@@ -92,8 +92,8 @@ def workload(args, particles: int):
     import jax
 
     import nanoslam_jax  # noqa: F401  (float64 before any array exists)
-    from nanoslam_jax.filter import settings_from_config
-    from nanoslam_jax.sweep import expand, load_log_data, sweep_from_dict
+    from nanoslam_jax.methods import settings_from_config
+    from nanoslam_jax.app.sweep import expand, load_log_data, sweep_from_dict
 
     spec = sweep_from_dict(
         sweep_dict(args.config, args.configs, particles, args.segments, args.configs), source="benchmark"
@@ -122,8 +122,8 @@ def throughput(args) -> dict:
         jax.config.update("jax_num_cpu_devices", split)
     import numpy as np
 
-    from nanoslam_jax.filter import row_buckets
-    from nanoslam_jax.sweep import batch_program, single_program
+    from nanoslam_jax.methods import row_buckets
+    from nanoslam_jax.app.sweep import batch_program, single_program
 
     points, seg, plist = workload(args, args.particles)
     static = plist[0][0]
@@ -212,13 +212,13 @@ def multicore_one(args) -> dict:
     if mode == "devices":
         import jax
 
-        from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
+        from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE
 
         jax.config.update("jax_num_cpu_devices", 2 * SWEEP_DEVICES_PER_CORE)
     import csv
 
     import nanoslam_jax  # noqa: F401
-    from nanoslam_jax.sweep import run_sweep, sweep_from_dict
+    from nanoslam_jax.app.sweep import run_sweep, sweep_from_dict
 
     spec = sweep_from_dict(
         sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs), source="benchmark"
@@ -256,8 +256,8 @@ def ceiling_one(args) -> dict:
     import jax
     import numpy as np
 
-    from nanoslam_jax.filter import row_buckets
-    from nanoslam_jax.sweep import batch_program, single_program
+    from nanoslam_jax.methods import row_buckets
+    from nanoslam_jax.app.sweep import batch_program, single_program
 
     C = args.ceiling_configs
     counts = sorted({10, *args.ceiling_particles}) if pinned else [10]
@@ -363,7 +363,7 @@ def main() -> None:
     ] + (["--data", args.data] if args.data else [])
     results: dict = {}
     if args.only in (None, "throughput"):
-        from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
+        from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE
 
         cores = len(os.sched_getaffinity(0))
         parts = {}

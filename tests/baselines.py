@@ -10,8 +10,8 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from nanoslam_jax.filter import dead_reckoning, settings_from_config
-from nanoslam_jax.metrics import evaluate
+from nanoslam_jax.methods import dead_reckoning, settings_from_config
+from nanoslam_jax.eval.metrics import evaluate
 
 
 def dead_reckoning_metrics(cfg, log) -> dict:
@@ -37,10 +37,10 @@ def assert_beats_dead_reckoning(rmse: float, dr_rmse: float, factor: float, what
 
 
 def reported_map_quality(cfg, log, landmarks, metrics: dict) -> dict:
-    """:func:`nanoslam_jax.metrics.map_summary` of a reported map (one particle's or the Gaussian
+    """:func:`nanoslam_jax.eval.metrics.map_summary` of a reported map (one particle's or the Gaussian
     filter's ``LandmarkMap``) against the simulated log's observable trees, in the SLAM frame and
     after the trajectory's rigid alignment in ``metrics`` (what :func:`evaluate` returned)."""
-    from nanoslam_jax.metrics import map_summary
+    from nanoslam_jax.eval.metrics import map_summary
 
     act = np.asarray(landmarks.active)
     return map_summary(

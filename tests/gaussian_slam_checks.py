@@ -5,10 +5,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import _scan, reported_map, settings_from_config
-from nanoslam_jax.metrics import landmark_errors
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import _scan, reported_map, settings_from_config
+from nanoslam_jax.eval.metrics import landmark_errors
 
 
 def simulated(overrides):
@@ -20,7 +20,7 @@ def simulated(overrides):
 
 def dead_reckoning_rmse(log, params) -> float:
     """RMSE of noise-free dead reckoning on ``log`` against its truth (the baseline)."""
-    from nanoslam_jax.filter import dead_reckoning
+    from nanoslam_jax.methods import dead_reckoning
 
     poses = np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments)))
     err = np.hypot(*(poses[:, :2] - true_positions(log)).T)
@@ -107,8 +107,8 @@ def run_real_log_start(
     from pathlib import Path
 
     from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
-    from nanoslam_jax.filter import run_filter
-    from nanoslam_jax.metrics import evaluate
+    from nanoslam_jax.methods import run_filter
+    from nanoslam_jax.eval.metrics import evaluate
 
     cfg = load_config(
         Path(__file__).resolve().parents[1] / "configs" / config_name, [f"data.path={vp_dir}", "data.t_end=300"]

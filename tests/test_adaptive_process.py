@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.config import ConfigError, load_config
+from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import make_segments
 from nanoslam_jax.data._types import RawLog
-from nanoslam_jax.experiment import execute
-from nanoslam_jax.filter import (
+from nanoslam_jax.app.experiment import execute
+from nanoslam_jax.methods import (
     adaptive_process_summary,
     adaptive_process_update,
     forgetting_weight,
@@ -27,7 +27,7 @@ from nanoslam_jax.filter import (
     run_filter,
     settings_from_config,
 )
-from nanoslam_jax.filter._nasrukf import pose_time_update
+from nanoslam_jax.methods.gaussian._nasrukf import pose_time_update
 from nanoslam_jax.models import Ackermann, RandomWalk, Unicycle
 
 # --------------------------------------------------------------------------- the forgetting weight

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax._batching import batch_max, take_if
+from nanoslam_jax.lib._batching import batch_max, take_if
 
 
 def _tree(rng, *lead):

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from nanoslam_jax.cli import main
-from nanoslam_jax.config import config_to_dict, load_config
+from nanoslam_jax.app.cli import main
+from nanoslam_jax.app.config import config_to_dict, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 BEST = ROOT / "configs" / "victoria_park_best.yaml"

@@ -21,8 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax import _cache
-from nanoslam_jax._cache import CACHE_ENV, compile_program, default_cache_dir, program_key
+from nanoslam_jax.app import _cache
+from nanoslam_jax.app._cache import CACHE_ENV, compile_program, default_cache_dir, program_key
 
 # A small run that still compiles the whole filter program: FastSLAM 1.0 on 20 s of the simulated log.
 SMALL = [
@@ -44,7 +44,7 @@ def _run(out: Path, cache: Path, *extra: str) -> dict:
     env = {**os.environ, CACHE_ENV: str(cache)}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     res = subprocess.run(
-        [sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(out), *SMALL, *extra],
+        [sys.executable, "-m", "nanoslam_jax.app.cli", "run", "--out", str(out), *SMALL, *extra],
         capture_output=True,
         text=True,
         env=env,
@@ -158,7 +158,7 @@ def test_unwritable_cache_directory_is_a_clear_error(tmp_path):
     env = {**os.environ, CACHE_ENV: str(blocker / "jax")}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     res = subprocess.run(
-        [sys.executable, "-m", "nanoslam_jax.cli", "run", "--out", str(tmp_path / "r"), *SMALL],
+        [sys.executable, "-m", "nanoslam_jax.app.cli", "run", "--out", str(tmp_path / "r"), *SMALL],
         capture_output=True,
         text=True,
         env=env,
@@ -171,7 +171,7 @@ def test_unwritable_cache_directory_is_a_clear_error(tmp_path):
 
 @pytest.mark.parametrize("argv", [["run"], ["compare", "x.yaml"], ["sweep", "x.yaml"], ["simulate", "--out", "d"]])
 def test_every_computing_command_takes_no_cache(argv):
-    from nanoslam_jax.cli import _parser
+    from nanoslam_jax.app.cli import _parser
 
     assert _parser().parse_args([*argv, "--no-cache"]).no_cache is True
     assert _parser().parse_args(argv).no_cache is False
@@ -181,8 +181,8 @@ def test_every_computing_command_takes_no_cache(argv):
 def test_sweep_no_cache_turns_the_sweep_files_cache_off(tmp_path, monkeypatch):
     import argparse
 
-    from nanoslam_jax.sweep import _runner
-    from nanoslam_jax.sweep._cli import sweep_command
+    from nanoslam_jax.app.sweep import _runner
+    from nanoslam_jax.app.sweep._cli import sweep_command
 
     seen = {}
 
@@ -504,9 +504,9 @@ def test_release_programs_unmaps_compiled_filter_programs(monkeypatch):
     """A compiled filter program holds hundreds of memory regions (counted in /proc/self/maps,
     the kernel's own account) until it is released; ``release_programs`` frees them only above
     its threshold, and a released program compiles again to the same outputs."""
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import run_filter, settings_from_config
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import load_log
+    from nanoslam_jax.methods import run_filter, settings_from_config
 
     _cache.release_programs(0)
     before = _cache.memory_maps()[0]

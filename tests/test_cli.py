@@ -1,6 +1,6 @@
 """Tests of the ``nanoslam`` command line, result directories and the dead-reckoning baseline.
 
-Runs go through :func:`nanoslam_jax.cli.main` in-process (one subprocess checks the console
+Runs go through :func:`nanoslam_jax.app.cli.main` in-process (one subprocess checks the console
 script). The one NANO-SLAM run (the embedded default, cut to 30 s) is shared by several tests so
 that the filter is compiled once.
 """
@@ -18,11 +18,11 @@ import pytest
 import yaml
 
 from nanoslam_jax import __version__
-from nanoslam_jax.cli import main
-from nanoslam_jax.config import config_from_dict, load_config
+from nanoslam_jax.app.cli import main
+from nanoslam_jax.app.config import config_from_dict, load_config
 from nanoslam_jax.data import load_victoria_park
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.metrics import evaluate
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.eval.metrics import evaluate
 
 ROOT = Path(__file__).resolve().parents[1]
 DR_CONFIG = ROOT / "configs" / "dead_reckoning.yaml"

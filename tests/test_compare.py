@@ -1,4 +1,4 @@
-"""Comparison files (:mod:`nanoslam_jax.compare`): a row with its own base config, the recommended
+"""Comparison files (:mod:`nanoslam_jax.app.compare`): a row with its own base config, the recommended
 configuration's comparison (configs/recommended.yaml, the published table of docs/results.md) and
 the row of the filter's own estimate beside a smoothed method."""
 
@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from nanoslam_jax.compare import MethodResult, load_compare_spec, markdown_table, method_config, summarise
-from nanoslam_jax.config import ConfigError, load_config
+from nanoslam_jax.app.compare import MethodResult, load_compare_spec, markdown_table, method_config, summarise
+from nanoslam_jax.app.config import ConfigError, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
@@ -94,7 +94,7 @@ def _row(seed: int, fixed: float, best: float) -> dict:
 def test_a_smoothed_method_is_followed_by_the_filters_own_estimate():
     """table1.md: below a smoothed method, the same runs' per-scan best particle (rmse_*_best)
     summarised over the seeds (median, quartiles, worst); an unsmoothed method has no such row."""
-    from nanoslam_jax.compare import MethodSpec
+    from nanoslam_jax.app.compare import MethodSpec
 
     rows = [_row(100 + i, 2.9 + 0.01 * i, 3.0 + i) for i in range(5)]  # best: 3, 4, 5, 6, 7
     smoothed = summarise(MethodResult(MethodSpec("best", ()), "nano", rows=rows))
@@ -117,7 +117,7 @@ def test_rows_differing_only_in_the_smoother_share_their_filter_runs(tmp_path, m
     run); the second row's figures equal those of a comparison that runs it alone."""
     import io
 
-    import nanoslam_jax.compare as compare
+    import nanoslam_jax.app.compare as compare
 
     calls = {"batch": 0, "single": 0}
     run_batch, run_filter = compare.run_batch, compare.run_filter

@@ -1,4 +1,4 @@
-"""Tests of the run configuration (nanoslam_jax.config): loading, overrides, validation, data directory."""
+"""Tests of the run configuration (nanoslam_jax.app.config): loading, overrides, validation, data directory."""
 
 import dataclasses
 from pathlib import Path
@@ -6,8 +6,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-import nanoslam_jax.config as config_module
-from nanoslam_jax.config import (
+import nanoslam_jax.app.config as config_module
+from nanoslam_jax.app.config import (
     DATASET_HELP,
     Config,
     ConfigError,

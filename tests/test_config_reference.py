@@ -1,7 +1,7 @@
 """The config reference and ``nanoslam config``.
 
 The expected keys come from walking the config dataclasses here (``dataclasses.fields`` and the
-field metadata), independently of the generator in ``nanoslam_jax.config_reference``: every key
+field metadata), independently of the generator in ``nanoslam_jax.app.config_reference``: every key
 must be in the reference with its type, default, range and doc, and ``nanoslam config`` must print
 every key of each shipped config with its doc, as YAML that loads back to the resolved config.
 """
@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 from nanoslam_jax import __version__
-from nanoslam_jax.cli import main
-from nanoslam_jax.config import Config, config_from_dict, load_config
-from nanoslam_jax.config_reference import reference_markdown
+from nanoslam_jax.app.cli import main
+from nanoslam_jax.app.config import Config, config_from_dict, load_config
+from nanoslam_jax.app.config_reference import reference_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The run configs (a compare spec has ``methods``, a sweep spec ``grid`` or ``random``).

@@ -9,9 +9,9 @@ import jax
 import numpy as np
 import pytest
 
-from nanoslam_jax import metrics
-from nanoslam_jax.config import Config, MetricsConfig
-from nanoslam_jax.filter._params import Static, settings_from_config
+from nanoslam_jax.eval import metrics
+from nanoslam_jax.app.config import Config, MetricsConfig
+from nanoslam_jax.methods._params import Static, settings_from_config
 from nanoslam_jax.models import MOTION_MODELS, Ackermann, RangeBearing
 from nanoslam_jax.models._vehicle import VehicleParams
 

@@ -1,4 +1,4 @@
-"""EKF-SLAM (nanoslam_jax/filter/_ekf_slam.py).
+"""EKF-SLAM (nanoslam_jax/methods/gaussian/_ekf_slam.py).
 
 Independent truths: hand-derived range-bearing and inverse-model Jacobians with the textbook
 dense Kalman update and augmentation; the dense joint linearised prediction; the simulator's
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.config import load_config
-from nanoslam_jax.filter import (
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.methods import (
     EkfSlamState,
     GaussianState,
     _scan,
@@ -25,8 +25,8 @@ from nanoslam_jax.filter import (
     run_filter,
     settings_from_config,
 )
-from nanoslam_jax.filter import _joint_gaussian
-from nanoslam_jax.filter._joint_gaussian import landmark_blocks
+from nanoslam_jax.methods.gaussian import _joint_gaussian
+from nanoslam_jax.methods.gaussian._joint_gaussian import landmark_blocks
 from nanoslam_jax.models import vehicle_step
 from gaussian_slam_checks import (
     assert_padding_is_noop,

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import (
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import (
     _scan,
     dead_reckoning,
     reported_map,
@@ -30,7 +30,7 @@ from nanoslam_jax.filter import (
     settings_from_config,
     stack_params,
 )
-from nanoslam_jax.metrics import evaluate
+from nanoslam_jax.eval.metrics import evaluate
 
 # A capacity/window pair used by no other test module, so this module's first run really traces
 # the chunk program (the trace counter below then proves the later runs do not).
@@ -164,7 +164,7 @@ def test_new_params_do_not_retrace(sim, runs, trace_counter):
     first = runs(0)
     n_traced = trace_counter["n"]
     if n_traced == 0:  # a cache directory filled before this session (NANOSLAM_CACHE_DIR) served the program
-        from nanoslam_jax._cache import _exported_dir
+        from nanoslam_jax.app._cache import _exported_dir
 
         exported = _exported_dir()
         assert exported is not None and any(exported.iterdir()), "nothing traced and no kept program"
@@ -258,7 +258,7 @@ def test_victoria_park_paper_setting(vp_dir):
     from pathlib import Path
 
     from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
-    from nanoslam_jax.filter import run_batch, stack_params
+    from nanoslam_jax.methods import run_batch, stack_params
 
     config = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_nano.yaml"
     cfg = load_config(config, [f"data.path={vp_dir}"])
@@ -302,9 +302,9 @@ SHORT = ["data.t_end=30", "filter.n_particles=4", "filter.prior_cov=carry"]
 @pytest.mark.slow
 def test_padding_segments_are_exact_no_ops():
     """The chunked driver pads the last chunk: results must not depend on the chunk size."""
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import run_filter, settings_from_config
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import load_log
+    from nanoslam_jax.methods import run_filter, settings_from_config
 
     cfg = load_config(None, SHORT)
     log = load_log(cfg)
@@ -321,7 +321,7 @@ def test_padding_segments_are_exact_no_ops():
 def test_scan_prefix_is_the_scan_of_the_prefix():
     """The chunk program's loop (:func:`_scan_prefix`, which skips the padding): over the first
     ``length`` entries it is ``lax.scan`` of them (carry and outputs), zeros after."""
-    from nanoslam_jax.filter._scan import _scan_prefix
+    from nanoslam_jax.methods._scan import _scan_prefix
 
     def f(c, x):
         return c * 0.5 + x["a"], {"y": c + x["b"], "z": jnp.stack([c, x["a"]]), "k": (x["a"] > 3).astype(jnp.int32)}
@@ -343,7 +343,7 @@ def test_map_history_holds_the_best_particles_map_after_each_chunk():
     """``FilterRun.history``: after each chunk the best particle's confirmed landmarks, which are
     those of a run stopped there; the last entry is the final map, in a batch run too."""
     from nanoslam_jax.data import Segments
-    from nanoslam_jax.smoother import final_map
+    from nanoslam_jax.smoother._smoother import final_map
 
     cfg = load_config(None, SHORT)
     log = load_log(cfg)
@@ -373,10 +373,10 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     instead of computing all."""
     import dataclasses
 
-    from nanoslam_jax.filter._scan import make_proposal
-    from nanoslam_jax.filter._rows import row_work, rows_over_buckets
+    from nanoslam_jax.methods._scan import make_proposal
+    from nanoslam_jax.methods.particle._rows import row_work, rows_over_buckets
     from nanoslam_jax.models import range_bearing
-    from nanoslam_jax.proposals import Detections
+    from nanoslam_jax.methods.proposals import Detections
 
     rng = np.random.default_rng(3)
     n, k = 5, 8
@@ -430,10 +430,10 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets,
     without the proposal's row buckets (the scan's 3 rows: a bucket of 4 of k_max = 6)."""
     import dataclasses
 
-    from nanoslam_jax.filter._landmarks import ekf_update_loglik, init_landmark
-    from nanoslam_jax.filter._scan import make_proposal
-    from nanoslam_jax.filter._state import LandmarkMap
-    from nanoslam_jax.filter._step import particle_update
+    from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmark
+    from nanoslam_jax.methods._scan import make_proposal
+    from nanoslam_jax.methods._state import LandmarkMap
+    from nanoslam_jax.methods.particle._step import particle_update
 
     sets = {"off": ["map.manage=false"], "on": [], "use_tentative": ["map.use_tentative=true"]}[management]
     cfg = load_config(None, ["filter.capacity=16", "filter.window=8"] + sets)
@@ -497,9 +497,9 @@ def test_particles_split_over_devices_give_the_same_run():
         jax.config.update("jax_num_cpu_devices", 2)
         import numpy as np
         import nanoslam_jax
-        from nanoslam_jax.config import load_config
-        from nanoslam_jax.experiment import load_log
-        from nanoslam_jax.filter import run_filter, settings_from_config
+        from nanoslam_jax.app.config import load_config
+        from nanoslam_jax.app.experiment import load_log
+        from nanoslam_jax.methods import run_filter, settings_from_config
         cfg = load_config(None, ["data.t_end=40", "filter.n_particles=64", "filter.row_buckets=never",
                                  "filter.split_devices=always"])
         log = load_log(cfg)
@@ -509,7 +509,7 @@ def test_particles_split_over_devices_give_the_same_run():
         a, b = one.state.particles, two.state.particles
         # filter.estimate: path split over the devices (the ancestors come out of the resampling's
         # cond): the same filter, one genealogy branch per resampling, ending at the last best pose.
-        from nanoslam_jax.filter import reported_trajectory
+        from nanoslam_jax.methods import reported_trajectory
         p2 = run_filter(dataclasses.replace(static, estimate="path"), params, log.segments, 0)
         path2 = reported_trajectory("path", p2.outputs, p2.state)
         print(json.dumps(dict(
@@ -540,8 +540,8 @@ def test_particles_split_over_devices_give_the_same_run():
 def test_particle_devices_takes_the_most_devices_that_divide_the_particles():
     """``filter.split_devices``: the split uses as many of the available devices as divide the
     particles evenly, none below SPLIT_DEVICES_FROM particles with ``auto``, none with ``never``."""
-    from nanoslam_jax.config import SPLIT_DEVICES_FROM
-    from nanoslam_jax.filter import particle_devices
+    from nanoslam_jax.app.config import SPLIT_DEVICES_FROM
+    from nanoslam_jax.methods import particle_devices
 
     assert particle_devices("auto", 1000, 4) == 4
     assert particle_devices("auto", 100, 8) == 5
@@ -557,7 +557,7 @@ def test_least_squares_methods_are_not_split_over_devices():
     """optimistix's least squares cannot run under shard_map (lineax issue #185; reproduced in
     tests/test_sweep.py), so a run of the iterated proposal or of NANO-SLAM initialised at the
     Gauss-Newton MAP keeps its particles on one device whatever ``filter.split_devices`` says."""
-    from nanoslam_jax.filter import method_static, shardable
+    from nanoslam_jax.methods import method_static, shardable
 
     over = ["filter.n_particles=1000", "filter.split_devices=always"]
     for extra, split in (

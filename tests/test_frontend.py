@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, DetectorConfig, load_config
+from nanoslam_jax.app.config import ConfigError, DetectorConfig, load_config
 from nanoslam_jax.data import LaserScans, fan_angles, load_laser, load_victoria_park
 from nanoslam_jax.frontend import (
     breakpoint_threshold,
@@ -298,7 +298,7 @@ def _write_short_log(directory: Path, n_scans=40):
 
 
 def test_detect_writes_a_complete_log(tmp_path, capsys):
-    from nanoslam_jax.cli import main
+    from nanoslam_jax.app.cli import main
 
     _write_short_log(tmp_path / "log")
     assert (
@@ -330,7 +330,7 @@ def test_detect_writes_a_complete_log(tmp_path, capsys):
 
 
 def test_detections_laser_loads_the_same_log_as_the_written_directory(tmp_path):
-    from nanoslam_jax.experiment import load_log
+    from nanoslam_jax.app.experiment import load_log
 
     _write_short_log(tmp_path / "log")
     detect_log(tmp_path / "log", tmp_path / "det", DetectorConfig())
@@ -348,7 +348,7 @@ def test_detections_laser_loads_the_same_log_as_the_written_directory(tmp_path):
 
 @pytest.mark.slow
 def test_slam_from_laser_equals_slam_on_the_written_log(tmp_path):
-    from nanoslam_jax.experiment import execute
+    from nanoslam_jax.app.experiment import execute
 
     _write_short_log(tmp_path / "log")
     detect_log(tmp_path / "log", tmp_path / "det", DetectorConfig())

@@ -1,4 +1,4 @@
-"""The heading metric ``rmse_heading_deg`` (nanoslam_jax/metrics.py): against headings with known
+"""The heading metric ``rmse_heading_deg`` (nanoslam_jax/eval/metrics.py): against headings with known
 errors across the +-180 deg cut, and in the metrics of a run of a simulated log against the error
 computed here by atan2."""
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import execute
-from nanoslam_jax.metrics import heading_errors, rmse_heading_deg
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import execute
+from nanoslam_jax.eval.metrics import heading_errors, rmse_heading_deg
 
 
 def test_heading_error_by_hand_across_the_cut():

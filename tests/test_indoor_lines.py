@@ -10,14 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, DetectorConfig, IndoorConfig, load_config
+from nanoslam_jax.app.config import ConfigError, DetectorConfig, IndoorConfig, load_config
 from nanoslam_jax.data import RawLog, make_segments
-from nanoslam_jax.experiment import MAP_COLUMNS, execute, load_log, with_scan_detections
-from nanoslam_jax.filter import LandmarkMap, gather_window
+from nanoslam_jax.app.experiment import MAP_COLUMNS, execute, load_log, with_scan_detections
+from nanoslam_jax.methods import LandmarkMap, gather_window
 from nanoslam_jax.frontend import detect_lines
-from nanoslam_jax.metrics import feature_map_errors
+from nanoslam_jax.eval.metrics import feature_map_errors
 from nanoslam_jax.models import LineSegment, RangeBearing
-from nanoslam_jax.simulate_indoor import feature_truth, read_feature_truth, simulate_indoor, simulate_indoor_to_dir
+from nanoslam_jax.sim.indoor import feature_truth, read_feature_truth, simulate_indoor, simulate_indoor_to_dir
 
 CLEAN = dict(range_noise=0.0, dropout=0.0, spurious=0.0)
 

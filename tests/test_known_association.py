@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import nanoslam_jax as ns
-from nanoslam_jax.config import load_config
+from nanoslam_jax.app.config import load_config
 from nanoslam_jax.data import make_segments
-from nanoslam_jax.simulate import simulate
+from nanoslam_jax.sim.park import simulate
 
 SETTINGS = [
     "sim.duration=40",

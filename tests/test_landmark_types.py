@@ -11,11 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import load_config
+from nanoslam_jax.app.config import load_config
 from nanoslam_jax.data import make_segments
-from nanoslam_jax.experiment import execute, load_log, map_columns
-from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
-from nanoslam_jax.filter._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
+from nanoslam_jax.app.experiment import execute, load_log, map_columns
+from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
 from nanoslam_jax.models import AbstractMeasurementModel, Circle
 
 # the functions under test, compiled (run eagerly, JAX compiles each operation)

@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax.experiment import execute, load_log, map_columns
-from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
-from nanoslam_jax.filter._association import associate
-from nanoslam_jax.filter._joint_gaussian import association_distances
-from nanoslam_jax.filter._state import LandmarkMap
+from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.app.experiment import execute, load_log, map_columns
+from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+from nanoslam_jax.methods.maps._association import associate
+from nanoslam_jax.methods.gaussian._joint_gaussian import association_distances
+from nanoslam_jax.methods._state import LandmarkMap
 from nanoslam_jax.models import PAD_VARIANCE, Circle, Composite, LineSegment
 
 LINE_CIRCLE = Composite((LineSegment(), Circle()), ("line", "circle"))

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.filter import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
-from nanoslam_jax.filter._landmarks import add_landmarks, update_slots
-from nanoslam_jax.filter._association import innovation_information
-from nanoslam_jax.filter._landmarks import first_true, free_slots, prefix_count
-from nanoslam_jax.filter._params import Static
-from nanoslam_jax.filter._state import slots_in_use
+from nanoslam_jax.methods import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
+from nanoslam_jax.methods.maps._landmarks import add_landmarks, update_slots
+from nanoslam_jax.methods.maps._association import innovation_information
+from nanoslam_jax.methods.maps._landmarks import first_true, free_slots, prefix_count
+from nanoslam_jax.methods._params import Static
+from nanoslam_jax.methods._state import slots_in_use
 
 
 def wrap(a):
@@ -278,7 +278,7 @@ def test_association_over_the_window_prefix_equals_the_whole_window(sequential):
     random scenes of 0-64 landmarks (in the leading slots, as ``gather_window`` leaves them) with
     detections of some of them, of nothing and twice of one new landmark, alone and in a batch
     (whose branch is its largest landmark count)."""
-    from nanoslam_jax.filter._association import associate_window_prefix
+    from nanoslam_jax.methods.maps._association import associate_window_prefix
 
     Wp, k = 64, 6
     rng = np.random.default_rng(11)

@@ -11,10 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, load_config
+from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import Segments
-from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
-from nanoslam_jax.metrics import (
+from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+from nanoslam_jax.eval.metrics import (
     arc_feature_errors,
     feature_map_errors,
     line_feature_errors,

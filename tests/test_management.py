@@ -1,4 +1,4 @@
-"""Landmark management (nanoslam_jax/filter/_management.py): tentative and confirmed landmarks,
+"""Landmark management (nanoslam_jax/methods/maps/_management.py): tentative and confirmed landmarks,
 existence by negative evidence, occlusion, tree diameters, slot reuse, capacity.
 
 Each test compares with an independent truth: log-odds computed by hand from the probabilities
@@ -14,12 +14,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import LandmarkMap, associate, run_filter, settings_from_config
-from nanoslam_jax.filter._management import manage_window, manage_window_prefix, occluded
-from nanoslam_jax.filter._scan import make_proposal
-from nanoslam_jax.filter._step import particle_update
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import LandmarkMap, associate, run_filter, settings_from_config
+from nanoslam_jax.methods.maps._management import manage_window, manage_window_prefix, occluded
+from nanoslam_jax.methods._scan import make_proposal
+from nanoslam_jax.methods.particle._step import particle_update
 
 K = 3
 CAP = 8
@@ -399,7 +399,7 @@ def test_management_settings_are_traced():
 def test_observable_trees_are_those_in_view_long_enough():
     """The map is judged against the trees the true path saw: compare the observable mask with a
     brute-force count of scans in view."""
-    from nanoslam_jax.metrics import observable_landmarks
+    from nanoslam_jax.eval.metrics import observable_landmarks
 
     tp = np.array([[0.0, 0, 0, 0], [10.0, 10, 0, 0]])  # moving along +x at 1 m/s, heading +x
     trees = np.array([[4.7, 3.0], [30.0, 0.0], [-4.0, 0.0], [5.0, 40.0]])

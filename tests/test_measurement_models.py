@@ -14,12 +14,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, load_config
+from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import Segments, make_segments
-from nanoslam_jax.filter import run_filter, settings_from_config
-from nanoslam_jax.filter._association import innovation_information
+from nanoslam_jax.methods import run_filter, settings_from_config
+from nanoslam_jax.methods.maps._association import innovation_information
 from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, RangeBearing
-from nanoslam_jax.simulate import simulate
+from nanoslam_jax.sim.park import simulate
 
 
 class PlainRangeBearing(AbstractMeasurementModel):

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import nanoslam_jax as ns
-from nanoslam_jax.config import Config, ConfigError, load_config
-from nanoslam_jax.filter import (
+from nanoslam_jax.app.config import Config, ConfigError, load_config
+from nanoslam_jax.methods import (
     IteratedStatic,
     NanoParams,
     NanoStatic,
@@ -20,9 +20,9 @@ from nanoslam_jax.filter import (
     make_proposal,
     settings_from_config,
 )
-from nanoslam_jax.methods import Method, get_method, method_names, register
-from nanoslam_jax.proposals import AbstractProposal, ProposalResult
-from nanoslam_jax.sweep import read_results, run_sweep, sweep_from_dict
+from nanoslam_jax.app.registry import Method, get_method, method_names, register
+from nanoslam_jax.methods.proposals import AbstractProposal, ProposalResult
+from nanoslam_jax.app.sweep import read_results, run_sweep, sweep_from_dict
 
 
 class InflatedPrior(AbstractProposal):

@@ -20,14 +20,14 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.cli import main as cli_main
-from nanoslam_jax.compare import load_compare_spec
-from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax.experiment import adaptive_noise_report, load_log
-from nanoslam_jax.filter import run_batch, run_filter, settings_from_config, stack_params
-from nanoslam_jax.metrics import evaluate
-from nanoslam_jax.proposals import Gaussian, IteratedProposal, map_estimate
-from nanoslam_jax.proposals._fastslam2 import linearized_gaussian
+from nanoslam_jax.app.cli import main as cli_main
+from nanoslam_jax.app.compare import load_compare_spec
+from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.app.experiment import adaptive_noise_report, load_log
+from nanoslam_jax.methods import run_batch, run_filter, settings_from_config, stack_params
+from nanoslam_jax.eval.metrics import evaluate
+from nanoslam_jax.methods.proposals import Gaussian, IteratedProposal, map_estimate
+from nanoslam_jax.methods.proposals._fastslam2 import linearized_gaussian
 from test_nano import (
     _fs2_fn,
     check_map_stationary,
@@ -201,7 +201,7 @@ def test_method_tracks_simulated_truth(sim_log, method, extra, bound):
     matched RMS < 0.4 m.
     """
     from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics, reported_map_quality
-    from nanoslam_jax.filter import reported_map
+    from nanoslam_jax.methods import reported_map
 
     cfg = load_config(None, SIM + [f"filter.method={method}"] + extra)
     static, params = settings_from_config(cfg, sim_log.segments.k_max)

@@ -1,10 +1,10 @@
-"""Tests of the evaluation protocol (nanoslam_jax.metrics) against hand-computed truths."""
+"""Tests of the evaluation protocol (nanoslam_jax.eval.metrics) against hand-computed truths."""
 
 import math
 import numpy as np
 import pytest
 
-from nanoslam_jax.metrics import (
+from nanoslam_jax.eval.metrics import (
     GPS_DAT_ROTATION_DEG,
     error_over_time,
     evaluate,

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 import nanoslam_jax as ns
-from nanoslam_jax import filters
-from nanoslam_jax.cli import main as cli_main
-from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import predict, run_filter, settings_from_config
-from nanoslam_jax.filter._prior import _ut_piece
+from nanoslam_jax.app import filters
+from nanoslam_jax.app.cli import main as cli_main
+from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import predict, run_filter, settings_from_config
+from nanoslam_jax.methods.particle._prior import _ut_piece
 from nanoslam_jax.models import AbstractMotionModel, AbstractRateModel, Ackermann, Unicycle
-from nanoslam_jax.simulate import simulate_config
+from nanoslam_jax.sim.park import simulate_config
 
 
 class TestCar(AbstractMotionModel):
@@ -186,7 +186,7 @@ def test_model_named_by_import_path_runs_through_the_cli(tmp_path):
         f"model.motion_params.sigma_alpha={math.radians(6.0)}",
     ]
     subprocess.run(
-        [sys.executable, "-m", "nanoslam_jax.cli", "run", *common, *mine, "--out", str(tmp_path / "mine")],
+        [sys.executable, "-m", "nanoslam_jax.app.cli", "run", *common, *mine, "--out", str(tmp_path / "mine")],
         check=True,
         env=env,
         capture_output=True,
@@ -303,7 +303,7 @@ def test_cache_never_serves_a_program_compiled_for_another_model(tmp_path):
         (tmp_path / "robot_model.py").write_text(source.format(scale=scale))
         out = tmp_path / f"run{i}"
         subprocess.run(
-            [sys.executable, "-m", "nanoslam_jax.cli", "run", *args, "--out", str(out)],
+            [sys.executable, "-m", "nanoslam_jax.app.cli", "run", *args, "--out", str(out)],
             check=True,
             env=env,
             capture_output=True,

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, load_config, resolve_data_dir
+from nanoslam_jax.app.config import ConfigError, load_config, resolve_data_dir
 from nanoslam_jax.data import LogFormatError, RawLog, dead_reckoning_map, load_mrclam, unicycle_poses
-from nanoslam_jax.metrics import map_alignment_metrics, rotation_matrix
+from nanoslam_jax.eval.metrics import map_alignment_metrics, rotation_matrix
 
 MRCLAM_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "utias_mrclam" / "MRCLAM_Dataset1"
 HEADER = "# UTIAS Multi-Robot Cooperative Localization and Mapping Dataset\n# written by the test\n"
@@ -302,7 +302,7 @@ def test_real_dead_reckoning_map_as_the_readme_says(mrclam_dir):
 def test_real_log_through_the_config(mrclam_dir, tmp_path):
     """data.format: mrclam through load_log and a dead-reckoning run (no GPS: no trajectory error,
     the result directory still written)."""
-    from nanoslam_jax.experiment import load_log, run_experiment
+    from nanoslam_jax.app.experiment import load_log, run_experiment
 
     cfg = load_config(
         None, MRCLAM_CFG + ["data.robot=2", "data.t_end=60", "filter.method=dead_reckoning", "output.progress=false"]
@@ -368,7 +368,7 @@ def test_slam_on_a_simulated_mrclam_log_scores_its_map(tmp_path):
     import csv
 
     import nanoslam_jax as ns
-    from nanoslam_jax.sweep import run_sweep, sweep_from_dict
+    from nanoslam_jax.app.sweep import run_sweep, sweep_from_dict
 
     d, survey = write_simulated_dataset(tmp_path / "ds")
     config = Path(__file__).resolve().parents[1] / "configs" / "mrclam.yaml"

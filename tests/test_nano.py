@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.filter import predict
-from nanoslam_jax.proposals import (
+from nanoslam_jax.methods import predict
+from nanoslam_jax.methods.proposals import (
     Detections,
     Gaussian,
     LinearizedProposal,
@@ -28,8 +28,8 @@ from nanoslam_jax.proposals import (
     gauss_newton_map,
     natural_gradient_gaussian,
 )
-from nanoslam_jax.proposals._base import range_bearing_residuals
-from nanoslam_jax.quadrature import Cubature, GaussHermite, Unscented
+from nanoslam_jax.methods.proposals._base import range_bearing_residuals
+from nanoslam_jax.lib.quadrature import Cubature, GaussHermite, Unscented
 
 RULES = {"cubature": Cubature(), "unscented": Unscented(1.0, 2.0, 0.0), "gauss_hermite": GaussHermite(3)}
 
@@ -370,8 +370,8 @@ def published_cases(n_cases=24, k=6, start_sigma=None):
     carried covariance ``diag(s_xy^2, s_xy^2, s_phi^2)``, 2-6 detections at 5-30 m with the published
     measurement noise (sigma_r 1 m, sigma_beta 3 deg), z from a pose drawn from the prior; padded to
     ``k`` rows with a mask."""
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.filter import settings_from_config
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.methods import settings_from_config
 
     # The published setting (sigma_v 2 m/s, sigma_alpha 6 deg, sigma_r 1 m, sigma_beta 3 deg).
     _, params = settings_from_config(

@@ -1,4 +1,4 @@
-"""NASRUKF FastSLAM (nanoslam_jax/filter/_nasrukf.py).
+"""NASRUKF FastSLAM (nanoslam_jax/methods/gaussian/_nasrukf.py).
 
 Independent truths: closed forms of Gaussian fusion and conditioning (the information-weighted
 average of two estimates; the Kalman posterior of independent measurements; the joint Gaussian
@@ -17,21 +17,21 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.config import apply_overrides, config_from_dict, load_config
-from nanoslam_jax.experiment import adaptive_noise_report, load_log
-from nanoslam_jax.filter import (
+from nanoslam_jax.app.config import apply_overrides, config_from_dict, load_config
+from nanoslam_jax.app.experiment import adaptive_noise_report, load_log
+from nanoslam_jax.methods import (
     NOISE_ARC_SUMMARY_KEYS,
     NOISE_SUMMARY_KEYS,
     GaussianState,
     LandmarkMap,
     NasrukfState,
-    _nasrukf,
     fuse_poses,
     resample_count,
     run_filter,
     settings_from_config,
 )
-from nanoslam_jax.metrics import evaluate
+from nanoslam_jax.methods.gaussian import _nasrukf
+from nanoslam_jax.eval.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step
 from gaussian_slam_checks import (
     assert_padding_is_noop,
@@ -350,7 +350,7 @@ def test_sweep_over_nasrukf_hyperparameters_equals_single_runs(tmp_path):
     """``nanoslam sweep`` runs NASRUKF like the particle methods: traced keys (N_new, the gate) vary
     in one vmapped program, and each row equals the same configuration run alone; with adaptive
     noise and arc features, where the three noise estimates ended too (the diameter's included)."""
-    from nanoslam_jax.sweep import read_results, run_sweep, sweep_from_dict
+    from nanoslam_jax.app.sweep import read_results, run_sweep, sweep_from_dict
 
     base = {
         "data": {"kind": "simulated", "max_dr_per_segment": 2},

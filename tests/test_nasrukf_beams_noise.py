@@ -8,10 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import load_config
-from nanoslam_jax.filter._nasrukf_beams import projected_rows
-from nanoslam_jax.filter._srukf import predict_measurement
-from nanoslam_jax.quadrature import Unscented
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.methods.gaussian._nasrukf_beams import projected_rows
+from nanoslam_jax.methods.gaussian._srukf import predict_measurement
+from nanoslam_jax.lib.quadrature import Unscented
 
 RULE = Unscented(0.9, 2.0, 0.0)
 _projected_rows = jax.jit(projected_rows)

@@ -10,12 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, load_config
+from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import Segments
-from nanoslam_jax.filter import run_filter, settings_from_config
-from nanoslam_jax.filter._nasrukf_beams import stacked_update
-from nanoslam_jax.filter._nasrukf_beams_state import ARC, EMPTY, LINE, Candidates, candidate_update, fit_group
-from nanoslam_jax.quadrature import Unscented
+from nanoslam_jax.methods import run_filter, settings_from_config
+from nanoslam_jax.methods.gaussian._nasrukf_beams import stacked_update
+from nanoslam_jax.methods.gaussian._nasrukf_beams_state import ARC, EMPTY, LINE, Candidates, candidate_update, fit_group
+from nanoslam_jax.lib.quadrature import Unscented
 
 CONFIG = "configs/nasrukf_indoor.yaml"
 RULE = Unscented(1.0, 2.0, 0.0)
@@ -251,8 +251,8 @@ def test_nasrukf_per_beam_tracks_a_simulated_indoor_log():
 
 
 def test_the_papers_line_form_measures_the_same_ranges_as_the_normal_form():
-    from nanoslam_jax.filter._nasrukf_beams import line_ranges
-    from nanoslam_jax.filter._nasrukf_beams_state import line_param, to_normal
+    from nanoslam_jax.methods.gaussian._nasrukf_beams import line_ranges
+    from nanoslam_jax.methods.gaussian._nasrukf_beams_state import line_param, to_normal
 
     rng = np.random.default_rng(7)
     pose = jnp.array([0.4, -0.3, 0.7])

@@ -11,9 +11,9 @@ import jax
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax.experiment import load_log
-from nanoslam_jax.filter import ancestral_path, reported_trajectory, run_filter, settings_from_config
+from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.app.experiment import load_log
+from nanoslam_jax.methods import ancestral_path, reported_trajectory, run_filter, settings_from_config
 
 
 def carried_forward(poses: np.ndarray, ancestors: np.ndarray, final: int) -> np.ndarray:
@@ -97,7 +97,7 @@ def test_batched_paths_equal_each_members_path():
 @pytest.mark.slow
 def test_path_is_scored_and_written(sim_runs, tmp_path):
     """``nanoslam run`` scores the path and reports the filter's own estimate beside it."""
-    from nanoslam_jax.experiment import run_experiment
+    from nanoslam_jax.app.experiment import run_experiment
 
     cfg, _, _, _ = _sim(["output.plots=false", "output.progress=false"])
     m = run_experiment(cfg, tmp_path)
@@ -126,7 +126,7 @@ def test_reported_trajectory_needs_the_recorded_poses(sim_runs):
 def test_sweep_member_follows_the_path_inside_its_program(sim_runs):
     """A sweep's batch program follows the path back itself (the particles' poses never leave it)
     and scores the same path as a single run."""
-    from nanoslam_jax.sweep import _batch
+    from nanoslam_jax.app.sweep import _batch
 
     log, static, params, alone, _ = sim_runs
     out = jax.jit(_batch._member, static_argnums=0)(static, params, 5, log.segments)

@@ -7,10 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.config import load_config
-from nanoslam_jax.filter import compose_prior, predict, relative_prior, settings_from_config
+from nanoslam_jax.app.config import load_config
+from nanoslam_jax.methods import compose_prior, predict, relative_prior, settings_from_config
 from nanoslam_jax.models import vehicle_step
-from nanoslam_jax.quadrature import Unscented
+from nanoslam_jax.lib.quadrature import Unscented
 
 _, PARAMS = settings_from_config(load_config("configs/victoria_park_nano.yaml"), 14)
 predict_jit = jax.jit(predict, static_argnums=6)  # compiled once per kind and shape for the tests below

@@ -9,7 +9,7 @@ import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.models import wrap_angle
-from nanoslam_jax.quadrature import (
+from nanoslam_jax.lib.quadrature import (
     Cubature,
     GaussHermite,
     QuadratureRule,

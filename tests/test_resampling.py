@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.filter import RESAMPLERS, effective_sample_size, normalise, resample
+from nanoslam_jax.methods import RESAMPLERS, effective_sample_size, normalise, resample
 
 N_KEYS = 20_000
 

@@ -1,4 +1,4 @@
-"""The one scorer (:mod:`nanoslam_jax._scoring`): the failed-seed rule on a table made by hand, the
+"""The one scorer (:mod:`nanoslam_jax.eval._scoring`): the failed-seed rule on a table made by hand, the
 same rule in compare, sweep and study, the same score of the same run from run / compare / sweep /
 study, and the recommended (smoothed) configuration through compare and sweep."""
 
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from nanoslam_jax._scoring import metric_goal, seed_summary, summarize_runs
+from nanoslam_jax.eval._scoring import metric_goal, seed_summary, summarize_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 BEST = ROOT / "configs" / "victoria_park_best.yaml"
@@ -90,9 +90,9 @@ def test_a_nan_metric_fails_its_seed_and_a_metric_no_seed_has_is_nan():
 
 def test_compare_sweep_and_study_summarise_by_the_same_rule():
     """The hand table through each command's own summary: the same figures."""
-    from nanoslam_jax.compare import MethodResult, MethodSpec, summarise
-    from nanoslam_jax.study import summarize_points
-    from nanoslam_jax.sweep import ConfigPoint, summarize
+    from nanoslam_jax.app.compare import MethodResult, MethodSpec, summarise
+    from nanoslam_jax.app.study import summarize_points
+    from nanoslam_jax.app.sweep import ConfigPoint, summarize
 
     res = MethodResult(MethodSpec("NANO", ("filter.method=nano",)), "nano", rows=[dict(r) for r in TABLE])
     c = summarise(res)
@@ -112,7 +112,7 @@ def test_compare_sweep_and_study_summarise_by_the_same_rule():
 
 
 def test_a_sweep_goal_max_counts_a_failure_as_minus_inf():
-    from nanoslam_jax.sweep import ConfigPoint, summarize
+    from nanoslam_jax.app.sweep import ConfigPoint, summarize
 
     rows = [
         {
@@ -130,9 +130,9 @@ def test_a_sweep_goal_max_counts_a_failure_as_minus_inf():
 
 
 def test_smoother_settings_default_to_the_config():
-    from nanoslam_jax._loop_closure import LoopClosureSettings, loop_closure_settings
-    from nanoslam_jax.config import SmootherConfig
-    from nanoslam_jax.smoother import SmootherSettings
+    from nanoslam_jax.smoother._loop_closure import LoopClosureSettings, loop_closure_settings
+    from nanoslam_jax.app.config import SmootherConfig
+    from nanoslam_jax.smoother._smoother import SmootherSettings
 
     assert SmootherSettings() == SmootherSettings.from_config(SmootherConfig())
     assert LoopClosureSettings() == loop_closure_settings(SmootherConfig())
@@ -163,7 +163,7 @@ def _csv(path: Path) -> list[dict]:
 def _compare(tmp_path: Path, base, overrides: list[str], seeds: int, chunk: int) -> list[dict]:
     """A comparison of one method; its timing run in chunks of ``chunk`` segments (the run's
     ``output.chunk``: the program `nanoslam run` compiled, loaded again)."""
-    from nanoslam_jax.compare import load_compare_spec, run_compare
+    from nanoslam_jax.app.compare import load_compare_spec, run_compare
 
     f = tmp_path / "cmp.yaml"
     f.write_text(
@@ -184,8 +184,8 @@ def _compare(tmp_path: Path, base, overrides: list[str], seeds: int, chunk: int)
 
 
 def _sweep(tmp_path: Path, cfg, seeds: list[int]) -> list[dict]:
-    from nanoslam_jax.config import config_to_dict
-    from nanoslam_jax.sweep import run_sweep, sweep_from_dict
+    from nanoslam_jax.app.config import config_to_dict
+    from nanoslam_jax.app.sweep import run_sweep, sweep_from_dict
 
     spec = sweep_from_dict(
         {
@@ -206,10 +206,10 @@ def test_run_compare_sweep_and_study_give_the_same_score(tmp_path, monkeypatch):
     sweep and study: the same figures. The sweep runs it with ``vectorize: map`` (each member
     computed as a run alone), so all four see the same trajectory and map and differ only if
     their scoring did."""
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import execute
-    from nanoslam_jax.study import load_study, run_study
-    from nanoslam_jax.study import _runner as study_runner
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import execute
+    from nanoslam_jax.app.study import load_study, run_study
+    from nanoslam_jax.app.study import _runner as study_runner
 
     cfg = load_config(None, SIM)
     ref = execute(cfg).metrics
@@ -264,8 +264,8 @@ def test_the_smoothed_recommended_config_through_compare_and_sweep(tmp_path):
     history has several entries: compare and sweep smooth each seed after the batch and score the
     smoothed path as `nanoslam run` does (the same figures for the same seed), with the path it
     started from beside it."""
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import execute
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import execute
 
     over = SIM + ["sim.duration=30", "output.chunk=40"]
     cfg = load_config(BEST, over)

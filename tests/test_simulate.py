@@ -1,4 +1,4 @@
-"""Tests of the Victoria Park-like simulator (nanoslam_jax.simulate).
+"""Tests of the Victoria Park-like simulator (nanoslam_jax.sim.park).
 
 Independent truths: the JAX vehicle and measurement models of nanoslam_jax.models (the simulator
 uses its own numpy/Python integration), geometry recomputed here from truth_poses and
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.config import SimConfig, VehicleConfig
+from nanoslam_jax.app.config import SimConfig, VehicleConfig
 from nanoslam_jax.models import VehicleParams, range_bearing, vehicle_step
-from nanoslam_jax.simulate import PATH_CLEARANCE, TREE_SPACING, simulate, simulate_to_dir
+from nanoslam_jax.sim.park import PATH_CLEARANCE, TREE_SPACING, simulate, simulate_to_dir
 
 EXACT = dict(
     sigma_r=0.0,

@@ -1,4 +1,4 @@
-"""The indoor scenario (nanoslam_jax.simulate_indoor) against closed forms computed here: ranges by an
+"""The indoor scenario (nanoslam_jax.sim.indoor) against closed forms computed here: ranges by an
 independent ray-cast, the truth geometry against the world, the odometry against the motion model, the
 front end's lines against the truth walls, the files the command writes and the config's errors."""
 
@@ -10,13 +10,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.cli import main
-from nanoslam_jax.config import ConfigError, DetectorConfig, IndoorConfig, load_config
+from nanoslam_jax.app.cli import main
+from nanoslam_jax.app.config import ConfigError, DetectorConfig, IndoorConfig, load_config
 from nanoslam_jax.data import LaserScans, load_laser, load_victoria_park
 from nanoslam_jax.frontend import extract_features
 from nanoslam_jax.models import Unicycle
-from nanoslam_jax.simulate_laser import KIND_WALL
-from nanoslam_jax.simulate_indoor import (
+from nanoslam_jax.sim.laser import KIND_WALL
+from nanoslam_jax.sim.indoor import (
     BREAK_DOOR,
     TEMPLATES,
     TRUTH_FILES,

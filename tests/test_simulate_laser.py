@@ -1,13 +1,13 @@
-"""Simulated raw scans (nanoslam_jax.simulate_laser) against closed forms computed here."""
+"""Simulated raw scans (nanoslam_jax.sim.laser) against closed forms computed here."""
 
 import numpy as np
 import pytest
 
-from nanoslam_jax.cli import main
-from nanoslam_jax.config import ConfigError, SimConfig, load_config
+from nanoslam_jax.app.cli import main
+from nanoslam_jax.app.config import ConfigError, SimConfig, load_config
 from nanoslam_jax.data import fan_angles, load_laser
-from nanoslam_jax.simulate import simulate
-from nanoslam_jax.simulate_laser import (
+from nanoslam_jax.sim.park import simulate
+from nanoslam_jax.sim.laser import (
     BUSH_VERTICES,
     KIND_BUSH,
     KIND_FENCE,

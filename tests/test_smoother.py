@@ -1,4 +1,4 @@
-"""The offline smoother (nanoslam_jax.smoother): its linear algebra against a dense solve, its
+"""The offline smoother (nanoslam_jax.smoother._smoother): its linear algebra against a dense solve, its
 optimum against scipy's least squares on the same problem, its association, and a run end to end
 on a simulated log against the truth."""
 
@@ -9,9 +9,9 @@ import pytest
 import scipy.optimize
 import scipy.sparse as sp
 
-from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax._least_squares import _solve_normal
-from nanoslam_jax.smoother import SmootherSettings, associate_path, smooth_path
+from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.smoother._least_squares import _solve_normal
+from nanoslam_jax.smoother._smoother import SmootherSettings, associate_path, smooth_path
 
 
 def _wrap(a):
@@ -158,7 +158,7 @@ def test_huber_bounds_a_wrong_detection():
 
 
 def test_loop_closure_settings_from_the_config():
-    from nanoslam_jax.smoother import LoopClosureSettings
+    from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     cfg = load_config(
         None,
@@ -186,7 +186,7 @@ def test_smoother_needs_the_path_estimate():
 
 
 def test_sweeps_take_a_smoothed_base_but_not_the_smoothers_keys():
-    from nanoslam_jax.sweep import sweep_from_dict
+    from nanoslam_jax.app.sweep import sweep_from_dict
 
     spec = sweep_from_dict(
         {
@@ -205,7 +205,7 @@ def test_run_with_the_smoother_on_a_simulated_log(tmp_path):
     """``nanoslam run`` with the smoother: trajectory.csv holds the smoothed path with the
     ancestral path beside it, metrics.json the smoother's account, and on a simulated log (whose
     GPS is the truth) the smoothed path is nearer the truth than the path it started from."""
-    from nanoslam_jax.cli import main
+    from nanoslam_jax.app.cli import main
 
     out = tmp_path / "run"
     main(
@@ -235,7 +235,7 @@ def test_run_with_the_smoother_on_a_simulated_log(tmp_path):
 
 @pytest.mark.slow
 def test_a_smoother_that_does_not_converge_is_warned_about(tmp_path, capsys):
-    from nanoslam_jax.cli import main
+    from nanoslam_jax.app.cli import main
 
     out = tmp_path / "run"
     main(
@@ -345,7 +345,7 @@ def test_loop_closure_joins_trees_mapped_twice(drift):
     """A map that holds the second lap's trees twice, displaced with the path: without the loop
     closure the smoothed second lap stays where the particle's drift put it; with it the copies are
     joined to the first lap's trees and the path comes back to the truth."""
-    from nanoslam_jax.smoother import LoopClosureSettings
+    from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     p, once = _mapped_twice(drift), _mapped_twice(duplicate=False)  # the same log; a map without copies
     plain, closed, reference = _smooth(p), _smooth(p, loop_closure=LoopClosureSettings()), _smooth(once)
@@ -361,7 +361,7 @@ def test_loop_closure_joins_trees_mapped_twice(drift):
 
 
 def test_loop_closure_leaves_a_map_without_copies_alone():
-    from nanoslam_jax.smoother import LoopClosureSettings
+    from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     p = _mapped_twice(duplicate=False)
     args = (p["path"], p["lm"], p["z"], p["mask"], p["motion"], p["cov"], p["sr"], p["sb"], 13.8)
@@ -375,7 +375,7 @@ def test_loop_closure_leaves_a_map_without_copies_alone():
 def test_loop_closure_drops_joins_that_do_not_fit():
     """Joins whose detections do not fit after the solve are dropped, and the first solution stands:
     with an acceptance no join can reach, the copies are found (rejected) and nothing changes."""
-    from nanoslam_jax.smoother import LoopClosureSettings
+    from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     p = _mapped_twice()
     args = (p["path"], p["lm"], p["z"], p["mask"], p["motion"], p["cov"], p["sr"], p["sb"], 13.8)
@@ -388,8 +388,8 @@ def test_loop_closure_drops_joins_that_do_not_fit():
 def test_held_landmarks_are_the_trees_the_final_map_lost():
     """From a map history: the landmarks held earlier that the final map no longer has, each tree
     once (within the radius of a kept one it is the same tree), the latest position first."""
-    from nanoslam_jax.filter import MapHistory
-    from nanoslam_jax.smoother import held_landmarks
+    from nanoslam_jax.methods import MapHistory
+    from nanoslam_jax.smoother._smoother import held_landmarks
 
     mean = np.zeros((3, 4, 2))
     held = np.zeros((3, 4), bool)
@@ -444,7 +444,7 @@ def test_loop_closure_starts_from_the_path_its_copies_move():
     solution: the code before this start joined 16 copies, rejected 4 groups and left the path
     1.38 m off (3.3 m at worst from the solution on the map without copies); with it the path is
     within 1.1x of that solution's error (measured 0.323 against 0.307 m)."""
-    from nanoslam_jax.smoother import LoopClosureSettings
+    from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     p, once = _drifting_away((-15.0, 10.0, np.deg2rad(-12.0)))
     plain, closed, reference = _smooth(p), _smooth(p, loop_closure=LoopClosureSettings()), _smooth(once)
@@ -466,7 +466,7 @@ def test_held_landmarks_give_back_the_trees_a_drifted_particle_removed():
     landmarks, the loop closure joins the copies to them and the path is within 1.1x of the
     solution on the map without copies (0.323 against 0.307 m). With a complete map the held
     landmarks are not used (the result is bit-identical), nor with ``map_history_below`` 0."""
-    from nanoslam_jax.smoother import LoopClosureSettings
+    from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     p, once = _drifting_away((-15.0, 10.0, np.deg2rad(-12.0)))
     n1 = len(once["lm"])

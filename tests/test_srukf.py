@@ -1,4 +1,4 @@
-"""Square-root UKF primitives and the adaptive noise estimator (nanoslam_jax/filter/_srukf.py).
+"""Square-root UKF primitives and the adaptive noise estimator (nanoslam_jax/methods/gaussian/_srukf.py).
 
 Independent truths: re-factorisation with numpy (Cholesky update/downdate, QR factor); a standard
 (non-square-root) unscented Kalman filter written here in numpy with dense covariances; the Kalman
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.filter import _srukf
-from nanoslam_jax.quadrature import Unscented
+from nanoslam_jax.methods.gaussian import _srukf
+from nanoslam_jax.lib.quadrature import Unscented
 from ukf_reference import ALPHA, BETA, KAPPA, dense_transform, dense_update, random_spd, ut_weights
 
 RULE = Unscented(ALPHA, BETA, KAPPA)

@@ -1,4 +1,4 @@
-"""The accuracy-against-compute study (nanoslam_jax.study) and the GPS floor (nanoslam_jax.gps_floor).
+"""The accuracy-against-compute study (nanoslam_jax.app.study) and the GPS floor (nanoslam_jax.eval.gps_floor).
 
 Independent truths: the study file's counts for the expansion; hand-computed medians, quartiles,
 sign-test p-values and interpolations on small fake result tables; a synthetic GPS track made
@@ -21,13 +21,20 @@ import pytest
 import yaml
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax._devices import DEVICES_PER_CORE, available_cores
-from nanoslam_jax.cli import main
-from nanoslam_jax.filter import particle_devices
-from nanoslam_jax.config import ConfigError
-from nanoslam_jax.gps_floor import estimate_gps_floor
-from nanoslam_jax.metrics import rotation_matrix
-from nanoslam_jax.study import equal_time, expand_study, load_study, paired_comparison, summarize_points, summary_stats
+from nanoslam_jax.app._devices import DEVICES_PER_CORE, available_cores
+from nanoslam_jax.app.cli import main
+from nanoslam_jax.methods import particle_devices
+from nanoslam_jax.app.config import ConfigError
+from nanoslam_jax.eval.gps_floor import estimate_gps_floor
+from nanoslam_jax.eval.metrics import rotation_matrix
+from nanoslam_jax.app.study import (
+    equal_time,
+    expand_study,
+    load_study,
+    paired_comparison,
+    summarize_points,
+    summary_stats,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "configs" / "accuracy_vs_compute.yaml"
@@ -153,7 +160,7 @@ def test_invalid_study_files_name_the_file_and_key(tmp_path, change, fragment):
 def test_a_method_not_registered_is_named(tmp_path, monkeypatch):
     """A study naming a method the registry does not hold (here: NANO-SLAM taken out of it)
     stops before anything runs, naming the entry and the method."""
-    import nanoslam_jax.methods as methods
+    import nanoslam_jax.app.registry as methods
 
     monkeypatch.delitem(methods._REGISTRY, "nano")
     raw = {
@@ -356,7 +363,7 @@ def quick_study(tmp_path_factory):
     ]:  # row buckets: the same results (to rounding), compiled once instead of thrice
         argv += ["--set", s]
     proc = subprocess.run(
-        [sys.executable, "-m", "nanoslam_jax.cli", *argv],
+        [sys.executable, "-m", "nanoslam_jax.app.cli", *argv],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -412,11 +419,11 @@ def test_a_resumed_study_reuses_every_point(quick_study):
     out, argv, _ = quick_study
     before = {p: (out / p).read_bytes() for p in ("runs.csv", "timing.csv")}
     with pytest.raises(ConfigError, match="holds a study already"):
-        from nanoslam_jax.study import run_study
+        from nanoslam_jax.app.study import run_study
 
         run_study(load_study(STUDY, tuple(SIM), quick=True), out)
     proc = subprocess.run(
-        [sys.executable, "-m", "nanoslam_jax.cli", *argv, "--resume"], capture_output=True, text=True, cwd=ROOT
+        [sys.executable, "-m", "nanoslam_jax.app.cli", *argv, "--resume"], capture_output=True, text=True, cwd=ROOT
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stderr.count("runs finished before") == 2 and proc.stderr.count("measured before") == 2
@@ -426,7 +433,7 @@ def test_a_resumed_study_reuses_every_point(quick_study):
     before["paired.csv"] = (out / "paired.csv").read_bytes()
     one = [a for a in argv if a != "NANO-SLAM"]
     proc = subprocess.run(
-        [sys.executable, "-m", "nanoslam_jax.cli", *one, "--resume"], capture_output=True, text=True, cwd=ROOT
+        [sys.executable, "-m", "nanoslam_jax.app.cli", *one, "--resume"], capture_output=True, text=True, cwd=ROOT
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stderr.count("runs finished before") == 1

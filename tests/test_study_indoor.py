@@ -12,12 +12,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from nanoslam_jax._compare_worlds import feature_table, wall_segments
-from nanoslam_jax._feature_metrics import break_point_line_errors
-from nanoslam_jax._indoor_types import FeatureTruth
-from nanoslam_jax._scoring import MapEstimate, score_run, with_arcs
-from nanoslam_jax.compare import MethodResult, MethodSpec, load_compare_spec, run_compare, seed_config
-from nanoslam_jax.config import ConfigError
+from nanoslam_jax.app._compare_worlds import feature_table, wall_segments
+from nanoslam_jax.eval._feature_metrics import break_point_line_errors
+from nanoslam_jax.sim._indoor_types import FeatureTruth
+from nanoslam_jax.eval._scoring import MapEstimate, score_run, with_arcs
+from nanoslam_jax.app.compare import MethodResult, MethodSpec, load_compare_spec, run_compare, seed_config
+from nanoslam_jax.app.config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -143,7 +143,7 @@ def test_seed_keys_are_checked_and_a_log_directory_is_refused(tmp_path):
 
 @pytest.mark.slow
 def test_the_study_on_two_tiny_worlds_writes_figures_and_a_table_of_the_plain_runs_metrics(tmp_path):
-    from nanoslam_jax.experiment import execute
+    from nanoslam_jax.app.experiment import execute
 
     study = load_compare_spec(
         ROOT / "configs" / "nasrukf_indoor_study.yaml", ("indoor.duration=2.5", "nasrukf.static_scans=10"), seeds=2

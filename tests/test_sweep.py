@@ -1,4 +1,4 @@
-"""Batch hyperparameter sweeps (nanoslam_jax.sweep).
+"""Batch hyperparameter sweeps (nanoslam_jax.app.sweep).
 
 Independent truths: the Cartesian product and the documented sampler for the expansion; a trace
 counter inside the compiled function for "one compilation per shape group"; ``run_filter`` run
@@ -32,11 +32,11 @@ import yaml
 
 import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax import enable_compile_cache
-from nanoslam_jax._devices import SWEEP_DEVICES_PER_CORE
-from nanoslam_jax.config import ConfigError, load_config
-from nanoslam_jax.filter import run_filter, settings_from_config
-from nanoslam_jax.sweep import _batch, _plan
-from nanoslam_jax.sweep import (
+from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE
+from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.methods import run_filter, settings_from_config
+from nanoslam_jax.app.sweep import _batch, _plan
+from nanoslam_jax.app.sweep import (
     TIMING_COLUMNS,
     expand,
     load_log_data,
@@ -48,7 +48,7 @@ from nanoslam_jax.sweep import (
     sample_random,
     sweep_from_dict,
 )
-from nanoslam_jax.sweep._batch import BatchOutput, BatchTask, _score, log_key
+from nanoslam_jax.app.sweep._batch import BatchOutput, BatchTask, _score, log_key
 
 BASE = {
     "name": "sweep-test",
@@ -373,7 +373,7 @@ def test_vmapped_runs_equal_the_same_runs_alone(main_sweep):
 
 def test_sweep_identity_ignores_the_name_and_sees_every_setting():
     """A sweep resumes under another name (a label), never with another setting or seed list."""
-    from nanoslam_jax.sweep import spec_identity, stored_identity
+    from nanoslam_jax.app.sweep import spec_identity, stored_identity
 
     ident = spec_identity(spec_of(MAIN))
     assert spec_identity(spec_of(MAIN, base={**BASE, "name": "renamed"})) == ident
@@ -467,7 +467,7 @@ def test_failed_runs_are_recorded_and_the_sweep_goes_on(tmp_path, trace_counter,
 
 
 def test_a_non_finite_estimate_fails_the_run():
-    from nanoslam_jax.filter import Static
+    from nanoslam_jax.methods import Static
 
     n = 6
     pose = np.zeros((1, n, 3))
@@ -506,7 +506,7 @@ def test_a_non_finite_estimate_fails_the_run():
         np.full((n, 2), -1),
     )
     log = _batch.LogData(seg, gps, "slam", None, "test")
-    from nanoslam_jax.config import MetricsConfig
+    from nanoslam_jax.app.config import MetricsConfig
 
     opts = (MetricsConfig(gps_rotation_deg=0.0, jump_speed=8.0, map_radius=1.0),)
     task = BatchTask("g0", Static(), 0, None, np.array([0]), 1, opts, True, ("c0-s0",))
@@ -523,7 +523,7 @@ def test_cli_end_to_end(main_sweep, tmp_path, capsys):
     vmapped sweep's to rounding, and `nanoslam run best.yaml` reproduces its row exactly."""
     import json
 
-    from nanoslam_jax.cli import main
+    from nanoslam_jax.app.cli import main
 
     spec_file = tmp_path / "tiny.yaml"
     spec_file.write_text(
@@ -600,7 +600,7 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
         import csv, json
         import jax
         import nanoslam_jax
-        from nanoslam_jax.sweep import _batch, run_sweep, sweep_from_dict
+        from nanoslam_jax.app.sweep import _batch, run_sweep, sweep_from_dict
         base = {BASE!r}
         raw = {{"base": base, "seeds": 2, "grid": {{"filter.gate": [5.991]}}, "plots": False,
                "run": {{"batch": 2, "vectorize": "vmap", "compile_cache": False}}}}
@@ -615,9 +615,9 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
                 rows[name] = list(csv.DictReader(f))
         # The shard_map split of the iterated batch itself still fails:
         import numpy as np
-        from nanoslam_jax.config import config_from_dict
-        from nanoslam_jax.filter import settings_from_config
-        from nanoslam_jax.sweep import load_log_data
+        from nanoslam_jax.app.config import config_from_dict
+        from nanoslam_jax.methods import settings_from_config
+        from nanoslam_jax.app.sweep import load_log_data
         cfg = config_from_dict(it.base)
         log = load_log_data(cfg)
         static, params = settings_from_config(cfg, log.segments.k_max)

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax import _trig as trig
+from nanoslam_jax.lib import _trig as trig
 
 ULP = np.finfo(np.float64).eps
 

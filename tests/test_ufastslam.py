@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax.filter import _landmarks
+from nanoslam_jax.methods.maps import _landmarks
 from nanoslam_jax.models import range_bearing
-from nanoslam_jax.proposals import Detections, LinearizedProposal, UnscentedProposal
-from nanoslam_jax.proposals._ufastslam import unscented_sequential_update
+from nanoslam_jax.methods.proposals import Detections, LinearizedProposal, UnscentedProposal
+from nanoslam_jax.methods.proposals._ufastslam import unscented_sequential_update
 
 ukf_update_loglik = jax.jit(_landmarks.ukf_update_loglik, static_argnames=("h", "z_angle_index"))
 ekf_update_loglik = jax.jit(_landmarks.ekf_update_loglik)
@@ -416,10 +416,10 @@ def test_filter_tracks_simulated_truth():
     Bounds: >= 40 confirmed, found >= 90 %, spurious <= 10 %, matched RMS < 0.6 m.
     """
     from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics, reported_map_quality
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
-    from nanoslam_jax.metrics import evaluate
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import load_log
+    from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+    from nanoslam_jax.eval.metrics import evaluate
 
     cfg = load_config(None, ["sim.duration=60"] + SHARED)
     log = load_log(cfg)
@@ -461,10 +461,10 @@ def test_real_log_first_scans_finite(vp_dir):
     from pathlib import Path
 
     from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import reported_map, run_filter, settings_from_config
-    from nanoslam_jax.metrics import evaluate
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import load_log
+    from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+    from nanoslam_jax.eval.metrics import evaluate
 
     config = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_ufastslam.yaml"
     cfg = load_config(config, [f"data.path={vp_dir}", "data.t_end=300"] + SHARED)

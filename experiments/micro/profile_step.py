@@ -132,10 +132,10 @@ def main() -> None:
     import jax
 
     import nanoslam_jax  # noqa: F401  (float64)
-    from nanoslam_jax.config import load_config
-    from nanoslam_jax.experiment import load_log
-    from nanoslam_jax.filter import run_filter, settings_from_config
-    from nanoslam_jax.filter._scan import filter_scan
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import load_log
+    from nanoslam_jax.methods import run_filter, settings_from_config
+    from nanoslam_jax.methods._scan import filter_scan
 
     cfg = load_config(
         args.config, [f"filter.n_particles={args.particles}", "filter.split_devices=never", *args.overrides]

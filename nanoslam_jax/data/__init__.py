@@ -1,19 +1,19 @@
 """Logs: Victoria Park-format (detections and raw laser scans; loading and writing) and UTIAS
 MRCLAM (loading), and cutting a log into fixed-shape segments."""
 
-from ._laser import (
+from nanoslam_jax.data._laser import (
     LASER_FILES as LASER_FILES,
     LaserScans as LaserScans,
     fan_angles as fan_angles,
     find_laser_file as find_laser_file,
     load_laser as load_laser,
 )
-from ._loader import (
+from nanoslam_jax.data._loader import (
     LogFormatError as LogFormatError,
     load_victoria_park as load_victoria_park,
     write_victoria_park as write_victoria_park,
 )
-from ._mrclam import (
+from nanoslam_jax.data._mrclam import (
     MRCLAM_FIRST_LANDMARK as MRCLAM_FIRST_LANDMARK,
     MRCLAM_ROBOTS as MRCLAM_ROBOTS,
     SightingMap as SightingMap,
@@ -21,8 +21,8 @@ from ._mrclam import (
     load_mrclam as load_mrclam,
     unicycle_poses as unicycle_poses,
 )
-from ._segments import make_segments as make_segments, segment_summary as segment_summary
-from ._types import RawLog as RawLog, Segments as Segments
+from nanoslam_jax.data._segments import make_segments as make_segments, segment_summary as segment_summary
+from nanoslam_jax.data._types import RawLog as RawLog, Segments as Segments
 
 __all__ = [
     "RawLog",

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float, Int
 
-from ._laser import LaserScans
+from nanoslam_jax.data._laser import LaserScans
 
 __all__ = ["beam_detections"]
 
@@ -42,7 +42,7 @@ def beam_detections(
 
     Args:
         scans: the raw scans.
-        detector: the ``detector`` settings (:class:`~nanoslam_jax.config.DetectorConfig`; None: defaults).
+        detector: the ``detector`` settings (:class:`~nanoslam_jax.app.config.DetectorConfig`; None: defaults).
         beam_step: keep every ``beam_step``-th beam (``data.beam_step``).
 
     Returns:
@@ -53,7 +53,7 @@ def beam_detections(
     Raises:
         ValueError: ``beam_step`` below 1.
     """
-    from ..frontend import extract_features
+    from nanoslam_jax.frontend import extract_features
 
     if beam_step < 1:
         raise ValueError(f"data.beam_step: expected an integer >= 1, got {beam_step}")

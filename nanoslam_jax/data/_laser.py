@@ -20,7 +20,7 @@ import numpy as np
 import scipy.io
 from jaxtyping import Bool, Float
 
-from ._loader import _MAT_T0_MS, LogFormatError
+from nanoslam_jax.data._loader import _MAT_T0_MS, LogFormatError
 
 __all__ = ["LASER_FILES", "NO_RETURN", "LaserScans", "fan_angles", "find_laser_file", "load_laser", "write_laser"]
 

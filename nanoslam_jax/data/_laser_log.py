@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from jaxtyping import Float
 
-from ._laser import LaserScans
+from nanoslam_jax.data._laser import LaserScans
 
 __all__ = ["LaserOdomLog"]
 

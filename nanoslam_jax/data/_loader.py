@@ -22,8 +22,8 @@ import numpy as np
 import scipy.io
 from jaxtyping import Float
 
-from ..models._angles import wrap_angle_np
-from ._types import RawLog
+from nanoslam_jax.lib._angles import wrap_angle_np
+from nanoslam_jax.data._types import RawLog
 
 __all__ = ["LogFormatError", "load_victoria_park", "write_victoria_park"]
 

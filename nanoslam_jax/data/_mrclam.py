@@ -24,9 +24,9 @@ from typing import Literal, NamedTuple
 import numpy as np
 from jaxtyping import Float, Int
 
-from ..models._angles import wrap_angle_np
-from ._loader import LogFormatError, _data_rows, _parse_table, _Table, _validate
-from ._types import RawLog
+from nanoslam_jax.lib._angles import wrap_angle_np
+from nanoslam_jax.data._loader import LogFormatError, _data_rows, _parse_table, _Table, _validate
+from nanoslam_jax.data._types import RawLog
 
 __all__ = [
     "MRCLAM_ROBOTS",

@@ -15,7 +15,7 @@ from typing import Any, Optional
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
-from ._types import RawLog, Segments
+from nanoslam_jax.data._types import RawLog, Segments
 
 __all__ = ["make_segments", "segment_summary"]
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Bool, Float
 
-from ..config import DetectorConfig
-from ..data import LaserScans
-from ._types import (
+from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.data import LaserScans
+from nanoslam_jax.frontend._types import (
     EDGE_FARTHER,
     EDGE_FOV,
     EDGE_NEARER,

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float
 
-from ..config import DetectorConfig
-from ..data import LaserScans
-from ._circles import CircleFit, fit_circles
-from ._clusters import find_clusters, scan_points
-from ._segments import extract_lines
-from ._trees import find_trees, middle_range
-from ._types import Circles, Features
+from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.data import LaserScans
+from nanoslam_jax.frontend._circles import CircleFit, fit_circles
+from nanoslam_jax.frontend._clusters import find_clusters, scan_points
+from nanoslam_jax.frontend._segments import extract_lines
+from nanoslam_jax.frontend._trees import find_trees, middle_range
+from nanoslam_jax.frontend._types import Circles, Features
 
 __all__ = ["detect_lines", "detect_trees", "extract_features"]
 

@@ -11,16 +11,16 @@ from typing import Literal, cast
 
 import numpy as np
 
-from ..config import DetectorConfig
-from ..data import (
+from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.data import (
     LaserScans,
     RawLog,
     load_laser,
     load_victoria_park,
     write_victoria_park,
 )
-from ._extract import extract_features
-from ._types import EDGE_NAMES, Features
+from nanoslam_jax.frontend._extract import extract_features
+from nanoslam_jax.frontend._types import EDGE_NAMES, Features
 
 __all__ = ["FEATURE_COLUMNS", "concatenate_features", "detect_log", "extract_features_chunked", "write_features_csv"]
 

@@ -6,8 +6,8 @@ import os
 
 import numpy as np
 
-from ..data import LaserScans
-from ._types import Features
+from nanoslam_jax.data import LaserScans
+from nanoslam_jax.frontend._types import Features
 
 __all__ = ["parse_scan_list", "plot_scan"]
 

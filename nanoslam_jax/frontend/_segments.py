@@ -16,8 +16,8 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
-from ..config import DetectorConfig
-from ._types import BreakPoints, Clusters, Corners, Lines, Points
+from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.frontend._types import BreakPoints, Clusters, Corners, Lines, Points
 
 __all__ = ["Segments", "extract_lines", "fit_lines", "polyline_vertices", "segments_of", "split_and_merge"]
 

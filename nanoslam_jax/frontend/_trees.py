@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import DetectorConfig
-from ..data import LaserScans
-from ._circles import CircleFit
-from ._profile import fit_trunk_profiles
-from ._types import EDGE_FOV, EDGE_NEARER, EDGE_NO_RETURN, Clusters, Points, Trees
+from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.data import LaserScans
+from nanoslam_jax.frontend._circles import CircleFit
+from nanoslam_jax.frontend._profile import fit_trunk_profiles
+from nanoslam_jax.frontend._types import EDGE_FOV, EDGE_NEARER, EDGE_NO_RETURN, Clusters, Points, Trees
 
 __all__ = ["find_trees", "middle_range", "width_radius"]
 

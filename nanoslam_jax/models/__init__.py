@@ -1,7 +1,11 @@
 """Motion and measurement models with autodiff Jacobians."""
 
-from ._angles import circular_mean as circular_mean, wrap_angle as wrap_angle, wrap_angle_np as wrap_angle_np
-from ._motion import (
+from nanoslam_jax.lib._angles import (
+    circular_mean as circular_mean,
+    wrap_angle as wrap_angle,
+    wrap_angle_np as wrap_angle_np,
+)
+from nanoslam_jax.models._motion import (
     MOTION_MODELS as MOTION_MODELS,
     AbstractMotionModel as AbstractMotionModel,
     AbstractRateModel as AbstractRateModel,
@@ -11,7 +15,7 @@ from ._motion import (
     motion_model_class as motion_model_class,
     motion_model_from_config as motion_model_from_config,
 )
-from ._measurement import (
+from nanoslam_jax.models._measurement import (
     MEASUREMENT_MODELS as MEASUREMENT_MODELS,
     AbstractMeasurementModel as AbstractMeasurementModel,
     RangeBearing as RangeBearing,
@@ -20,7 +24,7 @@ from ._measurement import (
     measurement_model_class as measurement_model_class,
     measurement_model_from_config as measurement_model_from_config,
 )
-from ._lines import (
+from nanoslam_jax.models._lines import (
     Circle as Circle,
     LineSegment as LineSegment,
     SlopeIntercept as SlopeIntercept,
@@ -37,7 +41,7 @@ from ._lines import (
     sensor_pose as sensor_pose,
     slope_intercept_from_line as slope_intercept_from_line,
 )
-from ._composite import (
+from nanoslam_jax.models._composite import (
     PAD_VARIANCE as PAD_VARIANCE,
     Composite as Composite,
     OfKind as OfKind,
@@ -45,7 +49,7 @@ from ._composite import (
     row_models as row_models,
     row_noise as row_noise,
 )
-from ._range_bearing import (
+from nanoslam_jax.models._range_bearing import (
     innovation as innovation,
     inverse_range_bearing as inverse_range_bearing,
     inverse_range_bearing_jacobians as inverse_range_bearing_jacobians,
@@ -54,7 +58,7 @@ from ._range_bearing import (
     range_bearing_jacobian_components as range_bearing_jacobian_components,
     range_bearing_jacobians as range_bearing_jacobians,
 )
-from ._vehicle import (
+from nanoslam_jax.models._vehicle import (
     VehicleParams as VehicleParams,
     centre_speed as centre_speed,
     vehicle_jacobians as vehicle_jacobians,

@@ -33,10 +33,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ._measurement import AbstractMeasurementModel
+from nanoslam_jax.models._measurement import AbstractMeasurementModel
 
 if TYPE_CHECKING:
-    from ..config import Config
+    from nanoslam_jax.app.config import Config
 
 __all__ = ["Composite", "OfKind", "PAD_VARIANCE", "is_composite", "composite_names", "row_models", "row_noise"]
 
@@ -113,7 +113,7 @@ class Composite(AbstractMeasurementModel):
     def from_config(cls, cfg: "Config") -> "Composite":
         """The types of ``model.measurement`` (built-in names or import paths joined by ``+``, e.g.
         ``line+circle``), each with its parameters from ``model.measurement_params.<name>``."""
-        from ._measurement import measurement_model_class
+        from nanoslam_jax.models._measurement import measurement_model_class
 
         names = composite_names(cfg.model.measurement)
         params = dict(cfg.model.measurement_params or {})

@@ -40,9 +40,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from ._angles import wrap_angle
-from ._measurement import MEASUREMENT_MODELS, AbstractMeasurementModel
-from ._motion import _f
+from nanoslam_jax.lib._angles import wrap_angle
+from nanoslam_jax.models._measurement import MEASUREMENT_MODELS, AbstractMeasurementModel
+from nanoslam_jax.models._motion import _f
 
 __all__ = [
     "SlopeIntercept",

@@ -36,13 +36,13 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .._config_schema import DataConfig, MapConfig, NoiseConfig
-from ._angles import wrap_angle
-from ._motion import _f, _model_class
-from ._range_bearing import (
+from nanoslam_jax.app._config_schema import DataConfig, MapConfig, NoiseConfig
+from nanoslam_jax.lib._angles import wrap_angle
+from nanoslam_jax.models._motion import _f, _model_class
+from nanoslam_jax.models._range_bearing import (
     innovation as _rb_innovation,
 )
-from ._range_bearing import (
+from nanoslam_jax.models._range_bearing import (
     inverse_range_bearing,
     inverse_range_bearing_jacobians,
     range_bearing,
@@ -50,7 +50,7 @@ from ._range_bearing import (
 )
 
 if TYPE_CHECKING:
-    from ..config import Config
+    from nanoslam_jax.app.config import Config
 
 __all__ = [
     "AbstractMeasurementModel",
@@ -283,7 +283,7 @@ def measurement_model_class(name: str) -> type[AbstractMeasurementModel]:
             measurement model class.
     """
     if "+" in name:
-        from ._composite import Composite, composite_names
+        from nanoslam_jax.models._composite import Composite, composite_names
 
         for part in composite_names(name):
             measurement_model_class(part)
@@ -306,7 +306,7 @@ def check_measurement_model(
     whose Jacobian must be square); detections carry no auxiliary input yet (``aux_dim == 0``);
     NASRUKF (``filter.method: nasrukf``) and the smoother run range-bearing models only.
     """
-    from ._composite import Composite
+    from nanoslam_jax.models._composite import Composite
 
     cls = model if isinstance(model, type) else type(model)
     name = cls.__name__

@@ -37,12 +37,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._config_schema import NoiseConfig, RandomWalkConfig, UnicycleConfig, VehicleConfig
-from ._angles import wrap_angle
-from ._vehicle import VehicleParams, vehicle_move, vehicle_rates, vehicle_step
+from nanoslam_jax.app._config_schema import NoiseConfig, RandomWalkConfig, UnicycleConfig, VehicleConfig
+from nanoslam_jax.lib._angles import wrap_angle
+from nanoslam_jax.models._vehicle import VehicleParams, vehicle_move, vehicle_rates, vehicle_step
 
 if TYPE_CHECKING:
-    from ..config import Config
+    from nanoslam_jax.app.config import Config
 
 __all__ = [
     "AbstractMotionModel",

@@ -8,8 +8,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .._trig import atan2, sincos
-from ._angles import wrap_angle
+from nanoslam_jax.lib._trig import atan2, sincos
+from nanoslam_jax.lib._angles import wrap_angle
 
 
 def range_bearing_components(

@@ -12,9 +12,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .._config_schema import VehicleConfig
-from .._trig import sincos, tan
-from ._angles import wrap_angle
+from nanoslam_jax.app._config_schema import VehicleConfig
+from nanoslam_jax.lib._trig import sincos, tan
+from nanoslam_jax.lib._angles import wrap_angle
 
 #: The configuration's ``vehicle`` section: the one source of the defaults.
 _VEHICLE = VehicleConfig()

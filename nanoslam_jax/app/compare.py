@@ -1,0 +1,595 @@
+"""Method comparison over seeds: the paper's Table I and Figures 3-5.
+
+A comparison file names a base config, the methods (each a label and ``key=value`` overrides
+of the base, at least ``filter.method``), the number of seeds and optionally the paper's
+figures to print beside ours::
+
+    name: table1
+    base: victoria_park_nano.yaml     # relative to this file; null: the embedded default
+    seeds: 8
+    first_seed: 0
+    timing_chunk: 250                 # segments per timed chunk (Fig. 5 resolution)
+    set: []                           # overrides applied to every method
+    methods:
+      - label: NANO-SLAM
+        set: [filter.method=nano]
+        paper_rmse: 2.538
+        paper_ms: 17.692
+      - label: the paper setting
+        base: victoria_park_nano.yaml # this row's own base config (relative to this file)
+
+A row's ``base`` replaces the comparison's base for that row (its ``set`` and the comparison's
+``set`` still apply), so rows of different configs can be compared on the same seeds
+(``configs/recommended.yaml``).
+
+``seed_keys: [indoor.seed]`` makes each seed its own world: every row runs once per seed with
+``seed`` and those keys set to it, all rows of a seed on the same simulated log, each run the run
+of ``nanoslam run``; the feature map's table (the second paper's Table 1) and its Figures 5 and 6
+are written too (:mod:`nanoslam_jax.app._compare_worlds`, ``configs/nasrukf_indoor_study.yaml``).
+
+For each method the seeds run vmapped in one compiled program (:func:`filter.run_batch`); a
+separate single run of the first seed, timed chunk by chunk, gives the computation time per
+scan (the table's ms per scan and Fig. 5). EKF-SLAM, NASRUKF and dead reckoning are deterministic
+and run once. With ``smoother.enabled`` (``filter.estimate: path``) each seed's final best particle's
+path and map are smoothed after the batch (:mod:`nanoslam_jax.smoother._smoother`), and the smoothed path is
+scored, with the path it started from beside it (``rmse_*_path``) and the filter's own estimate of the
+same runs, the best particle's pose at each scan (``rmse_*_best``, a row of its own in ``table1.md``). Every run is scored by
+:func:`nanoslam_jax.eval._scoring.score_run` and the seeds summarised by
+:func:`nanoslam_jax.eval._scoring.summarize_runs`: a failed seed (non-finite estimate, exception) is
+counted and named, and counts as an infinite error in the medians, quartiles and worst seed. A
+method that fails as a whole (bad config, exception) is recorded with its reason; the others still
+run.
+
+Writes ``table1.md``, ``table1.csv`` (one row per method), ``runs.csv`` (one row per method and
+seed), ``summary.json``, ``compare.yaml`` (the resolved comparison with the version), the resolved
+config of each method under ``configs/``, and ``fig3_trajectories.png``, ``fig4_error.png``,
+``fig5_time.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import math
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Optional
+
+import jax
+import numpy as np
+import yaml
+
+from nanoslam_jax.app._compare_spec import (
+    CompareSpec,
+    MethodSpec,
+    deterministic,
+    int_at_least,
+    load_compare_spec,
+    method_config,
+    method_rows,
+    read_comparison,
+    resolve_base,
+    seed_config,
+    str_list,
+)
+from nanoslam_jax._version import __version__
+from nanoslam_jax.eval._scoring import (
+    MapEstimate,
+    companion_tracks,
+    failure_reason,
+    format_number,
+    score_run,
+    summarize_runs,
+    write_rows_csv,
+)
+from nanoslam_jax.app.config import Config, ConfigError, config_to_dict
+from nanoslam_jax.methods import (
+    dead_reckoning,
+    reported_map,
+    reported_trajectory,
+    run_batch,
+    run_filter,
+    settings_from_config,
+    stack_params,
+)
+from nanoslam_jax.smoother._smoother import smooth_filter_run, smoother_metrics
+
+__all__ = [
+    "CompareSpec",
+    "MethodResult",
+    "MethodSpec",
+    "deterministic",
+    "filter_key",
+    "int_at_least",
+    "log_key",
+    "load_compare_spec",
+    "markdown_table",
+    "method_config",
+    "method_rows",
+    "read_comparison",
+    "resolve_base",
+    "run_compare",
+    "run_method",
+    "seed_config",
+    "str_list",
+    "summarise",
+    "write_resolved",
+]
+
+RMSE_KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
+
+
+@dataclasses.dataclass
+class MethodResult:
+    """Everything measured for one method (host arrays)."""
+
+    spec: MethodSpec
+    method: str
+    rows: list[dict]
+    status: str = "ok"
+    reason: str = ""
+    ms_per_scan: float = math.nan
+    compile_s: float = math.nan
+    batch_run_s: float = math.nan
+    trajectory: Optional[np.ndarray] = None  # first seed's reported estimate (T, 3)
+    landmarks: Optional[np.ndarray] = None  # first seed's map (L, 2)
+    chunk_ms: Optional[np.ndarray] = None  # ms per scan of each timed chunk
+    chunk_t: Optional[np.ndarray] = None  # log time at the middle of each chunk
+    trajectories: Optional[list] = None  # every seed's scored trajectory (run_method's keep_trajectories)
+
+
+def _map_of(maps, i: int) -> MapEstimate:
+    act = np.asarray(maps.active[i], bool)
+    ids = None if getattr(maps, "ident", None) is None else np.asarray(maps.ident[i])[act]
+    return MapEstimate(np.asarray(maps.mean[i])[act], np.asarray(maps.confirmed[i])[act], ids)
+
+
+def filter_key(cfg: Config, seeds) -> str:
+    """What a method's filter runs depend on: its config without the offline smoother (and the name)
+    and the seeds. Rows of a comparison with the same key share their filter runs (``run_method``'s
+    ``cache``), e.g. the smoother ablations of configs/recommended.yaml."""
+    d = config_to_dict(cfg)
+    for k in ("smoother", "name"):
+        d.pop(k, None)
+    return json.dumps([d, [int(s) for s in seeds]], sort_keys=True, default=str)
+
+
+def run_method(
+    spec: CompareSpec,
+    m: MethodSpec,
+    log,
+    progress=None,
+    timed: bool = True,
+    keep_trajectories: bool = False,
+    cache: Optional[dict] = None,
+) -> MethodResult:
+    """Run one method over the seeds (vmapped) and once more, timed, for the time per scan; with
+    ``smoother.enabled`` each seed's run is smoothed after the batch; every seed is scored
+    (:func:`~nanoslam_jax.eval._scoring.score_run`).
+
+    Args:
+        spec: the comparison.
+        m: the row to run.
+        log: the loaded log (:func:`~nanoslam_jax.app.experiment.load_log`).
+        progress: progress callback of the batch run.
+        timed: also run the first seed alone, chunk by chunk, for the time per scan (False: the
+            time columns are NaN).
+        keep_trajectories: keep every seed's scored trajectory in ``trajectories`` (else only the
+            first seed's, in ``trajectory``).
+        cache: filter runs by :func:`filter_key` (and kind), reused instead of run again: a row
+            that differs from an earlier one only in its smoother settings smooths and scores the
+            same runs. None: nothing is shared.
+    """
+    cfg = method_config(spec, m)
+    method = cfg.filter.method
+    seg = log.segments
+    n = int(seg.time.shape[0])
+    t = np.asarray(seg.time)
+    static, params = settings_from_config(cfg, seg.k_max)
+    res = MethodResult(m, method, rows=[])
+    seeds = [spec.first_seed] if deterministic(method) else list(range(spec.first_seed, spec.first_seed + spec.seeds))
+
+    if method == "dead_reckoning":
+        t0 = time.perf_counter()
+        jax.block_until_ready(dead_reckoning(params, seg))
+        t1 = time.perf_counter()
+        est = np.asarray(dead_reckoning(params, seg))
+        res.ms_per_scan = 1e3 * (time.perf_counter() - t1) / n
+        res.compile_s = t1 - t0
+        res.trajectory = est
+        res.trajectories = [est] if keep_trajectories else None
+        reason = failure_reason(t, est)
+        res.rows.append(
+            {
+                "seed": spec.first_seed,
+                "status": "failed" if reason else "ok",
+                "reason": reason,
+                **score_run(log, est, cfg.metrics),
+                "n_landmarks": 0,
+                "n_confirmed": 0,
+            }
+        )
+        if reason:
+            res.status, res.reason = "failed", reason
+        return res
+
+    key = filter_key(cfg, seeds)
+
+    def cached(kind: str, compute):
+        if cache is None:
+            return compute()
+        if (key, kind) not in cache:
+            cache[(key, kind)] = compute()
+        return cache[(key, kind)]
+
+    if timed:  # one run of the first seed, chunk by chunk
+        single = cached(
+            "timed",
+            lambda: run_filter(static, params, seg, spec.first_seed, chunk=min(spec.timing_chunk, n), timed=True),
+        )
+        res.compile_s = single.compile_s
+        res.ms_per_scan = 1e3 * single.run_s / n
+        sizes = np.minimum(single.chunk_size, n - single.chunk_size * np.arange(len(single.chunk_s)))
+        res.chunk_ms = 1e3 * np.asarray(single.chunk_s) / sizes
+        mids = np.minimum(single.chunk_size * np.arange(len(sizes)) + sizes // 2, n - 1)
+        res.chunk_t = t[mids]
+    elif len(seeds) == 1:
+        single = cached("single", lambda: run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk))
+
+    if len(seeds) == 1:
+        run, index = single, None
+        if cfg.smoother.enabled and cfg.smoother.map_history and single.chunk_size != min(cfg.output.chunk, n):
+            # The smoother's map history is the map at the end of each chunk of output.chunk
+            # segments: the scored run is chunked as `nanoslam run` chunks it.
+            single = run = cached(
+                "single", lambda: run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk)
+            )
+        maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
+        overflow = np.asarray(single.state.overflow)[None]
+        est_all = reported_trajectory(static.estimate, single.outputs, single.state)[None]
+        best_all, mean_all = (np.asarray(a)[None] for a in (single.outputs.best_pose, single.outputs.mean_pose))
+        res.batch_run_s = single.run_s
+    else:
+        run = cached(
+            "batch",
+            lambda: run_batch(
+                static,
+                stack_params([params] * len(seeds)),
+                seg,
+                np.asarray(seeds),
+                chunk=cfg.output.chunk,
+                progress=progress,
+            ),
+        )
+        index = 0
+        maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
+        overflow = np.asarray(run.state.overflow)
+        est_all = reported_trajectory(static.estimate, run.outputs, run.state)
+        best_all, mean_all = np.asarray(run.outputs.best_pose), np.asarray(run.outputs.mean_pose)
+        res.batch_run_s = run.run_s
+    trajectories = []
+    for i, s in enumerate(seeds):
+        est, before, extra = np.asarray(est_all[i]), None, {}
+        if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline, per seed
+            sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior, None if index is None else i)
+            before, est = est, sm.poses
+            extra, _ = smoother_metrics(sm, cfg.smoother)
+        reason = failure_reason(t, est)
+        score = score_run(
+            log, est, cfg.metrics, _map_of(maps, i), companion_tracks(static.estimate, best_all[i], mean_all[i], before)
+        )
+        res.rows.append(
+            {
+                "seed": int(s),
+                "status": "failed" if reason else "ok",
+                "reason": reason,
+                **score,
+                "landmark_overflow": int(overflow[i]),
+                **extra,
+            }
+        )
+        trajectories.append(est)
+    res.trajectory = trajectories[0]
+    if keep_trajectories:
+        res.trajectories = trajectories
+    res.landmarks = maps.mean[0][maps.active[0] & maps.confirmed[0]]
+    bad = [r["seed"] for r in res.rows if r["status"] != "ok"]
+    if bad:
+        res.status, res.reason = "failed", f"non-finite estimate for seed(s) {bad}"
+    return res
+
+
+#: The columns a comparison summarises over seeds (those its runs report).
+SUMMARY_KEYS = (
+    "rmse_fixed",
+    "rmse_aligned",
+    "rmse_fixed_clean",
+    "rmse_aligned_clean",
+    "rmse_fixed_path",
+    "rmse_aligned_path",
+    "rmse_fixed_best",
+    "rmse_aligned_best",
+    "n_landmarks",
+    "n_confirmed",
+    "smoother_s",
+)
+
+
+#: The heading and the feature map's columns (the second paper's Table 1), summarised where runs report them.
+FEATURE_KEYS = (
+    "rmse_heading_deg",
+    *(
+        f"{k}_{s}"
+        for k in ("line_slope", "line_intercept", "arc_centre", "arc_radius", "corner", "break_point")
+        for s in ("median", "worst")
+    ),
+    *(
+        f"n_{k}"
+        for k in (
+            "lines",
+            "lines_matched",
+            "lines_est",
+            "arcs",
+            "arcs_matched",
+            "arcs_est",
+            "corners",
+            "corners_matched",
+            "break_points",
+            "break_points_matched",
+        )
+    ),
+)
+
+
+def summarise(res: MethodResult) -> dict:
+    """One table row: median, quartiles and worst seed over the seeds, failed seeds counted
+    (:func:`~nanoslam_jax.eval._scoring.summarize_runs`)."""
+    keys = [k for k in SUMMARY_KEYS if k in RMSE_KEYS or k.startswith("n_") or any(k in r for r in res.rows)]
+    keys += [k for k in FEATURE_KEYS if any(k in r for r in res.rows)]
+    st = summarize_runs(res.rows, keys, stats=("median", "q1", "q3", "worst"))
+    out: dict[str, Any] = {
+        "method": res.spec.label,
+        "filter_method": res.method,
+        "status": res.status,
+        "reason": res.reason,
+        "seeds": len(res.rows),
+        "n_failed": st["n_failed"],
+        "failed_seeds": st["failed_seeds"],
+    }
+    out.update({k: v for k, v in st.items() if k.endswith(("_median", "_q1", "_q3", "_worst"))})
+    out.update(
+        ms_per_scan=res.ms_per_scan,
+        compile_s=res.compile_s,
+        batch_run_s=res.batch_run_s,
+        paper_rmse=res.spec.paper_rmse,
+        paper_ms=res.spec.paper_ms,
+    )
+    return out
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """The Table I layout: RMSE (median, IQR and worst seed over seeds; a failed seed counts as an
+    infinite error), ms per scan, landmarks, paper's figures. A smoothed method is followed by a
+    row of the filter's own estimate of the same runs (``rmse_*_best``)."""
+    lines = [
+        "| method | seeds | RMSE fixed [m] median (IQR) | worst | RMSE aligned [m] median (IQR) | worst | "
+        "ms per scan | confirmed landmarks | paper RMSE [m] | paper ms per step |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    fmt = format_number
+    for r in rows:
+        seeds = f"{r['seeds']}" + (f" ({r['n_failed']} failed: {r['failed_seeds']})" if r.get("n_failed") else "")
+        if r["status"] != "ok" and not math.isfinite(r.get("rmse_fixed_median", math.nan)):
+            lines.append(
+                f"| {r['method']} | {seeds} | failed: {r['reason']} | | | | | | {fmt(r['paper_rmse'])} | "
+                f"{fmt(r['paper_ms'], 2)} |"
+            )
+            continue
+        iqr = lambda k: f"{fmt(r[k + '_median'])} ({fmt(r[k + '_q1'])}-{fmt(r[k + '_q3'])})"  # noqa: E731
+        lines.append(
+            f"| {r['method']} | {seeds} | {iqr('rmse_fixed')} | {fmt(r['rmse_fixed_worst'], 2)} | "
+            f"{iqr('rmse_aligned')} | {fmt(r['rmse_aligned_worst'], 2)} | {fmt(r['ms_per_scan'], 2)} | "
+            f"{fmt(r['n_confirmed_median'], 0)} | {fmt(r['paper_rmse'])} | {fmt(r['paper_ms'], 2)} |"
+        )
+        if "rmse_fixed_path_median" in r and "rmse_fixed_best_median" in r:  # smoothed: the filter's own estimate
+            lines.append(
+                f"| {r['method']}: the filter's own estimate, same runs | {seeds} | {iqr('rmse_fixed_best')} | "
+                f"{fmt(r['rmse_fixed_best_worst'], 2)} | {iqr('rmse_aligned_best')} | "
+                f"{fmt(r['rmse_aligned_best_worst'], 2)} | | | | |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def log_key(cfg: Config) -> str:
+    """What a config's log depends on: configs with the same key run on the same log."""
+    d = config_to_dict(cfg)
+    return json.dumps(
+        [d[k] for k in ("data", "sim", "indoor", "vehicle", "detector")] + [cfg.model.measurement], sort_keys=True
+    )
+
+
+def write_resolved(out: Path, spec: CompareSpec) -> None:
+    """Create the comparison directory and write ``compare.yaml``: the resolved comparison with the versions."""
+    from nanoslam_jax.app.experiment import versions
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "configs").mkdir(exist_ok=True)
+    resolved = {
+        "name": spec.name,
+        "base": spec.base,
+        "seeds": spec.seeds,
+        "first_seed": spec.first_seed,
+        "seed_keys": list(spec.seed_keys),
+        "timing_chunk": spec.timing_chunk,
+        "set": list(spec.set),
+        "methods": [dataclasses.asdict(m) | {"set": list(m.set)} for m in spec.methods],
+        "version": __version__,
+        "versions": versions(),
+        "source": spec.source,
+        "written": _dt.datetime.now().isoformat(timespec="seconds"),
+    }
+    (out / "compare.yaml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+
+
+def run_compare(
+    spec: CompareSpec, out_dir: str | Path, data_dir: Optional[str] = None, plots: bool = True, stream=sys.stderr
+) -> list[dict]:
+    """Run every method of ``spec`` and write the comparison directory.
+
+    Args:
+        spec: the comparison.
+        out_dir: result directory (created).
+        data_dir: log directory overriding ``data.path``.
+        plots: draw Figures 3-5.
+        stream: where progress lines go.
+
+    Returns:
+        The table rows (also in ``table1.csv``).
+    """
+    from nanoslam_jax.app.experiment import load_log
+
+    if spec.seed_keys:  # each seed its own log: one run per seed and row
+        from nanoslam_jax.app._compare_worlds import run_worlds
+
+        if data_dir is not None:
+            raise ConfigError(
+                f"{spec.source}: key 'seed_keys' gives every seed its own simulated log, and --data names one log; "
+                f"drop --data, or drop seed_keys to run the seeds on that log"
+            )
+        return run_worlds(spec, Path(out_dir), plots, stream)
+    out = Path(out_dir)
+    configs = {m.label: method_config(spec, m) for m in spec.methods}
+    logs: dict[str, Any] = {}
+    first = next(iter(configs.values()))
+    key_of = log_key
+    logs[key_of(first)] = load_log(first, data_dir)  # a bad log fails before anything is written
+    if not len(logs[key_of(first)].raw.gps):
+        raise ConfigError(
+            f"{spec.source}: compare scores the trajectories against GPS, and the log "
+            f"{logs[key_of(first)].source} has none; score its map with `nanoslam sweep` "
+            f"(metric: survey_rmse) or `nanoslam run`"
+        )
+    write_resolved(out, spec)
+
+    def seeds_of(c: Config) -> list[int]:
+        return (
+            [spec.first_seed]
+            if deterministic(c.filter.method)
+            else list(range(spec.first_seed, spec.first_seed + spec.seeds))
+        )
+
+    # Rows that differ only in the smoother share their filter runs; each is kept while a later row needs it.
+    keys = [filter_key(configs[m.label], seeds_of(configs[m.label])) for m in spec.methods]
+    shared: dict = {}
+    results: list[MethodResult] = []
+    for i, m in enumerate(spec.methods):
+        for kk in [kk for kk in shared if kk[0] not in keys[i:]]:
+            del shared[kk]
+        cfg = configs[m.label]
+        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in m.label)
+        (out / "configs" / f"{safe}.yaml").write_text(
+            f"# nanoslam-jax {__version__}, seeds {spec.first_seed}..{spec.first_seed + spec.seeds - 1}\n"
+            + yaml.safe_dump(config_to_dict(cfg), sort_keys=False)
+        )
+        stream.write(f"[{i + 1}/{len(spec.methods)}] {m.label} ({cfg.filter.method})\n")
+        stream.flush()
+        t0 = time.perf_counter()
+        try:
+            k = key_of(cfg)
+            if k not in logs:
+                logs[k] = load_log(cfg, data_dir)
+            res = run_method(spec, m, logs[k], cache=shared)
+        except Exception as e:  # recorded, the comparison goes on
+            reason = f"{type(e).__name__}: {e}"
+            seeds = seeds_of(cfg)
+            res = MethodResult(
+                m,
+                cfg.filter.method,
+                rows=[{"seed": s, "status": "failed", "reason": reason} for s in seeds],
+                status="failed",
+                reason=reason,
+            )
+            (out / f"error-{safe}.txt").write_text(traceback.format_exc())
+        results.append(res)
+        r = summarise(res)
+        stream.write(
+            f"    {res.status} in {time.perf_counter() - t0:.1f} s: rmse_fixed {format_number(r['rmse_fixed_median'])}, "
+            f"rmse_aligned {format_number(r['rmse_aligned_median'])}, {format_number(res.ms_per_scan, 2)} ms/scan\n"
+        )
+        stream.flush()
+        # Written after every method: an interrupted comparison keeps what it finished.
+        _write_outputs(out, spec, results)
+
+    if plots:
+        _figures(out, spec, results, logs, configs)
+    return [summarise(r) for r in results]
+
+
+def _write_outputs(
+    out: Path, spec: CompareSpec, results: list[MethodResult], header: str = "", extra: str = ""
+) -> None:
+    """``table1.csv``, ``runs.csv``, ``table1.md`` (``header``, the RMSE table, then ``extra``) and ``summary.json``."""
+    table = [summarise(r) for r in results]
+    write_rows_csv(out / "table1.csv", table)
+    runs = [{"method": r.spec.label, "filter_method": r.method, **row} for r in results for row in r.rows]
+    if runs:
+        write_rows_csv(out / "runs.csv", runs)
+    header = header or (
+        f"# {spec.name}: {len(spec.methods)} methods, {spec.seeds} seeds "
+        f"({spec.first_seed}..{spec.first_seed + spec.seeds - 1}; EKF-SLAM, NASRUKF and dead reckoning are deterministic: one run)\n\n"
+    )
+    (out / "table1.md").write_text(header + markdown_table(table) + extra)
+    # JSON has no inf: an infinite median (failed seeds) is written as the string "inf", NaN as null.
+    safe = lambda v: (None if math.isnan(v) else str(v)) if isinstance(v, float) and not math.isfinite(v) else v  # noqa: E731
+    (out / "summary.json").write_text(
+        json.dumps([{k: safe(v) for k, v in row.items()} for row in table], indent=2) + "\n"
+    )
+
+
+def _figures(out: Path, spec: CompareSpec, results: list[MethodResult], logs: dict, configs: dict) -> None:
+    from nanoslam_jax.eval.metrics import error_over_time, jump_mask, relative_gps
+    from nanoslam_jax.eval.plotting import plot_series, plot_trajectory_grid
+
+    ok = [r for r in results if r.trajectory is not None and np.all(np.isfinite(r.trajectory))]
+    if not ok:
+        return
+    cfg = configs[ok[0].spec.label]
+    log = next(iter(logs.values()))
+    gps = log.raw.gps
+    t = np.asarray(log.segments.time)
+    ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" else gps[:, 1:3]
+    ref_label = "GPS (relative frame)" if log.frame == "relative" else "truth"
+    plot_trajectory_grid(
+        out / "fig3_trajectories.png",
+        ref,
+        [(r.spec.label, r.trajectory[:, :2], r.landmarks) for r in ok],
+        true_landmarks=log.raw.truth_landmarks,
+        reference_label=ref_label,
+        title=f"{spec.name}: seed {spec.first_seed}",
+    )
+    series = []
+    keep = jump_mask(gps[:, 0], gps[:, 1:3], cfg.metrics.jump_speed)  # GPS jumps would dwarf the errors
+    for r in ok:
+        te, err = error_over_time(
+            t, r.trajectory[:, :2], gps[keep], rotation_deg=cfg.metrics.gps_rotation_deg, frame=log.frame
+        )
+        series.append((r.spec.label, te, err))
+    plot_series(
+        out / "fig4_error.png",
+        series,
+        "position error [m]",
+        f"{spec.name}: error against {ref_label}, GPS jumps removed (seed {spec.first_seed})",
+    )
+    timed = [(r.spec.label, r.chunk_t, r.chunk_ms) for r in results if r.chunk_ms is not None]
+    if timed:
+        plot_series(
+            out / "fig5_time.png",
+            timed,
+            "computation time per scan [ms]",
+            f"{spec.name}: time per scan (mean over chunks of {spec.timing_chunk} scans)",
+            logy=True,
+            marker=".",
+        )

@@ -1,0 +1,149 @@
+"""Particle and map pytrees: a leading particle axis over fixed-capacity landmark arrays."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, Key
+
+from nanoslam_jax.models import is_composite
+from nanoslam_jax.methods._params import Params, Static
+
+
+class LandmarkMap(NamedTuple):
+    """Fixed-capacity landmark arrays of one particle (or stacked: leading particle axis).
+
+    Attributes:
+        mean: landmark states (``l``: the measurement model's ``landmark_dim``; a point's position,
+            a line's ``(rho, alpha)``, a circle's ``(xc, yc, R)``).
+        cov: their covariances.
+        active: which slots hold a landmark (tentative or confirmed).
+        hits: detections associated with each landmark (the one that started it included).
+        misses: scans in which the landmark was in view, not hidden and not detected.
+        log_odds: existence log-odds (landmark management; see ``map`` in the config).
+        confirmed: the landmark has been confirmed (else it is tentative).
+        born: the scan (count of laser scans before it) in which the landmark was started.
+        diam: estimated tree diameter (m).
+        diam_var: variance of the diameter estimate (m^2).
+        ident: the landmark id of the detection that started each landmark (``filter.association:
+            known``), or None (no field: the ids are not kept).
+        kind: each landmark's type, the index of its model in a
+            :class:`~nanoslam_jax.models.Composite` measurement model, or None (one type).
+    """
+
+    mean: Float[Array, "*particles slots l"]
+    cov: Float[Array, "*particles slots l l"]
+    active: Bool[Array, "*particles slots"]
+    hits: Int[Array, "*particles slots"]
+    misses: Int[Array, "*particles slots"]
+    log_odds: Float[Array, "*particles slots"]
+    confirmed: Bool[Array, "*particles slots"]
+    born: Int[Array, "*particles slots"]
+    diam: Float[Array, "*particles slots"]
+    diam_var: Float[Array, "*particles slots"]
+    ident: Int[Array, "*particles slots"] | None = None
+    kind: Int[Array, "*particles slots"] | None = None
+
+    @staticmethod
+    def empty(
+        slots: int, batch: tuple[int, ...] = (), ident: bool = False, dim: int = 2, kinds: bool = False
+    ) -> "LandmarkMap":
+        """An empty map with ``slots`` slots (and optional leading batch axes) of landmarks of
+        ``dim`` values (a measurement model's ``landmark_dim``); ``ident``: with the ``ident``
+        field (all -1); ``kinds``: with the ``kind`` field (all 0)."""
+        shape = batch + (slots,)
+        return LandmarkMap(
+            mean=jnp.zeros(shape + (dim,)),
+            cov=jnp.broadcast_to(jnp.eye(dim), shape + (dim, dim)),
+            active=jnp.zeros(shape, bool),
+            hits=jnp.zeros(shape, jnp.int32),
+            misses=jnp.zeros(shape, jnp.int32),
+            log_odds=jnp.zeros(shape),
+            confirmed=jnp.zeros(shape, bool),
+            born=jnp.zeros(shape, jnp.int32),
+            diam=jnp.zeros(shape),
+            diam_var=jnp.ones(shape),
+            ident=jnp.full(shape, -1, jnp.int32) if ident else None,
+            kind=jnp.zeros(shape, jnp.int32) if kinds else None,
+        )
+
+
+class Particles(NamedTuple):
+    """The particle set.
+
+    Attributes:
+        pose: sampled laser poses ``(px, py, phi)``.
+        pose_cov: each particle's last proposal covariance (used when ``prior_cov='carry'``).
+        log_w: normalised log-weights (logsumexp = 0).
+        landmarks: per-particle maps.
+        noise: each particle's measurement-noise variances (the diagonal of ``R``; range and bearing
+            for range-bearing detections): the configured ones, or
+            its adaptive estimate (``noise.adaptive``).
+        noise_count: residuals each particle's adaptive estimate has seen.
+    """
+
+    pose: Float[Array, "particles 3"]
+    pose_cov: Float[Array, "particles 3 3"]
+    log_w: Float[Array, " particles"]
+    landmarks: LandmarkMap
+    noise: Float[Array, "particles d"]
+    noise_count: Int[Array, " particles"]
+
+
+class FilterState(NamedTuple):
+    """Everything carried from one segment to the next.
+
+    Attributes:
+        particles: the particle set.
+        key: PRNG key.
+        best: index of the highest-weight particle (tracked through resampling).
+        resample_count: resampling steps so far.
+        overflow: new landmarks dropped so far because a particle's map was full (all particles).
+        scan: laser scans processed so far (the clock of the landmarks' ``born``).
+    """
+
+    particles: Particles
+    key: Key[Array, ""]
+    best: Int[Array, ""]
+    resample_count: Int[Array, ""]
+    overflow: Int[Array, ""]
+    scan: Int[Array, ""]
+
+
+def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterState:
+    """All particles at the origin with covariance ``init_cov * I``, empty maps, equal weights."""
+    n = static.n_particles
+    particles = Particles(
+        pose=jnp.zeros((n, 3)),
+        pose_cov=jnp.broadcast_to(params.init_cov * jnp.eye(3), (n, 3, 3)),
+        log_w=jnp.full((n,), -jnp.log(n)),
+        landmarks=LandmarkMap.empty(
+            static.capacity,
+            (n,),
+            ident=static.association == "known",
+            dim=params.measurement.landmark_dim,
+            kinds=is_composite(params.measurement),
+        ),
+        noise=jnp.broadcast_to(jnp.diagonal(params.R), (n, params.measurement.measurement_dim)),
+        noise_count=jnp.zeros(n, jnp.int32),
+    )
+    zero = jnp.zeros((), jnp.int32)
+    return FilterState(particles, key, zero, zero, zero, zero)
+
+
+def count_landmarks(landmarks: LandmarkMap) -> Int[Array, "*particles"]:
+    """Active landmarks (tentative and confirmed) per particle."""
+    return jnp.sum(landmarks.active, axis=-1)
+
+
+def count_confirmed(landmarks: LandmarkMap) -> Int[Array, "*particles"]:
+    """Confirmed landmarks per particle."""
+    return jnp.sum(landmarks.active & landmarks.confirmed, axis=-1)
+
+
+def slots_in_use(landmarks: LandmarkMap) -> Int[Array, ""]:
+    """One past the highest active slot over all particles (0 when no landmark is active): every
+    active landmark lies in the slots below."""
+    active = landmarks.active.reshape(-1, landmarks.active.shape[-1])
+    return jnp.max(jnp.where(active, jnp.arange(1, active.shape[-1] + 1, dtype=jnp.int32), 0), initial=0)

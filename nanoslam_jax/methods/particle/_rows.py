@@ -1,0 +1,158 @@
+"""The per-row work of a particle's scan: the proposal over the detection rows, the sampled pose,
+each row's weight likelihoods and its landmark's start and update, and the row buckets that run
+it over only as many rows as the scan has (``filter.row_buckets``)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from nanoslam_jax.lib._linalg import chol3, gaussian_logpdf, mv
+from nanoslam_jax.lib._trig import computed_once
+from nanoslam_jax.models import row_models, row_noise, wrap_angle
+from nanoslam_jax.methods.proposals import AbstractProposal, Detections, ProposalResult
+from nanoslam_jax.methods.maps._association import predicted_measurements
+from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
+from nanoslam_jax.methods._params import Params, Static
+
+
+class RowResults(NamedTuple):
+    """What each detection row of a scan gives a particle (:func:`row_work`).
+
+    Attributes:
+        proposal: the proposal over the rows.
+        pose: the pose sampled from it.
+        ll: each row's log-likelihood for the weight (eq. 17, or the marginal at the prior).
+        llp: each row's log-likelihood at the sampled pose (for a row matching a landmark an
+            earlier row of the scan started).
+        new_mean, new_cov: the landmark each row would start at the sampled pose (eq. 16).
+        upd_mean, upd_cov: the row's landmark (matched, else the one it would start) after the
+            row's EKF (UFastSLAM: unscented) update at the sampled pose.
+    """
+
+    proposal: ProposalResult
+    pose: Float[Array, "3"]
+    ll: Float[Array, " k"]
+    llp: Float[Array, " k"]
+    new_mean: Float[Array, "k l"]
+    new_cov: Float[Array, "k l l"]
+    upd_mean: Float[Array, "k l"]
+    upd_cov: Float[Array, "k l l"]
+
+
+def row_work(
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    x0: Float[Array, "3"],
+    P0: Float[Array, "3 3"],
+    R: Float[Array, "d d"],
+    det: Detections,
+    existing: Bool[Array, " k"],
+    ps: Int[Array, " k"],
+    eps: Float[Array, "3"],
+) -> RowResults:
+    """The proposal, the sampled pose and each row's likelihoods, landmark start and landmark update.
+
+    Args:
+        det: the rows (detections, their matched landmarks, which rows are used).
+        existing: which rows matched a landmark of the map (else ``det``'s landmark is unused).
+        ps: for a row that matched a landmark an earlier row of the scan started, that row.
+        eps: the standard normal draw of the sampled pose.
+    """
+    prop = proposal(x0, P0, det, R)
+    x_s = prop.mean + mv(chol3(prop.cov), eps)
+    x_s = computed_once(x_s.at[2].set(wrap_angle(x_s[2])))
+    # Weight of the associations with existing landmarks (eq. 17, or the marginal at the prior).
+    xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
+    model = params.measurement
+    # A composite's rows each take their type's model and noise (one shared model otherwise).
+    rows, ax = row_models(model, det.kind)
+    R_rows, r_ax = row_noise(rows, ax, R)
+    z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R, model, det.kind)
+    ll = gaussian_logpdf(jax.vmap(lambda md, z, zh: md.innovation(z, zh), (ax, 0, 0))(rows, det.z, z_hat), S)
+    # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM).
+    unscented = static.landmark_update == "unscented"
+    ut = (params.ut_alpha, params.ut_beta, params.ut_kappa)
+    if unscented:
+        new_mean, new_cov = jax.vmap(ukf_init_landmark, (None, 0, None, None, None, None, None))(
+            x_s, det.z, R, *ut, model
+        )
+    else:
+        new_mean, new_cov = jax.vmap(init_landmark, (None, 0, r_ax, ax))(x_s, det.z, R_rows, rows)
+    # EKF (UFastSLAM: unscented) updates at the sampled pose; each landmark is matched at most once
+    # per scan. A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
+    cur_mean = jnp.where(existing[:, None], det.mean, new_mean[ps])
+    cur_cov = jnp.where(existing[:, None, None], det.cov, new_cov[ps])
+    if unscented:
+        ukf = lambda *a: ukf_update_loglik(*a, model=model)  # noqa: E731
+        upd_mean, upd_cov, llp = jax.vmap(ukf, (None, 0, 0, 0, None, None, None, None))(
+            x_s, det.z, cur_mean, cur_cov, R, *ut
+        )
+    else:
+        upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, r_ax, ax))(
+            x_s, det.z, cur_mean, cur_cov, R_rows, rows
+        )
+    # Both computed before the masked sums (a reduction fusion does not vectorise its operand).
+    ll, llp = computed_once((ll, llp))
+    return RowResults(prop, x_s, ll, llp, new_mean, new_cov, upd_mean, upd_cov)
+
+
+def rows_over_buckets(
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    x0: Float[Array, "3"],
+    P0: Float[Array, "3 3"],
+    R: Float[Array, "d d"],
+    det: Detections,
+    existing: Bool[Array, " k"],
+    ps: Int[Array, " k"],
+    eps: Float[Array, "3"],
+    z_mask: Bool[Array, " k"],
+) -> RowResults:
+    """:func:`row_work` over the first ``b`` detection rows only, ``b`` the smallest of
+    ``static.row_buckets`` (then ``k_max``) that holds the scan's last real detection; the rows
+    after them are padded (zero means and likelihoods, unit covariances).
+
+    Rows past the last real detection are never associated and start no landmark, so the
+    result is the same as over all ``k_max`` rows where it is used; the work is proportional to
+    the rows (an iterative proposal's most of all), and most scans have far fewer detections
+    than the log's busiest one. The bucket depends only on the scan (``z_mask`` is shared by all
+    particles), so under ``vmap`` this stays a branch (``lax.switch`` with an unbatched index)
+    and does not turn into computing every bucket. Only these per-row results cross the switch:
+    with the whole particle update (the map's write-back) inside it, the switch's outputs would
+    copy every particle's map at every step.
+    """
+    k_max = z_mask.shape[0]
+    sizes = sorted({b for b in static.row_buckets if 0 < b < k_max} | {k_max})
+    if len(sizes) == 1:
+        return row_work(static, params, proposal, x0, P0, R, det, existing, ps, eps)
+
+    def branch(b: int):
+        def rows(det, existing, ps):
+            det, existing = jax.tree.map(lambda a: a[:b], (det, existing))
+            # A row matching a landmark an earlier row started lies after that row; the other
+            # rows' ``ps`` is unused.
+            out = row_work(static, params, proposal, x0, P0, R, det, existing, jnp.minimum(ps[:b], b - 1), eps)
+
+            def pad(a, fill):
+                return jnp.concatenate([a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (k_max - b,) + a.shape[1:])])
+
+            return out._replace(
+                ll=pad(out.ll, 0.0),
+                llp=pad(out.llp, 0.0),
+                new_mean=pad(out.new_mean, 0.0),
+                new_cov=pad(out.new_cov, jnp.eye(out.new_cov.shape[-1])),
+                upd_mean=pad(out.upd_mean, 0.0),
+                upd_cov=pad(out.upd_cov, jnp.eye(out.upd_cov.shape[-1])),
+            )
+
+        return rows
+
+    n_rows = jnp.max(jnp.where(z_mask, jnp.arange(1, k_max + 1), 0))
+    index = jnp.sum(n_rows > jnp.asarray(sizes[:-1]))
+    return jax.lax.switch(index, [branch(b) for b in sizes], det, existing, ps)

@@ -1,0 +1,550 @@
+"""One segment of the Rao-Blackwellised particle filter: per-particle work (vmapped) and the
+particle-set work (weights, estimate, resampling)."""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+from jaxtyping import Array, Bool, Float, Int
+
+from nanoslam_jax.lib._batching import batch_max, take_if
+from nanoslam_jax.lib._trig import computed_once
+from nanoslam_jax.data import Segments
+from nanoslam_jax.models import circular_mean, is_composite
+from nanoslam_jax.methods.proposals import AbstractProposal, Detections
+from nanoslam_jax.methods.maps._association import associate, associate_window_prefix, predicted_measurements
+from nanoslam_jax.methods.maps._landmarks import (
+    MANAGED_FIELDS,
+    add_landmarks,
+    free_slots,
+    gather_window,
+    scatter_window,
+    update_slots,
+)
+from nanoslam_jax.methods._params import Params, Static
+from nanoslam_jax.methods.particle._prior import compose_prior, predict, relative_prior
+from nanoslam_jax.lib._resampling import effective_sample_size, normalise, resample
+from nanoslam_jax.methods.particle._rows import rows_over_buckets
+from nanoslam_jax.methods.maps._management import (
+    diameter_update,
+    drop_stale,
+    manage_window,
+    manage_window_prefix,
+    new_landmarks,
+)
+from nanoslam_jax.methods.gaussian._srukf import adaptive_noise_rows
+from nanoslam_jax.methods._state import (
+    FilterState,
+    LandmarkMap,
+    Particles,
+    count_confirmed,
+    count_landmarks,
+    slots_in_use,
+)
+
+
+class StepOutput(NamedTuple):
+    """What the scan records per segment (small arrays only).
+
+    Attributes:
+        best_pose: pose of the highest-weight particle.
+        mean_pose: weighted mean pose (circular mean heading).
+        ess: effective sample size after weighting.
+        resampled: whether the particles were resampled.
+        n_landmarks: landmarks (tentative and confirmed) in the best particle's map.
+        n_confirmed: confirmed landmarks in the best particle's map.
+        iterations: mean proposal iterations over particles that had associations.
+        n_capped: particles whose iterative proposal hit the iteration cap.
+        n_nonfinite: particles whose proposal failed (fell back to the prior).
+        n_associated: mean associated detections per particle.
+        n_new: mean new landmarks per particle.
+        window_overflow: most landmarks near a particle that did not fit its window.
+        overflow: new landmarks dropped for lack of capacity (all particles).
+        weight_reset: all weights were non-finite and were reset to uniform.
+        poses: every particle's pose after the proposal (before resampling); recorded only with
+            ``filter.estimate: path``, else None.
+        ancestors: which of these particles each particle after the step descends from (the
+            resampling's ancestor indices; ``arange`` when it did not resample); only with
+            ``filter.estimate: path``. With ``poses`` the genealogy :func:`ancestral_path` follows.
+    """
+
+    best_pose: Float[Array, "3"]
+    mean_pose: Float[Array, "3"]
+    ess: Float[Array, ""]
+    resampled: Bool[Array, ""]
+    n_landmarks: Int[Array, ""]
+    n_confirmed: Int[Array, ""]
+    iterations: Float[Array, ""]
+    n_capped: Int[Array, ""]
+    n_nonfinite: Int[Array, ""]
+    n_associated: Float[Array, ""]
+    n_new: Float[Array, ""]
+    window_overflow: Int[Array, ""]
+    overflow: Int[Array, ""]
+    weight_reset: Bool[Array, ""]
+    poses: Optional[Float[Array, "particles 3"]] = None
+    ancestors: Optional[Int[Array, " particles"]] = None
+
+
+class _ParticleOut(NamedTuple):
+    pose: Float[Array, "3"]
+    pose_cov: Float[Array, "3 3"]
+    landmarks: LandmarkMap
+    dlogw: Float[Array, ""]
+    iterations: Int[Array, ""]
+    result: Int[Array, ""]
+    has_assoc: Bool[Array, ""]
+    n_associated: Int[Array, ""]
+    n_new: Int[Array, ""]
+    window_overflow: Int[Array, ""]
+    overflow: Int[Array, ""]
+    n_landmarks: Int[Array, ""]
+    n_confirmed: Int[Array, ""]
+    noise: Float[Array, " d"]
+    noise_count: Int[Array, ""]
+
+
+def particle_update(
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    pose: Float[Array, "3"],
+    pose_cov: Float[Array, "3 3"],
+    lm: LandmarkMap,
+    dt: Float[Array, " dr"],
+    u: Float[Array, "dr 2"],
+    dr_mask: Bool[Array, " dr"],
+    z: Float[Array, "k d"],
+    z_mask: Bool[Array, " k"],
+    eps: Float[Array, "3"],
+    valid: Bool[Array, ""] | bool = True,
+    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
+    slot_bucket: Int[Array, ""] | None = None,
+    diam: Float[Array, " k"] | None = None,
+    scan: Int[Array, ""] | int = 0,
+    noise: Float[Array, " d"] | None = None,
+    noise_count: Int[Array, ""] | None = None,
+    z_id: Int[Array, " k"] | None = None,
+    z_kind: Int[Array, " k"] | None = None,
+) -> _ParticleOut:
+    """Prior, association, proposal, sampling, landmark updates and weight of one particle.
+
+    ``eps`` is the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
+
+    ``valid`` False marks a segment that is not a laser scan (padding, or a segment splitting a
+    long gap between scans): landmark management then counts no misses (for padding the caller
+    masks the pose and weight; with no detections the map is unchanged).
+
+    ``rel_prior``: the segment's :func:`relative_prior`, shared by all particles, with
+    ``static.prior_cov == 'reset'``; the prior is then placed at ``pose`` instead of propagated
+    per particle (the same Gaussian up to rounding). ``None``: propagated here.
+
+    ``slot_bucket``: index into ``static.slot_buckets`` of a map prefix that holds every active
+    landmark (the local window, and with management the free slots, are searched there;
+    ``None``: the whole map). The same for all particles, so under ``vmap`` it stays a branch.
+
+    ``diam``: the diameter reported with each detection (``None``: zeros); ``scan``: the count of
+    laser scans before this one (the clock of the landmarks' ``born``).
+
+    With ``static.manage`` (landmark management, :mod:`._management`) only the rows matched to
+    confirmed landmarks (all matched rows with ``map.use_tentative``) shape the proposal and the
+    weight; a row that matched a tentative landmark then weighs as a new landmark does (``p0``).
+
+    ``noise``, ``noise_count``: the particle's adaptive measurement-noise variances and how many
+    residuals they have seen (``static.adaptive_noise``; default: the configured noise). The scan
+    is associated with them; then each associated detection's residual at the prior updates them
+    in order (eq. 11 of the NASRUKF paper with ``Gx P Gx' + Gm Sigma Gm'`` as the predicted
+    covariance, :func:`~._srukf.adaptive_noise_rows`) and the proposal, landmark updates and weight
+    use the result.
+
+    ``z_id``: each detection's landmark id, used with ``static.association == 'known'``.
+
+    ``z_kind``: each detection's type, for a :class:`~nanoslam_jax.models.Composite` measurement
+    model (None: one type).
+    """
+    mp = params.map
+    model = params.measurement
+    R_configured = params.R
+    configured = jnp.diagonal(R_configured)
+    noise = configured if noise is None else noise
+    noise_count = jnp.zeros((), jnp.int32) if noise_count is None else noise_count
+    R = jnp.diag(noise) if static.adaptive_noise else R_configured
+    W, K = static.window_size - static.k_max, static.k_max
+    diam = jnp.zeros(K, z.dtype) if diam is None else diam
+    if rel_prior is not None:
+        x0, P0 = compose_prior(pose, *rel_prior)
+    else:
+        P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
+        x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
+    x0, P0 = computed_once((x0, P0))
+
+    radius = params.max_range + params.window_margin
+    local, idx, window_overflow = _over_slot_bucket(
+        static, slot_bucket, lambda b, lm, x: gather_window(lm, x, W, radius, b, model), lm, x0[:2]
+    )
+    # With the row buckets (many particles per call), also the association over the window's
+    # prefix: the same association, compiled three times, which pays off only where the particles'
+    # arithmetic outweighs the longer compilation.
+    assoc_fn = associate_window_prefix if static.row_buckets else associate
+    assoc = assoc_fn(
+        local,
+        x0,
+        P0,
+        z,
+        z_mask,
+        R,
+        params.gate,
+        params.new_landmark,
+        static.sequential,
+        diam=diam,
+        use_diameter=mp.use_diameter,
+        sigma_diameter=mp.sigma_diameter,
+        ids=z_id if static.association == "known" else None,
+        model=model,
+        z_kind=z_kind,
+    )
+    matched = assoc.slot >= 0
+    existing = matched & (assoc.slot < W)
+    provisional = matched & ~existing  # matched the landmark an earlier detection of this scan created
+    ws = jnp.clip(assoc.slot, 0, W - 1)  # local slot of a row that matched an existing landmark
+    ps = jnp.clip(assoc.slot - W, 0, K - 1)  # detection that created the landmark a row matched
+    # Rows that shape the proposal and the weight: with management, those of confirmed landmarks.
+    trusted = (local.confirmed[ws] | mp.use_tentative) if static.manage else jnp.ones(K, bool)
+    used = existing & trusted
+    # Rows that match no used landmark are masked out everywhere they are used.
+    det = Detections(z, local.mean[ws], local.cov[ws], used, z_kind)
+    if static.adaptive_noise:
+        z_prior, S_prior = predicted_measurements(x0, P0, local.mean[ws], local.cov[ws], R, model)
+        _, noise, noise_count = adaptive_noise_rows(
+            noise,
+            noise_count,
+            jax.vmap(model.innovation)(z, z_prior),
+            jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
+            existing,
+            params.forgetting,
+            params.noise_floor * configured,
+        )
+        R = jnp.diag(noise)
+
+    # The proposal, the sampled pose, the weight's likelihoods and the landmarks' updates and
+    # starts: over the scan's bucket of rows.
+    prop, x_s, ll, llp, new_mean, new_cov, upd_mean, upd_cov = rows_over_buckets(
+        static, params, proposal, x0, P0, R, det, existing, ps, eps, z_mask
+    )
+    if static.manage:
+        # A provisional landmark is tentative: its row weighs with its likelihood only with
+        # use_tentative; unused rows that start or match a tentative landmark weigh as new (p0).
+        as_new = assoc.is_new | (existing & ~trusted) | (provisional & ~mp.use_tentative)
+        dlogw = (
+            jnp.sum(jnp.where(used, ll, 0.0))
+            + jnp.sum(as_new) * params.log_p0
+            + jnp.sum(jnp.where(provisional & mp.use_tentative, llp, 0.0))
+        )
+    else:
+        dlogw = (
+            jnp.sum(jnp.where(existing, ll, 0.0))
+            + jnp.sum(assoc.is_new) * params.log_p0
+            + jnp.sum(jnp.where(provisional, llp, 0.0))
+        )
+
+    # Diameters: each matched row updates its landmark's estimate (scalar Kalman filter).
+    var_d = jnp.square(mp.sigma_diameter)
+    cur_d = jnp.where(existing, local.diam[ws], diam[ps])
+    cur_dv = jnp.where(existing, local.diam_var[ws], var_d)
+    upd_d, upd_dv = diameter_update(cur_d, cur_dv, diam, mp.sigma_diameter)
+
+    # The new landmarks as they leave the scan (a later detection of the scan may have updated one).
+    isn = assoc.is_new
+    pt = jnp.where(provisional, ps, K)
+    new = new_landmarks(
+        mean=new_mean.at[pt].set(upd_mean, mode="drop"),
+        cov=new_cov.at[pt].set(upd_cov, mode="drop"),
+        is_new=isn,
+        extra_hits=jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop"),
+        diam=diam.at[pt].set(upd_d, mode="drop"),
+        diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
+        scan=scan,
+        mp=mp,
+        manage=static.manage,
+        ident=z_id if static.association == "known" else None,
+        kind=z_kind,
+    )
+
+    if static.manage:
+        wt = jnp.where(existing, ws, W)
+        local = update_slots(local, wt, upd_mean, upd_cov, upd_d, upd_dv)
+        seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
+
+        def manage(loc, sn):
+            return manage_window(
+                loc,
+                x_s,
+                sn,
+                z,
+                z_mask,
+                diam,
+                valid,
+                scan,
+                params.measurement,
+                mp,
+                static.occlusion,
+            )
+
+        local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
+        # The matched rows' estimates go straight to their slots (k rows); of the window only the
+        # fields management changes are written back (scattering every field of all W slots
+        # cost more than the management itself).
+        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
+        lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), scan, mp)
+    else:
+        # Only the landmarks the scan's detections matched change: write those rows back.
+        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
+    # Every active landmark lies in the slot bucket before this scan (management only frees
+    # slots), so the scan's new landmarks go to its first K free slots at most K past it: the
+    # free slots are searched there and the map's landmarks counted there, not over the capacity.
+    past = lambda b: None if b is None else b + K  # noqa: E731
+    free = None
+    if static.manage:
+        free = _over_slot_bucket(static, slot_bucket, lambda b, a: free_slots(a, K, past(b)), lm.active)
+    lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage, free=free)
+    n_landmarks, n_confirmed = _over_slot_bucket(
+        static, slot_bucket, lambda b, m: _counts(jax.tree.map(lambda a: a[: past(b)], m)), lm
+    )
+    has_assoc = jnp.any(used)
+    return _ParticleOut(
+        pose=x_s,
+        pose_cov=prop.cov,
+        landmarks=lm,
+        dlogw=dlogw,
+        iterations=prop.iterations,
+        result=jnp.where(has_assoc, prop.result, 0),
+        has_assoc=has_assoc,
+        n_associated=jnp.sum(matched),
+        n_new=jnp.sum(assoc.is_new),
+        window_overflow=window_overflow,
+        overflow=overflow,
+        n_landmarks=n_landmarks,
+        n_confirmed=n_confirmed,
+        noise=noise,
+        noise_count=noise_count,
+    )
+
+
+def _over_slot_bucket(static: Static, slot_bucket: Int[Array, ""] | None, fn, *operands):
+    """``fn(slots, *operands)`` with ``slots`` the size of the map prefix ``slot_bucket`` names (a
+    ``lax.switch`` over ``static.slot_buckets``; the index is the same for all particles, so under
+    ``vmap`` it stays one branch), or ``fn(None, *operands)`` (the whole map) without buckets."""
+    if slot_bucket is None or len(static.slot_buckets) == 1:
+        return fn(None, *operands)
+    return jax.lax.switch(slot_bucket, [functools.partial(fn, b) for b in static.slot_buckets], *operands)
+
+
+def _counts(lm: LandmarkMap) -> tuple[Int[Array, ""], Int[Array, ""]]:
+    """:func:`count_landmarks` and :func:`count_confirmed` of one particle's map, as int32."""
+    return count_landmarks(lm).astype(jnp.int32), count_confirmed(lm).astype(jnp.int32)
+
+
+def _gather_small(fields: dict, skip: str, axis_name: str) -> dict:
+    """All-gather (tiled, inside ``shard_map``) every field but ``skip`` in one collective: the
+    fields are packed as floating-point columns of one ``(particles, columns)`` array (the
+    integer and boolean fields are small counts, exact as floats) and unpacked after."""
+    names = [f for f in fields if f != skip]
+    cols = [fields[f].reshape(fields[f].shape[0], -1).astype(float) for f in names]
+    packed = jax.lax.all_gather(jnp.concatenate(cols, axis=1), axis_name, tiled=True)
+    out, i = {}, 0
+    for f, c in zip(names, cols):
+        a = fields[f]
+        out[f] = packed[:, i : i + c.shape[1]].reshape((-1,) + a.shape[1:]).astype(a.dtype)
+        i += c.shape[1]
+    return out
+
+
+def weighted_mean_pose(pose: Float[Array, "n 3"], log_w: Float[Array, " n"]) -> Float[Array, "3"]:
+    """Weighted mean pose with a circular mean for the heading."""
+    w = jnp.exp(normalise(log_w))
+    return jnp.concatenate([w @ pose[:, :2], circular_mean(pose[:, 2], w)[None]])
+
+
+def filter_step(
+    static: Static,
+    params: Params,
+    proposal: AbstractProposal,
+    state: FilterState,
+    seg: Segments,
+    valid: Bool[Array, ""] | bool = True,
+    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
+) -> tuple[FilterState, StepOutput]:
+    """Advance the particle set through one segment.
+
+    ``rel_prior``: the segment's :func:`relative_prior`, used with ``static.prior_cov == 'reset'``
+    (computed here when None; :func:`filter_scan` computes every segment's before its scan).
+
+    A padding segment (``valid`` False; it has no detections and ``dt = 0``) leaves the state
+    unchanged: its maps are untouched already, and the poses, weights and resampling decision
+    are masked here (small arrays), which is cheaper than a conditional around the whole step.
+
+    With ``static.devices > 1`` the whole step runs under ``shard_map``: each device keeps and
+    updates its share of the particles' maps, while the poses, weights and key are replicated;
+    the particles' small outputs are gathered in one collective per step, and the maps cross
+    devices only when the particles are resampled.
+    """
+    if static.prior_cov != "reset" or not params.motion.rigid:
+        rel_prior = None  # a model that is not rigid: every particle's prior is predicted from its own pose
+    elif rel_prior is None:
+        rel_prior = relative_prior(seg.dt, seg.u, seg.dr_mask, params, static.prior)
+    if static.devices == 1:
+        return _step(static, None, params, proposal, state, seg, valid, rel_prior)
+    mesh = Mesh(np.array(jax.devices()[: static.devices]), ("particles",))
+    part, rep = PartitionSpec("particles"), PartitionSpec()
+    spec = jax.tree.map(lambda _: rep, state)
+    spec = spec._replace(
+        particles=spec.particles._replace(landmarks=jax.tree.map(lambda _: part, state.particles.landmarks))
+    )
+    step = functools.partial(_step, static, "particles")
+    return jax.shard_map(
+        step, mesh=mesh, in_specs=(rep, rep, spec, rep, rep, rep), out_specs=(spec, rep), check_vma=False
+    )(params, proposal, state, seg, jnp.asarray(valid), rel_prior)
+
+
+def _step(
+    static: Static,
+    axis: str | None,
+    params: Params,
+    proposal: AbstractProposal,
+    state: FilterState,
+    seg: Segments,
+    valid: Bool[Array, ""] | bool,
+    rel_prior,
+) -> tuple[FilterState, StepOutput]:
+    """:func:`filter_step` on one device; ``axis`` names the device axis when the maps are split
+    (``state.particles.landmarks`` then holds this device's share, everything else all particles)."""
+    n = static.n_particles
+    key, k_part, k_res = jax.random.split(state.key, 3)
+    # All particles' standard normal draws in one call (cheaper than a key per particle).
+    eps = jax.random.normal(k_part, (n, 3), dtype=state.particles.pose.dtype)
+    p = state.particles
+    valid = jnp.asarray(valid)
+    if axis is None:
+        mine = lambda a: a  # noqa: E731
+    else:
+        share = n // static.devices
+        first = jax.lax.axis_index(axis) * share
+        mine = lambda a: jax.lax.dynamic_slice_in_dim(a, first, share)  # noqa: E731
+
+    # The smallest map prefix holding every active landmark of this device's particles (under a
+    # sweep's vmap: of the batch), where the local windows are searched.
+    in_use = slots_in_use(p.landmarks)
+    slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
+    out = jax.vmap(
+        particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0, None, None)
+    )(
+        static,
+        params,
+        proposal,
+        mine(p.pose),
+        mine(p.pose_cov),
+        p.landmarks,
+        seg.dt,
+        seg.u,
+        seg.dr_mask,
+        seg.z,
+        seg.z_mask,
+        mine(eps),
+        valid & seg.is_scan,
+        rel_prior,
+        slot_bucket,
+        seg.diam,
+        state.scan,
+        mine(p.noise),
+        mine(p.noise_count),
+        seg.z_id,
+        seg.z_kind if is_composite(params.measurement) else None,
+    )
+    if axis is not None:
+        out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
+    out = out._replace(
+        pose=jnp.where(valid, out.pose, p.pose),
+        pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),
+        dlogw=jnp.where(valid, out.dlogw, 0.0),
+        noise=jnp.where(valid, out.noise, p.noise),
+        noise_count=jnp.where(valid, out.noise_count, p.noise_count),
+    )
+    log_w = p.log_w + out.dlogw
+    finite = jnp.any(jnp.isfinite(log_w))
+    log_w = jnp.where(jnp.isnan(log_w), -jnp.inf, log_w)
+    log_w = jnp.where(finite, normalise(log_w), jnp.full((n,), -jnp.log(n)))
+    log_w = jnp.where(valid, log_w, p.log_w)
+    ess = effective_sample_size(log_w)
+    best = jnp.argmax(log_w).astype(jnp.int32)
+    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count)
+
+    record = StepOutput(
+        best_pose=out.pose[best],
+        mean_pose=weighted_mean_pose(out.pose, log_w),
+        ess=ess,
+        resampled=valid & (ess < params.resample_threshold * n),
+        # Counted per particle where the maps are (indexing the best particle's map instead would
+        # move every map between the devices at every step when the particles are split).
+        n_landmarks=out.n_landmarks[best],
+        n_confirmed=out.n_confirmed[best],
+        iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
+        n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
+        n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),
+        n_associated=jnp.mean(out.n_associated.astype(float)),
+        n_new=jnp.mean(out.n_new.astype(float)),
+        window_overflow=jnp.max(out.window_overflow).astype(jnp.int32),
+        overflow=jnp.sum(out.overflow).astype(jnp.int32),
+        weight_reset=~finite,
+    )
+
+    def ancestors(parts):
+        anc = resample(static.resampler, k_res, parts.log_w)
+        # A copy of the best particle if it survived (always, for systematic and residual
+        # resampling, since its weight is >= 1/N), else the best survivor.
+        return anc, jnp.argmax(parts.log_w[anc]).astype(jnp.int32)
+
+    uniform = jnp.full((n,), -jnp.log(n), dtype=particles.log_w.dtype)
+    # filter.estimate: path records the genealogy: the resampling's ancestors, identity without it.
+    track = static.estimate == "path"
+    if axis is None:
+        # A conditional copy; under a sweep's vmap each run copies its maps only when it resamples.
+        # The ancestors are drawn at every step (one uniform and a search over the weights, well
+        # under a microsecond) so that only the copy is conditional. Uniform weights taken by
+        # ancestor are uniform, so they can be set before the copy.
+        anc, best_after = ancestors(particles)
+        log_w = jnp.where(record.resampled, uniform, particles.log_w)
+        particles = take_if(record.resampled, anc, particles._replace(log_w=log_w))
+        best = jnp.where(record.resampled, best_after, best)
+        parents = jnp.where(record.resampled, anc, jnp.arange(n, dtype=anc.dtype)) if track else None
+    else:
+
+        def do_resample(args):
+            parts, _, _ = args
+            anc, best_after = ancestors(parts)
+            # This device's new particles may descend from any device's: gather all maps.
+            lms = jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], parts.landmarks)
+            parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
+            return parts._replace(log_w=uniform), best_after, (anc if track else None)
+
+        particles, best, parents = jax.lax.cond(
+            record.resampled,
+            do_resample,
+            lambda a: a,
+            (particles, best, jnp.arange(n, dtype=jnp.int32) if track else None),
+        )
+    if track:
+        record = record._replace(poses=out.pose, ancestors=parents)
+    new_state = FilterState(
+        particles=particles,
+        key=key,
+        best=best,
+        resample_count=state.resample_count + record.resampled.astype(jnp.int32),
+        overflow=state.overflow + record.overflow,
+        scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
+    )
+    return new_state, record
