@@ -30,6 +30,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -35,6 +35,9 @@ from nanoslam_jax.app.config import ConfigError
 from nanoslam_jax.app.experiment import load_log
 from nanoslam_jax.methods import text_progress
 from nanoslam_jax.eval.metrics import evaluate
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 KEYS = ("rmse_fixed", "rmse_aligned", "rmse_fixed_clean", "rmse_aligned_clean", "final_error")
 #: Columns reported when the runs have them (the filter's own estimate, the smoother's).

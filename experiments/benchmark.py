@@ -52,6 +52,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 SECOND_RUN = "second-run"
 DATA = "data"
@@ -101,7 +104,8 @@ def run_one(
     import jax
 
     from nanoslam_jax.app.config import load_config
-    from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+    from nanoslam_jax.methods import reported_map, run_filter
+    from nanoslam_jax.app.filters import settings_from_config
 
     cfg = load_config(config, overrides)
     seg = _segments(cfg, data, segments)
@@ -188,7 +192,8 @@ def paired_timing(
     import statistics
 
     from nanoslam_jax.app.config import load_config
-    from nanoslam_jax.methods import run_filter, settings_from_config
+    from nanoslam_jax.methods import run_filter
+    from nanoslam_jax.app.filters import settings_from_config
 
     cfgs = {k: load_config(config, v) for k, v in variants.items()}
     seg = _segments(next(iter(cfgs.values())), data, segments)

@@ -27,14 +27,10 @@ import numpy as np
 from nanoslam_jax.eval._scoring import MapEstimate, failure_reason, score_run, seed_summary
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import (
-    dead_reckoning,
-    reported_map,
-    reported_trajectory,
-    run_batch,
-    settings_from_config,
-    stack_params,
-)
+from nanoslam_jax.methods import dead_reckoning, reported_map, reported_trajectory, run_batch, stack_params
+from nanoslam_jax.app.filters import settings_from_config
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 
 def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds: int) -> list[dict]:

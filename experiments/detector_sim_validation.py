@@ -40,6 +40,9 @@ from nanoslam_jax.app.config import load_config  # noqa: E402
 from nanoslam_jax.data import LaserScans  # noqa: E402
 from nanoslam_jax.frontend import detect_trees  # noqa: E402
 from nanoslam_jax.sim.laser import KIND_BUSH, KIND_FENCE, KIND_TREE, KIND_WALL, simulate_laser  # noqa: E402
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 WITHIN, MIN_BEAMS = 30.0, 3
 FALSE_KINDS = ("tree (centre off)", "wall", "fence", "bush", "no surface: a spurious return")

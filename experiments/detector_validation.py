@@ -30,6 +30,9 @@ from nanoslam_jax.app.config import load_config  # noqa: E402
 from nanoslam_jax.data import load_laser, load_victoria_park  # noqa: E402
 from nanoslam_jax.frontend import extract_features  # noqa: E402
 from nanoslam_jax.lib._angles import wrap_angle_np  # noqa: E402
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 MATCH_RANGE, MATCH_BEARING_DEG, WITHIN = 0.5, 1.5, 30.0
 

@@ -23,6 +23,9 @@ sys.path.insert(0, str(ROOT))
 from nanoslam_jax.app.config import DetectorConfig  # noqa: E402
 from nanoslam_jax.data import load_laser  # noqa: E402
 from nanoslam_jax.frontend import extract_features, extract_features_chunked  # noqa: E402
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 
 def timed(fn, repeats: int) -> tuple[np.ndarray, object]:

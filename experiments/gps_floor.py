@@ -19,6 +19,10 @@ from pathlib import Path
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
 from nanoslam_jax.eval.gps_floor import floor_markdown, gps_floor_of_log
+from nanoslam_jax.models import motion_model_from_config
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 DEFAULT = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_nano.yaml"
 
@@ -34,7 +38,7 @@ def main() -> None:
     log = load_log(cfg, args.data)
     if log.frame != "relative":
         raise SystemExit(f"{log.source}: a simulated log's GPS is its ground truth; there is no floor to estimate")
-    floor = gps_floor_of_log(cfg, log)
+    floor = gps_floor_of_log(motion_model_from_config(cfg), cfg.metrics, log)
     print(floor_markdown(floor))
     if args.json:
         Path(args.json).write_text(json.dumps(dataclasses.asdict(floor), indent=2) + "\n")

@@ -23,6 +23,9 @@ import numpy as np  # noqa: E402
 
 from nanoslam_jax.app.config import load_config  # noqa: E402
 from nanoslam_jax.sim.indoor import BREAK_DOOR, simulate_indoor  # noqa: E402
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 
 def draw(ax, log, t_scan: float) -> None:

@@ -36,6 +36,9 @@ from nanoslam_jax.frontend import extract_features
 from nanoslam_jax.frontend._types import EDGE_FARTHER, EDGE_NO_RETURN
 from nanoslam_jax.sim.indoor import hessian_lines, simulate_indoor
 from nanoslam_jax.sim.laser import KIND_WALL
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 
 def _world(pose: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:

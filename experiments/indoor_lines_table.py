@@ -7,7 +7,7 @@
 For every seed ``s`` the config runs (:func:`nanoslam_jax.app.experiment.execute`) with ``seed = s`` and
 ``indoor.seed = s`` (a new world, drive, noise and filter seed each); each run's metrics are its
 ``metrics.json`` figures. Prints one row per seed and the median and worst over the seeds (a failed run
-counts as the worst, :func:`nanoslam_jax.eval.metrics.seed_summary`), as a Markdown table.
+counts as the worst, :func:`nanoslam_jax.eval.seed_summary`), as a Markdown table.
 """
 
 from __future__ import annotations
@@ -20,7 +20,10 @@ from _seeds import parse_seeds
 
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import execute
-from nanoslam_jax.eval.metrics import seed_summary
+from nanoslam_jax.eval import seed_summary
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 #: The columns: metric, header, scale, digits.
 COLUMNS = (

@@ -21,6 +21,9 @@ import numpy as np
 from nanoslam_jax.app.config import load_config, resolve_data_dir
 from nanoslam_jax.data import MRCLAM_ROBOTS, dead_reckoning_map, load_mrclam
 from nanoslam_jax.eval.metrics import map_alignment_metrics
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 
 def baseline(directory: Path, robot: int, match_radius: float) -> dict:

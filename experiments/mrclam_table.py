@@ -27,6 +27,9 @@ from nanoslam_jax.eval._scoring import format_number, summarize_runs
 from nanoslam_jax.app.config import load_config, resolve_data_dir
 from nanoslam_jax.data import dead_reckoning_map, load_mrclam
 from nanoslam_jax.eval.metrics import map_alignment_metrics
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 #: Table labels and order of the methods and associations.
 METHODS = {

@@ -40,6 +40,9 @@ from _seeds import format_seeds, parse_seeds
 
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import execute
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 CONFIG = "configs/nasrukf_indoor.yaml"
 #: The simulator's odometry noise outside slip: sigma_v (m/s), sigma_omega (deg/s), and the slip factor.

@@ -25,9 +25,13 @@ from nanoslam_jax import enable_compile_cache
 from nanoslam_jax.eval._scoring import score_run, seed_summary
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import reported_trajectory, run_batch, settings_from_config, stack_params, text_progress
+from nanoslam_jax.methods import reported_trajectory, run_batch, stack_params, text_progress
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.smoother._smoother import SmootherSettings, smooth_run, smoother_map
 from target_score import score as target_score  # experiments/ is on the path when this script runs
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 
 def _summary(v: np.ndarray, ok: np.ndarray) -> dict:

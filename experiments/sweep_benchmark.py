@@ -56,6 +56,9 @@ import subprocess
 import sys
 import tempfile
 import time
+import jax
+
+jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 WORKLOAD = dict(n=64, particles=10, segments=500)
 
@@ -92,7 +95,7 @@ def workload(args, particles: int):
     import jax
 
     import nanoslam_jax  # noqa: F401  (float64 before any array exists)
-    from nanoslam_jax.methods import settings_from_config
+    from nanoslam_jax.app.filters import settings_from_config
     from nanoslam_jax.app.sweep import expand, load_log_data, sweep_from_dict
 
     spec = sweep_from_dict(

@@ -10,7 +10,8 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from nanoslam_jax.methods import dead_reckoning, settings_from_config
+from nanoslam_jax.methods import dead_reckoning
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.eval.metrics import evaluate
 
 

@@ -10,7 +10,12 @@ imports them unchecked.
 import os
 from pathlib import Path
 
+import jax
 import pytest
+
+# The library is tested in float64, the precision its entry points compute in (importing the
+# package changes no JAX setting: nanoslam_jax.float64).
+jax.config.update("jax_enable_x64", True)
 
 TYPECHECKED = ("nanoslam_jax.models", "nanoslam_jax.lib.quadrature")
 
@@ -75,7 +80,7 @@ def compile_cache_dir(tmp_path_factory) -> Path:
     once per session and loaded afterwards. Commands run in fresh processes get it through
     ``NANOSLAM_CACHE_DIR`` (unless the caller set one). Tests of the cache itself use their own
     directories in fresh processes."""
-    from nanoslam_jax.app._cache import enable_compile_cache
+    from nanoslam_jax.lib._cache import enable_compile_cache
 
     base = tmp_path_factory.getbasetemp()
     session = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # xdist: .../pytest-N/popen-gwK
@@ -89,9 +94,9 @@ def release_compiled_programs():
     """After each test module, drop the programs it compiled. XLA:CPU keeps about 1,200 memory
     regions per compiled filter program; the whole suite in one process compiles several hundred
     programs and, without this, reaches the kernel's limit (``vm.max_map_count``), where LLVM
-    aborts the process (``nanoslam_jax.app._cache.release_programs``)."""
+    aborts the process (``nanoslam_jax.lib._cache.release_programs``)."""
     yield
-    from nanoslam_jax.app._cache import release_programs
+    from nanoslam_jax.lib._cache import release_programs
 
     release_programs(0)
 

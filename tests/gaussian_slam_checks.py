@@ -7,7 +7,8 @@ import numpy as np
 
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import _scan, reported_map, settings_from_config
+from nanoslam_jax.methods import _scan, reported_map
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.eval.metrics import landmark_errors
 
 

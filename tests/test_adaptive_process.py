@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import make_segments
 from nanoslam_jax.data._types import RawLog
@@ -25,8 +24,8 @@ from nanoslam_jax.methods import (
     forgetting_weight,
     process_noise_basis,
     run_filter,
-    settings_from_config,
 )
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.gaussian._nasrukf import pose_time_update
 from nanoslam_jax.models import Ackermann, RandomWalk, Unicycle
 

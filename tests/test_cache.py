@@ -21,8 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.app import _cache
-from nanoslam_jax.app._cache import CACHE_ENV, compile_program, default_cache_dir, program_key
+from nanoslam_jax.lib import _cache
+from nanoslam_jax.lib._cache import CACHE_ENV, compile_program, default_cache_dir, program_key
 
 # A small run that still compiles the whole filter program: FastSLAM 1.0 on 20 s of the simulated log.
 SMALL = [
@@ -506,7 +506,8 @@ def test_release_programs_unmaps_compiled_filter_programs(monkeypatch):
     its threshold, and a released program compiles again to the same outputs."""
     from nanoslam_jax.app.config import load_config
     from nanoslam_jax.app.experiment import load_log
-    from nanoslam_jax.methods import run_filter, settings_from_config
+    from nanoslam_jax.methods import run_filter
+    from nanoslam_jax.app.filters import settings_from_config
 
     _cache.release_programs(0)
     before = _cache.memory_maps()[0]

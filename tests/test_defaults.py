@@ -11,7 +11,8 @@ import pytest
 
 from nanoslam_jax.eval import metrics
 from nanoslam_jax.app.config import Config, MetricsConfig
-from nanoslam_jax.methods._params import Static, settings_from_config
+from nanoslam_jax.methods._params import Static
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.models import MOTION_MODELS, Ackermann, RangeBearing
 from nanoslam_jax.models._vehicle import VehicleParams
 

@@ -14,17 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.config import load_config
-from nanoslam_jax.methods import (
-    EkfSlamState,
-    GaussianState,
-    _scan,
-    reported_map,
-    resample_count,
-    run_filter,
-    settings_from_config,
-)
+from nanoslam_jax.methods import EkfSlamState, GaussianState, _scan, reported_map, resample_count, run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.gaussian import _joint_gaussian
 from nanoslam_jax.methods.gaussian._joint_gaussian import landmark_blocks
 from nanoslam_jax.models import vehicle_step

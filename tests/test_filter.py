@@ -18,18 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import (
-    _scan,
-    dead_reckoning,
-    reported_map,
-    run_batch,
-    run_filter,
-    settings_from_config,
-    stack_params,
-)
+from nanoslam_jax.app.registry import get_method
+from nanoslam_jax.methods import _scan, dead_reckoning, reported_map, run_batch, run_filter, stack_params
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.eval.metrics import evaluate
 
 # A capacity/window pair used by no other test module, so this module's first run really traces
@@ -164,7 +157,7 @@ def test_new_params_do_not_retrace(sim, runs, trace_counter):
     first = runs(0)
     n_traced = trace_counter["n"]
     if n_traced == 0:  # a cache directory filled before this session (NANOSLAM_CACHE_DIR) served the program
-        from nanoslam_jax.app._cache import _exported_dir
+        from nanoslam_jax.lib._cache import _exported_dir
 
         exported = _exported_dir()
         assert exported is not None and any(exported.iterdir()), "nothing traced and no kept program"
@@ -235,7 +228,7 @@ def test_dead_reckoning_is_refused_by_the_filter_drivers(sim):
     """Dead reckoning has no filter to scan: run_filter and run_batch say so, naming the key and
     the function that computes it, before anything is traced."""
     _, log, static, params = sim
-    dr = dataclasses.replace(static, method="dead_reckoning")
+    dr = dataclasses.replace(static, method=get_method("dead_reckoning"))
     with pytest.raises(ValueError, match="filter.method: 'dead_reckoning' is deterministic.*dead_reckoning\\(params"):
         run_filter(dr, params, log.segments, 0)
     with pytest.raises(ValueError, match="filter.method: 'dead_reckoning' is deterministic"):
@@ -264,7 +257,7 @@ def test_victoria_park_paper_setting(vp_dir):
     cfg = load_config(config, [f"data.path={vp_dir}"])
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
-    assert static.n_particles == 10 and static.method == "nano" and static.manage
+    assert static.n_particles == 10 and static.method.name == "nano" and static.manage
     seeds = [0, 1, 2, 3]
     run = run_batch(static, stack_params([params] * len(seeds)), log.segments, seeds)
     assert_all_finite(run)
@@ -304,7 +297,8 @@ def test_padding_segments_are_exact_no_ops():
     """The chunked driver pads the last chunk: results must not depend on the chunk size."""
     from nanoslam_jax.app.config import load_config
     from nanoslam_jax.app.experiment import load_log
-    from nanoslam_jax.methods import run_filter, settings_from_config
+    from nanoslam_jax.methods import run_filter
+    from nanoslam_jax.app.filters import settings_from_config
 
     cfg = load_config(None, SHORT)
     log = load_log(cfg)
@@ -495,11 +489,12 @@ def test_particles_split_over_devices_give_the_same_run():
         import dataclasses, json
         import jax
         jax.config.update("jax_num_cpu_devices", 2)
+        jax.config.update("jax_enable_x64", True)
         import numpy as np
-        import nanoslam_jax
         from nanoslam_jax.app.config import load_config
         from nanoslam_jax.app.experiment import load_log
-        from nanoslam_jax.methods import run_filter, settings_from_config
+        from nanoslam_jax.app.filters import settings_from_config
+        from nanoslam_jax.methods import run_filter
         cfg = load_config(None, ["data.t_end=40", "filter.n_particles=64", "filter.row_buckets=never",
                                  "filter.split_devices=always"])
         log = load_log(cfg)
@@ -557,7 +552,8 @@ def test_least_squares_methods_are_not_split_over_devices():
     """optimistix's least squares cannot run under shard_map (lineax issue #185; reproduced in
     tests/test_sweep.py), so a run of the iterated proposal or of NANO-SLAM initialised at the
     Gauss-Newton MAP keeps its particles on one device whatever ``filter.split_devices`` says."""
-    from nanoslam_jax.methods import method_static, shardable
+    from nanoslam_jax.methods import shardable
+    from nanoslam_jax.app.filters import method_static
 
     over = ["filter.n_particles=1000", "filter.split_devices=always"]
     for extra, split in (
@@ -567,6 +563,6 @@ def test_least_squares_methods_are_not_split_over_devices():
         (["filter.method=fastslam2"], True),
     ):
         cfg = load_config(None, over + extra)
-        assert shardable(cfg.filter.method, method_static(cfg)) is split, extra
+        assert shardable(get_method(cfg.filter.method), method_static(cfg)) is split, extra
         static, _ = settings_from_config(cfg, 14)
         assert (static.devices > 1) is (split and len(jax.devices()) > 1), extra

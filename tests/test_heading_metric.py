@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import execute
 from nanoslam_jax.eval.metrics import heading_errors, rmse_heading_deg

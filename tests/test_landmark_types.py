@@ -14,7 +14,8 @@ import pytest
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.data import make_segments
 from nanoslam_jax.app.experiment import execute, load_log, map_columns
-from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+from nanoslam_jax.methods import reported_map, run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
 from nanoslam_jax.models import AbstractMeasurementModel, Circle
 

@@ -9,7 +9,8 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import execute, load_log, map_columns
-from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+from nanoslam_jax.methods import reported_map, run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.maps._association import associate
 from nanoslam_jax.methods.gaussian._joint_gaussian import association_distances
 from nanoslam_jax.methods._state import LandmarkMap

@@ -12,7 +12,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.methods import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
 from nanoslam_jax.methods.maps._landmarks import add_landmarks, update_slots
 from nanoslam_jax.methods.maps._association import innovation_information

@@ -13,7 +13,8 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import Segments
-from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+from nanoslam_jax.methods import reported_map, run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.eval.metrics import (
     arc_feature_errors,
     feature_map_errors,

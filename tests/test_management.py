@@ -16,7 +16,8 @@ import pytest
 
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import LandmarkMap, associate, run_filter, settings_from_config
+from nanoslam_jax.methods import LandmarkMap, associate, run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.maps._management import manage_window, manage_window_prefix, occluded
 from nanoslam_jax.methods._scan import make_proposal
 from nanoslam_jax.methods.particle._step import particle_update

@@ -16,7 +16,8 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import Segments, make_segments
-from nanoslam_jax.methods import run_filter, settings_from_config
+from nanoslam_jax.methods import run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.maps._association import innovation_information
 from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, RangeBearing
 from nanoslam_jax.sim.park import simulate

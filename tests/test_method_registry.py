@@ -18,9 +18,9 @@ from nanoslam_jax.methods import (
     NasrukfStatic,
     Static,
     make_proposal,
-    settings_from_config,
 )
-from nanoslam_jax.app.registry import Method, get_method, method_names, register
+from nanoslam_jax.app.filters import settings_from_config
+from nanoslam_jax.app.registry import Method, get_method, method_names, nano_static, register
 from nanoslam_jax.methods.proposals import AbstractProposal, ProposalResult
 from nanoslam_jax.app.sweep import read_results, run_sweep, sweep_from_dict
 
@@ -75,6 +75,7 @@ NESTED = register(
         proposal=lambda static, params, mp: InflatedPrior(mp.scale**2 if static.method_settings.square else mp.scale),
         section="nano",
         static_settings=lambda cfg: ToyStatic(square=cfg.nano.max_iter > 1),
+        static_default=ToyStatic(square=True),
         traced_settings=lambda cfg: ToyParams(scale=jnp.asarray(cfg.nano.step, dtype=float)),
         description="the prior, its covariance scaled by nano.step (squared for nano.max_iter > 1)",
     ),
@@ -86,9 +87,9 @@ def test_settings_are_nested_per_method():
     """Each method's own settings sit in one field of Static and of Params; the shared ones stay flat."""
     cfg = load_config(None, ["filter.method=nano", "nano.gamma=0.01"])
     static, params = settings_from_config(cfg, 14)
-    assert static.method_settings == NanoStatic.from_config(cfg) and isinstance(params.method, NanoParams)
+    assert static.method_settings == nano_static(cfg) and isinstance(params.method, NanoParams)
     assert float(params.method.gamma) == 0.01 and hash(static) == hash(dataclasses.replace(static))
-    assert Static(method="nano").method_settings == NanoStatic.from_config(Config())
+    assert Static(method=get_method("nano")).method_settings == nano_static(Config()) == NanoStatic()
     static, params = settings_from_config(load_config(None, ["filter.method=iterated"]), 14)
     assert isinstance(static.method_settings, IteratedStatic) and params.method == {}
     static, params = settings_from_config(load_config(None, ["filter.method=nasrukf"]), 14)
@@ -112,7 +113,7 @@ def test_registered_method_declares_its_own_settings():
     assert float(make_proposal(static, params).scale) == 0.5
     static, params = settings_from_config(load_config(None, ["filter.method=toy_nested_settings", "nano.step=0.5"]), 14)
     assert static.method_settings == ToyStatic(square=True) and float(make_proposal(static, params).scale) == 0.25
-    assert Static(method="toy_nested_settings").method_settings == ToyStatic(square=Config().nano.max_iter > 1)
+    assert Static(method=get_method("toy_nested_settings")).method_settings == ToyStatic(square=True)
 
 
 def test_registered_method_is_known_and_validated():

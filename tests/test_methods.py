@@ -19,12 +19,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.cli import main as cli_main
 from nanoslam_jax.app.compare import load_compare_spec
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import adaptive_noise_report, load_log
-from nanoslam_jax.methods import run_batch, run_filter, settings_from_config, stack_params
+from nanoslam_jax.methods import run_batch, run_filter, stack_params
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.eval.metrics import evaluate
 from nanoslam_jax.methods.proposals import Gaussian, IteratedProposal, map_estimate
 from nanoslam_jax.methods.proposals._fastslam2 import linearized_gaussian

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.models import (
     VehicleParams,
     centre_speed,

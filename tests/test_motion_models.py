@@ -20,7 +20,8 @@ from nanoslam_jax.app import filters
 from nanoslam_jax.app.cli import main as cli_main
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import predict, run_filter, settings_from_config
+from nanoslam_jax.methods import predict, run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.particle._prior import _ut_piece
 from nanoslam_jax.models import AbstractMotionModel, AbstractRateModel, Ackermann, Unicycle
 from nanoslam_jax.sim.park import simulate_config

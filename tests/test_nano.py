@@ -18,7 +18,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.methods import predict
 from nanoslam_jax.methods.proposals import (
     Detections,
@@ -371,7 +370,7 @@ def published_cases(n_cases=24, k=6, start_sigma=None):
     measurement noise (sigma_r 1 m, sigma_beta 3 deg), z from a pose drawn from the prior; padded to
     ``k`` rows with a mask."""
     from nanoslam_jax.app.config import load_config
-    from nanoslam_jax.methods import settings_from_config
+    from nanoslam_jax.app.filters import settings_from_config
 
     # The published setting (sigma_v 2 m/s, sigma_alpha 6 deg, sigma_r 1 m, sigma_beta 3 deg).
     _, params = settings_from_config(

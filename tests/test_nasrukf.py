@@ -16,7 +16,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.config import apply_overrides, config_from_dict, load_config
 from nanoslam_jax.app.experiment import adaptive_noise_report, load_log
 from nanoslam_jax.methods import (
@@ -28,8 +27,8 @@ from nanoslam_jax.methods import (
     fuse_poses,
     resample_count,
     run_filter,
-    settings_from_config,
 )
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.gaussian import _nasrukf
 from nanoslam_jax.eval.metrics import evaluate
 from nanoslam_jax.models import inverse_range_bearing, vehicle_step

@@ -12,7 +12,8 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import Segments
-from nanoslam_jax.methods import run_filter, settings_from_config
+from nanoslam_jax.methods import run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.gaussian._nasrukf_beams import stacked_update
 from nanoslam_jax.methods.gaussian._nasrukf_beams_state import ARC, EMPTY, LINE, Candidates, candidate_update, fit_group
 from nanoslam_jax.lib.quadrature import Unscented

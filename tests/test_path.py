@@ -13,7 +13,8 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import ancestral_path, reported_trajectory, run_filter, settings_from_config
+from nanoslam_jax.methods import ancestral_path, reported_trajectory, run_filter
+from nanoslam_jax.app.filters import settings_from_config
 
 
 def carried_forward(poses: np.ndarray, ancestors: np.ndarray, final: int) -> np.ndarray:

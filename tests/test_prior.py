@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from nanoslam_jax.app.config import load_config
-from nanoslam_jax.methods import compose_prior, predict, relative_prior, settings_from_config
+from nanoslam_jax.methods import compose_prior, predict, relative_prior
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.models import vehicle_step
 from nanoslam_jax.lib.quadrature import Unscented
 

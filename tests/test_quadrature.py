@@ -7,7 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.models import wrap_angle
 from nanoslam_jax.lib.quadrature import (
     Cubature,

@@ -12,7 +12,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.methods import RESAMPLERS, effective_sample_size, normalise, resample
 
 N_KEYS = 20_000

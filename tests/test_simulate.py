@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.config import SimConfig, VehicleConfig
 from nanoslam_jax.models import VehicleParams, range_bearing, vehicle_step
 from nanoslam_jax.sim.park import PATH_CLEARANCE, TREE_SPACING, simulate, simulate_to_dir

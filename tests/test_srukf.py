@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.methods.gaussian import _srukf
 from nanoslam_jax.lib.quadrature import Unscented
 from ukf_reference import ALPHA, BETA, KAPPA, dense_transform, dense_update, random_spd, ut_weights

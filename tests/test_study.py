@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 import yaml
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app._devices import DEVICES_PER_CORE, available_cores
 from nanoslam_jax.app.cli import main
 from nanoslam_jax.methods import particle_devices

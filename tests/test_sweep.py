@@ -30,11 +30,11 @@ import numpy as np
 import pytest
 import yaml
 
-import nanoslam_jax  # noqa: F401  (float64)
-from nanoslam_jax import enable_compile_cache
+from nanoslam_jax import __version__, enable_compile_cache
 from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE
 from nanoslam_jax.app.config import ConfigError, load_config
-from nanoslam_jax.methods import run_filter, settings_from_config
+from nanoslam_jax.methods import run_filter
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.app.sweep import _batch, _plan
 from nanoslam_jax.app.sweep import (
     TIMING_COLUMNS,
@@ -339,7 +339,7 @@ def test_sweep_compiles_once_per_shape_and_writes_its_results(main_sweep, trace_
     assert (float(s["rmse_aligned_min"]), float(s["rmse_aligned_max"])) == (min(med[best_id]), max(med[best_id]))
     for f in ("sweep.yaml", "base_config.yaml", "version.json", "configs.csv", "summary.md"):
         assert (out / f).is_file()
-    assert nanoslam_jax.__version__ in (out / "version.json").read_text()
+    assert __version__ in (out / "version.json").read_text()
 
 
 @pytest.mark.slow
@@ -599,7 +599,7 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
     code = textwrap.dedent(f"""
         import csv, json
         import jax
-        import nanoslam_jax
+        jax.config.update("jax_enable_x64", True)
         from nanoslam_jax.app.sweep import _batch, run_sweep, sweep_from_dict
         base = {BASE!r}
         raw = {{"base": base, "seeds": 2, "grid": {{"filter.gate": [5.991]}}, "plots": False,
@@ -616,7 +616,7 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
         # The shard_map split of the iterated batch itself still fails:
         import numpy as np
         from nanoslam_jax.app.config import config_from_dict
-        from nanoslam_jax.methods import settings_from_config
+        from nanoslam_jax.app.filters import settings_from_config
         from nanoslam_jax.app.sweep import load_log_data
         cfg = config_from_dict(it.base)
         log = load_log_data(cfg)

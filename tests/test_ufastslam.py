@@ -14,7 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.methods.maps import _landmarks
 from nanoslam_jax.models import range_bearing
 from nanoslam_jax.methods.proposals import Detections, LinearizedProposal, UnscentedProposal
@@ -418,7 +417,8 @@ def test_filter_tracks_simulated_truth():
     from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics, reported_map_quality
     from nanoslam_jax.app.config import load_config
     from nanoslam_jax.app.experiment import load_log
-    from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+    from nanoslam_jax.methods import reported_map, run_filter
+    from nanoslam_jax.app.filters import settings_from_config
     from nanoslam_jax.eval.metrics import evaluate
 
     cfg = load_config(None, ["sim.duration=60"] + SHARED)
@@ -463,7 +463,8 @@ def test_real_log_first_scans_finite(vp_dir):
     from baselines import assert_beats_dead_reckoning, dead_reckoning_metrics
     from nanoslam_jax.app.config import load_config
     from nanoslam_jax.app.experiment import load_log
-    from nanoslam_jax.methods import reported_map, run_filter, settings_from_config
+    from nanoslam_jax.methods import reported_map, run_filter
+    from nanoslam_jax.app.filters import settings_from_config
     from nanoslam_jax.eval.metrics import evaluate
 
     config = Path(__file__).resolve().parents[1] / "configs" / "victoria_park_ufastslam.yaml"

@@ -18,9 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import nanoslam_jax  # noqa: F401  (float64)
 from nanoslam_jax.app.config import load_config
-from nanoslam_jax.methods import LandmarkMap, settings_from_config
+from nanoslam_jax.methods import LandmarkMap
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods._scan import make_proposal
 from nanoslam_jax.methods.particle._step import particle_update
 from test_nano import ekf_pose_update, rb_jacobian_landmark, rb_jacobian_pose, rb_residual_np, wrap

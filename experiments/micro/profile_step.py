@@ -131,10 +131,11 @@ def main() -> None:
     os.environ.setdefault("JAX_TRACEBACK_IN_LOCATIONS_LIMIT", "-1")
     import jax
 
-    import nanoslam_jax  # noqa: F401  (float64)
+    jax.config.update("jax_enable_x64", True)  # the library computes in float64
     from nanoslam_jax.app.config import load_config
     from nanoslam_jax.app.experiment import load_log
-    from nanoslam_jax.methods import run_filter, settings_from_config
+    from nanoslam_jax.methods import run_filter
+    from nanoslam_jax.app.filters import settings_from_config
     from nanoslam_jax.methods._scan import filter_scan
 
     cfg = load_config(
@@ -179,7 +180,7 @@ def main() -> None:
         by_path[path.get(name, "(no op_name)")] += d
 
     print(
-        f"\n{cfg.name}: {static.method}, {args.particles} particles, scans {args.start}-{args.start + args.scans}, "
+        f"\n{cfg.name}: {static.method.name}, {args.particles} particles, scans {args.start}-{args.start + args.scans}, "
         f"one device: {wall:.2f} s under the profiler, {total:.0f} ms in leaf operations\n"
     )
     tables = [("project function", by_where), ("op_name path", by_path)]

@@ -24,10 +24,11 @@ def main() -> None:
     import jax
 
     jax.config.update("jax_num_cpu_devices", 2)
-    import nanoslam_jax  # noqa: F401  (float64)
+    jax.config.update("jax_enable_x64", True)  # the library computes in float64
     from nanoslam_jax.app.config import load_config
     from nanoslam_jax.app.experiment import load_log
-    from nanoslam_jax.methods import run_filter, settings_from_config
+    from nanoslam_jax.methods import run_filter
+    from nanoslam_jax.app.filters import settings_from_config
 
     cfg = load_config(args.config, [f"filter.n_particles={args.particles}", "filter.split_devices=always"])
     seg = load_log(cfg, args.data).segments

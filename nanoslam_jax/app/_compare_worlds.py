@@ -294,7 +294,7 @@ def run_worlds(spec: CompareSpec, out: Path, plots: bool = True, stream=sys.stde
     Returns:
         The table rows (also in ``table1.csv``).
     """
-    from nanoslam_jax.app.compare import MethodResult, _write_outputs, log_key, summarise, write_resolved
+    from nanoslam_jax.app._compare_report import MethodResult, _write_outputs, log_key, summarise, write_resolved
     from nanoslam_jax.app.experiment import execute, load_log
 
     write_resolved(out, spec)

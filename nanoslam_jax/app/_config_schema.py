@@ -12,13 +12,21 @@ from dataclasses import dataclass, field
 from typing import Literal, Optional
 
 from nanoslam_jax.lib._fields import _f
-from nanoslam_jax.app._config_scans import DetectorConfig, IndoorConfig, SimConfig
+from nanoslam_jax.methods._method_settings import IteratedStatic, NanoStatic, NasrukfStatic
+from nanoslam_jax.methods._params import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Static
+from nanoslam_jax.eval._settings import MetricsConfig
+from nanoslam_jax.frontend._settings import DetectorConfig
+from nanoslam_jax.models._settings import RandomWalkConfig, SensorDefaults, UnicycleConfig, VehicleConfig
+from nanoslam_jax.sim._settings import IndoorConfig, SimConfig
+from nanoslam_jax.smoother._settings import SmootherConfig
 
-#: ``filter.row_buckets: auto`` splits the per-row work (proposal, weight, landmark updates) and the
-#: association's window from this many particles up.
-ROW_BUCKETS_FROM = 64
-#: ``filter.split_devices: auto`` splits a run's particles over the CPU devices from this many up.
-SPLIT_DEVICES_FROM = 64
+#: The built-in models' noise and sensor defaults, which the noise, data and map sections take.
+_SENSOR = SensorDefaults()
+
+#: The filter's static defaults, which the filter, map and noise sections take.
+_STATIC = Static()
+#: The built-in methods' static defaults, which their sections take.
+_NANO, _ITERATED, _NASRUKF = NanoStatic(), IteratedStatic(), NasrukfStatic()
 
 
 #: Methods with an adaptive measurement-noise estimate (``noise.adaptive: true`` is rejected for the others).
@@ -52,8 +60,12 @@ class DataConfig:
         "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids",
     )
     robot: int = _f(1, lo=1, hi=5, static=True, doc="data.format mrclam: which robot's log (1-5)")
-    min_range: float = _f(0.0, lo=0.0, static=True, doc="detections with range below this are dropped (m)")
-    max_range: float = _f(30.0, lo=0.0, lo_open=True, static=True, doc="detections with range >= this are dropped (m)")
+    min_range: float = _f(
+        _SENSOR.min_range, lo=0.0, static=True, doc="detections with range below this are dropped (m)"
+    )
+    max_range: float = _f(
+        _SENSOR.max_range, lo=0.0, lo_open=True, static=True, doc="detections with range >= this are dropped (m)"
+    )
     k_max: Optional[int] = _f(None, lo=1, static=True, doc="detections per segment; null: the most in any kept scan")
     max_dr_per_segment: int = _f(
         12, lo=2, static=True, doc="DR pieces per segment; longer gaps between scans are split with empty segments"
@@ -81,17 +93,6 @@ class DataConfig:
         doc="data.detections laser_beams: keep every beam_step-th beam of the scanner (beam index divisible by "
         "it); 1: every beam",
     )
-
-
-@dataclass(frozen=True)
-class VehicleConfig:
-    """Car constants of the Victoria Park vehicle model (metres); the model is in the docs, page
-    method/victoria-park.md."""
-
-    wheelbase: float = _f(2.83, lo=0.0, lo_open=True, doc="L: wheelbase")
-    encoder_offset: float = _f(0.76, lo=0.0, doc="H: lateral offset of the rear-left wheel encoder")
-    laser_a: float = _f(3.78, doc="a: laser forward of the rear axle")
-    laser_b: float = _f(0.50, doc="b: laser to the left of the centre line")
 
 
 @dataclass(frozen=True)
@@ -128,33 +129,15 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
-class UnicycleConfig:
-    """The differential-drive motion model (model.motion: unicycle): controls (v, omega)."""
-
-    sensor_x: float = _f(0.0, doc="sensor forward of the robot's centre (m)")
-    sensor_y: float = _f(0.0, doc="sensor to the left of the robot's centre (m)")
-    sigma_v: float = _f(0.05, lo=0.0, lo_open=True, doc="speed noise (m/s) per odometry sample")
-    sigma_omega_deg: float = _f(5.0, lo=0.0, lo_open=True, doc="turn-rate noise (deg/s) per odometry sample")
-
-
-@dataclass(frozen=True)
-class RandomWalkConfig:
-    """The random-walk motion model (model.motion: random_walk): no odometry, the pose driven by noise."""
-
-    sigma_xy: float = _f(0.5, lo=0.0, lo_open=True, doc="position noise (m per square root of a second)")
-    sigma_phi_deg: float = _f(10.0, lo=0.0, lo_open=True, doc="heading noise (deg per square root of a second)")
-
-
-@dataclass(frozen=True)
 class NoiseConfig:
     """Control and measurement noise (published setting by default)."""
 
-    sigma_v: float = _f(2.0, lo=0.0, lo_open=True, doc="encoder speed noise (m/s) per DR sample")
-    sigma_alpha_deg: float = _f(6.0, lo=0.0, lo_open=True, doc="steering noise (deg) per DR sample")
-    sigma_r: float = _f(1.0, lo=0.0, lo_open=True, doc="range noise (m)")
-    sigma_beta_deg: float = _f(3.0, lo=0.0, lo_open=True, doc="bearing noise (deg)")
+    sigma_v: float = _f(_SENSOR.sigma_v, lo=0.0, lo_open=True, doc="encoder speed noise (m/s) per DR sample")
+    sigma_alpha_deg: float = _f(_SENSOR.sigma_alpha_deg, lo=0.0, lo_open=True, doc="steering noise (deg) per DR sample")
+    sigma_r: float = _f(_SENSOR.sigma_r, lo=0.0, lo_open=True, doc="range noise (m)")
+    sigma_beta_deg: float = _f(_SENSOR.sigma_beta_deg, lo=0.0, lo_open=True, doc="bearing noise (deg)")
     adaptive: bool = _f(
-        False,
+        _STATIC.adaptive_noise,
         static=True,
         doc="re-estimate the measurement noise online from the residuals of the associated detections (the "
         "NASRUKF paper's eq. 11: R_k = (1 - d_k) R_k-1 + d_k diag(nu nu' - predicted covariance), "
@@ -185,7 +168,7 @@ class FilterConfig:
     """The Rao-Blackwellised particle filter shared by all particle methods."""
 
     method: str = _f(
-        "nano",
+        _STATIC.method.name,
         static=True,
         doc="the method: a particle filter with the proposal of nano, fastslam1 (the prior), fastslam2 "
         "(EKF-linearised), ufastslam (unscented) or iterated (Gauss-Newton MAP); ekf_slam (one joint "
@@ -195,17 +178,20 @@ class FilterConfig:
     method_params: Optional[dict] = _f(
         None, doc="parameters of a registered method that declares them: a mapping of name to number (traced)"
     )
-    n_particles: int = _f(10, lo=1, static=True, doc="particles")
-    capacity: int = _f(512, lo=1, static=True, doc="landmark slots per particle")
+    n_particles: int = _f(_STATIC.n_particles, lo=1, static=True, doc="particles")
+    capacity: int = _f(_STATIC.capacity, lo=1, static=True, doc="landmark slots per particle")
     window: int = _f(
-        64, lo=1, static=True, doc="landmarks per particle considered for association in a scan (local window)"
+        _STATIC.window,
+        lo=1,
+        static=True,
+        doc="landmarks per particle considered for association in a scan (local window)",
     )
     window_margin: float = _f(5.0, lo=0.0, doc="the window holds landmarks within max_range + this (m)")
     prior: Literal["unscented", "linearized"] = _f(
-        "unscented", static=True, doc="how control noise is mapped to the pose covariance"
+        _STATIC.prior, static=True, doc="how control noise is mapped to the pose covariance"
     )
     prior_cov: Literal["reset", "carry"] = _f(
-        "reset",
+        _STATIC.prior_cov,
         static=True,
         doc="'reset': start each segment from the sampled pose with init_cov; 'carry': from the last proposal covariance",
     )
@@ -221,24 +207,24 @@ class FilterConfig:
         doc="a detection whose best d2 exceeds this starts a landmark (9.21: chi-square 99 %, 2 dof; "
         "with landmark management a spurious one is removed again)",
     )
-    sequential: bool = _f(True, static=True, doc="associate detections one after another within a scan")
+    sequential: bool = _f(_STATIC.sequential, static=True, doc="associate detections one after another within a scan")
     association: Literal["nearest", "known"] = _f(
-        "nearest",
+        _STATIC.association,
         static=True,
         doc="'nearest': nearest neighbour within filter.gate, a new landmark above filter.new_landmark; 'known': "
         "the log's landmark ids (e.g. MRCLAM's barcodes): a detection matches the landmark started by its "
         "id and starts one when none has it; detections without an id are ignored",
     )
     weight: Literal["product", "marginal"] = _f(
-        "product", static=True, doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior"
+        _STATIC.weight, static=True, doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior"
     )
     p0: float = _f(0.05, lo=0.0, lo_open=True, doc="likelihood factor of a new landmark")
     resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f(
-        "systematic", static=True, doc="resampling scheme"
+        _STATIC.resampler, static=True, doc="resampling scheme"
     )
     resample_threshold: float = _f(0.5, lo=0.0, hi=1.0, doc="resample when ESS < threshold * N")
     estimate: Literal["best", "mean", "path"] = _f(
-        "best",
+        _STATIC.estimate,
         static=True,
         doc="reported trajectory: at each segment the highest-weight particle's pose (best, the paper's) or the "
         "weighted mean (mean); or path: the history of the particle that is best at the end of the log, "
@@ -283,7 +269,7 @@ class MapConfig:
     """
 
     manage: bool = _f(
-        True,
+        _STATIC.manage,
         static=True,
         doc="landmark management on; false: every detection beyond filter.new_landmark starts a permanent "
         "landmark that is used at once (the published methods' rule), and the other keys here are ignored",
@@ -331,16 +317,16 @@ class MapConfig:
         hi=1.0,
         doc="existence probabilities are capped here, so a tree that has gone can still be removed after a few misses",
     )
-    fov_deg: float = _f(180.0, lo=0.0, lo_open=True, hi=360.0, doc="the sensor's field of view (deg)")
+    fov_deg: float = _f(_SENSOR.fov_deg, lo=0.0, lo_open=True, hi=360.0, doc="the sensor's field of view (deg)")
     view_margin: float = _f(
-        3.0,
+        _SENSOR.view_margin,
         lo=0.0,
         doc="a miss is counted only when the landmark is at least this far (m) inside the sensor's range "
         "limits (data.min_range, data.max_range)",
     )
-    view_margin_deg: float = _f(2.5, lo=0.0, doc="... and this far (deg) inside the field of view")
+    view_margin_deg: float = _f(_SENSOR.view_margin_deg, lo=0.0, doc="... and this far (deg) inside the field of view")
     occlusion: bool = _f(
-        True,
+        _STATIC.occlusion,
         static=True,
         doc="no miss for a landmark hidden behind a nearer object at a similar bearing (a detection of "
         "the scan or a confirmed landmark)",
@@ -372,28 +358,28 @@ class NanoConfig:
     """The NANO proposal (the docs, page method/proposals.md)."""
 
     quadrature: Literal["cubature", "unscented", "gauss_hermite"] = _f(
-        "cubature",
+        _NANO.quadrature,
         static=True,
         doc="rule for the expectations over the proposal: cubature (6 points), unscented (7), gauss_hermite (gh_order^3)",
     )
-    gh_order: int = _f(3, lo=1, hi=10, static=True, doc="Gauss-Hermite order p (p^3 points)")
+    gh_order: int = _f(_NANO.gh_order, lo=1, hi=10, static=True, doc="Gauss-Hermite order p (p^3 points)")
     ut_alpha: float = _f(1.0, lo=0.0, lo_open=True, doc="unscented alpha (nano.quadrature: unscented)")
     ut_beta: float = _f(2.0, lo=0.0, doc="unscented beta (nano.quadrature: unscented)")
     ut_kappa: float = _f(0.0, doc="unscented kappa (nano.quadrature: unscented)")
     hessian: Literal["gauss_newton", "exact"] = _f(
-        "gauss_newton",
+        _NANO.hessian,
         static=True,
         doc="expected Hessian of the log-likelihood: Gauss-Newton (J' R^-1 J, positive semi-definite) or exact (autodiff)",
     )
     gamma: float = _f(1e-4, lo=0.0, lo_open=True, doc="KL stopping threshold")
-    max_iter: int = _f(10, lo=1, static=True, doc="iteration cap")
+    max_iter: int = _f(_NANO.max_iter, lo=1, static=True, doc="iteration cap")
     step: float = _f(1.0, lo=0.0, lo_open=True, hi=1.0, doc="natural-gradient step beta (damping below 1)")
-    landmark_noise: bool = _f(False, static=True, doc="use R + Gm Sigma Gm' in the likelihood")
+    landmark_noise: bool = _f(_NANO.landmark_noise, static=True, doc="use R + Gm Sigma Gm' in the likelihood")
     init: Literal["prior", "gauss_newton"] = _f(
-        "prior", static=True, doc="start from the prior or the Gauss-Newton MAP"
+        _NANO.init, static=True, doc="start from the prior or the Gauss-Newton MAP"
     )
     solver: Literal["optimistix", "while_loop"] = _f(
-        "while_loop",
+        _NANO.solver,
         static=True,
         doc="the iteration as a plain lax.while_loop (default, the faster) or as an optimistix "
         "fixed-point solve with a KL stopping rule (same iterates)",
@@ -405,12 +391,12 @@ class IteratedConfig:
     """The iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal, method ``iterated``."""
 
     solver: Literal["gauss_newton", "levenberg_marquardt"] = _f(
-        "gauss_newton", static=True, doc="optimistix least-squares solver for the MAP of prior x likelihood"
+        _ITERATED.solver, static=True, doc="optimistix least-squares solver for the MAP of prior x likelihood"
     )
-    max_iter: int = _f(10, lo=1, static=True, doc="solver step cap")
-    tol: float = _f(1e-8, lo=0.0, lo_open=True, static=True, doc="solver rtol = atol")
+    max_iter: int = _f(_ITERATED.max_iter, lo=1, static=True, doc="solver step cap")
+    tol: float = _f(_ITERATED.tol, lo=0.0, lo_open=True, static=True, doc="solver rtol = atol")
     landmark_noise: bool = _f(
-        True,
+        _ITERATED.landmark_noise,
         static=True,
         doc="weigh residuals with (R + Gm Sigma Gm')^-1 as FastSLAM 2.0 does (one step = FastSLAM 2.0)",
     )
@@ -425,7 +411,7 @@ class NasrukfConfig:
     ``filter.gate``, ``filter.new_landmark``, ``filter.window``; ``filter.capacity`` feature slots."""
 
     feature: Literal["point", "arc"] = _f(
-        "point",
+        _NASRUKF.feature,
         static=True,
         doc="'point': a tree is its centre, a 5-D joint state (pose + centre); 'arc': the paper's arc "
         "feature, a 6-D joint state (pose + centre + radius) with the detection's diameter as a third "
@@ -439,7 +425,7 @@ class NasrukfConfig:
         "other methods' landmarks); until then they refine the feature only",
     )
     adaptive_process: bool = _f(
-        False,
+        _NASRUKF.adaptive_process,
         static=True,
         doc="estimate the process noise Q of the time update online (eq. 9's estimated Q): a Sage-Husa "
         "estimate from the pose corrections K nu and covariance changes of each scan's fused joint states, "
@@ -465,7 +451,7 @@ class NasrukfConfig:
         "fraction of the configured noise in every direction",
     )
     measurement: Literal["detections", "beams"] = _f(
-        "detections",
+        _NASRUKF.measurement,
         static=True,
         doc="'detections': a feature's measurement is a detection (a tree's range and bearing, data.detections "
         "file or laser); 'beams': the paper's per-beam range rho(k) along the beam angle phi(k) against line "
@@ -473,7 +459,7 @@ class NasrukfConfig:
         "vector measurement; docs/method/nasrukf-beams.md",
     )
     line_form: Literal["normal", "slope_intercept"] = _f(
-        "normal",
+        _NASRUKF.line_form,
         static=True,
         doc="measurement beams: a line's state, 'normal' (rho, alpha), every line alike; 'slope_intercept': the "
         "paper's y = a x + b (eq. 14), or x = c (eq. 15) for a line steeper than 1000",
@@ -492,22 +478,24 @@ class NasrukfConfig:
         "prior pose) is nearest its measured range, if nearer than this (m)",
     )
     beams_per_feature: int = _f(
-        16,
+        _NASRUKF.beams_per_feature,
         lo=1,
         static=True,
         doc="measurement beams: a feature's update stacks at most this many of its associated beams of a scan "
         "(evenly spread over them)",
     )
-    arc_capacity: int = _f(8, lo=1, static=True, doc="measurement beams: arc feature slots (lines: filter.capacity)")
+    arc_capacity: int = _f(
+        _NASRUKF.arc_capacity, lo=1, static=True, doc="measurement beams: arc feature slots (lines: filter.capacity)"
+    )
     max_groups: int = _f(
-        32,
+        _NASRUKF.groups,
         lo=1,
         static=True,
         doc="measurement beams: front-end features (line segments and arcs) a scan holds at most; also the slots "
         "of the buffer of unmatched features (n_new)",
     )
     noise_residual: Literal["innovation", "posterior", "projected"] = _f(
-        "projected",
+        _NASRUKF.noise_residual,
         static=True,
         doc="measurement beams, noise.adaptive: the beam noise estimate with eq. 11's weights d_k from each "
         "updated feature's residuals: 'projected' (the default): before its update, the innovations with the "
@@ -536,132 +524,6 @@ class NasrukfConfig:
         lo=0,
         doc="measurement beams: static initialisation: the first scans, at most this many and only while the "
         "odometry reports no motion, hold the pose at the origin and build the initial features (0: none)",
-    )
-
-
-@dataclass(frozen=True)
-class MetricsConfig:
-    """Evaluation protocol settings (the protocol: the docs, page method/victoria-park.md)."""
-
-    gps_rotation_deg: float = _f(-35.4, doc="rotation of the relative-GPS frame")
-    jump_speed: float = _f(8.0, lo=0.0, lo_open=True, doc="GPS fixes implying a faster jump are removed in *_clean")
-    map_radius: float = _f(
-        1.0,
-        lo=0.0,
-        lo_open=True,
-        doc="a confirmed landmark within this distance (m) of a true one matches it: simulated logs' true trees "
-        "(map_found_fraction, map_spurious_fraction), a real log's surveyed landmarks after the alignment "
-        "(survey_found, survey_spurious)",
-    )
-
-
-@dataclass(frozen=True)
-class SmootherConfig:
-    """Offline smoothing of the final best particle's path and map by least squares
-    (:mod:`nanoslam_jax.smoother._smoother`). It needs ``filter.estimate: path``."""
-
-    enabled: bool = _f(
-        False,
-        static=True,
-        doc="after the run, refine the final best particle's ancestral path and confirmed landmarks by "
-        "least squares over all odometry and detections (an offline estimate: trajectory.csv and the "
-        "rmse_* metrics are then the smoothed path's; the filter's own beside it)",
-    )
-    odometry_scale: float = _f(
-        0.3,
-        lo=0.0,
-        lo_open=True,
-        static=True,
-        doc="the odometry factors' covariance is the filter's segment prior covariance times this",
-    )
-    floor_xy: float = _f(
-        0.1,
-        lo=0.0,
-        static=True,
-        doc="standard deviation added to each position coordinate of every odometry factor (m)",
-    )
-    floor_phi_deg: float = _f(
-        0.3, lo=0.0, static=True, doc="standard deviation added to the heading of every odometry factor (deg)"
-    )
-    huber: float = _f(
-        2.0, lo=0.0, lo_open=True, static=True, doc="Huber threshold on a detection's whitened residual norm"
-    )
-    max_iter: int = _f(50, lo=1, static=True, doc="Levenberg-Marquardt iterations at most")
-    tol: float = _f(
-        1e-3, lo=0.0, lo_open=True, static=True, doc="converged when no coordinate moves more than this (m, rad)"
-    )
-    loop_closure: bool = _f(
-        True,
-        static=True,
-        doc="after a first solve, find trees the run mapped twice (a stretch of new landmarks that a rigid "
-        "transform lays onto earlier ones) and join them, then solve again (docs/method/smoother.md)",
-    )
-    loop_closure_window: float = _f(
-        50.0,
-        lo=0.0,
-        lo_open=True,
-        static=True,
-        doc="the landmarks first seen in a window this long (s) are registered together against earlier ones",
-    )
-    loop_closure_radius: float = _f(
-        1.0,
-        lo=0.0,
-        lo_open=True,
-        static=True,
-        doc="a copy lies within this distance (m) of its original after the transform; two landmarks this close "
-        "and never detected together are joined",
-    )
-    loop_closure_search: float = _f(
-        40.0,
-        lo=0.0,
-        static=True,
-        doc="the transform moves a window's landmarks by at most this (m): the drift searched for",
-    )
-    loop_closure_max_turn_deg: float = _f(
-        30.0, lo=0.0, hi=180.0, static=True, doc="the transform turns a window's landmarks by at most this (deg)"
-    )
-    loop_closure_min_inliers: int = _f(
-        6,
-        lo=2,
-        static=True,
-        doc="a transform is taken when at least this many landmarks of the window fall onto earlier ones",
-    )
-    loop_closure_accept: float = _f(
-        0.75,
-        lo=0.0,
-        hi=1.0,
-        static=True,
-        doc="a group of joins (a window, a close pair) is kept when, solved again, at least this fraction of its "
-        "copies' detections lies within filter.gate of a landmark",
-    )
-    loop_closure_rounds: int = _f(2, lo=1, static=True, doc="searches for copies (each followed by a solve) at most")
-    map_history: bool = _f(
-        True,
-        static=True,
-        doc="the map also holds the confirmed landmarks the best particle held at the end of a chunk of the run "
-        "(output.chunk segments) but not at its end: trees that a drifted particle removed and mapped again "
-        "elsewhere, which the loop closure can then join (docs/method/smoother.md)",
-    )
-    map_history_radius: float = _f(
-        1.0,
-        lo=0.0,
-        static=True,
-        doc="a held landmark within this distance (m) of one of the final map, or of one held later, is the same tree",
-    )
-    map_history_min: int = _f(
-        5,
-        lo=1,
-        static=True,
-        doc="a held landmark joins the map when it explains at least this many detections the final map leaves "
-        "unexplained along the path ...",
-    )
-    map_history_below: float = _f(
-        0.8,
-        lo=0.0,
-        hi=1.0,
-        static=True,
-        doc="... when the final map explains less than this fraction of the log's detections along the path (a "
-        "particle that lost the trees of its first visit)",
     )
 
 

@@ -60,10 +60,12 @@ def setup_run_devices(cfg) -> int:
     Returns:
         The number of JAX devices available.
     """
-    from nanoslam_jax.methods import method_static, particle_devices, shardable
+    from nanoslam_jax.methods import particle_devices, shardable
+    from nanoslam_jax.app.filters import method_static
+    from nanoslam_jax.app.registry import get_method
 
     cores = available_cores()
-    split_ok = shardable(cfg.filter.method, method_static(cfg))
+    split_ok = shardable(get_method(cfg.filter.method), method_static(cfg))
     if (
         cores > 1
         and particle_devices(

@@ -9,10 +9,12 @@ from typing import Any, Optional, Union
 
 from nanoslam_jax.app.config import Config, config_from_dict, load_config
 from nanoslam_jax.app.experiment import RunResult, execute
+from nanoslam_jax.lib._precision import in_float64
 
 __all__ = ["run"]
 
 
+@in_float64
 def run(
     config: Union[Config, str, os.PathLike, Mapping[str, Any], None] = None,
     *,

@@ -27,6 +27,7 @@ from typing import Optional, Sequence
 
 from nanoslam_jax._version import __version__
 from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.lib._precision import in_float64
 
 
 def _cache_flag() -> argparse.ArgumentParser:
@@ -391,6 +392,7 @@ def _detect(args) -> int:
     return 0
 
 
+@in_float64
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``nanoslam`` console script."""
     from nanoslam_jax.data import LogFormatError
@@ -398,7 +400,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if not getattr(args, "no_cache", True):
-            from nanoslam_jax.app._cache import compile_stats, enable_compile_cache
+            from nanoslam_jax.lib._cache import compile_stats, enable_compile_cache
 
             compile_stats()  # count this command's compile time from the start
             enable_compile_cache()

@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 from scipy.special import expit
 
-from nanoslam_jax.app._cache import compile_stats
+from nanoslam_jax.lib._cache import compile_stats
 from nanoslam_jax._version import __version__
 from nanoslam_jax.app.config import Config, config_to_dict, resolve_data_dir
 from nanoslam_jax.data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
@@ -39,9 +39,9 @@ from nanoslam_jax.methods import (
     reported_map,
     reported_trajectory,
     run_filter,
-    settings_from_config,
     text_progress,
 )
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods._scan import is_gaussian, resample_count
 from nanoslam_jax.eval.metrics import (
     error_over_time,
@@ -54,6 +54,7 @@ from nanoslam_jax.eval.metrics import (
 from nanoslam_jax.eval._scoring import MapEstimate, companion_tracks, score_run, with_arcs
 from nanoslam_jax.models import Composite, measurement_model_from_config
 from nanoslam_jax.smoother._smoother import smooth_filter_run, smoother_metrics
+from nanoslam_jax.lib._precision import in_float64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,11 +113,11 @@ def with_scan_detections(raw: RawLog, scans, kind: str, detector, beam_step: int
     (:func:`circle_table`); ``'laser_features'``: both, with their types (:func:`feature_table`);
     ``'laser_beams'``: the returns on segments and arcs, one per beam
     (``time, range, beam angle, diameter``, every ``beam_step``-th beam,
-    :func:`~nanoslam_jax.data._beams.beam_detections`)."""
+    :func:`~nanoslam_jax.frontend._beams.beam_detections`)."""
     from nanoslam_jax.frontend import detect_lines, detect_trees, extract_features
 
     if kind == "laser_beams":  # one detection per beam on a segment or arc, the feature's index as its id
-        from nanoslam_jax.data._beams import beam_detections
+        from nanoslam_jax.frontend._beams import beam_detections
 
         rows, group = beam_detections(scans, detector, beam_step)
         return dataclasses.replace(raw, detections=rows, detection_ids=group)
@@ -472,6 +473,7 @@ def write_tum(path: str | Path, times: np.ndarray, poses: np.ndarray) -> None:
     np.savetxt(path, rows, fmt="%.9f", delimiter=" ", header="time x y z qx qy qz qw")
 
 
+@in_float64
 def execute(
     cfg: Config, data_dir: Optional[str] = None, progress: Optional[bool] = None, log: Optional[LoadedLog] = None
 ) -> RunResult:
@@ -534,7 +536,7 @@ def execute(
             metrics.update(smoother_report)
             if smoother_warnings:
                 metrics.setdefault("warnings", []).extend(smoother_warnings)
-        ess = None if is_gaussian(cfg.filter.method) else np.asarray(o.ess)
+        ess = None if is_gaussian(static.method) else np.asarray(o.ess)
         outputs, state = jax.tree.map(np.asarray, o), run.state
         landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
         has = np.asarray(o.n_associated) > 0
@@ -614,6 +616,7 @@ def execute(
     )
 
 
+@in_float64
 def run_experiment(
     cfg: Config, out_dir: str | Path, data_dir: Optional[str] = None, progress: Optional[bool] = None
 ) -> dict:

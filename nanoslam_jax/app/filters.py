@@ -33,9 +33,11 @@ from jaxtyping import Array, Key
 
 from nanoslam_jax.app.config import Config, ConfigError, apply_overrides, config_from_dict, config_to_dict, load_config
 from nanoslam_jax.data import Segments
-from nanoslam_jax.methods._params import Params, Static, settings_from_config
+from nanoslam_jax.methods._params import Params, Static
+from nanoslam_jax.app._build import method_static as method_static, settings_from_config as settings_from_config
 from nanoslam_jax.methods.particle._prior import relative_prior
 from nanoslam_jax.methods._scan import _check_filter_method, _masked_step, initial_state, is_gaussian
+from nanoslam_jax.lib._precision import require_float64
 from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, check_measurement_model
 
 __all__ = ["Filter", "build"]
@@ -105,6 +107,7 @@ def build(
     Returns:
         The :class:`Filter`; its ``step`` compiles on the first call.
     """
+    require_float64("nanoslam_jax.app.filters.build")
     sets = list(overrides)
     if method is not None:
         sets.append(f"filter.method={method}")
@@ -128,7 +131,7 @@ def build(
                 f"{type(measurement).__name__}"
             )
         try:
-            check_measurement_model(measurement, static.method, cfg.smoother.enabled)
+            check_measurement_model(measurement, static.method.name, cfg.smoother.enabled)
         except ValueError as e:
             raise ConfigError(str(e)) from None
         params = params._replace(measurement=measurement)

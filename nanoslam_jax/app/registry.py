@@ -34,114 +34,20 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable, Hashable, Mapping
-from typing import TYPE_CHECKING, Any, Literal, Optional
+from collections.abc import Hashable
+from typing import TYPE_CHECKING, Any
+
+import jax.numpy as jnp
+
+from nanoslam_jax.methods import METHOD_KINDS, Method
+from nanoslam_jax.methods import _builtin as builtin
+from nanoslam_jax.methods._method_settings import BeamParams, IteratedStatic, NanoParams, NanoStatic, NasrukfParams
+from nanoslam_jax.methods._method_settings import NasrukfStatic
 
 if TYPE_CHECKING:
     from nanoslam_jax.app.config import Config
-    from nanoslam_jax.methods._params import Params, Static
 
-__all__ = ["Method", "register", "get_method", "method_names", "METHOD_KINDS"]
-
-#: What a method is: a particle filter with its own proposal, a Gaussian filter with its own state
-#: and step, or the motion model alone.
-METHOD_KINDS = ("particle", "gaussian", "dead_reckoning")
-
-
-@dataclasses.dataclass(frozen=True)
-class Method:
-    """A registered method.
-
-    Attributes:
-        name: its ``filter.method`` name.
-        kind: ``"particle"`` (built on the shared particle step, with :attr:`proposal`),
-            ``"gaussian"`` (its own :attr:`init` and :attr:`step`) or ``"dead_reckoning"``.
-        proposal: ``proposal(static, params, settings) -> AbstractProposal`` for a particle
-            method: the proposal with its traced hyperparameters (``settings``: its traced
-            settings ``params.method``, see :attr:`traced_settings`).
-        init: ``init(static, params) -> state`` of a Gaussian method: its first state, a
-            :class:`~nanoslam_jax.methods.GaussianState` (a pytree offering ``pose``,
-            ``pose_cov``, ``landmark_map()``, ``overflow`` and ``scan``). It takes no key: a
-            Gaussian method does not sample, and the driver keeps the run's key.
-        step: ``step(static, params, state, segment, valid) -> (state, GaussianStepOutput)`` of
-            a Gaussian method: one segment (``valid`` False: padding, the state unchanged), and
-            its record, a :class:`~nanoslam_jax.methods.GaussianStepOutput` (the pose mean and
-            covariance and the map's counts), which the driver turns into the common per-scan
-            :class:`~nanoslam_jax.methods.StepOutput` (one hypothesis: best pose = mean pose,
-            ESS 1, never resampled).
-        landmark_update: how a particle method updates its landmarks: ``"ekf"`` (linearised) or
-            ``"unscented"``.
-        shardable: ``shardable(static) -> bool``: whether its per-particle work may be split over
-            devices (``shard_map``), given the static settings (its own in
-            ``static.method_settings``).
-        adaptive_noise: it offers the adaptive measurement-noise estimate (``noise.adaptive``).
-        defaults: its traced parameters and their defaults (``filter.method_params`` overrides
-            them; unknown names are refused), for a method without :attr:`traced_settings`.
-        description: one line for the config reference and error messages.
-        section: the config section its settings are read from (``"nano"``, ``"iterated"``,
-            ``"nasrukf"``), None for none.
-        static_settings: ``static_settings(cfg) -> settings``: its static settings from the
-            configuration, a hashable value (a frozen dataclass) kept in
-            ``Static.method_settings``; changing them recompiles. It must not compute with JAX
-            (it runs before the devices are set up). None: it has none (``method_settings`` None).
-        traced_settings: ``traced_settings(cfg) -> settings``: its traced hyperparameters from the
-            configuration, a pytree of scalar arrays (a NamedTuple) kept in ``Params.method`` and
-            passed to :attr:`proposal`; a sweep over them compiles once. None: the mapping of
-            :attr:`defaults` updated by ``filter.method_params``, as traced scalars (a dict).
-    """
-
-    name: str
-    kind: Literal["particle", "gaussian", "dead_reckoning"] = "particle"
-    proposal: Optional[Callable[..., Any]] = None
-    init: Optional[Callable[..., Any]] = None
-    step: Optional[Callable[..., Any]] = None
-    landmark_update: Literal["ekf", "unscented"] = "ekf"
-    shardable: Callable[["Static"], bool] = lambda static: True
-    adaptive_noise: bool = False
-    defaults: Mapping[str, float] = dataclasses.field(default_factory=dict)
-    description: str = ""
-    section: Optional[str] = None
-    static_settings: Optional[Callable[["Config"], Hashable]] = None
-    traced_settings: Optional[Callable[["Config"], Any]] = None
-
-    def __post_init__(self):
-        if self.kind not in METHOD_KINDS:
-            raise ValueError(f"Method {self.name!r}: kind must be one of {', '.join(METHOD_KINDS)}, got {self.kind!r}")
-        if self.kind == "particle" and self.proposal is None:
-            raise ValueError(f"Method {self.name!r}: a particle method needs a proposal")
-        if self.kind == "gaussian" and (self.init is None or self.step is None):
-            raise ValueError(f"Method {self.name!r}: a Gaussian method needs init and step")
-        if self.landmark_update not in ("ekf", "unscented"):
-            raise ValueError(f"Method {self.name!r}: landmark_update must be 'ekf' or 'unscented'")
-
-    def method_params(self, given: Optional[Mapping[str, float]]) -> dict[str, float]:
-        """:attr:`defaults` updated by ``filter.method_params`` (``given``).
-
-        Raises:
-            ValueError: naming the key, for a name the method does not take.
-        """
-        out = dict(self.defaults)
-        for k, v in (given or {}).items():
-            if k not in out:
-                takes = ", ".join(sorted(out)) or "none"
-                raise ValueError(
-                    f"key 'filter.method_params.{k}': method {self.name!r} takes no parameter {k!r} (it takes: {takes})"
-                )
-            out[k] = float(v)
-        return out
-
-    def static_of(self, cfg: "Config") -> Hashable:
-        """Its static settings under ``cfg`` (:attr:`static_settings`; None when it has none)."""
-        return None if self.static_settings is None else self.static_settings(cfg)
-
-    def traced_of(self, cfg: "Config") -> Any:
-        """Its traced hyperparameters under ``cfg`` (:attr:`traced_settings`; without, the dict of
-        :attr:`method_params` of ``filter.method_params`` as float arrays)."""
-        if self.traced_settings is not None:
-            return self.traced_settings(cfg)
-        import jax.numpy as jnp
-
-        return {k: jnp.asarray(v, dtype=float) for k, v in self.method_params(cfg.filter.method_params).items()}
+__all__ = ["Method", "register", "get_method", "method_names", "METHOD_KINDS", "static_of", "traced_of"]
 
 
 _REGISTRY: dict[str, Method] = {}
@@ -190,188 +96,75 @@ def get_method(name: str) -> Method:
     )
 
 
-# --------------------------------------------------------------------------- built-in methods
+def static_of(method: Method, cfg: "Config") -> Hashable:
+    """The static settings of ``method`` under ``cfg`` (:attr:`Method.static_settings`; None when it
+    has none)."""
+    return None if method.static_settings is None else method.static_settings(cfg)
 
 
-def _nano(static: "Static", params: "Params", mp: Any):
-    from nanoslam_jax.methods._method_settings import NanoStatic, settings_of
-    from nanoslam_jax.methods.proposals import NanoProposal
-    from nanoslam_jax.lib.quadrature import make_rule
+def traced_of(method: Method, cfg: "Config") -> Any:
+    """The traced hyperparameters of ``method`` under ``cfg`` (:attr:`Method.traced_settings`;
+    without, the dict of :meth:`Method.method_params` of ``filter.method_params`` as float arrays)."""
+    if method.traced_settings is not None:
+        return method.traced_settings(cfg)
+    return {k: jnp.asarray(v, dtype=float) for k, v in method.method_params(cfg.filter.method_params).items()}
 
-    ns: NanoStatic = settings_of(static, NanoStatic)
-    rule = make_rule(ns.quadrature, alpha=mp.alpha, beta=mp.beta, kappa=mp.kappa, order=ns.gh_order)
-    return NanoProposal(
-        rule,
-        mp.gamma,
-        mp.step,
-        max_iter=ns.max_iter,
-        hessian=ns.hessian,
-        landmark_noise=ns.landmark_noise,
-        init=ns.init,
-        solver=ns.solver,
-        measurement=params.measurement,
+
+# --------------------------------------------------------------------------- the built-in methods' settings
+
+
+def _a(x: float) -> Any:
+    """A traced scalar: ``x`` as a float array."""
+    return jnp.asarray(x, dtype=float)
+
+
+def _fields_from(cls: Any, section: Any, rename: dict[str, str] | None = None, convert: Any = None) -> dict[str, Any]:
+    """Each field of ``cls`` (a dataclass or NamedTuple) from the config ``section``'s key of the same
+    name (or the one ``rename`` gives), passed through ``convert`` when given."""
+    names = cls._fields if hasattr(cls, "_fields") else tuple(f.name for f in dataclasses.fields(cls))
+    rename = rename or {}
+    value = (lambda v: v) if convert is None else convert
+    return {n: value(getattr(section, rename.get(n, n))) for n in names}
+
+
+def nano_static(cfg: "Config") -> NanoStatic:
+    """NANO-SLAM's static settings from ``cfg.nano``."""
+    return NanoStatic(**_fields_from(NanoStatic, cfg.nano))
+
+
+def nano_traced(cfg: "Config") -> NanoParams:
+    """NANO-SLAM's traced hyperparameters from ``cfg.nano``."""
+    ut = {"alpha": "ut_alpha", "beta": "ut_beta", "kappa": "ut_kappa"}
+    return NanoParams(**_fields_from(NanoParams, cfg.nano, ut, _a))
+
+
+def iterated_static(cfg: "Config") -> IteratedStatic:
+    """The iterated proposal's static settings from ``cfg.iterated``."""
+    return IteratedStatic(**_fields_from(IteratedStatic, cfg.iterated))
+
+
+def nasrukf_static(cfg: "Config") -> NasrukfStatic:
+    """NASRUKF's static settings from ``cfg.nasrukf``."""
+    return NasrukfStatic(**_fields_from(NasrukfStatic, cfg.nasrukf, {"groups": "max_groups"}))
+
+
+def nasrukf_traced(cfg: "Config") -> NasrukfParams:
+    """NASRUKF's traced hyperparameters from ``cfg.nasrukf``."""
+    n = cfg.nasrukf
+    beams = BeamParams(**_fields_from(BeamParams, n, convert=_a)) if n.measurement == "beams" else None
+    return NasrukfParams(
+        new_feature_hits=_a(n.new_feature_hits),
+        process_forgetting=_a(n.process_forgetting),
+        process_floor=_a(n.process_floor),
+        beams=beams,
     )
 
 
-def _nano_static(cfg):
-    from nanoslam_jax.methods._method_settings import NanoStatic
-
-    return NanoStatic.from_config(cfg)
-
-
-def _nano_traced(cfg):
-    from nanoslam_jax.methods._method_settings import NanoParams
-
-    return NanoParams.from_config(cfg)
-
-
-def _nano_shardable(static) -> bool:
-    from nanoslam_jax.methods._method_settings import NanoStatic, settings_of
-
-    return settings_of(static, NanoStatic).init != "gauss_newton"
-
-
-def _fastslam1(static, params, mp):
-    from nanoslam_jax.methods.proposals import PriorProposal
-
-    return PriorProposal()
-
-
-def _fastslam2(static, params, mp):
-    from nanoslam_jax.methods.proposals import LinearizedProposal
-
-    return LinearizedProposal(landmark_noise=True, measurement=params.measurement)
-
-
-def _ufastslam(static, params, mp):
-    from nanoslam_jax.methods.proposals._ufastslam import UnscentedProposal
-
-    return UnscentedProposal(
-        alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa, measurement=params.measurement
-    )
-
-
-def _iterated(static, params, mp):
-    from nanoslam_jax.methods._method_settings import IteratedStatic, settings_of
-    from nanoslam_jax.methods.proposals._iterated import IteratedProposal
-
-    it: IteratedStatic = settings_of(static, IteratedStatic)
-    return IteratedProposal(
-        solver=it.solver,
-        max_iter=it.max_iter,
-        tol=it.tol,
-        landmark_noise=it.landmark_noise,
-        measurement=params.measurement,
-    )
-
-
-def _iterated_static(cfg):
-    from nanoslam_jax.methods._method_settings import IteratedStatic
-
-    return IteratedStatic.from_config(cfg)
-
-
-def _ekf_init(static, params):
-    from nanoslam_jax.methods.gaussian._ekf_slam import init_ekf_state
-
-    return init_ekf_state(static, params)
-
-
-def _ekf_step(static, params, state, seg, valid):
-    from nanoslam_jax.methods.gaussian._ekf_slam import ekf_slam_step
-
-    return ekf_slam_step(static, params, state, seg, valid)
-
-
-def _nasrukf_beams(static) -> bool:
-    from nanoslam_jax.methods._method_settings import nasrukf_static
-
-    return nasrukf_static(static).measurement == "beams"
-
-
-def _nasrukf_static(cfg):
-    from nanoslam_jax.methods._method_settings import NasrukfStatic
-
-    return NasrukfStatic.from_config(cfg)
-
-
-def _nasrukf_traced(cfg):
-    from nanoslam_jax.methods._method_settings import NasrukfParams
-
-    return NasrukfParams.from_config(cfg)
-
-
-def _nasrukf_init(static, params):
-    if _nasrukf_beams(static):
-        from nanoslam_jax.methods.gaussian._nasrukf_beams_state import init_beam_state
-
-        return init_beam_state(static, params)
-    from nanoslam_jax.methods.gaussian._nasrukf_state import init_nasrukf_state
-
-    return init_nasrukf_state(static, params)
-
-
-def _nasrukf_step(static, params, state, seg, valid):
-    if _nasrukf_beams(static):
-        from nanoslam_jax.methods.gaussian._nasrukf_beams import beam_step
-
-        return beam_step(static, params, state, seg, valid)
-    from nanoslam_jax.methods.gaussian._nasrukf import nasrukf_step
-
-    return nasrukf_step(static, params, state, seg, valid)
-
-
-# optimistix's least-squares solvers cannot run under shard_map (lineax compares the residual's
-# structure with its operator's, whose sharding differs there): such runs stay on one device.
-register(Method("dead_reckoning", kind="dead_reckoning", description="the motion model alone"))
-register(
-    Method(
-        "nano",
-        proposal=_nano,
-        adaptive_noise=True,
-        shardable=_nano_shardable,
-        section="nano",
-        static_settings=_nano_static,
-        traced_settings=_nano_traced,
-        description="NANO-SLAM: the KL-optimal Gaussian proposal by natural-gradient iteration",
-    )
-)
-register(Method("fastslam1", proposal=_fastslam1, description="FastSLAM 1.0: the prior as proposal"))
-register(
-    Method(
-        "fastslam2", proposal=_fastslam2, adaptive_noise=True, description="FastSLAM 2.0: the linearised (EKF) proposal"
-    )
-)
-register(
-    Method(
-        "ufastslam",
-        proposal=_ufastslam,
-        landmark_update="unscented",
-        adaptive_noise=True,
-        description="Unscented FastSLAM: unscented proposal and landmark updates",
-    )
-)
-register(
-    Method(
-        "iterated",
-        proposal=_iterated,
-        shardable=lambda s: False,
-        section="iterated",
-        static_settings=_iterated_static,
-        description="the iterated (Gauss-Newton / Levenberg-Marquardt MAP) proposal",
-    )
-)
-register(Method("ekf_slam", kind="gaussian", init=_ekf_init, step=_ekf_step, description="EKF-SLAM"))
-register(
-    Method(
-        "nasrukf",
-        kind="gaussian",
-        init=_nasrukf_init,
-        step=_nasrukf_step,
-        adaptive_noise=True,
-        section="nasrukf",
-        static_settings=_nasrukf_static,
-        traced_settings=_nasrukf_traced,
-        description="NASRUKF FastSLAM: adaptive square-root UKF per feature",
-    )
-)
+_READERS = {
+    "nano": (nano_static, nano_traced),
+    "iterated": (iterated_static, None),
+    "nasrukf": (nasrukf_static, nasrukf_traced),
+}
+for _m in builtin.BUILTIN_METHODS:
+    _static, _traced = _READERS.get(_m.name, (None, None))
+    register(dataclasses.replace(_m, static_settings=_static, traced_settings=_traced))

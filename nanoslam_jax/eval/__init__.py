@@ -1,5 +1,14 @@
 """Evaluation on the host: metrics against GPS, truth or a survey (:mod:`.metrics`), the feature
-errors of line and arc maps, the figures of a run (:mod:`.plotting`) and the GPS floor
-(:mod:`.gps_floor`)."""
+errors of line and arc maps, the scoring of a run and the summary over seeds (one scorer for
+every command), the figures of a run (:mod:`.plotting`) and the GPS floor (:mod:`.gps_floor`)."""
 
-__all__: list[str] = []
+from nanoslam_jax.eval._scoring import (
+    MapEstimate as MapEstimate,
+    metric_goal as metric_goal,
+    score_run as score_run,
+    seed_summary as seed_summary,
+    summarize_runs as summarize_runs,
+)
+from nanoslam_jax.eval._settings import MetricsConfig as MetricsConfig
+
+__all__ = ["MapEstimate", "MetricsConfig", "metric_goal", "score_run", "seed_summary", "summarize_runs"]

@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from nanoslam_jax.eval._feature_metrics import gated_assignment
-from nanoslam_jax.eval.metrics import _rmse, rigid_align, rotation_matrix
+from nanoslam_jax.eval._align import _rmse, rigid_align, rotation_matrix
 
 __all__ = ["map_alignment_metrics"]
 

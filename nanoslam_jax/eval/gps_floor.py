@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Optional, Sequence
+from typing import Any, NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -300,27 +300,34 @@ def estimate_gps_floor(
     )
 
 
-def gps_floor_of_log(cfg, log, segments: Optional[int] = None) -> GpsFloor:
-    """:func:`estimate_gps_floor` of a real log, with the DR path of ``cfg``'s vehicle model.
+class _MotionOnly(NamedTuple):
+    """The part of the filter's hyperparameters dead reckoning reads: the motion model."""
+
+    motion: Any
+
+
+def gps_floor_of_log(motion, metrics, log, segments: Optional[int] = None) -> GpsFloor:
+    """:func:`estimate_gps_floor` of a real log, with the dead-reckoned path of a motion model.
 
     Args:
-        cfg: a :class:`~nanoslam_jax.app.config.Config` (vehicle constants and the ``metrics`` section).
+        motion: the vehicle's motion model (an :class:`~nanoslam_jax.models.AbstractMotionModel`).
+        metrics: the evaluation protocol's settings (:class:`~nanoslam_jax.eval.MetricsConfig`:
+            the GPS frame's rotation and the jump speed).
         log: the log's segments and GPS: a :class:`~nanoslam_jax.app.experiment.LoadedLog` or a
             :class:`~nanoslam_jax.app.sweep.LogData`.
         segments: use only the first this many segments (the span a study scores).
     """
     import jax
 
-    from nanoslam_jax.methods import dead_reckoning, settings_from_config
+    from nanoslam_jax.methods import dead_reckoning
 
     seg = log.segments
     if segments is not None:
         seg = type(seg)(*(np.asarray(a)[:segments] for a in seg))
-    _, params = settings_from_config(cfg, seg.k_max)
-    pose = np.asarray(jax.jit(dead_reckoning)(params, seg))
+    pose = np.asarray(jax.jit(dead_reckoning)(_MotionOnly(motion), seg))
     gps = log.raw.gps if hasattr(log, "raw") else log.gps
     return estimate_gps_floor(
-        gps, np.asarray(seg.time), pose, rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed
+        gps, np.asarray(seg.time), pose, rotation_deg=metrics.gps_rotation_deg, jump_speed=metrics.jump_speed
     )
 
 

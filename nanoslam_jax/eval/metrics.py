@@ -32,7 +32,8 @@ from typing import Literal
 
 import numpy as np
 
-from nanoslam_jax.app._config_schema import MetricsConfig
+from nanoslam_jax.eval._align import _rmse, rigid_align, rotation_matrix
+from nanoslam_jax.eval._settings import MetricsConfig
 
 #: The configuration's ``metrics`` section: the one source of the protocol's defaults here.
 _METRICS = MetricsConfig()
@@ -64,13 +65,6 @@ __all__ = [
 
 #: Rotation (deg) already applied to the raw GPS in ``gps.dat``: ``R(-33 deg) (Lo + 67, La + 39)``.
 GPS_DAT_ROTATION_DEG = -33.0
-
-
-def rotation_matrix(deg: float) -> np.ndarray:
-    """``(2, 2)`` counter-clockwise rotation matrix by ``deg`` degrees."""
-    a = math.radians(deg)
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s], [s, c]])
 
 
 def interpolate_at(times: np.ndarray, est_t: np.ndarray, est_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -127,36 +121,6 @@ def relative_gps(
     if gps_xy.ndim != 2 or gps_xy.shape[1] != 2 or gps_xy.shape[0] == 0:
         raise ValueError(f"gps_xy must be a non-empty (G, 2) array, got {gps_xy.shape}")
     return (gps_xy - gps_xy[0]) @ rotation_matrix(rotation_deg - source_rotation_deg).T
-
-
-def rigid_align(est: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Best-fit 2-D rigid transform of ``est`` onto ``ref`` (least squares, no scale).
-
-    Minimises ``sum_i |R est_i + t - ref_i|^2`` over rotations ``R`` (det +1: a reflection is
-    never returned; Kabsch/Umeyama without scale) and translations ``t``.
-
-    Args:
-        est: ``(n, 2)`` points to move.
-        ref: ``(n, 2)`` corresponding reference points.
-
-    Returns:
-        ``(R, t, aligned)``: ``(2, 2)`` rotation, ``(2,)`` translation and ``(n, 2)``
-        ``est @ R.T + t``. With one point, ``R`` is the identity.
-    """
-    est = np.asarray(est, dtype=float)
-    ref = np.asarray(ref, dtype=float)
-    if est.shape != ref.shape or est.ndim != 2 or est.shape[1] != 2 or est.shape[0] == 0:
-        raise ValueError(f"est and ref must be matching non-empty (n, 2) arrays, got {est.shape} and {ref.shape}")
-    mu_e, mu_r = est.mean(axis=0), ref.mean(axis=0)
-    if est.shape[0] == 1:
-        R = np.eye(2)
-    else:
-        h = (est - mu_e).T @ (ref - mu_r)  # cross-covariance, (2, 2)
-        u, _, vt = np.linalg.svd(h)
-        d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-        R = vt.T @ np.diag([1.0, d]) @ u.T
-    t = mu_r - R @ mu_e
-    return R, t, est @ R.T + t
 
 
 def jump_mask(gps_t: np.ndarray, gps_xy: np.ndarray, max_speed: float = _METRICS.jump_speed) -> np.ndarray:
@@ -222,10 +186,6 @@ def _prepare(est_t, est_xy, gps, frame, rotation_deg, source_rotation_deg):
             f"(the GPS covers {span})"
         )
     return gps, ref, xy, inside
-
-
-def _rmse(err: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(err**2))) if err.size else float("nan")
 
 
 def error_over_time(
@@ -547,12 +507,6 @@ def survey_summary(
     return out
 
 
-# The scoring of a whole run and the summary over seeds under the failed-seed rule: the one scorer of
-# every command (run, compare, sweep, study), in nanoslam_jax.eval._scoring (which builds on this module,
-# hence loaded on first use).
-_SCORING = ("MapEstimate", "metric_goal", "score_run", "seed_summary", "summarize_runs")
-__all__ += list(_SCORING)
-
 from nanoslam_jax.eval._feature_metrics import (  # noqa: E402
     arc_feature_errors,
     feature_map_errors,
@@ -561,11 +515,3 @@ from nanoslam_jax.eval._feature_metrics import (  # noqa: E402
     point_feature_errors,
 )
 from nanoslam_jax.eval._map_alignment import map_alignment_metrics  # noqa: E402
-
-
-def __getattr__(name: str):
-    if name in _SCORING:
-        from nanoslam_jax.eval import _scoring
-
-        return getattr(_scoring, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

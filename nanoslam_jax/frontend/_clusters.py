@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Bool, Float
 
-from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.frontend._settings import DetectorConfig
 from nanoslam_jax.data import LaserScans
 from nanoslam_jax.frontend._types import (
     EDGE_FARTHER,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float
 
-from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.frontend._settings import DetectorConfig
 from nanoslam_jax.data import LaserScans
 from nanoslam_jax.frontend._circles import CircleFit, fit_circles
 from nanoslam_jax.frontend._clusters import find_clusters, scan_points

@@ -11,7 +11,7 @@ from typing import Literal, cast
 
 import numpy as np
 
-from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.frontend._settings import DetectorConfig
 from nanoslam_jax.data import (
     LaserScans,
     RawLog,

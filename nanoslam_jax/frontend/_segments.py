@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
-from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.frontend._settings import DetectorConfig
 from nanoslam_jax.frontend._types import BreakPoints, Clusters, Corners, Lines, Points
 
 __all__ = ["Segments", "extract_lines", "fit_lines", "polyline_vertices", "segments_of", "split_and_merge"]

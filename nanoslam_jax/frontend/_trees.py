@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nanoslam_jax.app.config import DetectorConfig
+from nanoslam_jax.frontend._settings import DetectorConfig
 from nanoslam_jax.data import LaserScans
 from nanoslam_jax.frontend._circles import CircleFit
 from nanoslam_jax.frontend._profile import fit_trunk_profiles

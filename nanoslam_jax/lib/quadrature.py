@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PyTree
 
-from nanoslam_jax.models import wrap_angle
+from nanoslam_jax.lib._angles import wrap_angle
 
 __all__ = [
     "CHOL_REL_JITTER",

@@ -1,7 +1,6 @@
 """The built-in methods' own settings, nested in :class:`~._params.Static` and :class:`~._params.Params`.
 
-A method (:class:`~nanoslam_jax.app.registry.Method`) declares the config section it reads and builds
-from a configuration its static settings (a frozen, hashable dataclass: they fix shapes or
+A method (:class:`~nanoslam_jax.methods.Method`) has static settings (a frozen, hashable dataclass: they fix shapes or
 branches, and changing them recompiles), kept in ``Static.method_settings``, and its traced ones
 (a NamedTuple of scalar arrays; a dict for a method registered with ``defaults``), kept in
 ``Params.method``. A method without static settings has None there; one without traced settings
@@ -15,27 +14,9 @@ The built-in methods' settings: :class:`NanoStatic` and :class:`NanoParams` (sec
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
-import jax.numpy as jnp
 from jaxtyping import Array, Float
-
-if TYPE_CHECKING:
-    from nanoslam_jax.app.config import Config
-
-
-def _a(x: float) -> Array:
-    """A traced scalar: ``x`` as a float array."""
-    return jnp.asarray(x, dtype=float)
-
-
-def _fields_from(cls: Any, section: Any, rename: dict[str, str] | None = None, convert: Any = None) -> dict[str, Any]:
-    """Each field of ``cls`` (a dataclass or NamedTuple) from the config ``section``'s key of the same
-    name (or the one ``rename`` gives), passed through ``convert`` when given."""
-    names = cls._fields if hasattr(cls, "_fields") else tuple(f.name for f in dataclasses.fields(cls))
-    rename = rename or {}
-    value = (lambda v: v) if convert is None else convert
-    return {n: value(getattr(section, rename.get(n, n))) for n in names}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,18 +33,13 @@ class NanoStatic:
         solver: ``"optimistix"`` or ``"while_loop"`` iteration (``nano.solver``).
     """
 
-    quadrature: str
-    gh_order: int
-    hessian: str
-    max_iter: int
-    landmark_noise: bool
-    init: str
-    solver: str
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> NanoStatic:
-        """The settings of ``cfg.nano``."""
-        return cls(**_fields_from(cls, cfg.nano))
+    quadrature: str = "cubature"
+    gh_order: int = 3
+    hessian: str = "gauss_newton"
+    max_iter: int = 10
+    landmark_noise: bool = False
+    init: str = "prior"
+    solver: str = "while_loop"
 
 
 class NanoParams(NamedTuple):
@@ -82,12 +58,6 @@ class NanoParams(NamedTuple):
     beta: Float[Array, ""]
     kappa: Float[Array, ""]
 
-    @classmethod
-    def from_config(cls, cfg: Config) -> NanoParams:
-        """The hyperparameters of ``cfg.nano``, as traced scalars."""
-        ut = {"alpha": "ut_alpha", "beta": "ut_beta", "kappa": "ut_kappa"}
-        return cls(**_fields_from(cls, cfg.nano, ut, _a))
-
 
 @dataclasses.dataclass(frozen=True)
 class IteratedStatic:
@@ -100,15 +70,10 @@ class IteratedStatic:
         landmark_noise: the likelihood uses ``R + Gm Sigma Gm'``.
     """
 
-    solver: str
-    max_iter: int
-    tol: float
-    landmark_noise: bool
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> IteratedStatic:
-        """The settings of ``cfg.iterated``."""
-        return cls(**_fields_from(cls, cfg.iterated))
+    solver: str = "gauss_newton"
+    max_iter: int = 10
+    tol: float = 1e-8
+    landmark_noise: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,19 +92,14 @@ class NasrukfStatic:
         noise_residual: residual the adaptive noise estimate of the per-beam measurement uses.
     """
 
-    feature: str
-    adaptive_process: bool
-    measurement: str
-    line_form: str
-    beams_per_feature: int
-    arc_capacity: int
-    groups: int
-    noise_residual: str
-
-    @classmethod
-    def from_config(cls, cfg: Config) -> NasrukfStatic:
-        """The settings of ``cfg.nasrukf``."""
-        return cls(**_fields_from(cls, cfg.nasrukf, {"groups": "max_groups"}))
+    feature: str = "point"
+    adaptive_process: bool = False
+    measurement: str = "detections"
+    line_form: str = "normal"
+    beams_per_feature: int = 16
+    arc_capacity: int = 8
+    groups: int = 32
+    noise_residual: str = "projected"
 
 
 class BeamParams(NamedTuple):
@@ -175,18 +135,6 @@ class NasrukfParams(NamedTuple):
     process_floor: Float[Array, ""]
     beams: BeamParams | None = None
 
-    @classmethod
-    def from_config(cls, cfg: Config) -> NasrukfParams:
-        """The hyperparameters of ``cfg.nasrukf``, as traced scalars."""
-        n = cfg.nasrukf
-        beams = BeamParams(**_fields_from(BeamParams, n, convert=_a)) if n.measurement == "beams" else None
-        return cls(
-            new_feature_hits=_a(n.new_feature_hits),
-            process_forgetting=_a(n.process_forgetting),
-            process_floor=_a(n.process_floor),
-            beams=beams,
-        )
-
 
 _S = TypeVar("_S")
 
@@ -199,7 +147,7 @@ def settings_of(static: Any, kind: type[_S]) -> _S:
     """
     s = static.method_settings
     if not isinstance(s, kind):
-        raise TypeError(f"method {static.method!r}: expected {kind.__name__} settings, got {type(s).__name__}")
+        raise TypeError(f"method {static.method.name!r}: expected {kind.__name__} settings, got {type(s).__name__}")
     return s
 
 

@@ -12,31 +12,25 @@ import math
 from collections.abc import Hashable
 from typing import Any, NamedTuple
 
-import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from nanoslam_jax.app.config import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Config
-from nanoslam_jax.app.registry import get_method
+from nanoslam_jax.methods.particle._methods import NANO
+from nanoslam_jax.methods._method import Method
 from nanoslam_jax.methods._method_settings import BeamParams as BeamParams
-from nanoslam_jax.models import (
-    AbstractMeasurementModel,
-    AbstractMotionModel,
-    RangeBearing,
-    is_range_bearing,
-    measurement_model_from_config,
-    motion_model_from_config,
-)
+from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, RangeBearing, is_range_bearing
 
-
-#: The configuration's defaults, the one source of :class:`Static`'s.
-_C = Config()
+#: ``filter.row_buckets: auto`` splits the per-row work (proposal, weight, landmark updates) and the
+#: association's window from this many particles up.
+ROW_BUCKETS_FROM = 64
+#: ``filter.split_devices: auto`` splits a run's particles over the CPU devices from this many up.
+SPLIT_DEVICES_FROM = 64
 
 
 class _FromMethod:
-    """The default of :attr:`Static.method_settings`: the method's settings under :data:`_C`."""
+    """The default of :attr:`Static.method_settings`: the method's :attr:`~Method.static_default`."""
 
     def __repr__(self) -> str:
-        return "<the method's settings under the default configuration>"
+        return "<the method's default settings>"
 
 
 _FROM_METHOD = _FromMethod()
@@ -46,11 +40,10 @@ _FROM_METHOD = _FromMethod()
 class Static:
     """Settings that fix array shapes or program structure (hashable).
 
-    Its defaults are the configuration's: ``Static()`` equals the static part of
-    ``settings_from_config(Config(), Static().k_max)``.
+    The configuration's ``filter`` and ``map`` sections take their defaults from these.
 
     Attributes:
-        method: ``filter.method``.
+        method: the method (:class:`~nanoslam_jax.methods.Method`; ``filter.method`` names one).
         n_particles: ``filter.n_particles``.
         capacity: landmark slots per particle (``filter.capacity``).
         window: landmarks per particle considered for association in a scan (``filter.window``).
@@ -62,35 +55,39 @@ class Static:
         manage, occlusion: ``map.manage`` and ``map.occlusion``.
         landmark_update: ``"ekf"`` or ``"unscented"`` landmark updates (the method's).
         adaptive_noise: the adaptive measurement-noise estimate is on (``noise.adaptive``).
-        method_settings: the method's own static settings, as its registration builds them from
-            the configuration (:attr:`~nanoslam_jax.app.registry.Method.static_settings`): a frozen
-            dataclass such as :class:`~nanoslam_jax.methods.NanoStatic`, or None for a method without.
-            Left out, those of the default configuration.
+        method_settings: the method's own static settings: a frozen dataclass such as
+            :class:`~nanoslam_jax.methods.NanoStatic`, or None for a method without. Left out, the
+            method's :attr:`~nanoslam_jax.methods.Method.static_default`.
     """
 
-    method: str = _C.filter.method
-    n_particles: int = _C.filter.n_particles
-    capacity: int = _C.filter.capacity
-    window: int = _C.filter.window
+    method: Method = NANO
+    n_particles: int = 10
+    capacity: int = 512
+    window: int = 64
     k_max: int = 14
     row_buckets: tuple[int, ...] = ()
     devices: int = 1
-    prior: str = _C.filter.prior
-    prior_cov: str = _C.filter.prior_cov
-    sequential: bool = _C.filter.sequential
-    association: str = _C.filter.association
-    weight: str = _C.filter.weight
-    resampler: str = _C.filter.resampler
-    estimate: str = _C.filter.estimate
-    manage: bool = _C.map.manage
-    occlusion: bool = _C.map.occlusion
+    prior: str = "unscented"
+    prior_cov: str = "reset"
+    sequential: bool = True
+    association: str = "nearest"
+    weight: str = "product"
+    resampler: str = "systematic"
+    estimate: str = "best"
+    manage: bool = True
+    occlusion: bool = True
     landmark_update: str = "ekf"
-    adaptive_noise: bool = _C.noise.adaptive
+    adaptive_noise: bool = False
     method_settings: Hashable = _FROM_METHOD
 
     def __post_init__(self):
+        if not isinstance(self.method, Method):
+            raise TypeError(
+                f"Static.method: expected a nanoslam_jax.methods.Method, got {self.method!r} "
+                "(nanoslam_jax.app.registry.get_method(name) gives the method of a filter.method name)"
+            )
         if self.method_settings is _FROM_METHOD:
-            object.__setattr__(self, "method_settings", get_method(self.method).static_of(_C))
+            object.__setattr__(self, "method_settings", self.method.static_default)
 
     @property
     def window_size(self) -> int:
@@ -230,29 +227,22 @@ def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
     return ROW_BUCKETS if on else ()
 
 
-def shardable(method: str, settings: Hashable = _FROM_METHOD) -> bool:
+def shardable(method: Method, settings: Hashable = _FROM_METHOD) -> bool:
     """Whether a method's per-particle work may run under ``shard_map`` (split over devices), as
-    its registration says (:attr:`~nanoslam_jax.app.registry.Method.shardable`), given its static
-    settings (``Static.method_settings``; :func:`method_static` of a configuration; left out,
-    those of the default configuration).
+    the method says (:attr:`~nanoslam_jax.methods.Method.shardable`), given its static settings
+    (``Static.method_settings``; left out, the method's default ones).
 
     optimistix's least-squares solvers (method ``iterated``; NANO-SLAM with ``nano.init:
     gauss_newton``) cannot: lineax compares the residual's structure with its operator's, and
     inside ``shard_map`` the operator's carries a sharding the residual's lacks. Such runs stay on
     one device: a single run's particles are not split, nor is a sweep batch of them.
     """
-    return bool(get_method(method).shardable(Static(method=method, method_settings=settings)))
-
-
-def method_static(cfg: Config) -> Hashable:
-    """The static settings of ``cfg``'s method (``Static.method_settings``), built by its
-    registration from ``cfg`` without any JAX computation."""
-    return get_method(cfg.filter.method).static_of(cfg)
+    return bool(method.shardable(Static(method=method, method_settings=settings)))
 
 
 def particle_devices(setting: str, particles: int, devices: int | None = None, *, split_ok: bool = True) -> int:
     """JAX devices a single run's particles are split over for ``filter.split_devices``: for
-    ``always``, and for ``auto`` from :data:`~nanoslam_jax.app.config.SPLIT_DEVICES_FROM` particles
+    ``always``, and for ``auto`` from :data:`SPLIT_DEVICES_FROM` particles
     up, the most of the ``devices`` available (default: JAX's device count) that divide the
     particles evenly; else 1. ``split_ok`` False (a method that is not :func:`shardable`): 1."""
     if not split_ok or setting == "never" or (setting == "auto" and particles < SPLIT_DEVICES_FROM):
@@ -262,71 +252,3 @@ def particle_devices(setting: str, particles: int, devices: int | None = None, *
 
         devices = len(jax.devices())
     return next((d for d in range(devices, 1, -1) if particles % d == 0), 1)
-
-
-def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
-    """Split a :class:`Config` into the static settings and the traced hyperparameters.
-
-    Args:
-        cfg: the run configuration.
-        k_max: detections per segment of the log (from the segments' shape).
-    """
-    f, nz = cfg.filter, cfg.noise
-    method = get_method(f.method)
-    settings = method.static_of(cfg)
-    static = Static(
-        method=f.method,
-        n_particles=f.n_particles,
-        capacity=f.capacity,
-        window=f.window,
-        k_max=k_max,
-        prior=f.prior,
-        prior_cov=f.prior_cov,
-        sequential=f.sequential,
-        association=f.association,
-        weight=f.weight,
-        resampler=f.resampler,
-        estimate=f.estimate,
-        manage=cfg.map.manage,
-        occlusion=cfg.map.occlusion,
-        landmark_update=method.landmark_update,
-        row_buckets=row_buckets(f.row_buckets, f.n_particles),
-        devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(f.method, settings)),
-        adaptive_noise=nz.adaptive,
-        method_settings=settings,
-    )
-    a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
-    mp = cfg.map
-    map_params = MapParams(
-        log_odds_hit=a(math.log(mp.p_detect / mp.p_false)),
-        log_odds_miss=a(math.log1p(-mp.p_detect) - math.log1p(-mp.p_false) if mp.p_detect < 1.0 else -math.inf),
-        log_odds_birth=a(_logit(mp.birth_probability)),
-        log_odds_confirm=a(_logit(mp.confirm_probability)),
-        confirm_hits=a(mp.confirm_hits),
-        tentative_scans=a(mp.tentative_scans),
-        log_odds_remove=a(_logit(mp.remove_probability)),
-        log_odds_max=a(_logit(mp.max_probability)),
-        occlusion_width=a(mp.occlusion_width),
-        use_tentative=jnp.asarray(mp.use_tentative),
-        use_diameter=jnp.asarray(mp.use_diameter),
-        sigma_diameter=a(mp.sigma_diameter),
-    )
-    params = Params(
-        motion=motion_model_from_config(cfg),
-        measurement=measurement_model_from_config(cfg),
-        init_cov=a(f.init_cov),
-        ut_alpha=a(f.ut_alpha),
-        ut_beta=a(f.ut_beta),
-        ut_kappa=a(f.ut_kappa),
-        gate=a(f.gate),
-        new_landmark=a(f.new_landmark),
-        log_p0=a(math.log(f.p0)),
-        resample_threshold=a(f.resample_threshold),
-        max_range=a(cfg.data.max_range),
-        window_margin=a(f.window_margin),
-        map=map_params,
-        forgetting=a(nz.forgetting),
-        noise_floor=a(nz.adaptive_floor),
-        method=method.traced_of(cfg),
-    )
-    return static, params

@@ -20,9 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, Key
 
-from nanoslam_jax.app._cache import compile_program
+from nanoslam_jax.lib._cache import compile_program
 from nanoslam_jax.data import Segments
-from nanoslam_jax.app.registry import get_method, method_names
+from nanoslam_jax.methods._method import Method
 from nanoslam_jax.methods.proposals import AbstractProposal
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.particle._prior import predict_mean, relative_prior
@@ -37,19 +37,19 @@ AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2", "ufasts
 GAUSSIAN_METHODS = ("ekf_slam", "nasrukf")
 
 
-def is_gaussian(method: str) -> bool:
-    """Whether a registered method is Gaussian (no particles; a run does not depend on the seed)."""
-    return get_method(method).kind == "gaussian"
+def is_gaussian(method: Method) -> bool:
+    """Whether a method is Gaussian (no particles; a run does not depend on the seed)."""
+    return method.kind == "gaussian"
 
 
 def make_proposal(static: Static, params: Params) -> AbstractProposal:
     """The proposal of ``static.method`` (a registered particle method) with its traced
     hyperparameters from ``params``."""
-    method = get_method(static.method)
+    method = static.method
     if method.kind != "particle" or method.proposal is None:
-        particle = [m for m in method_names() if get_method(m).kind == "particle"]
         raise ValueError(
-            f"filter.method: {static.method!r} has no particle-filter proposal; expected one of {', '.join(particle)}"
+            f"filter.method: {method.name!r} is a {method.kind.replace('_', ' ')} method and has no particle-filter "
+            "proposal; expected a particle method"
         )
     return method.proposal(static, params, params.method)
 
@@ -57,7 +57,7 @@ def make_proposal(static: Static, params: Params) -> AbstractProposal:
 def _check_filter_method(static: Static) -> None:
     """Refuse dead reckoning, which ``run_filter`` / ``run_batch`` cannot scan, before tracing (any
     other unknown method is refused by :func:`make_proposal`)."""
-    if get_method(static.method).kind == "dead_reckoning":
+    if static.method.kind == "dead_reckoning":
         raise ValueError(
             "filter.method: 'dead_reckoning' is deterministic and has no filter to run: use "
             "nanoslam_jax.methods.dead_reckoning(params, segments) (what `nanoslam run` and "
@@ -67,7 +67,7 @@ def _check_filter_method(static: Static) -> None:
 
 def _masked_step(static: Static, params: Params, state, inp: tuple):
     seg, valid, rel_prior = inp
-    method = get_method(static.method)
+    method = static.method
     if method.kind == "gaussian":
         assert method.step is not None  # Method requires it of a Gaussian method
         state, out = method.step(static, params, state, seg, valid)
@@ -101,7 +101,7 @@ def initial_state(static: Static, params: Params, key: Key[Array, ""]):
     it carries on), or a Gaussian method's :class:`~._gaussian.GaussianState` (an
     ``EkfSlamState`` for EKF-SLAM, a ``NasrukfState`` for NASRUKF; ``key`` is not used: a
     Gaussian method does not sample)."""
-    method = get_method(static.method)
+    method = static.method
     if method.kind == "gaussian":
         assert method.init is not None  # Method requires it of a Gaussian method
         return method.init(static, params)

@@ -19,10 +19,7 @@ from nanoslam_jax.models._measurement import (
     MEASUREMENT_MODELS as MEASUREMENT_MODELS,
     AbstractMeasurementModel as AbstractMeasurementModel,
     RangeBearing as RangeBearing,
-    check_measurement_model as check_measurement_model,
     is_range_bearing as is_range_bearing,
-    measurement_model_class as measurement_model_class,
-    measurement_model_from_config as measurement_model_from_config,
 )
 from nanoslam_jax.models._lines import (
     Circle as Circle,
@@ -42,6 +39,9 @@ from nanoslam_jax.models._lines import (
     slope_intercept_from_line as slope_intercept_from_line,
 )
 from nanoslam_jax.models._composite import (
+    check_measurement_model as check_measurement_model,
+    measurement_model_class as measurement_model_class,
+    measurement_model_from_config as measurement_model_from_config,
     PAD_VARIANCE as PAD_VARIANCE,
     Composite as Composite,
     OfKind as OfKind,

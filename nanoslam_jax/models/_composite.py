@@ -33,12 +33,24 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from nanoslam_jax.models._measurement import AbstractMeasurementModel
+from nanoslam_jax.models._measurement import MEASUREMENT_MODELS, AbstractMeasurementModel, RangeBearing
+from nanoslam_jax.models._motion import _model_class
 
 if TYPE_CHECKING:
     from nanoslam_jax.app.config import Config
 
-__all__ = ["Composite", "OfKind", "PAD_VARIANCE", "is_composite", "composite_names", "row_models", "row_noise"]
+__all__ = [
+    "Composite",
+    "OfKind",
+    "PAD_VARIANCE",
+    "is_composite",
+    "composite_names",
+    "row_models",
+    "row_noise",
+    "measurement_model_class",
+    "measurement_model_from_config",
+    "check_measurement_model",
+]
 
 #: Noise variance of a padded component: ``N(0; 0, 1 / (2 pi)) = 1``, so a padded component adds
 #: nothing to a detection's log-likelihood.
@@ -113,8 +125,6 @@ class Composite(AbstractMeasurementModel):
     def from_config(cls, cfg: "Config") -> "Composite":
         """The types of ``model.measurement`` (built-in names or import paths joined by ``+``, e.g.
         ``line+circle``), each with its parameters from ``model.measurement_params.<name>``."""
-        from nanoslam_jax.models._measurement import measurement_model_class
-
         names = composite_names(cfg.model.measurement)
         params = dict(cfg.model.measurement_params or {})
         unknown = sorted(set(params) - set(names))
@@ -231,3 +241,66 @@ def row_noise(
     """The rows' noise covariances and their ``vmap`` axis: ``R`` shared (``axis`` None), or each
     row's own (the ``OfKind`` rows of :func:`row_models`)."""
     return (model.noise_cov(), 0) if axis is not None else (R, None)
+
+
+def measurement_model_class(name: str) -> type[AbstractMeasurementModel]:
+    """The measurement model class for ``model.measurement``: a built-in name or an import path
+    ``package.module:ClassName`` of a subclass of :class:`AbstractMeasurementModel`; several of
+    them joined by ``+`` (``line+circle``): :class:`~nanoslam_jax.models.Composite`, a map of
+    several landmark types.
+
+    Raises:
+        ValueError: naming the key, when the name is unknown, cannot be imported or is not a
+            measurement model class.
+    """
+    if "+" in name:
+        for part in composite_names(name):
+            measurement_model_class(part)
+        return Composite
+    return _model_class(name, "model.measurement", "measurement model", MEASUREMENT_MODELS, AbstractMeasurementModel)
+
+
+def measurement_model_from_config(cfg: "Config") -> AbstractMeasurementModel:
+    """The measurement model named by ``model.measurement`` with its parameters from the configuration."""
+    return measurement_model_class(cfg.model.measurement).from_config(cfg)
+
+
+def check_measurement_model(
+    model: type[AbstractMeasurementModel] | AbstractMeasurementModel, method: str, smoother: bool = False
+) -> None:
+    """Raise a ValueError naming ``model.measurement`` when the filter cannot run ``model``.
+
+    The filter's maps hold landmarks of the model's ``landmark_dim``; a detection has
+    ``measurement_dim`` values, as many (a new landmark is started through the inverse model,
+    whose Jacobian must be square); detections carry no auxiliary input yet (``aux_dim == 0``);
+    NASRUKF (``filter.method: nasrukf``) and the smoother run range-bearing models only.
+    """
+    cls = model if isinstance(model, type) else type(model)
+    name = cls.__name__
+    if issubclass(cls, Composite):  # its types are checked when it is built
+        if method in ("ufastslam", "nasrukf") or smoother:
+            raise ValueError(
+                "key 'model.measurement': a map of several landmark types runs with ekf_slam, fastslam1, "
+                f"fastslam2, iterated and nano, not with {'the smoother' if smoother else method}"
+            )
+        return
+    if cls.landmark_dim < 1 or cls.landmark_dim != cls.measurement_dim:
+        raise ValueError(
+            f"key 'model.measurement': {name} has landmark_dim {cls.landmark_dim} and measurement_dim "
+            f"{cls.measurement_dim}; the filter starts a landmark from one detection through the inverse "
+            "model and needs them equal (and at least 1)"
+        )
+    if cls.aux_dim != 0:
+        raise ValueError(
+            f"key 'model.measurement': {name} takes an auxiliary input (aux_dim {cls.aux_dim}); the "
+            "log's detections carry none"
+        )
+    if not issubclass(cls, RangeBearing):
+        if method == "nasrukf":
+            raise ValueError(
+                f"key 'model.measurement': filter.method nasrukf runs range-bearing models only, not {name}"
+            )
+        if smoother:
+            raise ValueError(
+                f"key 'model.measurement': the smoother (smoother.enabled) runs range-bearing models only, not {name}"
+            )

@@ -36,9 +36,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from nanoslam_jax.app._config_schema import DataConfig, MapConfig, NoiseConfig
+from nanoslam_jax.models._settings import SensorDefaults
 from nanoslam_jax.lib._angles import wrap_angle
-from nanoslam_jax.models._motion import _f, _model_class
+from nanoslam_jax.models._motion import _f
 from nanoslam_jax.models._range_bearing import (
     innovation as _rb_innovation,
 )
@@ -57,9 +57,6 @@ __all__ = [
     "RangeBearing",
     "MEASUREMENT_MODELS",
     "is_range_bearing",
-    "check_measurement_model",
-    "measurement_model_class",
-    "measurement_model_from_config",
 ]
 
 
@@ -181,7 +178,7 @@ class AbstractMeasurementModel(eqx.Module):
 
 # The configuration's defaults are the one source of the built-in model's defaults:
 # ``RangeBearing()`` equals ``RangeBearing.from_config(Config())``.
-_NOISE, _DATA, _MAP = NoiseConfig(), DataConfig(), MapConfig()
+_NOISE = _DATA = _MAP = SensorDefaults()
 
 
 class RangeBearing(AbstractMeasurementModel):
@@ -270,70 +267,3 @@ def is_range_bearing(model: Any) -> TypeGuard[RangeBearing]:
 MEASUREMENT_MODELS: dict[str, type[AbstractMeasurementModel]] = {
     "range_bearing": RangeBearing,
 }
-
-
-def measurement_model_class(name: str) -> type[AbstractMeasurementModel]:
-    """The measurement model class for ``model.measurement``: a built-in name or an import path
-    ``package.module:ClassName`` of a subclass of :class:`AbstractMeasurementModel`; several of
-    them joined by ``+`` (``line+circle``): :class:`~nanoslam_jax.models.Composite`, a map of
-    several landmark types.
-
-    Raises:
-        ValueError: naming the key, when the name is unknown, cannot be imported or is not a
-            measurement model class.
-    """
-    if "+" in name:
-        from nanoslam_jax.models._composite import Composite, composite_names
-
-        for part in composite_names(name):
-            measurement_model_class(part)
-        return Composite
-    return _model_class(name, "model.measurement", "measurement model", MEASUREMENT_MODELS, AbstractMeasurementModel)
-
-
-def measurement_model_from_config(cfg: "Config") -> AbstractMeasurementModel:
-    """The measurement model named by ``model.measurement`` with its parameters from the configuration."""
-    return measurement_model_class(cfg.model.measurement).from_config(cfg)
-
-
-def check_measurement_model(
-    model: type[AbstractMeasurementModel] | AbstractMeasurementModel, method: str, smoother: bool = False
-) -> None:
-    """Raise a ValueError naming ``model.measurement`` when the filter cannot run ``model``.
-
-    The filter's maps hold landmarks of the model's ``landmark_dim``; a detection has
-    ``measurement_dim`` values, as many (a new landmark is started through the inverse model,
-    whose Jacobian must be square); detections carry no auxiliary input yet (``aux_dim == 0``);
-    NASRUKF (``filter.method: nasrukf``) and the smoother run range-bearing models only.
-    """
-    from nanoslam_jax.models._composite import Composite
-
-    cls = model if isinstance(model, type) else type(model)
-    name = cls.__name__
-    if issubclass(cls, Composite):  # its types are checked when it is built
-        if method in ("ufastslam", "nasrukf") or smoother:
-            raise ValueError(
-                "key 'model.measurement': a map of several landmark types runs with ekf_slam, fastslam1, "
-                f"fastslam2, iterated and nano, not with {'the smoother' if smoother else method}"
-            )
-        return
-    if cls.landmark_dim < 1 or cls.landmark_dim != cls.measurement_dim:
-        raise ValueError(
-            f"key 'model.measurement': {name} has landmark_dim {cls.landmark_dim} and measurement_dim "
-            f"{cls.measurement_dim}; the filter starts a landmark from one detection through the inverse "
-            "model and needs them equal (and at least 1)"
-        )
-    if cls.aux_dim != 0:
-        raise ValueError(
-            f"key 'model.measurement': {name} takes an auxiliary input (aux_dim {cls.aux_dim}); the "
-            "log's detections carry none"
-        )
-    if not issubclass(cls, RangeBearing):
-        if method == "nasrukf":
-            raise ValueError(
-                f"key 'model.measurement': filter.method nasrukf runs range-bearing models only, not {name}"
-            )
-        if smoother:
-            raise ValueError(
-                f"key 'model.measurement': the smoother (smoother.enabled) runs range-bearing models only, not {name}"
-            )

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from nanoslam_jax.app._config_schema import NoiseConfig, RandomWalkConfig, UnicycleConfig, VehicleConfig
+from nanoslam_jax.models._settings import RandomWalkConfig, SensorDefaults, UnicycleConfig, VehicleConfig
 from nanoslam_jax.lib._angles import wrap_angle
 from nanoslam_jax.models._vehicle import VehicleParams, vehicle_move, vehicle_rates, vehicle_step
 
@@ -58,7 +58,7 @@ __all__ = [
 
 # The configuration's defaults are the one source of the built-in models' defaults:
 # ``Model()`` equals ``Model.from_config(Config())``.
-_VEHICLE, _NOISE, _UNICYCLE, _RANDOM_WALK = VehicleConfig(), NoiseConfig(), UnicycleConfig(), RandomWalkConfig()
+_VEHICLE, _NOISE, _UNICYCLE, _RANDOM_WALK = VehicleConfig(), SensorDefaults(), UnicycleConfig(), RandomWalkConfig()
 
 
 def _f(x: Any) -> Array | np.ndarray:

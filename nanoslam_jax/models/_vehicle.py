@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from nanoslam_jax.app._config_schema import VehicleConfig
+from nanoslam_jax.models._settings import VehicleConfig
 from nanoslam_jax.lib._trig import sincos, tan
 from nanoslam_jax.lib._angles import wrap_angle
 

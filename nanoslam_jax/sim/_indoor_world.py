@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from matplotlib.path import Path as MplPath
 
-from nanoslam_jax.app.config import IndoorConfig
+from nanoslam_jax.sim._settings import IndoorConfig
 from nanoslam_jax.lib._angles import wrap_angle_np
 from nanoslam_jax.sim.laser import KIND_WALL, LaserWorld
 from nanoslam_jax.sim._indoor_types import (

@@ -68,7 +68,7 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import maximum_filter1d
 
-from nanoslam_jax.app.config import IndoorConfig
+from nanoslam_jax.sim._settings import IndoorConfig
 from nanoslam_jax.data import LaserScans, fan_angles, write_victoria_park
 from nanoslam_jax.data._laser import NO_RETURN, write_laser
 from nanoslam_jax.data._types import RawLog

@@ -34,7 +34,8 @@ import numpy as np
 from jaxtyping import Bool, Float, Int
 from scipy.spatial import cKDTree
 
-from nanoslam_jax.app.config import SimConfig, UnicycleConfig, VehicleConfig
+from nanoslam_jax.sim._settings import SimConfig
+from nanoslam_jax.models._settings import UnicycleConfig, VehicleConfig
 from nanoslam_jax.data import LaserScans, fan_angles, write_victoria_park
 from nanoslam_jax.data._laser import NO_RETURN, write_laser
 from nanoslam_jax.data._types import RawLog

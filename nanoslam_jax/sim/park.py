@@ -60,7 +60,8 @@ from typing import Union
 import numpy as np
 from scipy.spatial import cKDTree
 
-from nanoslam_jax.app.config import SimConfig, UnicycleConfig, VehicleConfig
+from nanoslam_jax.sim._settings import SimConfig
+from nanoslam_jax.models._settings import UnicycleConfig, VehicleConfig
 from nanoslam_jax.data._types import RawLog
 from nanoslam_jax.lib._angles import wrap_angle_np
 

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from jaxtyping import Float, Int
 from scipy.spatial import cKDTree
 
-from nanoslam_jax.app._config_schema import SmootherConfig
+from nanoslam_jax.smoother._settings import SmootherConfig
 from nanoslam_jax.models import wrap_angle_np
 
 #: The config's defaults (:class:`nanoslam_jax.app.config.SmootherConfig`), the one source of the settings' defaults.

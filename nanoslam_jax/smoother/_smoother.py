@@ -54,7 +54,7 @@ import jax
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from nanoslam_jax.app._config_schema import SmootherConfig
+from nanoslam_jax.smoother._settings import SmootherConfig
 from nanoslam_jax.methods._params import Params
 from nanoslam_jax.methods import relative_priors
 from nanoslam_jax.smoother._loop_closure import (

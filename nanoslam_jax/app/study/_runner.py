@@ -44,6 +44,7 @@ from nanoslam_jax.eval._scoring import format_number, write_rows_csv
 from nanoslam_jax.app.config import ConfigError, config_to_dict
 from nanoslam_jax.app.study._spec import STUDY_METRICS, StudyPoint, StudySpec, expand_study, point_sweep_dict
 from nanoslam_jax.app.study._stats import equal_time, number, paired_comparison, summarize_points
+from nanoslam_jax.lib._precision import in_float64
 
 __all__ = ["run_study", "StudyResult", "TIMING_FIELDS"]
 
@@ -177,6 +178,7 @@ def _write_study_yaml(out: Path, spec: StudySpec, points: list[StudyPoint], resu
     return held
 
 
+@in_float64
 def run_study(
     spec: StudySpec,
     out_dir: str | Path,
@@ -206,7 +208,7 @@ def run_study(
         ConfigError: ``out_dir`` holds a study already (without ``resume``), or none (with it).
     """
     from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE, setup_devices
-    from nanoslam_jax.app._cache import enable_compile_cache
+    from nanoslam_jax.lib._cache import enable_compile_cache
     from nanoslam_jax.app.sweep import ResultsFile, read_results, resolve_parallel, run_sweep, sweep_from_dict
 
     out = Path(out_dir)
@@ -442,6 +444,7 @@ def _paired_markdown(spec: StudySpec, rows: list[dict]) -> str:
 def _gps_floor(out: Path, spec: StudySpec, points: list[StudyPoint], data_dir: Optional[str], say) -> Optional[dict]:
     """The GPS floor over the study's span (real logs only: a simulated log's GPS is the truth)."""
     from nanoslam_jax.eval.gps_floor import floor_markdown, gps_floor_of_log
+    from nanoslam_jax.models import motion_model_from_config
     from nanoslam_jax.app.sweep import load_log_data
 
     cfg = points[0].config
@@ -451,7 +454,7 @@ def _gps_floor(out: Path, spec: StudySpec, points: list[StudyPoint], data_dir: O
         log = load_log_data(cfg, data_dir, spec.segments)
         if log.frame != "relative":
             return None
-        f = gps_floor_of_log(cfg, log)
+        f = gps_floor_of_log(motion_model_from_config(cfg), cfg.metrics, log)
     except Exception as e:  # the floor must never lose a study
         say(f"gps floor failed: {type(e).__name__}: {e}")
         return None

@@ -60,9 +60,10 @@ def time_point(
     setup_run_devices(cfg)  # as `nanoslam run` does
     import numpy as np
 
-    from nanoslam_jax.methods import reported_trajectory, run_filter, settings_from_config
+    from nanoslam_jax.methods import reported_trajectory, run_filter
+    from nanoslam_jax.app.filters import settings_from_config
     from nanoslam_jax.smoother._smoother import smooth_filter_run
-    from nanoslam_jax.app._cache import enable_compile_cache
+    from nanoslam_jax.lib._cache import enable_compile_cache
     from nanoslam_jax.app.sweep import load_log_data
 
     if cache:

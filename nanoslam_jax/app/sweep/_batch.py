@@ -2,7 +2,7 @@
 vectorisation, devices, batch size, segment shapes) key, and a batch's execution and scoring.
 
 A group's programs are kept in :data:`_PROGRAMS` (and in the persistent compilation cache of
-:mod:`nanoslam_jax.app._cache`, so a resumed sweep, a second sweep of the same shapes and worker
+:mod:`nanoslam_jax.lib._cache`, so a resumed sweep, a second sweep of the same shapes and worker
 processes load instead of compiling). :mod:`._runner` plans the batches and drives them.
 """
 
@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nanoslam_jax.app._cache import program_cache, release_programs
+from nanoslam_jax.lib._cache import program_cache, release_programs
 from nanoslam_jax.app.config import Config
 from nanoslam_jax.data import Segments
 from nanoslam_jax.eval._scoring import MapEstimate, companion_tracks, failure_reason, score_run
@@ -36,6 +36,7 @@ from nanoslam_jax.methods import (
     resample_count,
 )
 from nanoslam_jax.smoother._smoother import Smoothed, SmootherSettings, held_landmarks, smooth_run, smoother_metrics
+from nanoslam_jax.lib._precision import in_float64
 
 
 # --------------------------------------------------------------------------- the log
@@ -363,6 +364,7 @@ def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, fl
     return jax.tree.map(np.asarray, out), compile_s, run_s
 
 
+@in_float64
 def execute_batch(task: BatchTask, log: LogData) -> list[dict]:
     """Run one batch and score each real run.
 

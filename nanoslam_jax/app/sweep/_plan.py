@@ -15,7 +15,8 @@ from typing import Optional, Sequence
 import jax
 import numpy as np
 
-from nanoslam_jax.methods import Static, row_buckets, settings_from_config, shardable
+from nanoslam_jax.methods import Static, row_buckets, shardable
+from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.app.sweep._batch import BatchTask, LogData, log_key
 from nanoslam_jax.app.sweep._spec import Run, SweepSpec
 

@@ -12,7 +12,7 @@ import math
 from typing import Iterator, Optional, Sequence
 
 from nanoslam_jax.app.config import ConfigError
-from nanoslam_jax.app._cache import enable_compile_cache
+from nanoslam_jax.lib._cache import enable_compile_cache
 from nanoslam_jax.app.sweep._batch import BatchTask, LogData, _first_line, execute_batch
 
 __all__ = ["ray_iter", "import_ray"]
@@ -31,9 +31,7 @@ def import_ray():
 
 
 def _remote_execute(task: BatchTask, log: LogData, cache_dir: Optional[str]) -> list[dict]:
-    """Body of a Ray task: run one batch in the worker (x64 is enabled by importing the package)."""
-    import nanoslam_jax  # noqa: F401  (float64)
-
+    """Body of a Ray task: run one batch in the worker (in float64, as :func:`execute_batch` is)."""
     if cache_dir:
         try:
             enable_compile_cache(cache_dir)

@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterator, Optional, Sequence
 
 import yaml
 
-from nanoslam_jax.app._cache import enable_compile_cache
+from nanoslam_jax.lib._cache import enable_compile_cache
 from nanoslam_jax._version import __version__
 from nanoslam_jax.app.config import ConfigError
 from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
@@ -46,6 +46,7 @@ from nanoslam_jax.app.sweep._spec import (
     ConfigPoint,
     SweepSpec,
 )
+from nanoslam_jax.lib._precision import in_float64
 
 __all__ = [
     "SweepResult",
@@ -306,6 +307,7 @@ def _write_metadata(
     _write_atomic(out / "configs.csv", "\n".join(lines) + "\n")
 
 
+@in_float64
 def run_sweep(
     spec: SweepSpec,
     out_dir: str | os.PathLike,

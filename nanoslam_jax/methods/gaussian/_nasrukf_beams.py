@@ -4,7 +4,7 @@
 The NASRUKF paper measures a feature one laser range at a time: ``rho(k)`` along the known beam
 angle ``phi(k)`` against a line (eq. 14-15) or an arc (eq. 16-17). Its joint states are pose +
 line and pose + arc. This module runs that filter on the segments of ``data.detections:
-laser_beams`` (:mod:`nanoslam_jax.data._beams`: one detection per beam, ``z = (range, phi)``, the
+laser_beams`` (:mod:`nanoslam_jax.frontend._beams`: one detection per beam, ``z = (range, phi)``, the
 beams of a front-end segment or arc sharing ``z_id``; ``diam > 0`` on an arc), with the
 representation, time update, fusion and feedback of :mod:`._nasrukf`. Per segment
 (:func:`beam_step`):

@@ -22,3 +22,22 @@ from nanoslam_jax.methods.proposals._natural_gradient import (
     natural_gradient_gaussian as natural_gradient_gaussian,
 )
 from nanoslam_jax.methods.proposals._ufastslam import UnscentedProposal as UnscentedProposal
+
+__all__ = [
+    "RESULT_CODES",
+    "AbstractProposal",
+    "Detections",
+    "ProposalResult",
+    "PriorProposal",
+    "LinearizedProposal",
+    "IteratedProposal",
+    "gauss_newton_map",
+    "map_estimate",
+    "NanoProposal",
+    "Gaussian",
+    "NaturalGradientKL",
+    "expected_grad_hess",
+    "kl_gaussian",
+    "natural_gradient_gaussian",
+    "UnscentedProposal",
+]

@@ -272,28 +272,14 @@ def _plugin_modules(static: Any, args: tuple) -> set[str]:
         for x in jax.tree.leaves(args, is_leaf=lambda x: isinstance(x, eqx.Module))
         if isinstance(x, eqx.Module)
     }
-    name = getattr(static, "method", None)
-    if isinstance(name, str):
-        from nanoslam_jax.app.registry import get_method
-
-        try:
-            method = get_method(name)
-        except ValueError:
-            method = None
-        if method is not None:
-            mods |= {
-                f.__module__
-                for f in (
-                    method.proposal,
-                    method.init,
-                    method.step,
-                    method.shardable,
-                    method.static_settings,
-                    method.traced_settings,
-                )
-                if f is not None and getattr(f, "__module__", None)
-            }
-    return {m for m in mods if m != __package__ and not m.startswith(__package__ + ".")}
+    method = getattr(static, "method", None)
+    mods |= {
+        f.__module__
+        for f in (getattr(method, a, None) for a in ("proposal", "init", "step", "shardable"))
+        if f is not None and getattr(f, "__module__", None)
+    }
+    package = __name__.split(".")[0]
+    return {m for m in mods if m != package and not m.startswith(package + ".")}
 
 
 def _plugin_digest(static: Any, args: tuple) -> Optional[str]:
