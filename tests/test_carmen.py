@@ -300,3 +300,84 @@ def test_mit_csail_log_and_its_reference():
     m = reference_report(laser_poses(log)[index], poses, "dr_ref_")
     assert 8.6 < m["dr_ref_rmse"] < 8.8 and 14.0 < m["dr_ref_max"] < 14.4
     assert 0.07 < m["dr_ref_rel_trans"] < 0.08 and 5.0 < m["dr_ref_rel_rot_deg"] < 5.2
+
+
+def _wall_scans(tmp_path: Path) -> Path:
+    """A robot driving towards a wall 6 m ahead (x = 6) with a side wall at y = 2, turning slowly."""
+    ang = np.deg2rad(np.linspace(-90, 90, 181))
+    lines = []
+    for k in range(6):
+        x, y, th = 0.2 * k, 0.0, 0.02 * k
+        a = ang + th
+        with np.errstate(divide="ignore"):
+            r_front = np.where(np.cos(a) > 1e-9, (6.0 - x) / np.cos(a), np.inf)
+            r_side = np.where(np.sin(a) > 1e-9, (2.0 - y) / np.sin(a), np.inf)
+        r = np.minimum(r_front, r_side)
+        r = np.where(np.isfinite(r) & (r < 30), r, 81.91)
+        lines.append(flaser(r, (x, y, th), (x, y, th), 50.0 + 0.25 * k))
+    return write(tmp_path / "walls.clf", lines)
+
+
+@pytest.mark.slow
+def test_load_log_reads_a_carmen_log_with_line_detections_and_reference(tmp_path):
+    from nanoslam_jax.config import ConfigError, load_config
+    from nanoslam_jax.experiment import load_log
+
+    f = _wall_scans(tmp_path)
+    ref = write(tmp_path / "ref.csv", ["time,x,y,theta", "50.25,0.2,0,0.02", "51.0,0.6,0,0.06"])
+    sets = [
+        "data.kind=victoria_park",
+        "data.format=carmen",
+        "data.detections=laser_lines",
+        "model.motion=unicycle",
+        "model.measurement=line",
+        "data.max_range=30",
+        "detector.max_range=30",
+        f"data.reference={ref}",
+    ]
+    log = load_log(load_config(None, sets), str(f))
+    assert log.frame == "relative" and log.source == str(f)
+    assert log.raw.dr.shape == (11, 3) and log.raw.detections.shape[1] == 4
+    # the front end finds both walls in every scan: rho 6 - x ahead, 2 to the left
+    first = log.raw.detections[log.raw.detections[:, 0] == 50.0]
+    assert sorted(np.round(first[:, 1], 2)) == [2.0, 6.0]
+    np.testing.assert_allclose(log.reference.time, [50.25, 51.0])
+    np.testing.assert_allclose(log.reference.poses, [[0.2, 0, 0.02], [0.6, 0, 0.06]])
+    with pytest.raises(ValueError, match="set unicycle.sensor_x and unicycle.sensor_y"):
+        load_log(load_config(None, [*sets, "unicycle.sensor_x=0.3"]), str(f))
+    with pytest.raises(ConfigError, match="key 'data.detections': a CARMEN log holds laser scans"):
+        load_config(None, [*sets, "data.detections=file"])
+    with pytest.raises(ConfigError, match="key 'model.motion'"):
+        load_config(None, [*sets, "model.motion=ackermann"])
+
+
+@pytest.mark.slow
+@pytest.mark.data
+def test_mit_csail_dead_reckoning_run_scores_the_reference(tmp_path):
+    if not (CSAIL / "mit-csail.clf").is_file():
+        pytest.skip(f"{CSAIL} not available")
+    import json
+
+    from nanoslam_jax.config import load_config
+    from nanoslam_jax.experiment import run_experiment
+
+    cfg = load_config(
+        None,
+        [
+            "data.kind=victoria_park",
+            "data.format=carmen",
+            "data.detections=laser_lines",
+            "model.motion=unicycle",
+            "model.measurement=line",
+            "data.max_range=30",
+            "detector.max_range=30",
+            "data.k_max=40",
+            "filter.method=dead_reckoning",
+            f"data.reference={CSAIL / 'mit-csail-corrected.log.gz'}",
+        ],
+    )
+    run_experiment(cfg, tmp_path, data_dir=str(CSAIL), progress=False)
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert 400 <= m["dr_ref_n"] <= 406
+    assert 8.6 < m["dr_ref_rmse"] < 8.8 and 14.0 < m["dr_ref_max"] < 14.4
+    assert 0.07 < m["dr_ref_rel_trans"] < 0.08 and 5.0 < m["dr_ref_rel_rot_deg"] < 5.2
