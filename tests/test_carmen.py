@@ -104,6 +104,10 @@ def test_robotlaser_geometry_and_mounting(tmp_path):
     assert log.scans.max_range == 30.0 and log.scans.ranges[0, 2] == 30.0
     np.testing.assert_allclose(log.laser_pose, [0.2, 0.0, 0.0], atol=1e-6)
     np.testing.assert_allclose(log.odom, [[0.8, 0.5, 0.0], [0.0, 1.0, math.pi / 2]], atol=1e-6)
+    # an override replaces the spacing the lines state; the start stays the line's
+    log2 = load_carmen(tmp_path / "r.clf", laser_step_deg=0.5, no_return=3.5)
+    np.testing.assert_allclose(log2.scans.angles, -1.5 + np.deg2rad(0.5) * np.arange(4))
+    assert log2.scans.max_range == 3.5 and log2.scans.valid[1].tolist() == [True, True, True, False]
     # the laser moves on the robot: an error naming the line
     lines.append(robotlaser([1.0, 2.0, 3.0, 4.0], (0.5, 1.0, 0.0), (0.0, 1.0, 0.0), 7.0))
     with pytest.raises(LogFormatError, match=r"bad\.clf line 3: the laser's pose relative"):
