@@ -51,13 +51,47 @@ class DataConfig:
         doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park "
         "(format mrclam: ../shared/data/utias_mrclam/MRCLAM_Dataset1)",
     )
-    format: Literal["auto", "ascii", "mat", "mrclam"] = _f(
+    format: Literal["auto", "ascii", "mat", "mrclam", "carmen"] = _f(
         "auto",
         static=True,
         doc="'ascii': inputs.dat/measurements.dat/gps.dat; 'mat': aa3_dr.mat/aa3_gpsx.mat (+ measurements.dat); "
         "'auto': ascii when present; 'mrclam': a UTIAS MRCLAM dataset directory (Barcodes.dat, "
         "Landmark_Groundtruth.dat, RobotN_Odometry.dat, RobotN_Measurement.dat): robot data.robot's (v, omega) "
-        "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids",
+        "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids; 'carmen' (with "
+        "data.kind victoria_park): a CARMEN log "
+        "(.clf/.log, optionally .gz, or a directory holding one): its laser scans (FLASER, ROBOTLASER1, "
+        "RAWLASER1-4) and odometry as (v, omega) controls (model.motion unicycle, unicycle.sensor_x/sensor_y the "
+        "laser's mounting), with detections from the scans (data.detections laser_lines, laser_beams, ...)",
+    )
+    laser_start_deg: Optional[float] = _f(
+        None,
+        static=True,
+        doc="data.format carmen: the first beam's angle (deg, 0 ahead, left positive); null: the scan line's "
+        "(ROBOTLASER1, RAWLASER), else the convention for FLASER (-90)",
+    )
+    laser_step_deg: Optional[float] = _f(
+        None,
+        lo=0.0,
+        lo_open=True,
+        static=True,
+        doc="data.format carmen: the spacing of the beams (deg); null: the scan line's, else the convention "
+        "(180 or 181 beams: 1; 360 or 361: 0.5)",
+    )
+    no_return_m: Optional[float] = _f(
+        None,
+        lo=0.0,
+        lo_open=True,
+        static=True,
+        doc="data.format carmen: readings at or above this (m) are no returns; null: the maximum range the scan "
+        "lines state, else 80 (the SICK's)",
+    )
+    reference: Optional[str] = _f(
+        None,
+        static=True,
+        doc="data.format carmen: a reference path scored in metrics.json (ref_* for the estimate, dr_ref_* for "
+        "dead reckoning: RMSE and worst error after a rigid alignment, mean relative-motion error between "
+        "consecutive reference poses): a corrected CARMEN log (matched by identical ranges), a CSV "
+        "(time,x,y,theta) or TUM file (matched by time); null: none",
     )
     robot: int = _f(1, lo=1, hi=5, static=True, doc="data.format mrclam: which robot's log (1-5)")
     min_range: float = _f(

@@ -264,6 +264,8 @@ def _run(args) -> int:
         "final_error",
         "dr_rmse_fixed",
         "rmse_heading_deg",
+        "ref_rmse",
+        "dr_ref_rmse",
         "n_landmarks",
         "n_confirmed",
         "map_found_fraction",

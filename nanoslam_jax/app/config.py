@@ -215,6 +215,19 @@ def _check_consistency(cfg: Config, where: str) -> None:
                 "robot, not the car's (speed, steering); expected unicycle (or random_walk, or your own "
                 "model) with data.format mrclam, got 'ackermann'"
             )
+    if d.format == "carmen" and d.detections == "file":
+        raise ConfigError(
+            f"{where}key 'data.detections': a CARMEN log holds laser scans, no detections; expected one of "
+            "laser, laser_lines, laser_beams, laser_circles, laser_features with data.format carmen, got 'file'"
+        )
+    if d.format == "carmen" and cfg.model.motion == "ackermann":
+        raise ConfigError(
+            f"{where}key 'model.motion': a CARMEN log's odometry becomes (v, omega) controls of a "
+            "differential-drive robot; expected unicycle (or random_walk, or your own model) with data.format "
+            "carmen, got 'ackermann'"
+        )
+    if d.reference is not None and d.format != "carmen":
+        raise ConfigError(f"{where}key 'data.reference': a reference path is scored with data.format carmen only")
     lines_in = d.detections == "laser_lines"
     if lines_in and cfg.model.measurement != "line":
         raise ConfigError(

@@ -82,6 +82,7 @@ class LoadedLog:
     map_truth: Optional[np.ndarray] = None
     survey: Optional["Survey"] = None
     feature_truth: Any = None
+    reference: Any = None  # a ReferencePath (data.reference) or None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,7 +166,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         data_dir: a ``--data`` directory overriding ``data.path`` (with ``data.kind: indoor``, an
             indoor log directory read instead of simulating one).
     """
-    features = None
+    features = reference = None
     if cfg.data.kind == "simulated":
         from nanoslam_jax.sim.park import simulate_config
 
@@ -178,6 +179,10 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         source = f"simulated indoor ({indoor.world.template}, seed {cfg.indoor.seed})"
         if cfg.data.detections != "file":
             raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
+    elif cfg.data.format == "carmen":
+        raw, scans, source, reference = _load_carmen(cfg, data_dir)
+        raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
+        frame = "relative"
     else:
         from nanoslam_jax.data import load_laser
         from nanoslam_jax.sim.indoor import read_feature_truth
@@ -232,7 +237,42 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         xy = np.asarray(raw.truth_landmarks, dtype=float)
         ids = np.arange(xy.shape[0]) if raw.landmark_ids is None else np.asarray(raw.landmark_ids, dtype=np.int64)
         survey = Survey(xy, ids)
-    return LoadedLog(raw, segments, frame, source, map_truth, survey, features)
+    return LoadedLog(raw, segments, frame, source, map_truth, survey, features, reference)
+
+
+def _load_carmen(cfg: Config, data_dir: Optional[str]):
+    """``data.format: carmen``: the controls, the scans, the source and the reference path (or None)."""
+    import os
+
+    from nanoslam_jax.eval._reference_metrics import ReferencePath
+    from nanoslam_jax.data._carmen import load_carmen
+    from nanoslam_jax.data._laser_log import laser_odom_raw
+    from nanoslam_jax.data._reference import load_reference
+
+    d = cfg.data
+
+    def find(p: str) -> Path:
+        q = Path(p).expanduser()
+        root = Path(__file__).resolve().parents[1] / q
+        return q if q.exists() or q.is_absolute() or not root.exists() else root
+
+    given = data_dir or d.path or os.environ.get("NANOSLAM_DATA") or "../shared/data/carmen/mit-csail"
+    log = load_carmen(
+        find(given), laser_start_deg=d.laser_start_deg, laser_step_deg=d.laser_step_deg, no_return=d.no_return_m
+    )
+    mx, my = (float(v) for v in log.laser_pose[:2])
+    u = cfg.unicycle
+    if cfg.model.motion == "unicycle" and max(abs(mx - u.sensor_x), abs(my - u.sensor_y)) > 1e-3:
+        raise ValueError(
+            f"{log.source}: the laser is mounted at ({mx:.4f}, {my:.4f}) m from the robot's centre; set "
+            f"unicycle.sensor_x and unicycle.sensor_y to it (now {u.sensor_x}, {u.sensor_y})"
+        )
+    raw, scans = laser_odom_raw(log)
+    reference = None
+    if d.reference is not None:
+        index, poses = load_reference(find(d.reference), log)
+        reference = ReferencePath(log.scans.time[index], poses, float(log.laser_pose[2]), str(d.reference))
+    return raw, scans, log.source, reference
 
 
 def sighting_map(poses: np.ndarray, segments: Segments) -> tuple[np.ndarray, np.ndarray]:
@@ -588,6 +628,10 @@ def execute(
     # filter's own estimate; after the smoother: the path it started from) the other trajectories.
     others = None if other is None else companion_tracks(static.estimate, best_pose, mean, unsmoothed)
     metrics.update(score_run(log, est, cfg.metrics, lm, others))
+    if log.reference is not None:  # data.reference: the path and dead reckoning against a reference path
+        from nanoslam_jax.eval._reference_metrics import score_reference
+
+        metrics.update(score_reference(log.reference, t, est, dr_poses if np.all(np.isfinite(dr_poses)) else None))
     if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:
         metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
     if "rmse_heading_deg" in metrics and cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):

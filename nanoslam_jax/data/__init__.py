@@ -1,12 +1,18 @@
-"""Logs: Victoria Park-format (detections and raw laser scans; loading and writing) and UTIAS
-MRCLAM (loading), and cutting a log into fixed-shape segments."""
+"""Logs: Victoria Park-format (detections and raw laser scans; loading and writing), UTIAS
+MRCLAM and CARMEN laser logs (loading), reference paths, and cutting a log into fixed-shape segments."""
 
+from nanoslam_jax.data._carmen import load_carmen as load_carmen, read_carmen as read_carmen
 from nanoslam_jax.data._laser import (
     LASER_FILES as LASER_FILES,
     LaserScans as LaserScans,
     fan_angles as fan_angles,
     find_laser_file as find_laser_file,
     load_laser as load_laser,
+)
+from nanoslam_jax.data._laser_log import (
+    LaserOdomLog as LaserOdomLog,
+    laser_odom_raw as laser_odom_raw,
+    laser_poses as laser_poses,
 )
 from nanoslam_jax.data._loader import (
     LogFormatError as LogFormatError,
@@ -21,6 +27,7 @@ from nanoslam_jax.data._mrclam import (
     load_mrclam as load_mrclam,
     unicycle_poses as unicycle_poses,
 )
+from nanoslam_jax.data._reference import load_reference as load_reference
 from nanoslam_jax.data._segments import make_segments as make_segments, segment_summary as segment_summary
 from nanoslam_jax.data._types import RawLog as RawLog, Segments as Segments
 
@@ -36,6 +43,12 @@ __all__ = [
     "load_victoria_park",
     "write_victoria_park",
     "load_mrclam",
+    "load_carmen",
+    "read_carmen",
+    "LaserOdomLog",
+    "laser_odom_raw",
+    "laser_poses",
+    "load_reference",
     "MRCLAM_ROBOTS",
     "MRCLAM_FIRST_LANDMARK",
     "unicycle_poses",

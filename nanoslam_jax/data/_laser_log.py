@@ -6,14 +6,19 @@ its arrays (the scans, the odometry pose at each scan, the laser's mounting), ne
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from jaxtyping import Float
 
 from nanoslam_jax.data._laser import LaserScans
+from nanoslam_jax.data._types import RawLog
 
-__all__ = ["LaserOdomLog"]
+__all__ = ["CONTROL_LAYOUTS", "LaserOdomLog", "laser_odom_raw", "laser_poses"]
+
+#: The control layouts :func:`laser_odom_raw` writes.
+CONTROL_LAYOUTS = ("unicycle",)
 
 
 @dataclass(frozen=True)
@@ -50,3 +55,68 @@ class LaserOdomLog:
     @property
     def n_scans(self) -> int:
         return self.scans.n_scans
+
+
+def _wrap(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def laser_poses(log: LaserOdomLog) -> Float[np.ndarray, "S 3"]:
+    """The laser's pose at each scan in the odometry frame: the robot's odometry pose (+) the mounting."""
+    o, m = log.odom, log.laser_pose
+    c, s = np.cos(o[:, 2]), np.sin(o[:, 2])
+    x = o[:, 0] + c * m[0] - s * m[1]
+    y = o[:, 1] + s * m[0] + c * m[1]
+    return np.stack([x, y, _wrap(o[:, 2] + m[2])], axis=1)
+
+
+def _unicycle_rows(t: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Two ``(time, v, omega)`` rows per interval between consecutive poses, reproducing the poses
+    under the unicycle model's first-order step: over the first half the robot turns half the
+    heading change in place; over the second it moves the chord along the middle heading and turns
+    the rest. The last row (at the last time) holds no motion."""
+    dt = np.diff(t)
+    d = np.diff(pose[:, :2], axis=0)
+    dth = _wrap(np.diff(pose[:, 2]))
+    mid = pose[:-1, 2] + dth / 2
+    along = d[:, 0] * np.cos(mid) + d[:, 1] * np.sin(mid)
+    omega = dth / dt
+    turn = np.stack([t[:-1], np.zeros_like(dt), omega], axis=1)
+    move = np.stack([t[:-1] + dt / 2, 2 * along / dt, omega], axis=1)
+    rows = np.stack([turn, move], axis=1).reshape(-1, 3)
+    return np.concatenate([rows, [[t[-1], 0.0, 0.0]]], axis=0)
+
+
+def laser_odom_raw(log: LaserOdomLog, controls: str = "unicycle") -> tuple[RawLog, LaserScans]:
+    """What the filter runs on from a laser log: the odometry as controls and the scans.
+
+    The filter's pose is the laser's position with the robot's heading: the motion model's sensor
+    offset must be the mounting's ``(x, y)`` (``unicycle.sensor_x`` / ``sensor_y``), and the beam
+    angles are turned by the mounting's angle so that they are measured from the robot's heading.
+
+    Args:
+        log: the laser log (time sorted; scans with equal times share one pose).
+        controls: the layout of the controls written to ``dr``: ``'unicycle'``: ``(time, v,
+            omega)`` rows, forward speed (m/s) and turn rate (rad/s) of the robot's centre, each held
+            from its time to the next row's; two rows per interval between consecutive scan times (a
+            turn in place by half the heading change, then the chord along the middle heading with
+            the other half), which the unicycle model's step follows exactly with no sensor offset,
+            and a last row of no motion at the last scan.
+
+    Returns:
+        ``(raw, scans)``: a :class:`~nanoslam_jax.data.RawLog` with the controls in ``dr`` (no
+        detections, no GPS) and the scans with beam angles from the robot's heading.
+
+    Raises:
+        ValueError: an unknown control layout, or a log with fewer than two distinct scan times.
+    """
+    if controls not in CONTROL_LAYOUTS:
+        raise ValueError(f"laser_odom_raw: controls must be one of {', '.join(CONTROL_LAYOUTS)}, got {controls!r}")
+    t_all = log.scans.time
+    t, first = np.unique(t_all, return_index=True)
+    if t.size < 2:
+        raise ValueError(f"{log.source or 'laser log'}: needs at least two distinct scan times, got {t.size}")
+    dr = _unicycle_rows(t, log.odom[first])
+    scans = dataclasses.replace(log.scans, angles=log.scans.angles + log.laser_pose[2])
+    raw = RawLog(dr=dr, detections=np.zeros((0, 4)), gps=np.zeros((0, 3)), source=log.source)
+    return raw, scans
