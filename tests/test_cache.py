@@ -92,8 +92,12 @@ def test_first_run_compiles_and_writes_the_cache(runs):
 def test_second_run_in_a_fresh_process_loads_from_the_cache(runs):
     first, second = runs["first"]["compilation"], runs["second"]["compilation"]
     assert second["cache_hits"] >= 1
-    assert second["cache_misses"] == 0, "a program was compiled again in the second run"
-    assert runs["files"][1] == runs["files"][0], "the second run wrote new cache entries"
+    # A program that compiles in under the cache's minimum compile time is looked up, compiled and
+    # not written, in either run (a miss each time, how many depends on the machine's speed); one
+    # that takes longer is written by the first run, so a second run that compiled it again would
+    # write it again: the second run adds no entry.
+    assert second["cache_misses"] <= first["cache_misses"]
+    assert runs["files"][1] == runs["files"][0], "the second run compiled and wrote a program the first had kept"
     # JAX's own accounting (not a wall-clock target): loading is cheaper than compiling, and the
     # filter step was not traced again (its traced program came from the cache).
     assert second["backend_s"] < first["backend_s"]

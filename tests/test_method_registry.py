@@ -130,11 +130,12 @@ def test_registered_method_is_known_and_validated():
 
 @pytest.mark.slow
 def test_toy_with_scale_one_is_fastslam1_and_the_scale_matters():
-    """With scale 1 the toy proposal is the prior: the run equals FastSLAM 1.0's bit for bit; another
-    scale changes the run."""
+    """With scale 1 the toy proposal is the prior: the run equals FastSLAM 1.0's to rounding (the two
+    programs are built differently, so XLA may order the arithmetic differently: 1e-9 m is far below
+    any effect of a proposal, 1e-2 m and more here); another scale changes the run."""
     fs1 = ns.run(overrides=BASE + ["filter.method=fastslam1"], seed=2)
     toy = ns.run(overrides=BASE + ["filter.method=toy_inflated_prior"], seed=2)
-    np.testing.assert_array_equal(toy.trajectory, fs1.trajectory)
+    np.testing.assert_allclose(toy.trajectory, fs1.trajectory, rtol=0, atol=1e-9)
     wide = ns.run(overrides=BASE + ["filter.method=toy_inflated_prior", "filter.method_params.scale=4"], seed=2)
     assert not np.allclose(wide.trajectory, fs1.trajectory)
 
