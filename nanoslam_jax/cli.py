@@ -50,7 +50,12 @@ def _parser() -> argparse.ArgumentParser:
     cache = _cache_flag()
 
     r = sub.add_parser("run", parents=[cache], help="run one method on a log and write a result directory")
-    r.add_argument("config", nargs="?", help="YAML config (default: NANO-SLAM on a simulated log)")
+    r.add_argument(
+        "config",
+        nargs="?",
+        help="YAML config (default: NANO-SLAM on a simulated log; with --data, on that directory "
+        "read as a Victoria Park-format log)",
+    )
     r.add_argument("--out", help="result directory (default: results/<config-name>-<timestamp>)")
     r.add_argument("--data", help="log directory (overrides data.path and $NANOSLAM_DATA)")
     r.add_argument(
@@ -248,11 +253,54 @@ def _sweep(args) -> int:
     return sweep_command(args)
 
 
+def _log_kind_overrides(data: str) -> list[str]:
+    """The ``data`` keys that read ``--data DIR`` as a log when ``run`` is given no config.
+
+    A directory holding ``inputs.dat`` or ``aa3_dr.mat`` (a Victoria Park-format log) is read with
+    ``data.kind: victoria_park`` and ``data.format: auto``; any other directory (an MRCLAM dataset,
+    an indoor log, no known log) is refused with the config keys it needs.
+    """
+    d = Path(data).expanduser()
+    if not d.is_dir():
+        return ["data.kind=victoria_park"]  # resolve_data_dir names the missing directory
+    if (d / "Barcodes.dat").is_file():
+        raise ConfigError(
+            f"--data {data}: an MRCLAM dataset (Barcodes.dat) and no config; give one with data.format: mrclam "
+            "and model.motion: unicycle, e.g. nanoslam run configs/mrclam.yaml --data DIR"
+        )
+    if (d / "truth_walls.csv").is_file():
+        raise ConfigError(
+            f"--data {data}: an indoor log (truth_walls.csv) and no config; give one with data.kind: indoor, "
+            "e.g. nanoslam run configs/indoor_lines.yaml --data DIR"
+        )
+    if (d / "inputs.dat").is_file() or (d / "aa3_dr.mat").is_file():
+        print(
+            f"nanoslam: note: no config given; reading --data {data} as a Victoria Park-format log "
+            "(data.kind victoria_park, data.format auto) with the embedded default's filter settings",
+            file=sys.stderr,
+        )
+        return ["data.kind=victoria_park", "data.format=auto"]
+    raise ConfigError(
+        f"--data {data}: no config given and the directory holds no known log (inputs.dat or aa3_dr.mat: "
+        "Victoria Park format; Barcodes.dat: MRCLAM); give a config with data.kind and data.format, "
+        "e.g. configs/victoria_park_nano.yaml"
+    )
+
+
 def _run(args) -> int:
     from ._devices import setup_run_devices
     from .experiment import default_out_dir, run_experiment
 
-    cfg = load_config(args.config, args.overrides)
+    overrides = list(args.overrides)
+    sets_kind = any(o.split("=", 1)[0].strip() == "data.kind" for o in overrides)
+    if args.data is not None and args.config is None and not sets_kind:
+        overrides = _log_kind_overrides(args.data) + overrides
+    cfg = load_config(args.config, overrides)
+    if args.data is not None and cfg.data.kind == "simulated":
+        raise ConfigError(
+            f"--data {args.data}: {args.config or 'the config'} has data.kind simulated, which reads no "
+            "directory; give a config with data.kind victoria_park (or indoor), or --set data.kind=victoria_park"
+        )
     setup_run_devices(cfg)
     out = Path(args.out) if args.out else default_out_dir(cfg)
     metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)

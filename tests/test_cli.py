@@ -181,6 +181,31 @@ def test_missing_data_dir_exits_2_and_says_how_to_get_the_log(capsys, tmp_path, 
     _check_one_line_error(rc, err, "/nonexistent", "Victoria Park", "--data", "NANOSLAM_DATA")
 
 
+@pytest.mark.parametrize(
+    "files, fragments",
+    [
+        ((), ["--data", "no known log", "data.kind", "data.format"]),
+        (("Barcodes.dat",), ["--data", "MRCLAM", "data.format: mrclam", "configs/mrclam.yaml"]),
+        (("inputs.dat", "truth_walls.csv"), ["--data", "indoor", "data.kind: indoor"]),
+    ],
+)
+def test_run_data_without_a_config_refuses_a_directory_it_cannot_read(capsys, tmp_path, files, fragments):
+    log = tmp_path / "log"
+    log.mkdir()
+    for name in files:
+        (log / name).write_text("")
+    rc, _, err = _call(capsys, ["run", "--data", log, "--out", tmp_path / "out", "--quiet"])
+    _check_one_line_error(rc, err, str(log), *fragments)
+    assert not (tmp_path / "out").exists()
+
+
+def test_run_data_with_a_simulated_config_is_refused(capsys, tmp_path):
+    cfg = tmp_path / "sim.yaml"
+    cfg.write_text("data:\n  kind: simulated\n")
+    rc, _, err = _call(capsys, ["run", cfg, "--data", tmp_path, "--out", tmp_path / "out", "--quiet"])
+    _check_one_line_error(rc, err, f"--data {tmp_path}", "sim.yaml", "data.kind simulated")
+
+
 @pytest.fixture(scope="module")
 def sim_dir(tmp_path_factory):
     """A simulated log written by ``nanoslam simulate --seed 3``."""
@@ -245,6 +270,17 @@ def test_dead_reckoning_on_a_simulated_directory(sim_dir, tmp_path, capsys):
     assert math.isfinite(m["rmse_fixed"]) and m["rmse_fixed"] > 0
     assert m["rmse_aligned"] <= m["rmse_fixed"] + 1e-9
     assert not (out / "map.csv").exists()
+
+
+@pytest.mark.slow
+def test_run_data_without_a_config_reads_the_directory_as_a_log(sim_dir, tmp_path, capsys):
+    out = tmp_path / "dr_noconfig"
+    argv = ["run", "--data", sim_dir, "--out", out, "--quiet", "--set", "filter.method=dead_reckoning"]
+    rc, _, err = _call(capsys, argv + ["--set", "data.t_end=20"])
+    assert rc == 0, err
+    assert "data.kind victoria_park" in err
+    m = _metrics(out)
+    assert m["data"] == str(sim_dir)
 
 
 @pytest.mark.slow
