@@ -1,6 +1,6 @@
 """The ``nanoslam`` command line.
 
-    nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
+    nanoslam run [CONFIG] [--out DIR [--overwrite]] [--data DIR] [--set key=value ...]
     nanoslam config [CONFIG] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--laser] [--set sim.key=value ...]
     nanoslam simulate --scenario indoor --out DIR [--seed S] [--set indoor.key=value ...]
@@ -56,7 +56,17 @@ def _parser() -> argparse.ArgumentParser:
         help="YAML config (default: NANO-SLAM on a simulated log; with --data, on that directory "
         "read as a Victoria Park-format log)",
     )
-    r.add_argument("--out", help="result directory (default: results/<config-name>-<timestamp>)")
+    r.add_argument(
+        "--out",
+        help="result directory (default: results/<config-name>-<timestamp>); checked before the run: "
+        "it must not exist or be empty, unless --overwrite",
+    )
+    r.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="let --out be an earlier run's result directory (config.yaml and metrics.json): its files "
+        "are deleted once the new run has finished, before the new ones are written",
+    )
     r.add_argument("--data", help="log directory (overrides data.path and $NANOSLAM_DATA)")
     r.add_argument(
         "--set",
@@ -287,10 +297,38 @@ def _log_kind_overrides(data: str) -> list[str]:
     )
 
 
+def _check_run_out(out: Path, overwrite: bool) -> bool:
+    """Check ``run --out`` before any work; True when it holds an earlier run to delete.
+
+    Raises:
+        ConfigError: a file is in its place, or a non-empty directory without ``--overwrite``, or
+            with ``--overwrite`` a directory that is not a result directory.
+    """
+    if not out.exists():
+        return False
+    if not out.is_dir():
+        raise ConfigError(f"--out {out}: a file of that name exists; expected a result directory (new or empty)")
+    if not any(out.iterdir()):
+        return False
+    is_result = (out / "config.yaml").is_file() and (out / "metrics.json").is_file()
+    if not overwrite:
+        raise ConfigError(
+            f"--out {out}: the directory is not empty; give a new directory, or --overwrite to replace "
+            "the earlier run's result directory"
+        )
+    if not is_result:
+        raise ConfigError(
+            f"--out {out}: --overwrite replaces an earlier run's result directory (config.yaml and "
+            "metrics.json), and this directory is not one; give a new directory"
+        )
+    return True
+
+
 def _run(args) -> int:
     from ._devices import setup_run_devices
     from .experiment import default_out_dir, run_experiment
 
+    clear = _check_run_out(Path(args.out), args.overwrite) if args.out else False
     overrides = list(args.overrides)
     sets_kind = any(o.split("=", 1)[0].strip() == "data.kind" for o in overrides)
     if args.data is not None and args.config is None and not sets_kind:
@@ -303,7 +341,7 @@ def _run(args) -> int:
         )
     setup_run_devices(cfg)
     out = Path(args.out) if args.out else default_out_dir(cfg)
-    metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)
+    metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None, clear=clear)
     keys = [
         "rmse_fixed",
         "rmse_aligned",

@@ -206,6 +206,24 @@ def test_run_data_with_a_simulated_config_is_refused(capsys, tmp_path):
     _check_one_line_error(rc, err, f"--data {tmp_path}", "sim.yaml", "data.kind simulated")
 
 
+def test_run_out_in_the_way_is_refused_before_the_run(capsys, tmp_path):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("keep me")
+    # the --out check comes first: the missing log is not even looked for
+    argv = ["run", DR_CONFIG, "--data", "/nonexistent", "--quiet"]
+    rc, _, err = _call(capsys, argv + ["--out", blocker])
+    _check_one_line_error(rc, err, f"--out {blocker}", "a file of that name exists")
+    assert blocker.read_text() == "keep me"
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "notes.txt").write_text("mine")
+    rc, _, err = _call(capsys, argv + ["--out", used])
+    _check_one_line_error(rc, err, f"--out {used}", "not empty", "--overwrite")
+    rc, _, err = _call(capsys, argv + ["--out", used, "--overwrite"])
+    _check_one_line_error(rc, err, f"--out {used}", "--overwrite", "not one")
+    assert {p.name for p in used.iterdir()} == {"notes.txt"}
+
+
 @pytest.fixture(scope="module")
 def sim_dir(tmp_path_factory):
     """A simulated log written by ``nanoslam simulate --seed 3``."""
@@ -281,6 +299,20 @@ def test_run_data_without_a_config_reads_the_directory_as_a_log(sim_dir, tmp_pat
     assert "data.kind victoria_park" in err
     m = _metrics(out)
     assert m["data"] == str(sim_dir)
+
+
+@pytest.mark.slow
+def test_run_overwrite_replaces_an_earlier_result_directory(sim_dir, tmp_path, capsys):
+    out = tmp_path / "dr"
+    argv = ["run", DR_CONFIG, "--data", sim_dir, "--out", out, "--quiet", "--set", "data.t_end=20"]
+    assert _call(capsys, argv)[0] == 0
+    (out / "stale.png").write_text("an earlier run's figure")
+    rc, _, err = _call(capsys, argv)
+    _check_one_line_error(rc, err, f"--out {out}", "not empty")
+    rc, _, err = _call(capsys, argv + ["--overwrite"])
+    assert rc == 0, err
+    assert not (out / "stale.png").exists()
+    assert _metrics(out)["method"] == "dead_reckoning"
 
 
 @pytest.mark.slow
