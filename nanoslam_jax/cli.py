@@ -479,9 +479,20 @@ def _detect(args) -> int:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``nanoslam`` console script."""
-    from .data import LogFormatError
+    import warnings
+
+    from .data import LogFormatError, LogWarning
 
     args = _parser().parse_args(argv)
+    show = warnings.showwarning
+
+    def show_log_warning(message, category, *rest, **kw):
+        if issubclass(category, LogWarning):
+            print(f"nanoslam: warning: {message}", file=sys.stderr)
+        else:
+            show(message, category, *rest, **kw)
+
+    warnings.showwarning = show_log_warning
     try:
         if not getattr(args, "no_cache", True):
             from ._cache import compile_stats, enable_compile_cache
@@ -502,6 +513,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("nanoslam: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = show
 
 
 if __name__ == "__main__":

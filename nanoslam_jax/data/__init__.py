@@ -10,6 +10,7 @@ from ._laser import (
 )
 from ._loader import (
     LogFormatError as LogFormatError,
+    LogWarning as LogWarning,
     load_victoria_park as load_victoria_park,
     write_victoria_park as write_victoria_park,
 )
@@ -33,6 +34,7 @@ __all__ = [
     "LASER_FILES",
     "Segments",
     "LogFormatError",
+    "LogWarning",
     "load_victoria_park",
     "write_victoria_park",
     "load_mrclam",

@@ -25,7 +25,7 @@ from jaxtyping import Float
 from ..models._angles import wrap_angle_np
 from ._types import RawLog
 
-__all__ = ["LogFormatError", "load_victoria_park", "write_victoria_park"]
+__all__ = ["LogFormatError", "LogWarning", "load_victoria_park", "write_victoria_park"]
 
 # Clock of the original MATLAB files: t_s = (t_ms - _MAT_T0_MS) / 1000 (one clock for all sensors).
 _MAT_T0_MS = 20967.0
@@ -38,6 +38,11 @@ _WRITE_FMT = "%.9f"
 
 class LogFormatError(ValueError):
     """A malformed log file; the message names the file, the line (or row) and what was expected."""
+
+
+class LogWarning(UserWarning):
+    """Rows of a log file that were read but not used, or read other than as written; the message
+    names the file, how many rows and why."""
 
 
 @dataclass(frozen=True)
