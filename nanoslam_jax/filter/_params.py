@@ -24,6 +24,7 @@ from ..models import (
     RangeBearing,
     is_range_bearing,
     measurement_model_from_config,
+    check_motion_model,
     motion_model_from_config,
 )
 
@@ -311,8 +312,13 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         use_diameter=jnp.asarray(mp.use_diameter),
         sigma_diameter=a(mp.sigma_diameter),
     )
+    motion = motion_model_from_config(cfg)
+    try:
+        check_motion_model(motion)  # a user model's shapes, before any program is traced
+    except ValueError as e:
+        raise ValueError(f"key 'model.motion': {e}") from None
     params = Params(
-        motion=motion_model_from_config(cfg),
+        motion=motion,
         measurement=measurement_model_from_config(cfg),
         init_cov=a(f.init_cov),
         ut_alpha=a(f.ut_alpha),
