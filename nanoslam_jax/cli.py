@@ -330,7 +330,7 @@ def _run(args) -> int:
 
     clear = _check_run_out(Path(args.out), args.overwrite) if args.out else False
     overrides = list(args.overrides)
-    sets_kind = any(o.split("=", 1)[0].strip() == "data.kind" for o in overrides)
+    sets_kind = any(o.split("=", 1)[0].strip() in ("data.kind", "data.format") for o in overrides)
     if args.data is not None and args.config is None and not sets_kind:
         overrides = _log_kind_overrides(args.data) + overrides
     cfg = load_config(args.config, overrides)

@@ -204,6 +204,9 @@ def test_run_data_with_a_simulated_config_is_refused(capsys, tmp_path):
     cfg.write_text("data:\n  kind: simulated\n")
     rc, _, err = _call(capsys, ["run", cfg, "--data", tmp_path, "--out", tmp_path / "out", "--quiet"])
     _check_one_line_error(rc, err, f"--data {tmp_path}", "sim.yaml", "data.kind simulated")
+    # no config, data.format given but not data.kind: the embedded default's kind is refused, not guessed
+    rc, _, err = _call(capsys, ["run", "--data", tmp_path, "--set", "data.format=mrclam", "--quiet"])
+    _check_one_line_error(rc, err, f"--data {tmp_path}", "data.kind simulated", "--set data.kind=victoria_park")
 
 
 def test_run_out_in_the_way_is_refused_before_the_run(capsys, tmp_path):
