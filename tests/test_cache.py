@@ -535,3 +535,50 @@ def test_release_programs_unmaps_compiled_filter_programs(monkeypatch):
     assert not _cache.release_programs(0.5)
     monkeypatch.setattr(_cache, "memory_maps", lambda: (500, 1000))
     assert _cache.release_programs(0.5)
+
+
+_TINY_PROGRAM = """
+import json, sys, warnings
+import jax, jax.numpy as jnp
+from nanoslam_jax.lib._cache import compile_stats, enable_compile_cache
+compile_stats()
+enable_compile_cache(sys.argv[1])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)  # keep even this tiny program
+x = jnp.ones(17)
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    jax.jit(lambda x: jnp.sin(x) * 2.0 + jnp.cos(x)).lower(x).compile()(x).block_until_ready()
+s = compile_stats()
+print(json.dumps({"hits": s.cache_hits, "misses": s.cache_misses,
+                  "warnings": [str(w.message) for w in caught if "persistent compilation cache" in str(w.message)]}))
+"""
+
+
+@pytest.mark.slow
+def test_a_damaged_cache_entry_is_replaced_and_the_next_run_loads(tmp_path):
+    """A truncated entry of JAX's cache costs one recompile: that run writes the entry afresh and
+    the run after it loads from the cache again, without a warning."""
+    script, cache = tmp_path / "tiny.py", tmp_path / "cache"
+    script.write_text(_TINY_PROGRAM)
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+
+    def run() -> dict:
+        res = subprocess.run(
+            [sys.executable, str(script), str(cache)], capture_output=True, text=True, env=env, timeout=300
+        )
+        assert res.returncode == 0, res.stderr
+        return json.loads(res.stdout.strip().splitlines()[-1])
+
+    first = run()
+    assert first["misses"] >= 1 and not first["warnings"]
+    (entry,) = cache.glob("jit__lambda-*-cache")
+    good = entry.read_bytes()
+    assert run()["misses"] == 0  # loads
+    entry.write_bytes(good[:100])  # damaged: truncated
+    damaged = run()
+    assert damaged["misses"] == 1 and len(damaged["warnings"]) == 1  # JAX's warning, one recompile
+    assert entry.stat().st_size == len(good)  # written afresh
+    healed = run()
+    assert healed["misses"] == 0 and healed["hits"] == first["misses"] and not healed["warnings"]

@@ -181,6 +181,52 @@ def test_missing_data_dir_exits_2_and_says_how_to_get_the_log(capsys, tmp_path, 
     _check_one_line_error(rc, err, "/nonexistent", "Victoria Park", "--data", "NANOSLAM_DATA")
 
 
+@pytest.mark.parametrize(
+    "files, fragments",
+    [
+        ((), ["--data", "no known log", "data.kind", "data.format"]),
+        (("Barcodes.dat",), ["--data", "MRCLAM", "data.format: mrclam", "configs/mrclam.yaml"]),
+        (("inputs.dat", "truth_walls.csv"), ["--data", "indoor", "data.kind: indoor"]),
+    ],
+)
+def test_run_data_without_a_config_refuses_a_directory_it_cannot_read(capsys, tmp_path, files, fragments):
+    log = tmp_path / "log"
+    log.mkdir()
+    for name in files:
+        (log / name).write_text("")
+    rc, _, err = _call(capsys, ["run", "--data", log, "--out", tmp_path / "out", "--quiet"])
+    _check_one_line_error(rc, err, str(log), *fragments)
+    assert not (tmp_path / "out").exists()
+
+
+def test_run_data_with_a_simulated_config_is_refused(capsys, tmp_path):
+    cfg = tmp_path / "sim.yaml"
+    cfg.write_text("data:\n  kind: simulated\n")
+    rc, _, err = _call(capsys, ["run", cfg, "--data", tmp_path, "--out", tmp_path / "out", "--quiet"])
+    _check_one_line_error(rc, err, f"--data {tmp_path}", "sim.yaml", "data.kind simulated")
+    # no config, data.format given but not data.kind: the embedded default's kind is refused, not guessed
+    rc, _, err = _call(capsys, ["run", "--data", tmp_path, "--set", "data.format=mrclam", "--quiet"])
+    _check_one_line_error(rc, err, f"--data {tmp_path}", "data.kind simulated", "--set data.kind=victoria_park")
+
+
+def test_run_out_in_the_way_is_refused_before_the_run(capsys, tmp_path):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("keep me")
+    # the --out check comes first: the missing log is not even looked for
+    argv = ["run", DR_CONFIG, "--data", "/nonexistent", "--quiet"]
+    rc, _, err = _call(capsys, argv + ["--out", blocker])
+    _check_one_line_error(rc, err, f"--out {blocker}", "a file of that name exists")
+    assert blocker.read_text() == "keep me"
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "notes.txt").write_text("mine")
+    rc, _, err = _call(capsys, argv + ["--out", used])
+    _check_one_line_error(rc, err, f"--out {used}", "not empty", "--overwrite")
+    rc, _, err = _call(capsys, argv + ["--out", used, "--overwrite"])
+    _check_one_line_error(rc, err, f"--out {used}", "--overwrite", "not one")
+    assert {p.name for p in used.iterdir()} == {"notes.txt"}
+
+
 @pytest.fixture(scope="module")
 def sim_dir(tmp_path_factory):
     """A simulated log written by ``nanoslam simulate --seed 3``."""
@@ -245,6 +291,31 @@ def test_dead_reckoning_on_a_simulated_directory(sim_dir, tmp_path, capsys):
     assert math.isfinite(m["rmse_fixed"]) and m["rmse_fixed"] > 0
     assert m["rmse_aligned"] <= m["rmse_fixed"] + 1e-9
     assert not (out / "map.csv").exists()
+
+
+@pytest.mark.slow
+def test_run_data_without_a_config_reads_the_directory_as_a_log(sim_dir, tmp_path, capsys):
+    out = tmp_path / "dr_noconfig"
+    argv = ["run", "--data", sim_dir, "--out", out, "--quiet", "--set", "filter.method=dead_reckoning"]
+    rc, _, err = _call(capsys, argv + ["--set", "data.t_end=20"])
+    assert rc == 0, err
+    assert "data.kind victoria_park" in err
+    m = _metrics(out)
+    assert m["data"] == str(sim_dir)
+
+
+@pytest.mark.slow
+def test_run_overwrite_replaces_an_earlier_result_directory(sim_dir, tmp_path, capsys):
+    out = tmp_path / "dr"
+    argv = ["run", DR_CONFIG, "--data", sim_dir, "--out", out, "--quiet", "--set", "data.t_end=20"]
+    assert _call(capsys, argv)[0] == 0
+    (out / "stale.png").write_text("an earlier run's figure")
+    rc, _, err = _call(capsys, argv)
+    _check_one_line_error(rc, err, f"--out {out}", "not empty")
+    rc, _, err = _call(capsys, argv + ["--overwrite"])
+    assert rc == 0, err
+    assert not (out / "stale.png").exists()
+    assert _metrics(out)["method"] == "dead_reckoning"
 
 
 @pytest.mark.slow

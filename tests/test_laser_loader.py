@@ -67,13 +67,23 @@ def test_reads_a_mat_file_in_cm_and_ms(tmp_path):
 
 def test_wrong_count_names_the_file_and_position(tmp_path):
     t, r = _scans(2)
-    text = _text(t, r, True)
-    (tmp_path / "LASER.txt").write_text(text + "3.0 1.0 2.0\n")
+    text = _text(t, r, False)  # one stream: the position is a number's
+    (tmp_path / "LASER.txt").write_text(text + "\n3.0 1.0 2.0\n")
     with pytest.raises(LogFormatError) as e:
         load_laser(tmp_path / "LASER.txt")
     msg = str(e.value)
     assert "LASER.txt" in msg and "multiple of 362" in msg and "got 727" in msg
-    assert "number 725" in msg and "line 3" in msg
+    assert "number 725" in msg and "line 2" in msg
+
+
+@pytest.mark.parametrize("short", [0, 2, 4])
+def test_a_short_row_of_a_per_line_file_is_named_by_its_line(tmp_path, short):
+    t, r = _scans(5)
+    rows = _text(t, r, True).splitlines()
+    rows[short] = "\t".join(rows[short].split("\t")[:300])  # the file starts with a blank line
+    (tmp_path / "LASER.txt").write_text("\n" + "\n".join(rows) + "\n")
+    with pytest.raises(LogFormatError, match=rf"LASER\.txt line {short + 2}: expected 362 numbers .* got 300$"):
+        load_laser(tmp_path / "LASER.txt")
 
 
 def test_text_in_the_stream_names_the_file_line_and_number(tmp_path):

@@ -110,19 +110,25 @@ def test_tiny_log_with_comments_and_truth(tmp_path):
     assert log.source == str(directory)
 
 
-def test_bearing_wraps_to_half_open_interval(tmp_path):
-    """File bearing 3pi/2 + 0.1 is vehicle bearing pi + 0.1, wrapped to -pi + 0.1; -pi/2 gives pi."""
-    measurements = f"1.0 5.0 {1.5 * np.pi + 0.1!r} 0.1\n1.0 5.0 {-0.5 * np.pi!r} 0.1\n"
-    log = load_victoria_park(write_log(tmp_path, measurements_dat=measurements))
-    assert log.detections[0, 2] == pytest.approx(-np.pi + 0.1)
-    assert log.detections[1, 2] == pytest.approx(np.pi)
+def test_bearings_outside_zero_to_pi_are_refused_naming_the_first_line(tmp_path):
+    """File bearings are radians in [0, pi]: a file in degrees (or another convention) is refused
+    at its first offending line; a bearing just past either edge (within 0.01) is read."""
+    degrees = "# in degrees\n1.0 5.0 90.0 0.1\n1.0 6.0 1.2 0.1\n1.1 5.0 135.0 0.1\n"
+    with pytest.raises(LogFormatError, match=r"measurements\.dat line 2: expected a bearing in radians in \[0, pi\]"):
+        load_victoria_park(write_log(tmp_path / "deg", measurements_dat=degrees))
+    below = f"1.0 5.0 1.0 0.1\n1.0 5.0 {-0.5 * np.pi!r} 0.1\n"
+    with pytest.raises(LogFormatError, match=r"measurements\.dat line 2: .* got -1\.57.*\(1 of 2 rows outside"):
+        load_victoria_park(write_log(tmp_path / "below", measurements_dat=below))
+    edges = f"1.0 5.0 -0.005 0.1\n1.0 5.0 {np.pi + 0.005!r} 0.1\n"
+    log = load_victoria_park(write_log(tmp_path / "edges", measurements_dat=edges))
+    np.testing.assert_allclose(log.detections[:, 2], [-0.5 * np.pi - 0.005, 0.5 * np.pi + 0.005])
 
 
 def test_round_trip(tmp_path):
     rng = np.random.default_rng(0)
     dr = np.column_stack([0.5 + 0.025 * np.arange(50), rng.normal(3, 1, 50), rng.normal(0, 0.1, 50)])
     det_t = np.repeat(0.6 + 0.2 * np.arange(5), 3)
-    det = np.column_stack([det_t, rng.uniform(1, 30, 15), rng.uniform(-3.1, 3.1, 15), rng.uniform(0.1, 1, 15)])
+    det = np.column_stack([det_t, rng.uniform(1, 30, 15), rng.uniform(-1.57, 1.57, 15), rng.uniform(0.1, 1, 15)])
     gps = np.column_stack([0.2 * np.arange(8), rng.normal(0, 10, (8, 2))])
     truth_poses = np.column_stack([det_t[::3], rng.normal(0, 10, (5, 2)), rng.uniform(-3, 3, 5)])
     truth_landmarks = rng.normal(0, 50, (7, 2))

@@ -24,7 +24,8 @@ from nanoslam_jax.methods import predict, run_filter
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.particle._prior import _ut_piece
 from nanoslam_jax.models import AbstractMotionModel, AbstractRateModel, Ackermann, Unicycle
-from nanoslam_jax.sim.park import simulate_config
+from nanoslam_jax.data import make_segments
+from nanoslam_jax.sim.park import simulate, simulate_config
 
 
 class TestCar(AbstractMotionModel):
@@ -55,6 +56,61 @@ class TestCar(AbstractMotionModel):
 
     def noise_sqrt(self, dt):
         return jnp.diag(jnp.stack([self.sigma_v, self.sigma_alpha]))
+
+
+class _ShapeBug(AbstractMotionModel):
+    """TestCar's interface with one method returning the wrong shape (``bug`` names which)."""
+
+    __test__ = False
+    control_dim: ClassVar[int] = 2
+    noise: ClassVar[str] = "control"
+    bug: str = eqx.field(static=True, default="")
+
+    def step(self, x, u, dt):
+        return x[:2] + dt * u if self.bug == "step" else x + dt * jnp.r_[u, 0.0]
+
+    def noise_sqrt(self, dt):
+        return jnp.eye(3) if self.bug == "noise_sqrt" else jnp.eye(2) * dt
+
+
+@pytest.mark.parametrize(
+    "bug, expected, got",
+    [("step", "a pose of shape (3,)", "shape (2,)"), ("noise_sqrt", "square root of shape (2, 2)", "shape (3, 3)")],
+)
+def test_a_model_of_the_wrong_shape_is_named_before_tracing(bug, expected, got):
+    cfg = load_config(None, SHORT)
+    filters.build(cfg, k_max=4, motion=_ShapeBug())  # the right shapes: accepted
+    with pytest.raises(ConfigError) as e:
+        filters.build(cfg, k_max=4, motion=_ShapeBug(bug=bug))
+    msg = str(e.value)
+    assert msg.startswith(f"motion: motion model _ShapeBug.{bug}(") and expected in msg and got in msg
+    assert "Traceback" not in msg and len(msg.splitlines()) == 1
+
+
+def test_a_model_that_raises_on_abstract_inputs_is_named():
+    class Indexes(_ShapeBug):
+        control_dim: ClassVar[int] = 1
+
+        def step(self, x, u, dt):
+            v, w = u.reshape(2)  # written for two controls: u has one
+            return x + dt * jnp.stack([v, w, 0.0])
+
+        def noise_sqrt(self, dt):
+            return jnp.eye(1)
+
+    with pytest.raises(ConfigError, match=r"motion model Indexes\.step\(x, u, dt\) failed .*u \(1,\).*TypeError"):
+        filters.build(load_config(None, SHORT), k_max=4, motion=Indexes())
+
+
+def test_step_with_segments_of_another_k_max_names_both_values():
+    cfg = load_config(None, SHORT)
+    segments = make_segments(simulate(cfg.sim, cfg.vehicle), max_range=cfg.data.max_range)
+    flt = filters.build(cfg, k_max=segments.k_max + 3)
+    row = jax.tree.map(lambda a: a[0], segments)
+    with pytest.raises(ConfigError, match=rf"k_max=({segments.k_max + 3}).* holds {segments.k_max} detection slots"):
+        flt.step(None, row)
+    with pytest.raises(ConfigError, match=r"a whole Segments; pass one row"):
+        flt.step(None, segments)
 
 
 @pytest.mark.slow

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config, resolve_data_dir
-from nanoslam_jax.data import LogFormatError, RawLog, dead_reckoning_map, load_mrclam, unicycle_poses
+from nanoslam_jax.data import LogFormatError, LogWarning, RawLog, dead_reckoning_map, load_mrclam, unicycle_poses
 from nanoslam_jax.eval.metrics import map_alignment_metrics, rotation_matrix
 
 MRCLAM_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "utias_mrclam" / "MRCLAM_Dataset1"
@@ -30,9 +30,9 @@ def write_dataset(d: Path, measurements: str | None = None) -> Path:
         "  8 \t -3.25 \t 0.5 \t 0.001 \t 0.002\n"
         "  7 \t 4.0 \t -1.0 \t 0.001 \t 0.001\n"
     )
-    # times out of order (1001.0 before 1000.5 in the file) and repeated (1002.0 twice: the last holds)
+    # times repeated (1002.0 twice: the last holds)
     (d / "Robot1_Odometry.dat").write_text(
-        HEADER + "1001.0 \t 0.2 \t 0.1\n1000.5 \t 0.1 \t 0.0\n"
+        HEADER + "1000.5 \t 0.1 \t 0.0\n1001.0 \t 0.2 \t 0.1\n"
         "1002.0 \t 0.9 \t 0.9\n1002.0 \t 0.3 \t -0.2   # a comment\n"
         "1003.0 \t 0.0 \t 0.0\n"
     )
@@ -55,7 +55,7 @@ def write_dataset(d: Path, measurements: str | None = None) -> Path:
 
 def test_loader_maps_barcodes_sorts_and_drops(tmp_path):
     raw = load_mrclam(write_dataset(tmp_path / "ds"), robot=1)
-    # odometry: t0 = 1000.5 (the first odometry time), sorted, the last of the rows at 1002.0 kept
+    # odometry: t0 = 1000.5 (the first odometry time), the last of the rows at 1002.0 kept
     np.testing.assert_allclose(raw.dr, [[0.0, 0.1, 0.0], [0.5, 0.2, 0.1], [1.5, 0.3, -0.2], [2.5, 0.0, 0.0]])
     # measurements: sorted by time, equal times in file order, robots and the early row dropped
     np.testing.assert_allclose(
@@ -72,11 +72,24 @@ def test_loader_maps_barcodes_sorts_and_drops(tmp_path):
 
 def test_loader_unknown_barcode_dropped_or_named(tmp_path):
     rows = "1001.0 \t 27 \t 2.0 \t 0.2\n1001.5 \t 43 \t 2.0 \t 0.1\n1002.0 \t 72 \t 1.0 \t 0.0\n"
-    d = write_dataset(tmp_path / "ds", rows)
-    raw = load_mrclam(d, 1)
+    d = write_dataset(tmp_path / "ds", rows + "1002.5 \t 43 \t 2.0 \t 0.1\n1003.0 \t 99 \t 1.0 \t 0.0\n")
+    with pytest.warns(LogWarning) as record:
+        raw = load_mrclam(d, 1)
+    (w,) = record
+    message = str(w.message)
+    assert "Robot1_Measurement.dat" in message and "Barcodes.dat" in message
+    assert "3 sighting(s)" in message and "43 (2x), 99 (1x)" in message
     np.testing.assert_array_equal(raw.detection_ids, [1, 0])
     with pytest.raises(LogFormatError, match=r"Robot1_Measurement\.dat line 4: barcode 43 is not listed"):
         load_mrclam(d, 1, unknown_barcodes="error")
+
+
+def test_loader_refuses_odometry_out_of_time_order(tmp_path):
+    d = write_dataset(tmp_path / "ds")
+    (d / "Robot1_Odometry.dat").write_text(HEADER + "1000.5 0.1 0.0\n1001.0 0.2 0.1\n1000.75 0.3 0.0\n")
+    # HEADER is two lines: the third data row is line 5
+    with pytest.raises(LogFormatError, match=r"Robot1_Odometry\.dat line 5: odometry times must be non-decreasing"):
+        load_mrclam(d, 1)
 
 
 def test_loader_without_sightings(tmp_path):
@@ -357,6 +370,20 @@ def write_simulated_dataset(d: Path, seed: int = 3) -> tuple[Path, np.ndarray]:
             )
     (d / "Robot1_Measurement.dat").write_text(HEADER + "".join(rows))
     return d, survey
+
+
+@pytest.mark.slow
+def test_the_cli_reports_dropped_sightings(tmp_path, capsys):
+    from nanoslam_jax.app.cli import main
+
+    d, _ = write_simulated_dataset(tmp_path / "ds")
+    with open(d / "Robot1_Measurement.dat", "a") as f:
+        f.write("10.0 \t 43 \t 2.0 \t 0.1\n")  # a misread barcode
+    sets = [a for o in MRCLAM_CFG + ["data.t_end=20", "filter.method=dead_reckoning"] for a in ("--set", o)]
+    assert main(["run", "--data", str(d), "--out", str(tmp_path / "out"), "--quiet", *sets]) == 0
+    err = capsys.readouterr().err
+    (line,) = [x for x in err.splitlines() if x.startswith("nanoslam: warning:")]
+    assert "Robot1_Measurement.dat" in line and "1 sighting(s)" in line and "barcode 43 (1x)" in line
 
 
 @pytest.mark.slow

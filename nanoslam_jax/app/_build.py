@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from nanoslam_jax.app.config import Config
 from nanoslam_jax.app.registry import get_method, static_of, traced_of
 from nanoslam_jax.methods._params import MapParams, Params, Static, _logit, particle_devices, row_buckets, shardable
-from nanoslam_jax.models import measurement_model_from_config, motion_model_from_config
+from nanoslam_jax.models import check_motion_model, measurement_model_from_config, motion_model_from_config
 
 __all__ = ["method_static", "settings_from_config"]
 
@@ -69,8 +69,13 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         use_diameter=jnp.asarray(mp.use_diameter),
         sigma_diameter=a(mp.sigma_diameter),
     )
+    motion = motion_model_from_config(cfg)
+    try:
+        check_motion_model(motion)  # a user model's shapes, before any program is traced
+    except ValueError as e:
+        raise ValueError(f"key 'model.motion': {e}") from None
     params = Params(
-        motion=motion_model_from_config(cfg),
+        motion=motion,
         measurement=measurement_model_from_config(cfg),
         init_cov=a(f.init_cov),
         ut_alpha=a(f.ut_alpha),

@@ -1,6 +1,6 @@
 """The ``nanoslam`` command line.
 
-    nanoslam run [CONFIG] [--out DIR] [--data DIR] [--set key=value ...]
+    nanoslam run [CONFIG] [--out DIR [--overwrite]] [--data DIR] [--set key=value ...]
     nanoslam config [CONFIG] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--laser] [--set sim.key=value ...]
     nanoslam simulate --scenario indoor --out DIR [--seed S] [--set indoor.key=value ...]
@@ -51,8 +51,23 @@ def _parser() -> argparse.ArgumentParser:
     cache = _cache_flag()
 
     r = sub.add_parser("run", parents=[cache], help="run one method on a log and write a result directory")
-    r.add_argument("config", nargs="?", help="YAML config (default: NANO-SLAM on a simulated log)")
-    r.add_argument("--out", help="result directory (default: results/<config-name>-<timestamp>)")
+    r.add_argument(
+        "config",
+        nargs="?",
+        help="YAML config (default: NANO-SLAM on a simulated log; with --data, on that directory "
+        "read as a Victoria Park-format log)",
+    )
+    r.add_argument(
+        "--out",
+        help="result directory (default: results/<config-name>-<timestamp>); checked before the run: "
+        "it must not exist or be empty, unless --overwrite",
+    )
+    r.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="let --out be an earlier run's result directory (config.yaml and metrics.json): its files "
+        "are deleted once the new run has finished, before the new ones are written",
+    )
     r.add_argument("--data", help="log directory (overrides data.path and $NANOSLAM_DATA)")
     r.add_argument(
         "--set",
@@ -249,14 +264,85 @@ def _sweep(args) -> int:
     return sweep_command(args)
 
 
+def _log_kind_overrides(data: str) -> list[str]:
+    """The ``data`` keys that read ``--data DIR`` as a log when ``run`` is given no config.
+
+    A directory holding ``inputs.dat`` or ``aa3_dr.mat`` (a Victoria Park-format log) is read with
+    ``data.kind: victoria_park`` and ``data.format: auto``; any other directory (an MRCLAM dataset,
+    an indoor log, no known log) is refused with the config keys it needs.
+    """
+    d = Path(data).expanduser()
+    if not d.is_dir():
+        return ["data.kind=victoria_park"]  # resolve_data_dir names the missing directory
+    if (d / "Barcodes.dat").is_file():
+        raise ConfigError(
+            f"--data {data}: an MRCLAM dataset (Barcodes.dat) and no config; give one with data.format: mrclam "
+            "and model.motion: unicycle, e.g. nanoslam run configs/mrclam.yaml --data DIR"
+        )
+    if (d / "truth_walls.csv").is_file():
+        raise ConfigError(
+            f"--data {data}: an indoor log (truth_walls.csv) and no config; give one with data.kind: indoor, "
+            "e.g. nanoslam run configs/indoor_lines.yaml --data DIR"
+        )
+    if (d / "inputs.dat").is_file() or (d / "aa3_dr.mat").is_file():
+        print(
+            f"nanoslam: note: no config given; reading --data {data} as a Victoria Park-format log "
+            "(data.kind victoria_park, data.format auto) with the embedded default's filter settings",
+            file=sys.stderr,
+        )
+        return ["data.kind=victoria_park", "data.format=auto"]
+    raise ConfigError(
+        f"--data {data}: no config given and the directory holds no known log (inputs.dat or aa3_dr.mat: "
+        "Victoria Park format; Barcodes.dat: MRCLAM); give a config with data.kind and data.format, "
+        "e.g. configs/victoria_park_nano.yaml"
+    )
+
+
+def _check_run_out(out: Path, overwrite: bool) -> bool:
+    """Check ``run --out`` before any work; True when it holds an earlier run to delete.
+
+    Raises:
+        ConfigError: a file is in its place, or a non-empty directory without ``--overwrite``, or
+            with ``--overwrite`` a directory that is not a result directory.
+    """
+    if not out.exists():
+        return False
+    if not out.is_dir():
+        raise ConfigError(f"--out {out}: a file of that name exists; expected a result directory (new or empty)")
+    if not any(out.iterdir()):
+        return False
+    is_result = (out / "config.yaml").is_file() and (out / "metrics.json").is_file()
+    if not overwrite:
+        raise ConfigError(
+            f"--out {out}: the directory is not empty; give a new directory, or --overwrite to replace "
+            "the earlier run's result directory"
+        )
+    if not is_result:
+        raise ConfigError(
+            f"--out {out}: --overwrite replaces an earlier run's result directory (config.yaml and "
+            "metrics.json), and this directory is not one; give a new directory"
+        )
+    return True
+
+
 def _run(args) -> int:
     from nanoslam_jax.app._devices import setup_run_devices
     from nanoslam_jax.app.experiment import default_out_dir, run_experiment
 
-    cfg = load_config(args.config, args.overrides)
+    clear = _check_run_out(Path(args.out), args.overwrite) if args.out else False
+    overrides = list(args.overrides)
+    sets_kind = any(o.split("=", 1)[0].strip() in ("data.kind", "data.format") for o in overrides)
+    if args.data is not None and args.config is None and not sets_kind:
+        overrides = _log_kind_overrides(args.data) + overrides
+    cfg = load_config(args.config, overrides)
+    if args.data is not None and cfg.data.kind == "simulated":
+        raise ConfigError(
+            f"--data {args.data}: {args.config or 'the config'} has data.kind simulated, which reads no "
+            "directory; give a config with data.kind victoria_park (or indoor), or --set data.kind=victoria_park"
+        )
     setup_run_devices(cfg)
     out = Path(args.out) if args.out else default_out_dir(cfg)
-    metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None)
+    metrics = run_experiment(cfg, out, data_dir=args.data, progress=False if args.quiet else None, clear=clear)
     keys = [
         "rmse_fixed",
         "rmse_aligned",
@@ -397,9 +483,20 @@ def _detect(args) -> int:
 @in_float64
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``nanoslam`` console script."""
-    from nanoslam_jax.data import LogFormatError
+    import warnings
+
+    from nanoslam_jax.data import LogFormatError, LogWarning
 
     args = _parser().parse_args(argv)
+    show = warnings.showwarning
+
+    def show_log_warning(message, category, *rest, **kw):
+        if issubclass(category, LogWarning):
+            print(f"nanoslam: warning: {message}", file=sys.stderr)
+        else:
+            show(message, category, *rest, **kw)
+
+    warnings.showwarning = show_log_warning
     try:
         if not getattr(args, "no_cache", True):
             from nanoslam_jax.lib._cache import compile_stats, enable_compile_cache
@@ -420,6 +517,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print("nanoslam: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = show
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ import datetime as _dt
 import json
 import math
 import platform
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -662,7 +663,11 @@ def execute(
 
 @in_float64
 def run_experiment(
-    cfg: Config, out_dir: str | Path, data_dir: Optional[str] = None, progress: Optional[bool] = None
+    cfg: Config,
+    out_dir: str | Path,
+    data_dir: Optional[str] = None,
+    progress: Optional[bool] = None,
+    clear: bool = False,
 ) -> dict:
     """Run ``cfg`` (:func:`execute`) and write its result directory (:meth:`RunResult.write`).
 
@@ -671,6 +676,8 @@ def run_experiment(
         out_dir: result directory (created; a log that cannot be read leaves none behind).
         data_dir: log directory overriding ``data.path``.
         progress: show a progress indicator (default: ``output.progress``).
+        clear: delete what ``out_dir`` holds once the run has finished, before writing (an earlier
+            run's files; a run that fails leaves them in place).
 
     Returns:
         The metrics (also in ``metrics.json``).
@@ -679,6 +686,12 @@ def run_experiment(
         FloatingPointError: if the estimate became non-finite (the metrics are still written).
     """
     result = execute(cfg, data_dir, progress)
+    if clear and Path(out_dir).is_dir():
+        for entry in Path(out_dir).iterdir():
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
     out = result.write(out_dir)
     if not result.finite:
         raise FloatingPointError(

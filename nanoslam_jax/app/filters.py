@@ -38,7 +38,12 @@ from nanoslam_jax.app._build import method_static as method_static, settings_fro
 from nanoslam_jax.methods.particle._prior import relative_prior
 from nanoslam_jax.methods._scan import _check_filter_method, _masked_step, initial_state, is_gaussian
 from nanoslam_jax.lib._precision import require_float64
-from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, check_measurement_model
+from nanoslam_jax.models import (
+    AbstractMeasurementModel,
+    AbstractMotionModel,
+    check_measurement_model,
+    check_motion_model,
+)
 
 __all__ = ["Filter", "build"]
 
@@ -123,6 +128,10 @@ def build(
     if motion is not None:
         if not isinstance(motion, AbstractMotionModel):
             raise TypeError(f"motion: expected a nanoslam_jax.models.AbstractMotionModel, got {type(motion).__name__}")
+        try:
+            check_motion_model(motion)
+        except ValueError as e:
+            raise ConfigError(f"motion: {e}") from None
         params = params._replace(motion=motion)
     if measurement is not None:
         if not isinstance(measurement, AbstractMeasurementModel):
@@ -137,9 +146,17 @@ def build(
         params = params._replace(measurement=measurement)
     _check_filter_method(static)
     static = dataclasses.replace(static, devices=1)
-    return Filter(
-        static=static,
-        params=params,
-        init=functools.partial(_init, static, params),
-        step=functools.partial(_step, static, params),
-    )
+    compiled = functools.partial(_step, static, params)
+
+    def step(state, segment: Segments):
+        got = tuple(jnp.shape(segment.z_mask))
+        if got != (static.k_max,):
+            extra = " (a whole Segments; pass one row, jax.tree.map(lambda a: a[t], segments))" if len(got) > 1 else ""
+            raise ConfigError(
+                f"k_max: the filter was built with k_max={static.k_max}, and the segment holds "
+                f"{got[-1] if got else 0} detection slots (z_mask of shape {got}){extra}; build it with "
+                "k_max=segments.k_max"
+            )
+        return compiled(state, segment)
+
+    return Filter(static=static, params=params, init=functools.partial(_init, static, params), step=step)

@@ -16,6 +16,7 @@ from nanoslam_jax.data._laser_log import (
 )
 from nanoslam_jax.data._loader import (
     LogFormatError as LogFormatError,
+    LogWarning as LogWarning,
     load_victoria_park as load_victoria_park,
     write_victoria_park as write_victoria_park,
 )
@@ -40,6 +41,7 @@ __all__ = [
     "LASER_FILES",
     "Segments",
     "LogFormatError",
+    "LogWarning",
     "load_victoria_park",
     "write_victoria_park",
     "load_mrclam",

@@ -133,6 +133,13 @@ def _read_ascii(path: Path, n_beams: int) -> tuple[np.ndarray, np.ndarray, Calla
     if values.size == 0:
         raise LogFormatError(f"{path}: no data; expected scans of {per_scan} numbers (time and {n_beams} ranges)")
     if values.size % per_scan:
+        counts = [(k + 1, len(row.split())) for k, row in enumerate(text.split("\n")) if row.strip()]
+        if len(counts) > 1 and sum(n == per_scan for _, n in counts) * 2 > len(counts):  # one scan per line
+            line, n = next((k, n) for k, n in counts if n != per_scan)
+            raise LogFormatError(
+                f"{path} line {line}: expected {per_scan} numbers on a scan's line (the time and {n_beams} "
+                f"ranges), got {n}"
+            )
         whole, extra = divmod(values.size, per_scan)
         line, tok = _locate_token(text, whole * per_scan)
         raise LogFormatError(

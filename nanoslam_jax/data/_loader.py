@@ -25,19 +25,26 @@ from jaxtyping import Float
 from nanoslam_jax.lib._angles import wrap_angle_np
 from nanoslam_jax.data._types import RawLog
 
-__all__ = ["LogFormatError", "load_victoria_park", "write_victoria_park"]
+__all__ = ["LogFormatError", "LogWarning", "load_victoria_park", "write_victoria_park"]
 
 # Clock of the original MATLAB files: t_s = (t_ms - _MAT_T0_MS) / 1000 (one clock for all sensors).
 _MAT_T0_MS = 20967.0
 # gps.dat frame: (x, y) = R(-33 deg) (Lo_m + 67, La_m + 39).
 _GPS_ROTATION_DEG = -33.0
 _GPS_OFFSET_LO, _GPS_OFFSET_LA = 67.0, 39.0
+# measurements.dat bearings lie in [0, pi] (the laser's 180 deg fan) to within this (rad).
+_BEARING_TOLERANCE = 0.01
 # Digits written by write_victoria_park: round trips at 1e-9.
 _WRITE_FMT = "%.9f"
 
 
 class LogFormatError(ValueError):
     """A malformed log file; the message names the file, the line (or row) and what was expected."""
+
+
+class LogWarning(UserWarning):
+    """Rows of a log file that were read but not used, or read other than as written; the message
+    names the file, how many rows and why."""
 
 
 @dataclass(frozen=True)
@@ -186,6 +193,19 @@ def _validate(
             )
 
 
+def _check_bearings(bearing: np.ndarray, path: Path, numbers: np.ndarray) -> None:
+    """Raise naming the first line whose bearing is outside ``[0, pi]`` (by more than
+    :data:`_BEARING_TOLERANCE`): the file's bearings are radians, ``pi/2`` straight ahead."""
+    bad = np.flatnonzero((bearing < -_BEARING_TOLERANCE) | (bearing > np.pi + _BEARING_TOLERANCE))
+    if bad.size:
+        i = bad[0]
+        raise LogFormatError(
+            f"{path} line {numbers[i]}: expected a bearing in radians in [0, pi] (pi/2 straight ahead), "
+            f"got {float(bearing[i])!r} in column 'bearing' ({bad.size} of {bearing.size} rows outside; "
+            "a file in degrees, or with 0 straight ahead, must be converted)"
+        )
+
+
 def _read_ascii(path: Path, table: _Table) -> Float[np.ndarray, "n columns"]:
     """Parse and validate one ASCII log file.
 
@@ -281,7 +301,8 @@ def load_victoria_park(
     Raises:
         FileNotFoundError: the directory or a needed file is missing (the message names it and
             the files a log directory holds).
-        LogFormatError: a file is malformed (the message names the file, line and expectation).
+        LogFormatError: a file is malformed (the message names the file, line and expectation), e.g. a
+            detection bearing outside [0, pi] (radians, within 0.01).
         ValueError: ``format`` is not one of the above.
     """
     if format not in ("auto", "ascii", "mat"):
@@ -301,7 +322,9 @@ def load_victoria_park(
     if det_path is None:
         det = np.zeros((0, len(_MEASUREMENTS.columns)))
     else:
-        det = _read_ascii(det_path, _MEASUREMENTS)
+        det, numbers = _parse_table(det_path, _MEASUREMENTS)
+        _validate(det, _MEASUREMENTS, det_path, numbers)
+        _check_bearings(det[:, 2], det_path, numbers)
         det[:, 2] = wrap_angle_np(det[:, 2] - np.pi / 2)
 
     truth = {}

@@ -18,6 +18,7 @@ baseline a SLAM map of this log is read against.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 from typing import Literal, NamedTuple
 
@@ -25,7 +26,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from nanoslam_jax.lib._angles import wrap_angle_np
-from nanoslam_jax.data._loader import LogFormatError, _data_rows, _parse_table, _Table, _validate
+from nanoslam_jax.data._loader import LogFormatError, LogWarning, _data_rows, _parse_table, _Table, _validate
 from nanoslam_jax.data._types import RawLog
 
 __all__ = [
@@ -127,9 +128,8 @@ def load_mrclam(
     * **Clock.** Times are seconds since ``t0``, the robot's first odometry time; its odometry and
       measurement files share the UNIX clock, so both are shifted by the same ``t0``.
     * **Odometry** ``time v omega`` becomes ``dr`` rows ``(time, v, omega)``, the controls of the
-      ``unicycle`` motion model, each held until the next sample. Rows are sorted by time (stable);
-      of rows sharing a time only the last (in file order) is kept: the earlier ones would hold for
-      no time.
+      ``unicycle`` motion model, each held until the next sample. Times must not decrease; of rows
+      sharing a time only the last (in file order) is kept: the earlier ones would hold for no time.
     * **Measurements** ``time barcode range bearing`` become ``detections`` rows ``(time, range,
       bearing, 0)`` (no diameter; the bearing, 0 straight ahead and left positive as in the file,
       wrapped to ``(-pi, pi]``), sorted by time with a stable sort, so that rows of equal time keep
@@ -146,7 +146,8 @@ def load_mrclam(
         directory: the dataset directory (the folder holding ``Barcodes.dat`` and the robots' files).
         robot: which robot's log, 1-5.
         unknown_barcodes: what to do with a measurement of a barcode that ``Barcodes.dat`` does not
-            list (a misread barcode): ``"drop"`` it, or raise an ``"error"`` naming the line.
+            list (a misread barcode): ``"drop"`` it (a :class:`~nanoslam_jax.data.LogWarning` says
+            how many, of which barcodes), or raise an ``"error"`` naming the line.
 
     Returns:
         The log, its ``source`` the directory and the robot.
@@ -157,8 +158,8 @@ def load_mrclam(
             expected): not the expected number of numeric columns, a non-finite value, a negative
             range, a barcode or subject that is not a whole number or appears twice in
             ``Barcodes.dat`` / ``Landmark_Groundtruth.dat``, a robot in the landmark file, an
-            unknown barcode with ``unknown_barcodes="error"``, or no odometry rows (a measurement
-            file without rows is an empty log of sightings).
+            unknown barcode with ``unknown_barcodes="error"``, odometry times that decrease, or no
+            odometry rows (a measurement file without rows is an empty log of sightings).
         ValueError: ``robot`` is not one of 1-5, or ``unknown_barcodes`` is not one of the above.
     """
     if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)) or int(robot) not in MRCLAM_ROBOTS:
@@ -174,8 +175,14 @@ def load_mrclam(
     subject_of = _barcode_subjects(directory)
     truth_xy, truth_ids = _surveyed_landmarks(directory)
 
-    odo, _, _ = _read(directory, _odometry_table(robot))
-    odo = odo[np.argsort(odo[:, 0], kind="stable")]
+    odo, odo_lines, odo_path = _read(directory, _odometry_table(robot))
+    back = np.flatnonzero(np.diff(odo[:, 0]) < 0)
+    if back.size:
+        i = back[0] + 1
+        raise LogFormatError(
+            f"{odo_path} line {odo_lines[i]}: odometry times must be non-decreasing, got {float(odo[i, 0])!r} "
+            f"after {float(odo[i - 1, 0])!r} (line {odo_lines[i - 1]})"
+        )
     odo = odo[np.append(odo[1:, 0] != odo[:-1, 0], True)]  # the last row of each run of equal times
     t0 = odo[0, 0]
     dr = np.column_stack([odo[:, 0] - t0, odo[:, 1:3]])
@@ -190,6 +197,15 @@ def load_mrclam(
         raise LogFormatError(
             f"{path} line {lines[i]}: barcode {barcodes[i]} is not listed in "
             f"{directory / _BARCODES.name}; expected one of {sorted(subject_of)}"
+        )
+    if unknown.size:
+        seen, counts = np.unique(barcodes[unknown], return_counts=True)
+        listed = ", ".join(f"{b} ({c}x)" for b, c in zip(seen.tolist(), counts.tolist()))
+        warnings.warn(
+            f"{path}: {unknown.size} sighting(s) of barcodes not listed in {directory / _BARCODES.name} "
+            f"dropped: barcode {listed}",
+            LogWarning,
+            stacklevel=2,
         )
     keep = (subjects >= MRCLAM_FIRST_LANDMARK) & (meas[:, 0] >= t0)
     meas, ids = meas[keep], subjects[keep] - MRCLAM_FIRST_LANDMARK

@@ -105,7 +105,48 @@ def enable_compile_cache(path: str | os.PathLike | None = None) -> str:
         ) from None
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
     jax.config.update("jax_compilation_cache_dir", str(p))
+    _replace_damaged_entries()
     return str(p)
+
+
+def _replace_damaged_entries() -> None:
+    """Make an entry of JAX's cache that cannot be read (truncated, corrupt) be replaced.
+
+    JAX warns of such an entry and compiles the program, but does not write it again (an entry
+    of that key exists), so every later run would compile it too. Wrapped here: an entry whose
+    read fails is deleted before JAX recompiles, so the fresh executable is written in its place
+    and the next run loads it. A JAX without these internals keeps its own behaviour.
+    """
+    try:
+        from jax._src import compilation_cache as cc
+        from jax._src import lru_cache
+    except ImportError:  # pragma: no cover - another JAX layout
+        return
+    get = getattr(cc, "get_executable_and_time", None)
+    if get is None or getattr(get, "_nanoslam_heals", False):
+        return
+
+    @functools.wraps(get)
+    def get_or_delete(cache_key, compile_options, backend, *args, **kwargs):
+        try:
+            return get(cache_key, compile_options, backend, *args, **kwargs)
+        except Exception as e:
+            verification = getattr(cc, "CacheVerificationError", ())
+            cache = cc._get_cache(backend) if hasattr(cc, "_get_cache") else None
+            root = getattr(cache, "path", None)
+            if root is not None and not isinstance(e, verification):
+                for suffix in (
+                    getattr(lru_cache, "_CACHE_SUFFIX", "-cache"),
+                    getattr(lru_cache, "_ATIME_SUFFIX", "-atime"),
+                ):
+                    try:
+                        Path(str(root / f"{cache_key}{suffix}")).unlink(missing_ok=True)
+                    except OSError:
+                        pass
+            raise  # JAX warns and compiles; its write then finds no entry and keeps the new one
+
+    get_or_delete._nanoslam_heals = True  # type: ignore[attr-defined]
+    cc.get_executable_and_time = get_or_delete
 
 
 _DURATIONS = {

@@ -12,6 +12,7 @@ from nanoslam_jax.models._motion import (
     Ackermann as Ackermann,
     RandomWalk as RandomWalk,
     Unicycle as Unicycle,
+    check_motion_model as check_motion_model,
     motion_model_class as motion_model_class,
     motion_model_from_config as motion_model_from_config,
 )
@@ -76,6 +77,7 @@ __all__ = [
     "MOTION_MODELS",
     "motion_model_class",
     "motion_model_from_config",
+    "check_motion_model",
     "AbstractMeasurementModel",
     "RangeBearing",
     "MEASUREMENT_MODELS",

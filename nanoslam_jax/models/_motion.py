@@ -53,6 +53,7 @@ __all__ = [
     "MOTION_MODELS",
     "motion_model_class",
     "motion_model_from_config",
+    "check_motion_model",
 ]
 
 
@@ -348,6 +349,41 @@ def _import_object(path: str, key: str) -> Any:
             raise ValueError(f"key '{key}': module {module!r} has no attribute {attr!r}")
         obj = getattr(obj, part)
     return obj
+
+
+def check_motion_model(model: AbstractMotionModel) -> None:
+    """Raise a ValueError naming the model's class and method when ``step`` (or, for a rate model,
+    ``rates``) or ``noise_sqrt`` does not give the shape the filter needs: ``step(x (3,), u
+    (control_dim,), dt ())`` a pose ``(3,)``, ``rates(u)`` ``(2,)``, ``noise_sqrt(dt)`` ``(noise_dim,
+    noise_dim)``. Checked on abstract values (:func:`jax.eval_shape`): nothing is computed."""
+    name = type(model).__name__
+    dtype = jnp.result_type(float)
+    x = jax.ShapeDtypeStruct((3,), dtype)
+    u = jax.ShapeDtypeStruct((int(model.control_dim),), dtype)
+    dt = jax.ShapeDtypeStruct((), dtype)
+    checks: list[tuple[str, str, Any, tuple[int, ...], str]] = [
+        ("step", "x, u, dt", lambda m, x, u, dt: m.step(x, u, dt), (3,), "a pose")
+    ]
+    if isinstance(model, AbstractRateModel):
+        checks.append(("rates", "u", lambda m, x, u, dt: m.rates(u), (2,), "the rates"))
+    w = model.noise_dim
+    checks.append(("noise_sqrt", "dt", lambda m, x, u, dt: m.noise_sqrt(dt), (w, w), f"a {w} x {w} square root"))
+    where = f"x {x.shape}, u {u.shape}, dt ()"
+    for method, args, call, shape, what in checks:
+        try:
+            out = jax.eval_shape(call, model, x, u, dt)
+        except Exception as e:  # the user's code: report what it raised, with the model and method
+            raise ValueError(
+                f"motion model {name}.{method}({args}) failed on abstract inputs ({where}; control_dim "
+                f"{model.control_dim}): {type(e).__name__}: {e}"
+            ) from None
+        got = getattr(out, "shape", None)
+        if got != shape:
+            raise ValueError(
+                f"motion model {name}.{method}({args}): expected {what} of shape {shape}, got "
+                f"{'shape ' + str(got) if got is not None else type(out).__name__} (inputs {where}; "
+                f"control_dim {model.control_dim}, noise {model.noise!r})"
+            )
 
 
 def motion_model_from_config(cfg: "Config") -> AbstractMotionModel:
