@@ -30,9 +30,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import jax
-
-jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -54,7 +51,7 @@ def _run(tree: Path, cache: Path, config: str, particles: int, extra: list[str],
     cmd = [
         sys.executable,
         "-m",
-        "nanoslam_jax.app.cli",
+        "nanoslam_jax.app.cli" if (tree / "nanoslam_jax" / "app" / "cli.py").is_file() else "nanoslam_jax.cli",
         "run",
         str(tree / config),
         "--out",

@@ -19,7 +19,7 @@ from pathlib import Path
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
 from nanoslam_jax.eval.gps_floor import floor_markdown, gps_floor_of_log
-from nanoslam_jax.models import motion_model_from_config
+from nanoslam_jax.app._models import motion_model_from_config
 import jax
 
 jax.config.update("jax_enable_x64", True)  # the library computes in float64

@@ -13,7 +13,8 @@ from nanoslam_jax.eval import metrics
 from nanoslam_jax.app.config import Config, MetricsConfig
 from nanoslam_jax.methods._params import Static
 from nanoslam_jax.app.filters import settings_from_config
-from nanoslam_jax.models import MOTION_MODELS, Ackermann, RangeBearing
+from nanoslam_jax.app._models import MOTION_MODELS, measurement_model_of, motion_model_of
+from nanoslam_jax.models import Ackermann, RangeBearing
 from nanoslam_jax.models._vehicle import VehicleParams
 
 
@@ -27,15 +28,15 @@ def _leaves_equal(a, b) -> bool:
 @pytest.mark.parametrize("name", sorted(MOTION_MODELS))
 def test_motion_models_default_to_the_config(name):
     cls = MOTION_MODELS[name]
-    assert _leaves_equal(cls(), cls.from_config(Config()))
+    assert _leaves_equal(cls(), motion_model_of(cls, Config()))
 
 
 def test_range_bearing_defaults_to_the_config():
-    assert _leaves_equal(RangeBearing(), RangeBearing.from_config(Config()))
+    assert _leaves_equal(RangeBearing(), measurement_model_of(RangeBearing, Config()))
 
 
 def test_vehicle_params_default_to_the_config():
-    assert _leaves_equal(VehicleParams(), Ackermann.from_config(Config()).vehicle)
+    assert _leaves_equal(VehicleParams(), motion_model_of(Ackermann, Config()).vehicle)
 
 
 def test_static_settings_default_to_the_config():
@@ -48,7 +49,7 @@ def test_a_changed_config_default_reaches_the_models():
     class's own defaults stay those of a default configuration."""
     cfg = Config()
     cfg = dataclasses.replace(cfg, noise=dataclasses.replace(cfg.noise, sigma_r=0.25))
-    assert float(RangeBearing.from_config(cfg).sigma_r) == 0.25
+    assert float(measurement_model_of(RangeBearing, cfg).sigma_r) == 0.25
     assert float(RangeBearing().sigma_r) == Config().noise.sigma_r != 0.25
 
 

@@ -11,7 +11,8 @@ import jax.numpy as jnp
 from nanoslam_jax.app.config import Config
 from nanoslam_jax.app.registry import get_method, static_of, traced_of
 from nanoslam_jax.methods._params import MapParams, Params, Static, _logit, particle_devices, row_buckets, shardable
-from nanoslam_jax.models import check_motion_model, measurement_model_from_config, motion_model_from_config
+from nanoslam_jax.app._models import measurement_model_from_config, motion_model_from_config
+from nanoslam_jax.models import check_motion_model
 
 __all__ = ["method_static", "settings_from_config"]
 

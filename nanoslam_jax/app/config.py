@@ -343,27 +343,27 @@ def _check_consistency(cfg: Config, where: str) -> None:
             f"ancestral path, which a run records only with filter.estimate: path (got "
             f"{cfg.filter.estimate!r}); set filter.estimate to path"
         )
-    from nanoslam_jax.models import (
-        AbstractMeasurementModel,
-        AbstractMotionModel,
-        Composite,
-        check_measurement_model,
+    from nanoslam_jax.app._models import (
+        has_own_section,
         measurement_model_class,
+        measurement_model_of,
         motion_model_class,
+        motion_model_of,
     )
+    from nanoslam_jax.models import Composite, check_measurement_model
 
     try:
         motion = motion_model_class(cfg.model.motion)
-        if cfg.model.motion_params and motion.from_config.__func__ is not AbstractMotionModel.from_config.__func__:
+        if cfg.model.motion_params and has_own_section(motion):
             raise ValueError(
                 f"key 'model.motion_params': the built-in model {cfg.model.motion!r} takes its "
                 f"parameters from its own section; model.motion_params is for a model named by import path"
             )
-        motion.from_config(cfg)
+        motion_model_of(motion, cfg)
         measurement = measurement_model_class(cfg.model.measurement)
         if (
             cfg.model.measurement_params
-            and measurement.from_config.__func__ is not AbstractMeasurementModel.from_config.__func__
+            and has_own_section(measurement)
             and not issubclass(measurement, Composite)  # one mapping of parameters per type
         ):
             raise ValueError(
@@ -371,7 +371,7 @@ def _check_consistency(cfg: Config, where: str) -> None:
                 "its parameters from its own sections; model.measurement_params is for a model named "
                 "by import path"
             )
-        measurement.from_config(cfg)
+        measurement_model_of(measurement, cfg)
         check_measurement_model(measurement, cfg.filter.method, cfg.smoother.enabled)
     except ValueError as e:
         raise ConfigError(f"{where}{e}") from None

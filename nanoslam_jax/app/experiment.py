@@ -53,7 +53,8 @@ from nanoslam_jax.eval.metrics import (
     rmse_heading_deg,
 )
 from nanoslam_jax.eval._scoring import MapEstimate, companion_tracks, score_run, with_arcs
-from nanoslam_jax.models import Composite, measurement_model_from_config
+from nanoslam_jax.app._models import measurement_model_from_config
+from nanoslam_jax.models import Composite
 from nanoslam_jax.smoother._smoother import smooth_filter_run, smoother_metrics
 from nanoslam_jax.lib._precision import in_float64
 

@@ -6,18 +6,14 @@ from nanoslam_jax.lib._angles import (
     wrap_angle_np as wrap_angle_np,
 )
 from nanoslam_jax.models._motion import (
-    MOTION_MODELS as MOTION_MODELS,
     AbstractMotionModel as AbstractMotionModel,
     AbstractRateModel as AbstractRateModel,
     Ackermann as Ackermann,
     RandomWalk as RandomWalk,
     Unicycle as Unicycle,
     check_motion_model as check_motion_model,
-    motion_model_class as motion_model_class,
-    motion_model_from_config as motion_model_from_config,
 )
 from nanoslam_jax.models._measurement import (
-    MEASUREMENT_MODELS as MEASUREMENT_MODELS,
     AbstractMeasurementModel as AbstractMeasurementModel,
     RangeBearing as RangeBearing,
     is_range_bearing as is_range_bearing,
@@ -41,8 +37,6 @@ from nanoslam_jax.models._lines import (
 )
 from nanoslam_jax.models._composite import (
     check_measurement_model as check_measurement_model,
-    measurement_model_class as measurement_model_class,
-    measurement_model_from_config as measurement_model_from_config,
     PAD_VARIANCE as PAD_VARIANCE,
     Composite as Composite,
     OfKind as OfKind,
@@ -74,17 +68,11 @@ __all__ = [
     "Ackermann",
     "Unicycle",
     "RandomWalk",
-    "MOTION_MODELS",
-    "motion_model_class",
-    "motion_model_from_config",
     "check_motion_model",
     "AbstractMeasurementModel",
     "RangeBearing",
-    "MEASUREMENT_MODELS",
     "is_range_bearing",
     "check_measurement_model",
-    "measurement_model_class",
-    "measurement_model_from_config",
     "LineSegment",
     "Circle",
     "SlopeIntercept",

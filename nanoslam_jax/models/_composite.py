@@ -24,20 +24,15 @@ landmarks of its type.
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from nanoslam_jax.models._measurement import MEASUREMENT_MODELS, AbstractMeasurementModel, RangeBearing
-from nanoslam_jax.models._motion import _model_class
-
-if TYPE_CHECKING:
-    from nanoslam_jax.app.config import Config
+from nanoslam_jax.models._measurement import AbstractMeasurementModel, RangeBearing
 
 __all__ = [
     "Composite",
@@ -47,8 +42,6 @@ __all__ = [
     "composite_names",
     "row_models",
     "row_noise",
-    "measurement_model_class",
-    "measurement_model_from_config",
     "check_measurement_model",
 ]
 
@@ -120,32 +113,6 @@ class Composite(AbstractMeasurementModel):
     def noise_cov(self):
         """The first type's noise, padded (a detection's own is ``of_kind(kind).noise_cov()``)."""
         return self.of_kind(0).noise_cov()
-
-    @classmethod
-    def from_config(cls, cfg: "Config") -> "Composite":
-        """The types of ``model.measurement`` (built-in names or import paths joined by ``+``, e.g.
-        ``line+circle``), each with its parameters from ``model.measurement_params.<name>``."""
-        names = composite_names(cfg.model.measurement)
-        params = dict(cfg.model.measurement_params or {})
-        unknown = sorted(set(params) - set(names))
-        if unknown:
-            raise ValueError(
-                f"key 'model.measurement_params': a composite takes one mapping per type ({', '.join(names)}), "
-                f"got {', '.join(map(repr, unknown))}"
-            )
-        types = []
-        for name in names:
-            sub = params.get(name) or {}
-            if not isinstance(sub, dict):
-                raise ValueError(f"key 'model.measurement_params.{name}': expected a mapping, got {sub!r}")
-            model = dataclasses.replace(cfg.model, measurement=name, measurement_params=sub or None)
-            try:
-                types.append(measurement_model_class(name).from_config(dataclasses.replace(cfg, model=model)))
-            except ValueError as e:  # name the type's own mapping
-                raise ValueError(
-                    str(e).replace("'model.measurement_params'", f"'model.measurement_params.{name}'")
-                ) from None
-        return cls(tuple(types), tuple(names))
 
 
 def composite_names(measurement: str) -> list[str]:
@@ -241,28 +208,6 @@ def row_noise(
     """The rows' noise covariances and their ``vmap`` axis: ``R`` shared (``axis`` None), or each
     row's own (the ``OfKind`` rows of :func:`row_models`)."""
     return (model.noise_cov(), 0) if axis is not None else (R, None)
-
-
-def measurement_model_class(name: str) -> type[AbstractMeasurementModel]:
-    """The measurement model class for ``model.measurement``: a built-in name or an import path
-    ``package.module:ClassName`` of a subclass of :class:`AbstractMeasurementModel`; several of
-    them joined by ``+`` (``line+circle``): :class:`~nanoslam_jax.models.Composite`, a map of
-    several landmark types.
-
-    Raises:
-        ValueError: naming the key, when the name is unknown, cannot be imported or is not a
-            measurement model class.
-    """
-    if "+" in name:
-        for part in composite_names(name):
-            measurement_model_class(part)
-        return Composite
-    return _model_class(name, "model.measurement", "measurement model", MEASUREMENT_MODELS, AbstractMeasurementModel)
-
-
-def measurement_model_from_config(cfg: "Config") -> AbstractMeasurementModel:
-    """The measurement model named by ``model.measurement`` with its parameters from the configuration."""
-    return measurement_model_class(cfg.model.measurement).from_config(cfg)
 
 
 def check_measurement_model(

@@ -41,7 +41,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from nanoslam_jax.lib._angles import wrap_angle
-from nanoslam_jax.models._measurement import MEASUREMENT_MODELS, AbstractMeasurementModel
+from nanoslam_jax.models._measurement import AbstractMeasurementModel
 from nanoslam_jax.models._motion import _f
 
 __all__ = [
@@ -482,7 +482,3 @@ class Circle(_SensorFeature):
         return jnp.diag(
             jnp.stack([jnp.square(self.sigma_r), jnp.square(self.sigma_beta), jnp.square(self.sigma_radius)])
         )
-
-
-MEASUREMENT_MODELS["line"] = LineSegment
-MEASUREMENT_MODELS["circle"] = Circle

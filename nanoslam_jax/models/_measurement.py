@@ -27,9 +27,8 @@ bearing to a point) also has hand-specialised paths in the filter, chosen by its
 from __future__ import annotations
 
 import abc
-import dataclasses
 import math
-from typing import TYPE_CHECKING, Any, ClassVar, TypeGuard
+from typing import Any, ClassVar, TypeGuard
 
 import equinox as eqx
 import jax
@@ -49,13 +48,9 @@ from nanoslam_jax.models._range_bearing import (
     range_bearing_jacobians,
 )
 
-if TYPE_CHECKING:
-    from nanoslam_jax.app.config import Config
-
 __all__ = [
     "AbstractMeasurementModel",
     "RangeBearing",
-    "MEASUREMENT_MODELS",
     "is_range_bearing",
 ]
 
@@ -155,29 +150,9 @@ class AbstractMeasurementModel(eqx.Module):
             jnp.asarray(x), jnp.asarray(z)
         )
 
-    @classmethod
-    def from_config(cls, cfg: "Config") -> "AbstractMeasurementModel":
-        """The model with its parameters from a run configuration.
-
-        The default reads ``model.measurement_params`` (a mapping of field name to value) and
-        passes it to the constructor; the built-in model reads its own config sections.
-        """
-        params = dict(cfg.model.measurement_params or {})
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(params) - names)
-        if unknown:
-            raise ValueError(
-                f"key 'model.measurement_params': {cls.__name__} has no parameter "
-                f"{', '.join(map(repr, unknown))}; it takes {', '.join(sorted(names)) or 'none'}"
-            )
-        try:
-            return cls(**{k: _f(v) for k, v in params.items()})
-        except TypeError as e:
-            raise ValueError(f"key 'model.measurement_params': cannot build {cls.__name__}: {e}") from None
-
 
 # The configuration's defaults are the one source of the built-in model's defaults:
-# ``RangeBearing()`` equals ``RangeBearing.from_config(Config())``.
+# ``RangeBearing()`` is the configuration's default sensor (the ``noise``, ``data`` and ``map`` sections take these).
 _NOISE = _DATA = _MAP = SensorDefaults()
 
 
@@ -241,29 +216,8 @@ class RangeBearing(AbstractMeasurementModel):
         z = range_bearing(x, m)
         return self.in_view(z[0], z[1])
 
-    @classmethod
-    def from_config(cls, cfg: "Config") -> "RangeBearing":
-        nz, d, mp = cfg.noise, cfg.data, cfg.map
-        # The fields' converters take the floats (a converter is invisible to mypy).
-        args: tuple[Any, ...] = (
-            nz.sigma_r,
-            math.radians(nz.sigma_beta_deg),
-            d.min_range,
-            d.max_range,
-            math.radians(mp.fov_deg) / 2,
-            mp.view_margin,
-            math.radians(mp.view_margin_deg),
-        )
-        return cls(*args)
-
 
 def is_range_bearing(model: Any) -> TypeGuard[RangeBearing]:
     """Whether the filter's hand-specialised range-bearing paths apply to ``model`` (a
     :class:`RangeBearing`, subclasses included); any other model takes the generic (autodiff) path."""
     return isinstance(model, RangeBearing)
-
-
-#: The built-in measurement models by their config name (``model.measurement``).
-MEASUREMENT_MODELS: dict[str, type[AbstractMeasurementModel]] = {
-    "range_bearing": RangeBearing,
-}

@@ -26,10 +26,8 @@ and :class:`RandomWalk` (no odometry: the pose is driven by process noise alone)
 from __future__ import annotations
 
 import abc
-import dataclasses
-import importlib
 import math
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import equinox as eqx
 import jax
@@ -41,24 +39,18 @@ from nanoslam_jax.models._settings import RandomWalkConfig, SensorDefaults, Unic
 from nanoslam_jax.lib._angles import wrap_angle
 from nanoslam_jax.models._vehicle import VehicleParams, vehicle_move, vehicle_rates, vehicle_step
 
-if TYPE_CHECKING:
-    from nanoslam_jax.app.config import Config
-
 __all__ = [
     "AbstractMotionModel",
     "AbstractRateModel",
     "Ackermann",
     "Unicycle",
     "RandomWalk",
-    "MOTION_MODELS",
-    "motion_model_class",
-    "motion_model_from_config",
     "check_motion_model",
 ]
 
 
-# The configuration's defaults are the one source of the built-in models' defaults:
-# ``Model()`` equals ``Model.from_config(Config())``.
+# The built-in models' defaults: the settings classes of the vehicles and the sensor defaults (the
+# configuration's sections take theirs from the same classes).
 _VEHICLE, _NOISE, _UNICYCLE, _RANDOM_WALK = VehicleConfig(), SensorDefaults(), UnicycleConfig(), RandomWalkConfig()
 
 
@@ -130,26 +122,6 @@ class AbstractMotionModel(eqx.Module):
         F = jax.jacfwd(self.step)(x, u, dt)
         return F, jnp.eye(3, dtype=F.dtype)
 
-    @classmethod
-    def from_config(cls, cfg: "Config") -> "AbstractMotionModel":
-        """The model with its parameters from a run configuration.
-
-        The default reads ``model.motion_params`` (a mapping of field name to value) and passes
-        it to the constructor; built-in models read their own config sections.
-        """
-        params = dict(cfg.model.motion_params or {})
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(params) - names)
-        if unknown:
-            raise ValueError(
-                f"key 'model.motion_params': {cls.__name__} has no parameter "
-                f"{', '.join(map(repr, unknown))}; it takes {', '.join(sorted(names)) or 'none'}"
-            )
-        try:
-            return cls(**{k: _f(v) for k, v in params.items()})
-        except TypeError as e:
-            raise ValueError(f"key 'model.motion_params': cannot build {cls.__name__}: {e}") from None
-
 
 class AbstractRateModel(AbstractMotionModel):
     """A motion model whose step is ``move(x, rates(u), dt)``: body-frame speed and turn rate
@@ -215,20 +187,6 @@ class Ackermann(AbstractRateModel):
     def noise_cov(self, dt):
         return jnp.diag(jnp.stack([jnp.square(self.sigma_v), jnp.square(self.sigma_alpha)]))
 
-    @classmethod
-    def from_config(cls, cfg: "Config") -> "Ackermann":
-        v, nz = cfg.vehicle, cfg.noise
-        # The fields' converters take the floats (a converter is invisible to mypy).
-        args: tuple[Any, ...] = (
-            v.wheelbase,
-            v.encoder_offset,
-            v.laser_a,
-            v.laser_b,
-            nz.sigma_v,
-            math.radians(nz.sigma_alpha_deg),
-        )
-        return cls(*args)
-
 
 class Unicycle(AbstractRateModel):
     """A differential-drive robot with ``(v, omega)`` odometry: forward speed (m/s) and turn rate
@@ -264,12 +222,6 @@ class Unicycle(AbstractRateModel):
     def noise_sqrt(self, dt):
         return jnp.diag(jnp.stack([self.sigma_v, self.sigma_omega]))
 
-    @classmethod
-    def from_config(cls, cfg: "Config") -> "Unicycle":
-        u = cfg.unicycle
-        # The fields' converters take the floats (a converter is invisible to mypy).
-        return cls(u.sensor_x, u.sensor_y, u.sigma_v, math.radians(u.sigma_omega_deg))  # type: ignore[arg-type]
-
 
 class RandomWalk(AbstractMotionModel):
     """No odometry: the pose stays where it is and process noise alone moves it,
@@ -295,60 +247,6 @@ class RandomWalk(AbstractMotionModel):
     def noise_sqrt(self, dt):
         r = jnp.sqrt(jnp.maximum(jnp.asarray(dt, dtype=float), 0.0))
         return jnp.diag(jnp.stack([self.sigma_xy * r, self.sigma_xy * r, self.sigma_phi * r]))
-
-    @classmethod
-    def from_config(cls, cfg: "Config") -> "RandomWalk":
-        r = cfg.random_walk
-        # The fields' converters take the floats (a converter is invisible to mypy).
-        return cls(r.sigma_xy, math.radians(r.sigma_phi_deg))  # type: ignore[arg-type]
-
-
-#: The built-in motion models by their config name (``model.motion``).
-MOTION_MODELS: dict[str, type[AbstractMotionModel]] = {
-    "ackermann": Ackermann,
-    "unicycle": Unicycle,
-    "random_walk": RandomWalk,
-}
-
-
-def motion_model_class(name: str) -> type[AbstractMotionModel]:
-    """The motion model class for ``model.motion``: a built-in name or an import path
-    ``package.module:ClassName`` of a subclass of :class:`AbstractMotionModel`.
-
-    Raises:
-        ValueError: naming the key, when the name is unknown, cannot be imported or is not a
-            motion model class.
-    """
-    return _model_class(name, "model.motion", "motion model", MOTION_MODELS, AbstractMotionModel)
-
-
-def _model_class(name: str, key: str, what: str, builtins: dict[str, type], base: type) -> type:
-    """A model class by config name: one of ``builtins`` or an import path ``module:Class`` of a
-    subclass of ``base``; a ValueError names ``key`` otherwise."""
-    if name in builtins:
-        return builtins[name]
-    if ":" not in name:
-        raise ValueError(
-            f"key '{key}': {name!r} is not a built-in {what} ({', '.join(builtins)}) nor an import path 'module:Class'"
-        )
-    cls = _import_object(name, key)
-    if not (isinstance(cls, type) and issubclass(cls, base)):
-        raise ValueError(f"key '{key}': {name!r} is not a subclass of nanoslam_jax.models.{base.__name__}")
-    return cls
-
-
-def _import_object(path: str, key: str) -> Any:
-    """``module:attr`` imported (``attr`` may be dotted)."""
-    module, _, attr = path.partition(":")
-    try:
-        obj = importlib.import_module(module)
-    except ImportError as e:
-        raise ValueError(f"key '{key}': cannot import module {module!r} of {path!r}: {e}") from None
-    for part in attr.split("."):
-        if not hasattr(obj, part):
-            raise ValueError(f"key '{key}': module {module!r} has no attribute {attr!r}")
-        obj = getattr(obj, part)
-    return obj
 
 
 def check_motion_model(model: AbstractMotionModel) -> None:
@@ -384,8 +282,3 @@ def check_motion_model(model: AbstractMotionModel) -> None:
                 f"{'shape ' + str(got) if got is not None else type(out).__name__} (inputs {where}; "
                 f"control_dim {model.control_dim}, noise {model.noise!r})"
             )
-
-
-def motion_model_from_config(cfg: "Config") -> AbstractMotionModel:
-    """The motion model named by ``model.motion`` with its parameters from the configuration."""
-    return motion_model_class(cfg.model.motion).from_config(cfg)

@@ -444,7 +444,7 @@ def _paired_markdown(spec: StudySpec, rows: list[dict]) -> str:
 def _gps_floor(out: Path, spec: StudySpec, points: list[StudyPoint], data_dir: Optional[str], say) -> Optional[dict]:
     """The GPS floor over the study's span (real logs only: a simulated log's GPS is the truth)."""
     from nanoslam_jax.eval.gps_floor import floor_markdown, gps_floor_of_log
-    from nanoslam_jax.models import motion_model_from_config
+    from nanoslam_jax.app._models import motion_model_from_config
     from nanoslam_jax.app.sweep import load_log_data
 
     cfg = points[0].config
