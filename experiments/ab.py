@@ -50,6 +50,7 @@ def _run(tree: Path, cache: Path, config: str, particles: int, extra: list[str],
     env = {**os.environ, "PYTHONPATH": str(tree), "NANOSLAM_CACHE_DIR": str(cache)}
     cmd = [
         sys.executable,
+        "-P",  # no current directory first on sys.path: the package comes from PYTHONPATH, the tree
         "-m",
         "nanoslam_jax.app.cli" if (tree / "nanoslam_jax" / "app" / "cli.py").is_file() else "nanoslam_jax.cli",
         "run",
