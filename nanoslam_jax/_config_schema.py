@@ -43,15 +43,27 @@ class DataConfig:
         doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park "
         "(format mrclam: ../shared/data/utias_mrclam/MRCLAM_Dataset1)",
     )
-    format: Literal["auto", "ascii", "mat", "mrclam"] = _f(
+    format: Literal["auto", "ascii", "mat", "mrclam", "rosbag"] = _f(
         "auto",
         static=True,
         doc="'ascii': inputs.dat/measurements.dat/gps.dat; 'mat': aa3_dr.mat/aa3_gpsx.mat (+ measurements.dat); "
         "'auto': ascii when present; 'mrclam': a UTIAS MRCLAM dataset directory (Barcodes.dat, "
         "Landmark_Groundtruth.dat, RobotN_Odometry.dat, RobotN_Measurement.dat): robot data.robot's (v, omega) "
-        "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids",
+        "odometry (model.motion unicycle) and sightings, the barcodes as landmark ids; 'rosbag': a ROS 1 .bag "
+        "file or a ROS 2 bag directory (--data or data.path) with LaserScan on data.scan_topic and Odometry on "
+        "data.odom_topic (data.detections one of the laser values)",
     )
     robot: int = _f(1, lo=1, hi=5, static=True, doc="data.format mrclam: which robot's log (1-5)")
+    scan_topic: str = _f(
+        "/scan", static=True, doc="data.format rosbag: the topic of the sensor_msgs/msg/LaserScan scans"
+    )
+    odom_topic: str = _f("/odom", static=True, doc="data.format rosbag: the topic of the nav_msgs/msg/Odometry poses")
+    laser_pose: Optional[tuple[float, float, float]] = _f(
+        None,
+        static=True,
+        doc="data.format rosbag: the laser's mounting [x, y, theta] (m, m, rad) in the odometry's base frame "
+        "(child_frame_id), used when the bag's /tf_static does not give it; null: zero (with a warning)",
+    )
     min_range: float = _f(0.0, lo=0.0, static=True, doc="detections with range below this are dropped (m)")
     max_range: float = _f(30.0, lo=0.0, lo_open=True, static=True, doc="detections with range >= this are dropped (m)")
     k_max: Optional[int] = _f(None, lo=1, static=True, doc="detections per segment; null: the most in any kept scan")

@@ -182,14 +182,21 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         from .simulate_indoor import read_feature_truth
 
         directory = resolve_data_dir(cfg, data_dir)
+        scans = None
         if cfg.data.format == "mrclam":
             raw = load_mrclam(directory, cfg.data.robot)
+        elif cfg.data.format == "rosbag":
+            from .data._laser_log import laser_odom_raw
+            from .data._rosbag import load_rosbag
+
+            d = cfg.data
+            bag = load_rosbag(directory, scan_topic=d.scan_topic, odom_topic=d.odom_topic, laser_pose=d.laser_pose)
+            raw, scans = laser_odom_raw(bag)
         else:
             raw = load_victoria_park(directory, cfg.data.format, detections=cfg.data.detections == "file")
         if cfg.data.detections != "file":
-            raw = with_scan_detections(
-                raw, load_laser(directory), cfg.data.detections, cfg.detector, cfg.data.beam_step
-            )
+            scans = load_laser(directory) if scans is None else scans
+            raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
         frame = "slam" if raw.truth_poses is not None else "relative"
         source = raw.source or str(directory)
         features = read_feature_truth(directory)

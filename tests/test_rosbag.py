@@ -447,3 +447,66 @@ def test_a_bag_and_the_equivalent_carmen_file_give_the_same_log(tmp_path):
     np.testing.assert_allclose(carmen.scans.angles, bag.scans.angles, rtol=0, atol=1e-6)
     np.testing.assert_allclose(carmen.odom, bag.odom, rtol=0, atol=1e-9)
     np.testing.assert_allclose(carmen.laser_pose, bag.laser_pose, rtol=0, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- config and load_log
+
+BAG_CONFIG = {"data": {"format": "rosbag", "detections": "laser_lines"}, "model": {"measurement": "line"}}
+
+
+def _config(**data):
+    from nanoslam_jax.config import config_from_dict
+
+    return config_from_dict({**BAG_CONFIG, "data": {**BAG_CONFIG["data"], **data}})
+
+
+def test_config_keys():
+    from nanoslam_jax.config import ConfigError, apply_overrides, config_from_dict
+
+    cfg = _config(scan_topic="/base_scan", odom_topic="/wheel_odom", laser_pose=[0.1, -0.2, 3])
+    assert (cfg.data.scan_topic, cfg.data.odom_topic) == ("/base_scan", "/wheel_odom")
+    assert cfg.data.laser_pose == (0.1, -0.2, 3.0)
+    assert _config().data.laser_pose is None
+    raw = apply_overrides(BAG_CONFIG, ["data.laser_pose=[0.5, 0, 0.25]"])
+    assert config_from_dict(raw).data.laser_pose == (0.5, 0.0, 0.25)
+    with pytest.raises(ConfigError, match=r"key 'data.laser_pose': expected a list of 3 numbers, got \[0.1, 0.2\]"):
+        _config(laser_pose=[0.1, 0.2])
+    with pytest.raises(ConfigError, match=r"key 'data.laser_pose\[2\]': expected a number"):
+        _config(laser_pose=[0.1, 0.2, "x"])
+    with pytest.raises(ConfigError, match="key 'data.detections': a ROS bag holds laser scans, not detections"):
+        _config(detections="file")
+
+
+def test_the_bag_path(tmp_path):
+    from nanoslam_jax.config import resolve_data_dir
+
+    (tmp_path / "log.bag").write_bytes(b"")
+    assert resolve_data_dir(_config(), str(tmp_path / "log.bag")) == tmp_path / "log.bag"
+    assert resolve_data_dir(_config(path=str(tmp_path)), None) == tmp_path
+    with pytest.raises(FileNotFoundError, match=r"other\.bag \(from --data\): ROS bag not found"):
+        resolve_data_dir(_config(), str(tmp_path / "other.bag"))
+    with pytest.raises(FileNotFoundError, match="data.format rosbag: give the bag with --data BAG"):
+        resolve_data_dir(_config(), None)
+
+
+def test_load_log_passes_the_keys_to_load_rosbag(tmp_path, monkeypatch):
+    from nanoslam_jax.data import _laser_log, _rosbag
+    from nanoslam_jax.experiment import load_log
+
+    class Reached(Exception):
+        pass
+
+    def fake_load(path, **kwargs):
+        raise Reached(path, kwargs)
+
+    monkeypatch.setattr(_rosbag, "load_rosbag", fake_load)
+    # laser_odom_raw is not reached; before the CARMEN reader's merge it is not there to import
+    monkeypatch.setattr(_laser_log, "laser_odom_raw", lambda log: pytest.fail("not reached"), raising=False)
+    (tmp_path / "log.bag").write_bytes(b"")
+    cfg = _config(scan_topic="/s", odom_topic="/o", laser_pose=[1, 2, 0.5])
+    with pytest.raises(Reached) as e:
+        load_log(cfg, str(tmp_path / "log.bag"))
+    assert e.value.args == (
+        tmp_path / "log.bag",
+        {"scan_topic": "/s", "odom_topic": "/o", "laser_pose": (1.0, 2.0, 0.5)},
+    )
