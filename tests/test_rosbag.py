@@ -381,6 +381,14 @@ def test_angle_change_names_the_message(tmp_path):
         load_rosbag(path)
 
 
+def test_zero_angle_increment(tmp_path):
+    path = write_bag(tmp_path, replace(simulate(), angle_increment=0.0), "sqlite3")
+    with pytest.raises(
+        LogFormatError, match=r"topic /scan message 1 \(stamp [\d.]+ s\): angle_increment is 0 with 181"
+    ):
+        load_rosbag(path)
+
+
 def test_odometry_back_in_time_names_the_message(tmp_path):
     sim = simulate()
     sim.odom_ns[12] = sim.odom_ns[10]
