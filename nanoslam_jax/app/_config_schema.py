@@ -51,7 +51,7 @@ class DataConfig:
         doc="log directory; null: --data, $NANOSLAM_DATA, or ../shared/data/victoria_park "
         "(format mrclam: ../shared/data/utias_mrclam/MRCLAM_Dataset1)",
     )
-    format: Literal["auto", "ascii", "mat", "mrclam", "carmen"] = _f(
+    format: Literal["auto", "ascii", "mat", "mrclam", "carmen", "rosbag"] = _f(
         "auto",
         static=True,
         doc="'ascii': inputs.dat/measurements.dat/gps.dat; 'mat': aa3_dr.mat/aa3_gpsx.mat (+ measurements.dat); "
@@ -61,7 +61,9 @@ class DataConfig:
         "data.kind victoria_park): a CARMEN log "
         "(.clf/.log, optionally .gz, or a directory holding one): its laser scans (FLASER, ROBOTLASER1, "
         "RAWLASER1-4) and odometry as (v, omega) controls (model.motion unicycle, unicycle.sensor_x/sensor_y the "
-        "laser's mounting), with detections from the scans (data.detections laser_lines, laser_beams, ...)",
+        "laser's mounting), with detections from the scans (data.detections laser_lines, laser_beams, ...); "
+        "'rosbag': a ROS 1 .bag file or a ROS 2 bag directory (--data or data.path) with LaserScan on "
+        "data.scan_topic and Odometry on data.odom_topic (data.detections one of the laser values)",
     )
     laser_start_deg: Optional[float] = _f(
         None,
@@ -88,12 +90,22 @@ class DataConfig:
     reference: Optional[str] = _f(
         None,
         static=True,
-        doc="data.format carmen: a reference path scored in metrics.json (ref_* for the estimate, dr_ref_* for "
+        doc="data.format carmen or rosbag: a reference path scored in metrics.json (ref_* for the estimate, dr_ref_* for "
         "dead reckoning: RMSE and worst error after a rigid alignment, mean relative-motion error between "
         "consecutive reference poses): a corrected CARMEN log (matched by identical ranges), a CSV "
         "(time,x,y,theta) or TUM file (matched by time); null: none",
     )
     robot: int = _f(1, lo=1, hi=5, static=True, doc="data.format mrclam: which robot's log (1-5)")
+    scan_topic: str = _f(
+        "/scan", static=True, doc="data.format rosbag: the topic of the sensor_msgs/msg/LaserScan scans"
+    )
+    odom_topic: str = _f("/odom", static=True, doc="data.format rosbag: the topic of the nav_msgs/msg/Odometry poses")
+    laser_pose: Optional[tuple[float, float, float]] = _f(
+        None,
+        static=True,
+        doc="data.format rosbag: the laser's mounting [x, y, theta] (m, m, rad) in the odometry's base frame "
+        "(child_frame_id), used when the bag's /tf_static does not give it; null: zero (with a warning)",
+    )
     min_range: float = _f(
         _SENSOR.min_range, lo=0.0, static=True, doc="detections with range below this are dropped (m)"
     )

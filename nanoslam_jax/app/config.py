@@ -111,6 +111,8 @@ def _type_name(tp: Any) -> str:
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         return " or ".join(_type_name(a) for a in args) + " or null"
+    if origin is tuple:
+        return f"a list of {len(typing.get_args(tp))} numbers"
     return getattr(tp, "__name__", str(tp))
 
 
@@ -148,6 +150,11 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
         if value != value or value in (float("inf"), float("-inf")):
             raise ConfigError(f"{where}key '{key}': expected a finite number, got {value!r}")
         return value
+    if origin is tuple:  # a fixed number of numbers, e.g. a pose [x, y, theta]
+        n = len(typing.get_args(tp))
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            raise ConfigError(f"{where}key '{key}': expected {_type_name(tp)}, got {value!r}")
+        return tuple(_coerce(v, float, f"{key}[{i}]", where) for i, v in enumerate(value))
     if tp is dict:
         if not isinstance(value, dict):
             raise ConfigError(f"{where}key '{key}': expected a mapping of names to numbers, got {value!r}")
@@ -226,8 +233,15 @@ def _check_consistency(cfg: Config, where: str) -> None:
             "differential-drive robot; expected unicycle (or random_walk, or your own model) with data.format "
             "carmen, got 'ackermann'"
         )
-    if d.reference is not None and d.format != "carmen":
-        raise ConfigError(f"{where}key 'data.reference': a reference path is scored with data.format carmen only")
+    if d.reference is not None and d.format not in ("carmen", "rosbag"):
+        raise ConfigError(
+            f"{where}key 'data.reference': a reference path is scored with data.format carmen or rosbag only"
+        )
+    if d.kind == "victoria_park" and d.format == "rosbag" and d.detections == "file":
+        raise ConfigError(
+            f"{where}key 'data.detections': a ROS bag holds laser scans, not detections; expected one of the "
+            "laser values (laser_lines, laser_beams, laser_circles, laser_features, laser) with data.format rosbag"
+        )
     lines_in = d.detections == "laser_lines"
     if lines_in and cfg.model.measurement != "line":
         raise ConfigError(
@@ -584,12 +598,13 @@ MRCLAM_HELP = (
 def resolve_data_dir(cfg: Config, cli_data: str | None = None) -> Path:
     """The log directory: ``--data``, then ``data.path``, then ``$NANOSLAM_DATA``, then the default
     (:data:`DEFAULT_DATA_DIR`; :data:`DEFAULT_MRCLAM_DIR` for ``data.format: mrclam``), relative to
-    the working directory or to the project.
+    the working directory or to the project. With ``data.format: rosbag``: the bag (a ROS 1 ``.bag``
+    file or a ROS 2 bag directory), which has no default.
 
     Raises:
         FileNotFoundError: with instructions for obtaining the dataset when no directory exists.
     """
-    mrclam = cfg.data.format == "mrclam"
+    mrclam, bag = cfg.data.format == "mrclam", cfg.data.format == "rosbag"
     help_text, default = (MRCLAM_HELP, DEFAULT_MRCLAM_DIR) if mrclam else (DATASET_HELP, DEFAULT_DATA_DIR)
     what = "MRCLAM dataset" if mrclam else "Victoria Park log"
     candidates = [
@@ -600,9 +615,15 @@ def resolve_data_dir(cfg: Config, cli_data: str | None = None) -> Path:
     for origin, value in candidates:
         if value:
             p = Path(value).expanduser()
-            if not p.is_dir():
+            if bag and not p.exists():
+                raise FileNotFoundError(
+                    f"{p} (from {origin}): ROS bag not found (a .bag file or a ROS 2 bag directory)"
+                )
+            if not (p.is_dir() or bag):
                 raise FileNotFoundError(f"{p} (from {origin}): log directory not found. {help_text}")
             return p
+    if bag:
+        raise FileNotFoundError("data.format rosbag: give the bag with --data BAG (or data.path)")
     for base in (Path.cwd(), Path(__file__).resolve().parents[1]):
         p = (base / default).resolve()
         if p.is_dir():

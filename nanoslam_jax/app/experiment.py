@@ -181,8 +181,8 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         source = f"simulated indoor ({indoor.world.template}, seed {cfg.indoor.seed})"
         if cfg.data.detections != "file":
             raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
-    elif cfg.data.format == "carmen":
-        raw, scans, source, reference = _load_carmen(cfg, data_dir)
+    elif cfg.data.format in ("carmen", "rosbag"):
+        raw, scans, source, reference = _load_laser_odom(cfg, data_dir)
         raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
         frame = "relative"
     else:
@@ -242,26 +242,32 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
     return LoadedLog(raw, segments, frame, source, map_truth, survey, features, reference)
 
 
-def _load_carmen(cfg: Config, data_dir: Optional[str]):
-    """``data.format: carmen``: the controls, the scans, the source and the reference path (or None)."""
+def _load_laser_odom(cfg: Config, data_dir: Optional[str]):
+    """``data.format: carmen`` or ``rosbag``: the controls, the scans, the source and the reference path
+    (or None)."""
     import os
 
     from nanoslam_jax.eval._reference_metrics import ReferencePath
     from nanoslam_jax.data._carmen import load_carmen
     from nanoslam_jax.data._laser_log import laser_odom_raw
     from nanoslam_jax.data._reference import load_reference
+    from nanoslam_jax.data._rosbag import load_rosbag
 
     d = cfg.data
 
     def find(p: str) -> Path:
         q = Path(p).expanduser()
-        root = Path(__file__).resolve().parents[1] / q
+        root = Path(__file__).resolve().parents[2] / q
         return q if q.exists() or q.is_absolute() or not root.exists() else root
 
-    given = data_dir or d.path or os.environ.get("NANOSLAM_DATA") or "../shared/data/carmen/mit-csail"
-    log = load_carmen(
-        find(given), laser_start_deg=d.laser_start_deg, laser_step_deg=d.laser_step_deg, no_return=d.no_return_m
-    )
+    if d.format == "rosbag":
+        bag = resolve_data_dir(cfg, data_dir)
+        log = load_rosbag(bag, scan_topic=d.scan_topic, odom_topic=d.odom_topic, laser_pose=d.laser_pose)
+    else:
+        given = data_dir or d.path or os.environ.get("NANOSLAM_DATA") or "../shared/data/carmen/mit-csail"
+        log = load_carmen(
+            find(given), laser_start_deg=d.laser_start_deg, laser_step_deg=d.laser_step_deg, no_return=d.no_return_m
+        )
     mx, my = (float(v) for v in log.laser_pose[:2])
     u = cfg.unicycle
     if cfg.model.motion == "unicycle" and max(abs(mx - u.sensor_x), abs(my - u.sensor_y)) > 1e-3:

@@ -1,5 +1,5 @@
 """Logs: Victoria Park-format (detections and raw laser scans; loading and writing), UTIAS
-MRCLAM and CARMEN laser logs (loading), reference paths, and cutting a log into fixed-shape segments."""
+MRCLAM, CARMEN laser logs and ROS bags (loading), reference paths, and cutting a log into fixed-shape segments."""
 
 from nanoslam_jax.data._carmen import load_carmen as load_carmen, read_carmen as read_carmen
 from nanoslam_jax.data._laser import (
@@ -29,10 +29,12 @@ from nanoslam_jax.data._mrclam import (
     unicycle_poses as unicycle_poses,
 )
 from nanoslam_jax.data._reference import load_reference as load_reference
+from nanoslam_jax.data._rosbag import load_rosbag as load_rosbag
 from nanoslam_jax.data._segments import make_segments as make_segments, segment_summary as segment_summary
 from nanoslam_jax.data._types import RawLog as RawLog, Segments as Segments
 
 __all__ = [
+    "load_rosbag",
     "RawLog",
     "LaserScans",
     "load_laser",
