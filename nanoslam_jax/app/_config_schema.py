@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Literal, Optional
 
 from nanoslam_jax.lib._fields import _f
+from nanoslam_jax.methods._builtin import ADAPTIVE_NOISE_METHODS as ADAPTIVE_NOISE_METHODS
 from nanoslam_jax.methods._method_settings import IteratedStatic, NanoStatic, NasrukfStatic
 from nanoslam_jax.methods._params import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Static
 from nanoslam_jax.eval._settings import MetricsConfig
@@ -27,10 +28,6 @@ _SENSOR = SensorDefaults()
 _STATIC = Static()
 #: The built-in methods' static defaults, which their sections take.
 _NANO, _ITERATED, _NASRUKF = NanoStatic(), IteratedStatic(), NasrukfStatic()
-
-
-#: Methods with an adaptive measurement-noise estimate (``noise.adaptive: true`` is rejected for the others).
-ADAPTIVE_NOISE_METHODS = ("nasrukf", "nano", "fastslam2", "ufastslam")
 
 
 @dataclass(frozen=True)

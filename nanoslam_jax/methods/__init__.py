@@ -20,6 +20,9 @@ from nanoslam_jax.methods.maps._management import (
 )
 from nanoslam_jax.methods._method import METHOD_KINDS as METHOD_KINDS, Method as Method
 from nanoslam_jax.methods._builtin import (
+    ADAPTIVE_NOISE_METHODS as ADAPTIVE_NOISE_METHODS,
+    AVAILABLE_METHODS as AVAILABLE_METHODS,
+    GAUSSIAN_METHODS as GAUSSIAN_METHODS,
     BUILTIN_METHODS as BUILTIN_METHODS,
     DEAD_RECKONING as DEAD_RECKONING,
     EKF_SLAM as EKF_SLAM,
@@ -64,8 +67,6 @@ from nanoslam_jax.lib._resampling import (
     resample as resample,
 )
 from nanoslam_jax.methods._scan import (
-    AVAILABLE_METHODS as AVAILABLE_METHODS,
-    GAUSSIAN_METHODS as GAUSSIAN_METHODS,
     FilterRun as FilterRun,
     MapHistory as MapHistory,
     dead_reckoning as dead_reckoning,
@@ -127,6 +128,7 @@ from nanoslam_jax.methods.gaussian._srukf import (
 )
 
 __all__ = [
+    "ADAPTIVE_NOISE_METHODS",
     "Association",
     "associate",
     "add_landmarks",

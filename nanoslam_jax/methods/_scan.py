@@ -31,12 +31,6 @@ from nanoslam_jax.methods._state import FilterState, LandmarkMap, init_state
 from nanoslam_jax.methods.particle._step import StepOutput, filter_step
 
 
-#: The built-in methods (every registered one: :func:`nanoslam_jax.app.registry.method_names`).
-AVAILABLE_METHODS = ("dead_reckoning", "nano", "fastslam1", "fastslam2", "ufastslam", "iterated", "ekf_slam", "nasrukf")
-#: The built-in methods without particles: their state is Gaussian and a run does not depend on the seed.
-GAUSSIAN_METHODS = ("ekf_slam", "nasrukf")
-
-
 def is_gaussian(method: Method) -> bool:
     """Whether a method is Gaussian (no particles; a run does not depend on the seed)."""
     return method.kind == "gaussian"
