@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import json
+import sys
 from collections import defaultdict
 
 import numpy as np
 import pytest
 
+from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.app.experiment import execute, run_experiment
 from nanoslam_jax.eval._rerun import ellipse, write_rerun
 
 rerun_chunk = pytest.importorskip("rerun.chunk", reason="output.rerun needs rerun-sdk (the viz extra)")
+
+# The short run of tests/test_motion_models.py (SHORT): its NANO-SLAM program is shared.
+SHORT = ["sim.duration=15", "filter.n_particles=5", "output.plots=false", "output.progress=false"]
 
 
 def read_rrd(path) -> dict[str, dict[str, list]]:
@@ -85,3 +92,60 @@ def test_writer_rejects_mismatched_shapes(tmp_path):
         write_rerun(tmp_path / "a.rrd", t, poses[:-1])
     with pytest.raises(ValueError, match="6 scans of points for 7 times"):
         write_rerun(tmp_path / "a.rrd", t, poses, pts[:-1])
+
+
+def test_missing_rerun_is_refused_before_the_run_naming_the_key_and_the_extra(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "rerun", None)  # `import rerun` raises ImportError
+    cfg = load_config(None, SHORT + ["output.rerun=run.rrd"])
+    with pytest.raises(ConfigError, match=r"output\.rerun.*pip install 'nanoslam-jax\[viz\]'"):
+        run_experiment(cfg, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    cfg = load_config(None, SHORT + ["output.rerun=replay/run.rrd"])
+    result = execute(cfg)
+    out = result.write(tmp_path_factory.mktemp("rerun_run"))
+    return result, out
+
+
+@pytest.mark.slow
+def test_a_run_records_every_scan_and_its_path_ends_at_the_trajectory(short_run):
+    result, out = short_run
+    rec = read_rrd(out / "replay" / "run.rrd")
+    n = len(result.times)
+    assert n > 10
+    for entity in ("/world/pose", "/world/scan", "/world/path"):
+        assert sorted(rec[entity]["scan"]) == list(range(n)), entity
+    pose = rec["/world/pose"]
+    last = np.asarray(pose["pose"][int(np.argmax(pose["scan"]))])
+    np.testing.assert_allclose(last, result.trajectory[-1], rtol=0, atol=1e-9)
+    csv = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(last, csv[-1, 1:4], rtol=0, atol=1e-6)  # trajectory.csv holds 6 decimals
+    path = rec["/world/path"]
+    strip = np.asarray(path["LineStrips2D:strips"][int(np.argmax(path["scan"]))][0])
+    np.testing.assert_allclose(strip[-1], result.trajectory[-1, :2], rtol=1e-6)  # the viewer's float32
+    n_det = np.asarray(result.log.segments.z_mask).sum(axis=1)  # the detections of each scan, projected
+    scans = rec["/world/scan"]
+    counts = [len(scans["Points2D:positions"][scans["scan"].index(i)]) for i in range(n)]
+    assert counts == n_det.tolist()
+    assert len(rec["/world/landmarks"]["Points2D:positions"][0]) == len(result.landmarks)
+    assert "warnings" not in json.loads((out / "metrics.json").read_text())
+
+
+@pytest.mark.slow
+def test_a_recording_that_fails_is_a_warning_and_the_other_results_stay(short_run, tmp_path, monkeypatch):
+    result, _ = short_run
+
+    def broken(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr("nanoslam_jax.app._replay.write_rerun", broken)
+    out = result.write(tmp_path / "out")
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert any(
+        w.startswith("output.rerun: no Rerun recording written (OSError: disk full)") for w in metrics["warnings"]
+    )
+    assert (out / "trajectory.csv").is_file() and (out / "map.csv").is_file()
+    assert not (out / "replay").exists()
