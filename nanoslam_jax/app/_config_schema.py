@@ -577,6 +577,14 @@ class OutputConfig:
     plots: bool = _f(True, static=True, doc="write the figures (trajectory.png, error.png, ess.png)")
     progress: bool = _f(True, static=True, doc="show a progress indicator")
     chunk: int = _f(1000, lo=1, static=True, doc="segments per compiled chunk (progress granularity)")
+    rerun: Optional[str] = _f(
+        None,
+        static=True,
+        doc="write a Rerun recording (.rrd) of the run to this file, relative to the result directory unless "
+        "absolute: per scan the path so far, the pose, the particles (filter.estimate: path) or a Gaussian "
+        "method's ellipse (last scan), the scan's points from the estimated pose, and the final map; open it "
+        "with `rerun FILE.rrd`; needs pip install 'nanoslam-jax[viz]'; null: none",
+    )
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from scipy.special import expit
 
 from nanoslam_jax.lib._cache import compile_stats
 from nanoslam_jax._version import __version__
-from nanoslam_jax.app.config import Config, config_to_dict, resolve_data_dir
+from nanoslam_jax.app.config import Config, ConfigError, config_to_dict, resolve_data_dir
 from nanoslam_jax.data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
 from nanoslam_jax.data._mrclam import sighting_map as _project_sightings
 from nanoslam_jax.methods import (
@@ -75,6 +75,9 @@ class LoadedLog:
         feature_truth: the true walls (lines), corners, pillars and break points a line map is
             judged against (an indoor log's, :class:`~nanoslam_jax.sim.indoor.FeatureTruth`),
             or None (no such truth, or a map of points).
+        reference: the reference path of ``data.reference`` (a ``ReferencePath``), or None.
+        scans: the raw laser scans the detections were found in (a
+            :class:`~nanoslam_jax.data.LaserScans`), or None (a log of detections only).
     """
 
     raw: RawLog
@@ -85,6 +88,7 @@ class LoadedLog:
     survey: Optional["Survey"] = None
     feature_truth: Any = None
     reference: Any = None  # a ReferencePath (data.reference) or None
+    scans: Any = None  # the raw LaserScans, or None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,7 +172,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         data_dir: a ``--data`` directory overriding ``data.path`` (with ``data.kind: indoor``, an
             indoor log directory read instead of simulating one).
     """
-    features = reference = None
+    features = reference = scans = None
     if cfg.data.kind == "simulated":
         from nanoslam_jax.sim.park import simulate_config
 
@@ -179,6 +183,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         indoor = simulate_indoor(cfg.indoor)
         raw, frame, features = indoor.raw, "slam", feature_truth(indoor.world)
         source = f"simulated indoor ({indoor.world.template}, seed {cfg.indoor.seed})"
+        scans = indoor.scans
         if cfg.data.detections != "file":
             raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
     elif cfg.data.format in ("carmen", "rosbag"):
@@ -195,9 +200,8 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         else:
             raw = load_victoria_park(directory, cfg.data.format, detections=cfg.data.detections == "file")
         if cfg.data.detections != "file":
-            raw = with_scan_detections(
-                raw, load_laser(directory), cfg.data.detections, cfg.detector, cfg.data.beam_step
-            )
+            scans = load_laser(directory)
+            raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
         frame = "slam" if raw.truth_poses is not None else "relative"
         source = raw.source or str(directory)
         features = read_feature_truth(directory)
@@ -239,7 +243,7 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         xy = np.asarray(raw.truth_landmarks, dtype=float)
         ids = np.arange(xy.shape[0]) if raw.landmark_ids is None else np.asarray(raw.landmark_ids, dtype=np.int64)
         survey = Survey(xy, ids)
-    return LoadedLog(raw, segments, frame, source, map_truth, survey, features, reference)
+    return LoadedLog(raw, segments, frame, source, map_truth, survey, features, reference, scans)
 
 
 def _load_laser_odom(cfg: Config, data_dir: Optional[str]):
@@ -471,7 +475,8 @@ class RunResult:
     def write(self, out_dir: str | Path, plots: Optional[bool] = None) -> Path:
         """Write the result directory: ``config.yaml`` (version and seed in its header),
         ``metrics.json``, ``trajectory.csv``, ``trajectory.tum`` (TUM format: ``time x y z qx qy
-        qz qw``, read by evo and other trajectory tools), ``map.csv`` and the figures.
+        qz qw``, read by evo and other trajectory tools), ``map.csv``, the figures and, last, the
+        Rerun recording of ``output.rerun`` (a failure to write it is a warning in ``metrics.json``).
 
         Args:
             out_dir: the directory (created).
@@ -509,6 +514,17 @@ class RunResult:
             _plots(
                 out, cfg, self.log, t, est, self.landmarks, self.ess, cfg.filter.n_particles, mk, self.dead_reckoning
             )
+        if cfg.output.rerun:  # last: a recording that fails costs a warning, not the run's other results
+            from nanoslam_jax.app._replay import record_run
+
+            try:
+                dim, names = _map_layout(cfg)
+                record_run(self, out, map_columns(dim, names is not None), names)
+            except Exception as e:  # any failure of the optional recording is reported, not raised
+                warning = f"output.rerun: no Rerun recording written ({type(e).__name__}: {e})"
+                print(f"warning: {warning}", file=sys.stderr)
+                self.metrics.setdefault("warnings", []).append(warning)
+                (out / "metrics.json").write_text(json.dumps(_json_safe(self.metrics), indent=2) + "\n")
         return out
 
 
@@ -692,6 +708,13 @@ def run_experiment(
     Raises:
         FloatingPointError: if the estimate became non-finite (the metrics are still written).
     """
+    if cfg.output.rerun:  # refused before the run, not after it, when the optional package is missing
+        from nanoslam_jax.eval._rerun import _require_rerun
+
+        try:
+            _require_rerun()
+        except ImportError as e:
+            raise ConfigError(str(e)) from None
     result = execute(cfg, data_dir, progress)
     if clear and Path(out_dir).is_dir():
         for entry in Path(out_dir).iterdir():
