@@ -606,7 +606,7 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
                "run": {{"batch": 2, "vectorize": "vmap", "compile_cache": False}}}}
         both = sweep_from_dict({{**raw, "shapes": {{"filter.method": ["fastslam1", "iterated"]}}}})
         run_sweep(both, {str(tmp_path / "devices")!r}, progress=False, parallel="devices", workers=2)  # 2 cores
-        split = sorted({{(e["static"].method, e["devices"]) for e in _batch.compile_events()}})
+        split = sorted({{(e["static"].method.name, e["devices"]) for e in _batch.compile_events()}})
         it = sweep_from_dict({{**raw, "base": {{**base, "filter": {{**base["filter"], "method": "iterated"}}}}}})
         run_sweep(it, {str(tmp_path / "single")!r}, progress=False, parallel="single")
         rows = {{}}

@@ -3,8 +3,10 @@ run (:func:`settings_from_config`), the method's static settings (:func:`method_
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Hashable
+from typing import Any
 
 import jax.numpy as jnp
 
@@ -94,3 +96,18 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         method=traced_of(method, cfg),
     )
     return static, params
+
+
+def static_summary(static: Static) -> dict[str, Any]:
+    """The static settings as plain values for a YAML or JSON record: the method by its name, each
+    nested settings object as a mapping of its fields."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(static):
+        value = getattr(static, f.name)
+        if f.name == "method":
+            out[f.name] = value.name
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            out[f.name] = dataclasses.asdict(value)
+        else:
+            out[f.name] = value
+    return out

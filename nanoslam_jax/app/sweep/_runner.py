@@ -27,6 +27,7 @@ from nanoslam_jax.app.config import ConfigError
 from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE, available_cores, setup_devices
 from nanoslam_jax.methods import NOISE_ARC_SUMMARY_KEYS, NOISE_SUMMARY_KEYS, NasrukfStatic
 from nanoslam_jax.app.registry import method_names
+from nanoslam_jax.app._build import static_summary
 from nanoslam_jax.app.sweep._batch import BatchTask, LogData, _first_line, execute_batch, load_log_data, log_key
 from nanoslam_jax.app.sweep._results import (
     ResultsFile,
@@ -291,7 +292,7 @@ def _write_metadata(
             "batch": g.batch,
             "log": by_id[g.log_id].source,
             "segments": int(by_id[g.log_id].segments.time.shape[0]),
-            "static": dataclasses.asdict(g.static),
+            "static": static_summary(g.static),
         }
         for g in groups
     }
