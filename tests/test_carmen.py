@@ -385,3 +385,69 @@ def test_mit_csail_dead_reckoning_run_scores_the_reference(tmp_path):
     assert 400 <= m["dr_ref_n"] <= 406
     assert 8.6 < m["dr_ref_rmse"] < 8.8 and 14.0 < m["dr_ref_max"] < 14.4
     assert 0.07 < m["dr_ref_rel_trans"] < 0.08 and 5.0 < m["dr_ref_rel_rot_deg"] < 5.2
+
+
+@pytest.mark.slow
+def test_compare_scores_every_method_against_the_reference_path(tmp_path):
+    """A log without GPS and with a reference path: compare scores each row against the reference.
+    The reference is the odometry moved by a rigid transform, so dead reckoning's aligned error and
+    relative-motion errors are zero (closed form), and the figures are drawn from the reference."""
+    import csv
+
+    import yaml
+
+    from nanoslam_jax.app.compare import run_compare
+    from nanoslam_jax.app._compare_spec import load_compare_spec
+
+    f = _wall_scans(tmp_path)
+    log = load_carmen(f)
+    raw, _ = laser_odom_raw(log)
+    path = _euler(raw.dr, log.odom[0])[0::2]  # the controls' own path, integrated here
+    c, s = math.cos(0.5), math.sin(0.5)
+    rows = ["time,x,y,theta"]
+    for k, (x, y, th) in enumerate(path):
+        rows.append(
+            f"{float(log.scans.time[k])!r},{float(c * x - s * y + 5.0)!r},{float(s * x + c * y - 3.0)!r},{float(th + 0.5)!r}"
+        )
+    ref = write(tmp_path / "ref.csv", rows)
+    spec_file = tmp_path / "cmp.yaml"
+    spec_file.write_text(
+        yaml.safe_dump(
+            {
+                "name": "walls",
+                "seeds": 2,
+                "set": [
+                    "data.kind=victoria_park",
+                    "data.format=carmen",
+                    f"data.path={f}",
+                    "data.detections=laser_lines",
+                    "model.motion=unicycle",
+                    "model.measurement=line",
+                    "data.max_range=30",
+                    "detector.max_range=30",
+                    f"data.reference={ref}",
+                    "filter.n_particles=4",
+                    "filter.capacity=16",
+                    "filter.window=8",
+                    "output.progress=false",
+                ],
+                "methods": [
+                    {"label": "DR", "set": ["filter.method=dead_reckoning"]},
+                    {"label": "FastSLAM 2.0", "set": ["filter.method=fastslam2"]},
+                ],
+            }
+        )
+    )
+    out = tmp_path / "out"
+    table = run_compare(load_compare_spec(spec_file), out)
+    dr, fs2 = table
+    assert dr["ref_rmse_median"] < 1e-5 and dr["ref_rel_trans_median"] < 1e-5 and dr["ref_rel_rot_deg_median"] < 1e-4
+    assert (
+        fs2["seeds"] == 2 and math.isfinite(fs2["ref_rmse_median"]) and fs2["ref_rmse_worst"] >= fs2["ref_rmse_median"]
+    )
+    with open(out / "table1.csv") as fh:
+        csv_rows = list(csv.DictReader(fh))
+    assert float(csv_rows[0]["ref_rmse_median"]) < 1e-5
+    md = (out / "table1.md").read_text()
+    assert "path error [m]" in md and "| DR | 1 |" in md
+    assert (out / "fig3_trajectories.png").stat().st_size > 0 and (out / "fig4_error.png").stat().st_size > 0

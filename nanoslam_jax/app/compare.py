@@ -314,11 +314,11 @@ def run_compare(
     first = next(iter(configs.values()))
     key_of = log_key
     logs[key_of(first)] = load_log(first, data_dir)  # a bad log fails before anything is written
-    if not len(logs[key_of(first)].raw.gps):
+    if not len(logs[key_of(first)].raw.gps) and logs[key_of(first)].reference is None:
         raise ConfigError(
-            f"{spec.source}: compare scores the trajectories against GPS, and the log "
-            f"{logs[key_of(first)].source} has none; score its map with `nanoslam sweep` "
-            f"(metric: survey_rmse) or `nanoslam run`"
+            f"{spec.source}: compare scores the trajectories against GPS or a reference path "
+            f"(data.reference), and the log {logs[key_of(first)].source} has neither; score its map "
+            f"with `nanoslam sweep` (metric: survey_rmse) or `nanoslam run`"
         )
     write_resolved(out, spec)
 
@@ -363,9 +363,13 @@ def run_compare(
             (out / f"error-{safe}.txt").write_text(traceback.format_exc())
         results.append(res)
         r = summarise(res)
+        score = (
+            f"path error against the reference {format_number(r['ref_rmse_median'])} m"
+            if "ref_rmse_median" in r
+            else f"rmse_fixed {format_number(r['rmse_fixed_median'])}, rmse_aligned {format_number(r['rmse_aligned_median'])}"
+        )
         stream.write(
-            f"    {res.status} in {time.perf_counter() - t0:.1f} s: rmse_fixed {format_number(r['rmse_fixed_median'])}, "
-            f"rmse_aligned {format_number(r['rmse_aligned_median'])}, {format_number(res.ms_per_scan, 2)} ms/scan\n"
+            f"    {res.status} in {time.perf_counter() - t0:.1f} s: {score}, {format_number(res.ms_per_scan, 2)} ms/scan\n"
         )
         stream.flush()
         # Written after every method: an interrupted comparison keeps what it finished.
@@ -377,14 +381,58 @@ def run_compare(
 
 
 def _figures(out: Path, spec: CompareSpec, results: list[MethodResult], logs: dict, configs: dict) -> None:
-    from nanoslam_jax.eval.metrics import error_over_time, jump_mask, relative_gps
-    from nanoslam_jax.eval.plotting import plot_series, plot_trajectory_grid
+    from nanoslam_jax.eval.plotting import plot_series
 
     ok = [r for r in results if r.trajectory is not None and np.all(np.isfinite(r.trajectory))]
     if not ok:
         return
     cfg = configs[ok[0].spec.label]
     log = next(iter(logs.values()))
+    if not len(log.raw.gps) and log.reference is not None:
+        _reference_figures(out, spec, ok, log)
+    else:
+        _gps_figures(out, spec, ok, log, cfg)
+    timed = [(r.spec.label, r.chunk_t, r.chunk_ms) for r in results if r.chunk_ms is not None]
+    if timed:
+        plot_series(
+            out / "fig5_time.png",
+            timed,
+            "computation time per scan [ms]",
+            f"{spec.name}: time per scan (mean over chunks of {spec.timing_chunk} scans)",
+            logy=True,
+            marker=".",
+        )
+
+
+def _reference_figures(out: Path, spec: CompareSpec, ok: list[MethodResult], log) -> None:
+    """Figures 3 and 4 against a reference path: every path aligned onto it, and the aligned error
+    at the reference poses."""
+    from nanoslam_jax.eval import align_on_reference
+    from nanoslam_jax.eval.plotting import plot_series, plot_trajectory_grid
+
+    t = np.asarray(log.segments.time)
+    ref = log.reference
+    aligned = [(r.spec.label, *align_on_reference(ref, t, r.trajectory)) for r in ok]
+    plot_trajectory_grid(
+        out / "fig3_trajectories.png",
+        ref.poses[:, :2],
+        [(label, path, None) for label, path, _ in aligned],
+        reference_label=f"reference ({ref.source})",
+        title=f"{spec.name}: seed {spec.first_seed}, each path rigidly aligned onto the reference",
+    )
+    plot_series(
+        out / "fig4_error.png",
+        [(label, err[:, 0], err[:, 1]) for label, _, err in aligned],
+        "position error [m]",
+        f"{spec.name}: error against the reference path after alignment (seed {spec.first_seed})",
+    )
+
+
+def _gps_figures(out: Path, spec: CompareSpec, ok: list[MethodResult], log, cfg: Config) -> None:
+    """Figures 3 and 4 against GPS (or a simulated log's truth)."""
+    from nanoslam_jax.eval.metrics import error_over_time, jump_mask, relative_gps
+    from nanoslam_jax.eval.plotting import plot_series, plot_trajectory_grid
+
     gps = log.raw.gps
     t = np.asarray(log.segments.time)
     ref = relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" else gps[:, 1:3]
@@ -410,13 +458,3 @@ def _figures(out: Path, spec: CompareSpec, results: list[MethodResult], logs: di
         "position error [m]",
         f"{spec.name}: error against {ref_label}, GPS jumps removed (seed {spec.first_seed})",
     )
-    timed = [(r.spec.label, r.chunk_t, r.chunk_ms) for r in results if r.chunk_ms is not None]
-    if timed:
-        plot_series(
-            out / "fig5_time.png",
-            timed,
-            "computation time per scan [ms]",
-            f"{spec.name}: time per scan (mean over chunks of {spec.timing_chunk} scans)",
-            logy=True,
-            marker=".",
-        )

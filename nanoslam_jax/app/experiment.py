@@ -251,7 +251,7 @@ def _load_laser_odom(cfg: Config, data_dir: Optional[str]):
     (or None)."""
     import os
 
-    from nanoslam_jax.eval._reference_metrics import ReferencePath
+    from nanoslam_jax.eval import ReferencePath
     from nanoslam_jax.data._carmen import load_carmen
     from nanoslam_jax.data._laser_log import laser_odom_raw
     from nanoslam_jax.data._reference import load_reference
@@ -652,10 +652,10 @@ def execute(
     # filter's own estimate; after the smoother: the path it started from) the other trajectories.
     others = None if other is None else companion_tracks(static.estimate, best_pose, mean, unsmoothed)
     metrics.update(score_run(log, est, cfg.metrics, lm, others))
-    if log.reference is not None:  # data.reference: the path and dead reckoning against a reference path
-        from nanoslam_jax.eval._reference_metrics import score_reference
+    if log.reference is not None and np.all(np.isfinite(dr_poses)):  # dead reckoning against the reference path
+        from nanoslam_jax.eval import score_reference
 
-        metrics.update(score_reference(log.reference, t, est, dr_poses if np.all(np.isfinite(dr_poses)) else None))
+        metrics.update(score_reference(log.reference, t, None, dr_poses))
     if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:
         metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
     if "rmse_heading_deg" in metrics and cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):

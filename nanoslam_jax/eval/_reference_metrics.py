@@ -15,7 +15,14 @@ import numpy as np
 
 from nanoslam_jax.eval._align import rigid_align
 
-__all__ = ["ReferencePath", "reference_report", "relative_motion_error", "score_reference", "trajectory_error"]
+__all__ = [
+    "ReferencePath",
+    "align_on_reference",
+    "reference_report",
+    "relative_motion_error",
+    "score_reference",
+    "trajectory_error",
+]
 
 
 def _wrap(a):
@@ -114,22 +121,54 @@ class ReferencePath:
     source: str = ""
 
 
-def score_reference(ref: ReferencePath, times: np.ndarray, est: np.ndarray, dr: np.ndarray | None = None) -> dict:
+def _matched(ref: ReferencePath, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each reference pose, the index of the path time it falls on and whether one does
+    (within 1 microsecond)."""
+    times = np.asarray(times, dtype=np.float64)
+    j = np.clip(np.searchsorted(times, ref.time), 0, max(times.size - 1, 0))
+    ok = np.abs(times[j] - ref.time) <= 1e-6 if times.size else np.zeros(ref.time.shape, bool)
+    return j, ok
+
+
+def align_on_reference(ref: ReferencePath, times: np.ndarray, est: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A path moved onto the reference by its best-fit rigid alignment at the reference poses, for
+    drawing it with the reference.
+
+    Args:
+        ref: the reference path.
+        times: ``(T,)`` the times of the path's poses (s).
+        est: ``(T, 2+)`` the path's poses at ``times``.
+
+    Returns:
+        ``(aligned, error)``: ``(T, 2)`` every position of the path after the alignment, and
+        ``(n, 2)`` the reference times that are also path times with the aligned position error
+        there (m). Both empty when no reference time is a path time.
+    """
+    est = np.asarray(est, dtype=np.float64)
+    j, ok = _matched(ref, times)
+    if ok.sum() == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    R, t, aligned = rigid_align(est[j[ok], :2], ref.poses[ok, :2])
+    err = np.linalg.norm(aligned - ref.poses[ok, :2], axis=1)
+    return est[:, :2] @ R.T + t, np.stack([ref.time[ok], err], axis=1)
+
+
+def score_reference(
+    ref: ReferencePath, times: np.ndarray, est: np.ndarray | None, dr: np.ndarray | None = None
+) -> dict:
     """The :func:`reference_report` of a run's path (``ref_*``) and of its dead reckoning (``dr_ref_*``).
 
     Args:
         ref: the reference path.
         times: ``(T,)`` the times of the path's poses (s).
-        est: ``(T, 3)`` the estimated poses at ``times``.
+        est: ``(T, 3)`` the estimated poses at ``times``, or None (only dead reckoning's figures).
         dr: ``(T, 3)`` the dead-reckoned poses at ``times``, or None.
 
     Returns:
         The metrics, compared at the reference times that are also path times (within 1 microsecond);
         ``ref_n`` says how many. Empty when none is.
     """
-    times = np.asarray(times, dtype=np.float64)
-    j = np.clip(np.searchsorted(times, ref.time), 0, max(times.size - 1, 0))
-    ok = np.abs(times[j] - ref.time) <= 1e-6 if times.size else np.zeros(ref.time.shape, bool)
+    j, ok = _matched(ref, times)
     if ok.sum() == 0:
         return {}
     out = {}

@@ -42,6 +42,7 @@ from typing import Any, Mapping, NamedTuple, Optional, Sequence
 
 import numpy as np
 
+from nanoslam_jax.eval._reference_metrics import score_reference
 from nanoslam_jax.eval.metrics import evaluate, feature_map_errors, map_summary, rmse_heading_deg, survey_summary
 
 __all__ = [
@@ -222,7 +223,10 @@ def score_run(
         ``n_corners``, ``n_corners_matched``, ``n_break_points``, ``n_break_points_matched`` and
         ``n_lines_est``; with arcs in the map (:func:`with_arcs`) or in the truth also the arcs'
         figures below; for a map of circles against its true pillars,
-        ``arc_centre_*``, ``arc_radius_*``, ``n_arcs``, ``n_arcs_matched`` and ``n_arcs_est``).
+        ``arc_centre_*``, ``arc_radius_*``, ``n_arcs``, ``n_arcs_matched`` and ``n_arcs_est``); with a
+        finite ``est`` that has headings and a log with a reference path (``log.reference``, a
+        :class:`~nanoslam_jax.eval.ReferencePath`), the ``ref_*`` figures of
+        :func:`~nanoslam_jax.eval.score_reference`.
     """
     t = np.asarray(log.segments.time)
     gps = _gps(log)
@@ -239,6 +243,9 @@ def score_run(
             if np.all(np.isfinite(other)):
                 o = evaluate(t, other[:, :2], gps, **mk)
                 out.update({f"rmse_fixed_{tag}": o["rmse_fixed"], f"rmse_aligned_{tag}": o["rmse_aligned"]})
+    reference = getattr(log, "reference", None)
+    if finite and reference is not None and est.ndim == 2 and est.shape[1] >= 3:
+        out.update(score_reference(reference, t, est))
     truth = _truth_poses(log)
     if finite and truth is not None and est.ndim == 2 and est.shape[1] >= 3:
         out["rmse_heading_deg"] = rmse_heading_deg(t, est[:, 2], truth)
