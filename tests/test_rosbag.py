@@ -7,7 +7,6 @@ interpolation, float32-rounded ranges and angles as the messages hold them).
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from dataclasses import dataclass, field, replace
 from decimal import Decimal
@@ -420,34 +419,57 @@ def test_not_a_bag(tmp_path):
 # ----------------------------------------------------------------------------- CARMEN equivalence
 
 
-@pytest.mark.skipif(
-    importlib.util.find_spec("nanoslam_jax.data._carmen") is None,
-    reason="nanoslam_jax.data._carmen (the CARMEN reader) is not in this checkout yet",
-)
-def test_a_bag_and_the_equivalent_carmen_file_give_the_same_log(tmp_path):
-    from nanoslam_jax.data._carmen import load_carmen
+def _room_ranges(poses: np.ndarray, angle_min: float, angle_increment: float) -> np.ndarray:
+    """Ranges of BEAMS beams from each laser pose inside the room |x| <= 5, |y| <= 4, ray-cast here."""
+    a = poses[:, 2:3] + angle_min + angle_increment * np.arange(BEAMS)
+    c, s = np.cos(a), np.sin(a)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        hits = [
+            np.where(c > 1e-12, (5 - poses[:, :1]) / c, np.inf),
+            np.where(c < -1e-12, (-5 - poses[:, :1]) / c, np.inf),
+            np.where(s > 1e-12, (4 - poses[:, 1:2]) / s, np.inf),
+            np.where(s < -1e-12, (-4 - poses[:, 1:2]) / s, np.inf),
+        ]
+    return np.min(hits, axis=0)
 
-    sim = replace(simulate(n_scans=24, seed=5), tf=[])
+
+def _equivalent_logs(tmp_path: Path, kind: str) -> tuple[Path, Path]:
+    """The same drive through a rectangular room written as a bag of ``kind`` and as a CARMEN file
+    (odometry at every scan, as FLASER lines carry it; 81.91 for no return)."""
+    sim = replace(simulate(n_scans=40, seed=5), tf=[])
     sim.scan_ns.sort()
-    sim.odom_ns = list(sim.scan_ns)  # odometry at every scan: CARMEN's FLASER pose
+    sim.odom_ns = list(sim.scan_ns)
     s = (np.array(sim.odom_ns) - sim.odom_ns[0]) / 1e9
-    sim.odom = np.column_stack([1.0 + s, 0.5 * s, np.arctan2(np.sin(3.0 + s), np.cos(3.0 + s))])
+    sim.odom = np.column_stack(
+        [-2.0 + 0.8 * s, -1.0 + 0.3 * s, np.arctan2(np.sin(0.4 + 0.1 * s), np.cos(0.4 + 0.1 * s))]
+    )
+    r = _room_ranges(sim.odom, sim.angle_min, sim.angle_increment)
+    r[:, 5::23] = np.nan  # a few no returns
     no_return = 81.91
     sim.range_max = [no_return] * len(sim.scan_ns)
-    r = sim.ranges.copy()
     r[~np.isfinite(r) | (r < RANGE_MIN) | (r >= RANGE_MAX)] = no_return
     sim.ranges = r.astype(np.float32)
-    with pytest.warns(UserWarning, match="mounting is taken as zero"):
-        bag = load_rosbag(write_bag(tmp_path, sim, "sqlite3", topics=("/scan", "/odom")))
+    bag = write_bag(tmp_path, sim, kind, topics=("/scan", "/odom"))
     lines = []
     for ns, ranges, (x, y, th) in zip(sim.scan_ns, sim.ranges, sim.odom):
         t = f"{ns // 10**9}.{ns % 10**9:09d}"
         values = " ".join(repr(float(v)) if v < RANGE_MAX else "81.91" for v in ranges)
         pose = " ".join(repr(float(v)) for v in (x, y, th))
         lines.append(f"FLASER {BEAMS} {values} {pose} {pose} {t} host {t}")
-    (tmp_path / "log.clf").write_text("# written by the test\n" + "\n".join(lines) + "\n")
-    carmen = load_carmen(tmp_path / "log.clf")
-    assert carmen.n_scans == bag.n_scans == 24
+    clf = tmp_path / "log.clf"
+    clf.write_text("# written by the test\n" + "\n".join(lines) + "\n")
+    return bag, clf
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_bag_and_the_equivalent_carmen_file_give_the_same_log(tmp_path, kind):
+    from nanoslam_jax.data._carmen import load_carmen
+
+    bag_path, clf = _equivalent_logs(tmp_path, kind)
+    with pytest.warns(UserWarning, match="mounting is taken as zero"):
+        bag = load_rosbag(bag_path)
+    carmen = load_carmen(clf)
+    assert carmen.n_scans == bag.n_scans == 40
     np.testing.assert_array_equal(carmen.scans.time, bag.scans.time)
     np.testing.assert_array_equal(carmen.scans.valid, bag.scans.valid)
     np.testing.assert_array_equal(carmen.scans.ranges[bag.scans.valid], bag.scans.ranges[bag.scans.valid])
@@ -455,6 +477,49 @@ def test_a_bag_and_the_equivalent_carmen_file_give_the_same_log(tmp_path):
     np.testing.assert_allclose(carmen.scans.angles, bag.scans.angles, rtol=0, atol=1e-6)
     np.testing.assert_allclose(carmen.odom, bag.odom, rtol=0, atol=1e-9)
     np.testing.assert_allclose(carmen.laser_pose, bag.laser_pose, rtol=0, atol=1e-9)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_a_bag_and_the_equivalent_carmen_file_give_the_same_trajectory(tmp_path, kind):
+    """EKF-SLAM on the room's walls, from the bag and from the CARMEN file: the same path to the
+    bag's float32 beam angles (largest difference below 1e-4 m and 1e-5 rad)."""
+    import warnings
+
+    from nanoslam_jax.app.config import load_config
+    from nanoslam_jax.app.experiment import load_log
+    from nanoslam_jax.app.filters import settings_from_config
+    from nanoslam_jax.methods import reported_trajectory, run_filter
+
+    bag_path, clf = _equivalent_logs(tmp_path, kind)
+    common = [
+        "data.detections=laser_lines",
+        "model.motion=unicycle",
+        "model.measurement=line",
+        "data.max_range=25",
+        "detector.max_range=25",
+        "filter.method=ekf_slam",
+        "filter.capacity=16",
+        "filter.window=8",
+        "data.k_max=8",
+    ]
+    paths = {}
+    for name, sets, path in (
+        ("bag", ["data.kind=victoria_park", "data.format=rosbag"], bag_path),
+        ("carmen", ["data.kind=victoria_park", "data.format=carmen"], clf),
+    ):
+        cfg = load_config(None, common + sets)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # the bag's mounting taken as zero
+            log = load_log(cfg, str(path))
+        static, params = settings_from_config(cfg, log.segments.k_max)
+        run = run_filter(static, params, log.segments, 0)
+        paths[name] = np.asarray(reported_trajectory(static.estimate, run.outputs, run.state))
+        assert int(np.asarray(run.state.landmark_map().active).sum()) >= 2  # walls were mapped
+    bag_est, carmen_est = paths["bag"], paths["carmen"]
+    assert bag_est.shape == carmen_est.shape and np.all(np.isfinite(bag_est))
+    assert np.max(np.abs(bag_est[:, :2] - carmen_est[:, :2])) < 1e-4
+    assert np.max(np.abs(np.angle(np.exp(1j * (bag_est[:, 2] - carmen_est[:, 2]))))) < 1e-5
 
 
 # ----------------------------------------------------------------------------- config and load_log
