@@ -90,7 +90,8 @@ class DataConfig:
         doc="data.format carmen or rosbag: a reference path scored in metrics.json (ref_* for the estimate, dr_ref_* for "
         "dead reckoning: RMSE and worst error after a rigid alignment, mean relative-motion error between "
         "consecutive reference poses): a corrected CARMEN log (matched by identical ranges), a CSV "
-        "(time,x,y,theta) or TUM file (matched by time); null: none",
+        "(time,x,y,theta) or TUM file (matched by time); a relative path is looked up from the working "
+        "directory, then beside the log (data.path or --data); null: none",
     )
     robot: int = _f(1, lo=1, hi=5, static=True, doc="data.format mrclam: which robot's log (1-5)")
     scan_topic: str = _f(

@@ -264,11 +264,12 @@ def _load_laser_odom(cfg: Config, data_dir: Optional[str]):
         root = Path(__file__).resolve().parents[2] / q
         return q if q.exists() or q.is_absolute() or not root.exists() else root
 
+    given = data_dir or d.path or os.environ.get("NANOSLAM_DATA") or "../shared/data/carmen/mit-csail"
     if d.format == "rosbag":
         bag = resolve_data_dir(cfg, data_dir)
+        given = str(bag)
         log = load_rosbag(bag, scan_topic=d.scan_topic, odom_topic=d.odom_topic, laser_pose=d.laser_pose)
     else:
-        given = data_dir or d.path or os.environ.get("NANOSLAM_DATA") or "../shared/data/carmen/mit-csail"
         log = load_carmen(
             find(given), laser_start_deg=d.laser_start_deg, laser_step_deg=d.laser_step_deg, no_return=d.no_return_m
         )
@@ -282,7 +283,9 @@ def _load_laser_odom(cfg: Config, data_dir: Optional[str]):
     raw, scans = laser_odom_raw(log)
     reference = None
     if d.reference is not None:
-        index, poses = load_reference(find(d.reference), log)
+        q, where = Path(d.reference).expanduser(), find(given)
+        beside = (where if where.is_dir() else where.parent) / q
+        index, poses = load_reference(beside if not q.is_absolute() and not q.exists() and beside.exists() else q, log)
         reference = ReferencePath(log.scans.time[index], poses, float(log.laser_pose[2]), str(d.reference))
     return raw, scans, log.source, reference
 
