@@ -422,9 +422,9 @@ def _reference_figures(out: Path, spec: CompareSpec, ok: list[MethodResult], log
     )
     plot_series(
         out / "fig4_error.png",
-        [(label, err[:, 0], err[:, 1]) for label, _, err in aligned],
+        [(label, err[:, 0] - t[0], err[:, 1]) for label, _, err in aligned],
         "position error [m]",
-        f"{spec.name}: error against the reference path after alignment (seed {spec.first_seed})",
+        f"{spec.name}: error against the reference path after alignment (seed {spec.first_seed}; time from the log's start)",
     )
 
 

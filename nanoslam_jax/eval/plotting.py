@@ -239,3 +239,37 @@ def plot_feature_map(
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
+
+
+def plot_scan_maps(
+    path: Path,
+    panels: Sequence[tuple[str, np.ndarray, np.ndarray, Optional[np.ndarray]]],
+    title: str = "",
+) -> None:
+    """The map a laser log gives from a path: every scan's returns drawn from the pose it was taken
+    at, one panel per path (for example the estimate beside dead reckoning).
+
+    Args:
+        path: output PNG.
+        panels: ``(label, (N, 2) scan points in the path's frame, (T, 2) the path, (L, 2, 2)
+            landmark line segments or None)`` per panel.
+        title: figure title.
+    """
+    n = max(len(panels), 1)
+    fig, axes = plt.subplots(1, n, figsize=(7 * n, 7), squeeze=False)
+    for ax, (label, points, xy, segments) in zip(axes[0], panels):
+        points = np.asarray(points, float).reshape(-1, 2)
+        ax.plot(points[:, 0], points[:, 1], ",", color="0.2", alpha=0.35)
+        ax.plot(xy[:, 0], xy[:, 1], "-", lw=0.8, color="C0", label=f"{label}: path")
+        if segments is not None and len(segments):
+            for i, s in enumerate(np.asarray(segments, float)):
+                ax.plot(s[:, 0], s[:, 1], "-", lw=1.4, color="C3", label="landmark lines" if i == 0 else None)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(label, fontsize=10)
+        ax.legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
