@@ -77,7 +77,7 @@ def _parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="override a config key, e.g. --set filter.n_particles=20 (repeatable)",
     )
-    r.add_argument("--quiet", action="store_true", help="no progress indicator")
+    r.add_argument("--quiet", action="store_true", help="no progress indicator and no compile messages")
 
     g = sub.add_parser(
         "config",
@@ -171,6 +171,7 @@ def _parser() -> argparse.ArgumentParser:
         help="override a config key for every method (repeatable)",
     )
     c.add_argument("--no-plots", action="store_true", help="skip Figures 3-5 (a study: its figure)")
+    c.add_argument("--quiet", action="store_true", help="no compile messages on stderr")
     c.add_argument("--quick", action="store_true", help="study files: run the file's 'quick' variant")
     c.add_argument("--resume", action="store_true", help="study files: continue the study in --out")
     c.add_argument("--methods", nargs="+", metavar="LABEL", help="study files: run only these methods (labels)")
@@ -480,6 +481,10 @@ def _detect(args) -> int:
     return 0
 
 
+#: The commands that say on stderr what they compile (:mod:`nanoslam_jax.app._compile_report`).
+_COMPILING = ("run", "compare", "sweep", "detect")
+
+
 @in_float64
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of the ``nanoslam`` console script."""
@@ -503,14 +508,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
             compile_stats()  # count this command's compile time from the start
             enable_compile_cache()
-        return {
+        command = {
             "run": _run,
             "config": _config,
             "simulate": _simulate,
             "compare": _compare,
             "sweep": _sweep,
             "detect": _detect,
-        }[args.command](args)
+        }[args.command]
+        if args.command not in _COMPILING:
+            return command(args)
+        from nanoslam_jax.app._compile_report import compile_messages
+
+        with compile_messages(enabled=not getattr(args, "quiet", False)):
+            return command(args)
     except (ConfigError, LogFormatError, FileNotFoundError, ValueError, FloatingPointError) as e:
         print(f"nanoslam: error: {e}", file=sys.stderr)
         return 2

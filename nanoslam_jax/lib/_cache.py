@@ -34,6 +34,7 @@ and misses, for ``metrics.json`` and the benchmark.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import gc
@@ -44,13 +45,15 @@ import os
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Iterator, Optional, Protocol
 
 import jax
 
 __all__ = [
     "CACHE_ENV",
     "CompileStats",
+    "CompileWatcher",
+    "ProgramInfo",
     "compile_program",
     "compile_stats",
     "default_cache_dir",
@@ -59,6 +62,8 @@ __all__ = [
     "program_cache",
     "program_key",
     "release_programs",
+    "watch_compiles",
+    "watched_compile",
 ]
 
 #: Environment variable that moves the cache directory.
@@ -221,6 +226,122 @@ def compile_stats() -> CompileStats:
         jax.monitoring.register_event_duration_secs_listener(_on_duration)
         jax.monitoring.register_event_listener(_on_event)
     return dataclasses.replace(_STATS)
+
+
+# --------------------------------------------------------------------------- compile watchers
+
+
+@dataclasses.dataclass(frozen=True)
+class ProgramInfo:
+    """What a compilation is about, as :func:`watched_compile` tells a :class:`CompileWatcher`.
+
+    Attributes:
+        label: what the program is (``"filter program"``, ``"sweep batch program"``).
+        static: the program's static settings (the filter's ``Static``: its ``method``,
+            ``n_particles``, ``capacity``, ``k_max``, ``row_buckets`` and ``devices``).
+        shapes: each argument leaf's type and shape (``"float64[10,3]"``), in tree order.
+        segments: log segments per call of the program.
+        batch: runs the program computes side by side (1: one run).
+        cache_dir: the persistent compilation cache directory in use (None: the cache is off).
+        expect_load: whether the program is expected to load from the cache: True when its traced
+            program is in ``exported/``, False when it is not (or the cache is off), None when
+            nothing tells.
+    """
+
+    label: str
+    static: Any
+    shapes: tuple[str, ...]
+    segments: int
+    batch: int = 1
+    cache_dir: Optional[str] = None
+    expect_load: Optional[bool] = None
+
+
+class CompileHandle(Protocol):
+    """One compilation in progress, as a :class:`CompileWatcher` follows it."""
+
+    def finished(self, loaded: bool) -> None:
+        """The program is ready; ``loaded``: its executable came from the persistent cache."""
+
+    def failed(self, error: BaseException) -> None:
+        """Compiling raised ``error`` (a ``KeyboardInterrupt`` too); it is raised on after this."""
+
+
+class CompileWatcher(Protocol):
+    """What :func:`watch_compiles` installs: told of each compilation :func:`watched_compile` wraps."""
+
+    def start(self, info: ProgramInfo) -> CompileHandle: ...
+
+
+_WATCHERS: list[CompileWatcher] = []
+
+
+@contextlib.contextmanager
+def watch_compiles(watcher: CompileWatcher) -> Iterator[CompileWatcher]:
+    """Tell ``watcher`` of every compilation :func:`watched_compile` wraps while the block runs
+    (the innermost watcher only). The core only calls the watcher; what it prints or records is
+    the caller's (the command line's compile messages)."""
+    _WATCHERS.append(watcher)
+    try:
+        yield watcher
+    finally:
+        _WATCHERS.remove(watcher)
+
+
+def _shapes(args: tuple) -> tuple[str, ...]:
+    return tuple(str(jax.typeof(x)) if hasattr(x, "shape") else type(x).__name__ for x in jax.tree.leaves(args))
+
+
+@contextlib.contextmanager
+def watched_compile(
+    label: str,
+    static: Any,
+    args: tuple,
+    *,
+    segments: int,
+    batch: int = 1,
+    expect_load: Optional[bool] = None,
+) -> Iterator[None]:
+    """Wrap the compilation (or loading) of one program for the watcher of :func:`watch_compiles`.
+
+    Without a watcher this does nothing. With one, the watcher's :meth:`~CompileWatcher.start` is
+    called before the block and the handle's ``finished`` or ``failed`` after it. Whether the
+    program was loaded from the persistent cache is JAX's own count (its monitoring events: a
+    cache hit during the block), not a guess from the time. A watcher that raises is ignored: what
+    it reports never changes a program.
+
+    Args:
+        label: what the program is, for the message.
+        static: the program's static settings.
+        args: its example arguments (their shapes enter :attr:`ProgramInfo.shapes`).
+        segments: log segments per call.
+        batch: runs side by side in the program.
+        expect_load: see :attr:`ProgramInfo.expect_load`.
+    """
+    if not _WATCHERS:
+        yield
+        return
+    watcher = _WATCHERS[-1]
+    cache = jax.config.jax_compilation_cache_dir or None  # type: ignore[attr-defined]  # jax.config's options are dynamic
+    handle: Optional[CompileHandle] = None
+    try:
+        info = ProgramInfo(
+            label, static, _shapes(args), int(segments), int(batch), cache, expect_load if cache else False
+        )
+        before = compile_stats()
+        handle = watcher.start(info)
+    except Exception:  # a watcher's failure must not stop the compilation
+        handle = None
+    try:
+        yield
+    except BaseException as e:
+        if handle is not None:
+            with contextlib.suppress(Exception):
+                handle.failed(e)
+        raise
+    if handle is not None:
+        with contextlib.suppress(Exception):
+            handle.finished(compile_stats().since(before).cache_hits > 0)
 
 
 # --------------------------------------------------------------------------- traced programs
@@ -537,7 +658,9 @@ def _write_exported(path: Path, key: str, in_tree, exported, out_tree) -> None:
         raise
 
 
-def compile_program(fn: jax.stages.Wrapped, static: Any, *args: Any) -> Callable:
+def compile_program(
+    fn: jax.stages.Wrapped, static: Any, *args: Any, label: str = "program", segments: int = 0, batch: int = 1
+) -> Callable:
     """``fn.lower(static, *args).compile()``, loading the traced program from the cache when it can.
 
     Without a cache directory (:func:`enable_compile_cache` not called, or ``--no-cache``), or for
@@ -556,20 +679,32 @@ def compile_program(fn: jax.stages.Wrapped, static: Any, *args: Any) -> Callable
         fn: a ``jax.jit`` function whose first argument is static.
         static: that static argument.
         *args: example arguments (their shapes, dtypes and placement are those of every call).
+        label, segments, batch: what the program is, for the watcher of :func:`watch_compiles`
+            (:func:`watched_compile`): a name, the log segments per call, the runs side by side.
 
     Returns:
         A callable taking ``*args`` and returning ``fn``'s output.
     """
     release_programs()
     directory = _exported_dir()
+    watched = functools.partial(watched_compile, label, static, args, segments=segments, batch=batch)
     if directory is None or getattr(static, "devices", 1) > 1:
-        return fn.lower(static, *args).compile()
+        with watched():
+            return fn.lower(static, *args).compile()
     key = program_key(fn, static, args)
     if key is None:
-        return fn.lower(static, *args).compile()
+        with watched():
+            return fn.lower(static, *args).compile()
     path = directory / f"{key}.bin"
     if path in _COMPILED:  # this process compiled it already (as jit's own in-memory caches would)
         return _COMPILED[path]
+    with watched(expect_load=path.is_file()):
+        return _trace_or_load(fn, static, args, path, key)
+
+
+def _trace_or_load(fn: jax.stages.Wrapped, static: Any, args: tuple, path: Path, key: str) -> Callable:
+    """:func:`compile_program` past its in-process check: the program loaded from ``path`` or
+    traced, kept there and compiled."""
     leaves, in_tree = jax.tree.flatten(args)
     compiled = None
     loaded = _read_exported(path, key, in_tree, leaves)

@@ -287,7 +287,10 @@ def _drive(
         )
 
     t0 = time.perf_counter()
-    compiled = compile_program(chunk_fn, static, params, state, *piece(0))  # traced and compiled, or cached
+    batch = int(np.shape(jax.tree.leaves(state)[0])[0]) if time_axis == 1 else 1
+    compiled = compile_program(  # traced and compiled, or cached
+        chunk_fn, static, params, state, *piece(0), label="filter program", segments=chunk, batch=batch
+    )
     compile_s = time.perf_counter() - t0
     outs, chunk_s, held = [], [], []
     best_map = _best_map_single if time_axis == 0 else _best_map_batch

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nanoslam_jax.lib._cache import program_cache, release_programs
+from nanoslam_jax.lib._cache import program_cache, release_programs, watched_compile
 from nanoslam_jax.app.config import Config
 from nanoslam_jax.data import Segments
 from nanoslam_jax.eval._scoring import MapEstimate, companion_tracks, failure_reason, score_run
@@ -349,9 +349,12 @@ def batch_outputs(task: BatchTask, log: LogData) -> tuple[BatchOutput, float, fl
         release_programs()
         t0 = time.perf_counter()
         try:
-            compiled = batch_program.lower(
-                task.static, task.vectorize, task.devices, *args, history_chunk=task.history_chunk
-            ).compile()
+            with watched_compile(
+                "sweep batch program", task.static, args, segments=int(log.segments.time.shape[0]), batch=task.batch
+            ):
+                compiled = batch_program.lower(
+                    task.static, task.vectorize, task.devices, *args, history_chunk=task.history_chunk
+                ).compile()
         except Exception as e:
             _FAILED[key] = f"compilation failed: {_first_line(e)}"
             raise RuntimeError(_FAILED[key]) from e
