@@ -17,7 +17,13 @@ from nanoslam_jax.methods._method_settings import IteratedStatic, NanoStatic, Na
 from nanoslam_jax.methods._params import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Static
 from nanoslam_jax.eval._settings import MetricsConfig
 from nanoslam_jax.frontend._settings import DetectorConfig
-from nanoslam_jax.models._settings import RandomWalkConfig, SensorDefaults, UnicycleConfig, VehicleConfig
+from nanoslam_jax.models._settings import (
+    OdometryConfig,
+    RandomWalkConfig,
+    SensorDefaults,
+    UnicycleConfig,
+    VehicleConfig,
+)
 from nanoslam_jax.sim._settings import IndoorConfig, SimConfig
 from nanoslam_jax.smoother._settings import SmootherConfig
 
@@ -58,7 +64,7 @@ class DataConfig:
         "data.kind victoria_park): a CARMEN log "
         "(.clf/.log, optionally .gz, or a directory holding one): its laser scans (FLASER, ROBOTLASER1, "
         "RAWLASER1-4) and odometry as (v, omega) controls (model.motion unicycle, unicycle.sensor_x/sensor_y the "
-        "laser's mounting), with detections from the scans (data.detections laser_lines, laser_beams, ...); "
+        "laser's mounting) or as pose increments (model.motion odometry, odometry.sensor_x/sensor_y), with detections from the scans (data.detections laser_lines, laser_beams, ...); "
         "'rosbag': a ROS 1 .bag file or a ROS 2 bag directory (--data or data.path) with LaserScan on "
         "data.scan_topic and Odometry on data.odom_topic (data.detections one of the laser values)",
     )
@@ -147,8 +153,9 @@ class ModelConfig:
         "ackermann",
         static=True,
         doc="motion model: 'ackermann' (the Victoria Park car; sections vehicle and noise), 'unicycle' "
-        "(differential drive with (v, omega) odometry; section unicycle), 'random_walk' (no odometry; section "
-        "random_walk), or an import path 'module:Class' of a nanoslam_jax.models.AbstractMotionModel subclass",
+        "(differential drive with (v, omega) odometry; section unicycle), 'odometry' (a pose stream as odometry: "
+        "body-frame increments (vx, vy, omega) with Thrun's rotation-translation-rotation noise; section "
+        "odometry; CARMEN logs, ROS bags and simulated logs), 'random_walk' (no odometry; section random_walk), or an import path 'module:Class' of a nanoslam_jax.models.AbstractMotionModel subclass",
     )
     motion_params: Optional[dict] = _f(
         None, doc="parameters of a model named by import path: a mapping of the class's field names to numbers"
@@ -475,7 +482,8 @@ class NasrukfConfig:
         "estimate from the pose corrections K nu and covariance changes of each scan's fused joint states, "
         "with the weights d_k = (1 - b) / (1 - b^(k+1)) of process_forgetting, scaling the motion model's "
         "configured noise "
-        "(noise.sigma_v and sigma_alpha_deg, unicycle or random_walk sigmas) by a matrix Lambda, Q = S Lambda "
+        "(noise.sigma_v and sigma_alpha_deg, unicycle or random_walk sigmas, the odometry model's "
+        "rotation-translation-rotation noise) by a matrix Lambda, Q = S Lambda "
         "S'. A run reports process_noise_ratio_<j> (estimated over configured standard deviation of each noise "
         "component) in metrics.json; method nasrukf only",
     )
@@ -599,6 +607,7 @@ class Config:
     model: ModelConfig = field(default_factory=ModelConfig)
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     unicycle: UnicycleConfig = field(default_factory=UnicycleConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
     random_walk: RandomWalkConfig = field(default_factory=RandomWalkConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)

@@ -3,7 +3,7 @@ built-in name or an import path ``module:Class``), and each model built with its
 the configuration's sections.
 
 A built-in model reads its own sections (``vehicle`` and ``noise`` for the Victoria Park car,
-``unicycle``, ``random_walk``; ``noise``, ``data`` and ``map`` for range-bearing). A model named
+``unicycle``, ``odometry``, ``random_walk``; ``noise``, ``data`` and ``map`` for range-bearing). A model named
 by import path is built from ``model.motion_params`` / ``model.measurement_params`` (a mapping of
 its fields to numbers), unless its class defines a classmethod ``from_config(cfg)``, which is then
 called with the whole configuration. Adding a built-in model is its module in
@@ -28,6 +28,7 @@ from nanoslam_jax.models import (
     Circle,
     Composite,
     LineSegment,
+    Odometry,
     RandomWalk,
     RangeBearing,
     Unicycle,
@@ -51,6 +52,7 @@ __all__ = [
 MOTION_MODELS: dict[str, type[AbstractMotionModel]] = {
     "ackermann": Ackermann,
     "unicycle": Unicycle,
+    "odometry": Odometry,
     "random_walk": RandomWalk,
 }
 
@@ -149,6 +151,21 @@ def _unicycle(cls: type, cfg: "Config") -> Any:
     return cls(u.sensor_x, u.sensor_y, u.sigma_v, math.radians(u.sigma_omega_deg))
 
 
+def _odometry(cls: type, cfg: "Config") -> Any:
+    o = cfg.odometry
+    return cls(
+        o.alpha1,
+        o.alpha2,
+        o.alpha3,
+        o.alpha4,
+        o.floor_xy,
+        math.radians(o.floor_phi_deg),
+        o.min_translation,
+        o.sensor_x,
+        o.sensor_y,
+    )
+
+
 def _random_walk(cls: type, cfg: "Config") -> Any:
     r = cfg.random_walk
     return cls(r.sigma_xy, math.radians(r.sigma_phi_deg))
@@ -197,6 +214,7 @@ def _composite(cls: type, cfg: "Config") -> Any:
 _SECTION_READERS: dict[type, Callable[[type, "Config"], Any]] = {
     Ackermann: _ackermann,
     Unicycle: _unicycle,
+    Odometry: _odometry,
     RandomWalk: _random_walk,
     RangeBearing: _range_bearing,
     Composite: _composite,

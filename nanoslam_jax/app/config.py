@@ -38,6 +38,7 @@ from nanoslam_jax.app._config_schema import (
     NanoConfig,
     NasrukfConfig,
     NoiseConfig,
+    OdometryConfig,
     OutputConfig,
     RandomWalkConfig,
     SmootherConfig,
@@ -53,6 +54,7 @@ __all__ = [
     "DetectorConfig",
     "ModelConfig",
     "UnicycleConfig",
+    "OdometryConfig",
     "RandomWalkConfig",
     "VehicleConfig",
     "NoiseConfig",
@@ -219,8 +221,8 @@ def _check_consistency(cfg: Config, where: str) -> None:
         if cfg.model.motion == "ackermann":
             raise ConfigError(
                 f"{where}key 'model.motion': an MRCLAM log's odometry is (v, omega) of a differential-drive "
-                "robot, not the car's (speed, steering); expected unicycle (or random_walk, or your own "
-                "model) with data.format mrclam, got 'ackermann'"
+                "robot, not the car's (speed, steering); expected unicycle (or odometry, random_walk, or your "
+                "own model) with data.format mrclam, got 'ackermann'"
             )
     if d.format == "carmen" and d.detections == "file":
         raise ConfigError(
@@ -230,8 +232,8 @@ def _check_consistency(cfg: Config, where: str) -> None:
     if d.format == "carmen" and cfg.model.motion == "ackermann":
         raise ConfigError(
             f"{where}key 'model.motion': a CARMEN log's odometry becomes (v, omega) controls of a "
-            "differential-drive robot; expected unicycle (or random_walk, or your own model) with data.format "
-            "carmen, got 'ackermann'"
+            "differential-drive robot or pose increments; expected unicycle or odometry (or random_walk, or "
+            "your own model) with data.format carmen, got 'ackermann'"
         )
     if d.reference is not None and d.format not in ("carmen", "rosbag"):
         raise ConfigError(

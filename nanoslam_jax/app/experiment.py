@@ -26,7 +26,14 @@ from scipy.special import expit
 from nanoslam_jax.lib._cache import compile_stats
 from nanoslam_jax._version import __version__
 from nanoslam_jax.app.config import Config, ConfigError, config_to_dict, resolve_data_dir
-from nanoslam_jax.data import RawLog, Segments, load_mrclam, load_victoria_park, make_segments
+from nanoslam_jax.data import (
+    RawLog,
+    Segments,
+    load_mrclam,
+    load_victoria_park,
+    make_segments,
+    odometry_rows_from_unicycle,
+)
 from nanoslam_jax.data._mrclam import sighting_map as _project_sightings
 from nanoslam_jax.methods import (
     NasrukfStatic,
@@ -53,8 +60,9 @@ from nanoslam_jax.eval.metrics import (
     rmse_heading_deg,
 )
 from nanoslam_jax.eval._scoring import MapEstimate, companion_tracks, score_run, with_arcs
-from nanoslam_jax.app._models import measurement_model_from_config
-from nanoslam_jax.models import Composite
+from nanoslam_jax.app._models import measurement_model_from_config, motion_model_class
+from nanoslam_jax.models import Composite, Odometry
+from nanoslam_jax.models._settings import UnicycleConfig
 from nanoslam_jax.smoother._smoother import smooth_filter_run, smoother_metrics
 from nanoslam_jax.lib._precision import in_float64
 
@@ -164,6 +172,14 @@ def feature_table(features) -> tuple[np.ndarray, np.ndarray]:
     return rows[order], kinds[order]
 
 
+def odometry_controls(cfg: Config) -> bool:
+    """Whether the run's motion model reads the odometry model's ``(vx, vy, omega)`` rows
+    (:class:`~nanoslam_jax.models.Odometry` or a subclass): the log's controls are then written as
+    pose increments (a CARMEN log's or a bag's odometry poses; a differential-drive robot's ``(v,
+    omega)`` rows as ``(v, 0, omega)``) instead of the default rows."""
+    return issubclass(motion_model_class(cfg.model.motion), Odometry)
+
+
 def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
     """Read (or simulate) the log of ``cfg`` and cut it into segments.
 
@@ -173,10 +189,16 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
             indoor log directory read instead of simulating one).
     """
     features = reference = scans = None
+    odometry = odometry_controls(cfg)
     if cfg.data.kind == "simulated":
-        from nanoslam_jax.sim.park import simulate_config
+        from nanoslam_jax.sim.park import simulate, simulate_config
 
-        raw, frame, source = simulate_config(cfg), "slam", f"simulated (seed {cfg.sim.seed})"
+        if odometry:  # a differential-drive robot with its sensor at the odometry model's offset
+            o = cfg.odometry
+            raw = simulate(cfg.sim, cfg.vehicle, UnicycleConfig(sensor_x=o.sensor_x, sensor_y=o.sensor_y))
+        else:
+            raw = simulate_config(cfg)
+        frame, source = "slam", f"simulated (seed {cfg.sim.seed})"
     elif cfg.data.kind == "indoor" and data_dir is None and cfg.data.path is None:
         from nanoslam_jax.sim.indoor import feature_truth, simulate_indoor
 
@@ -205,6 +227,8 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         frame = "slam" if raw.truth_poses is not None else "relative"
         source = raw.source or str(directory)
         features = read_feature_truth(directory)
+    if odometry and raw.dr.shape[1] == 3:  # a differential-drive robot's (v, omega) rows
+        raw = dataclasses.replace(raw, dr=odometry_rows_from_unicycle(raw.dr))
     d = cfg.data
     try:
         segments = make_segments(
@@ -274,13 +298,15 @@ def _load_laser_odom(cfg: Config, data_dir: Optional[str]):
             find(given), laser_start_deg=d.laser_start_deg, laser_step_deg=d.laser_step_deg, no_return=d.no_return_m
         )
     mx, my = (float(v) for v in log.laser_pose[:2])
-    u = cfg.unicycle
-    if cfg.model.motion == "unicycle" and max(abs(mx - u.sensor_x), abs(my - u.sensor_y)) > 1e-3:
+    odometry = odometry_controls(cfg)
+    section = "odometry" if odometry else "unicycle"
+    u = cfg.odometry if odometry else cfg.unicycle
+    if cfg.model.motion in ("unicycle", "odometry") and max(abs(mx - u.sensor_x), abs(my - u.sensor_y)) > 1e-3:
         raise ValueError(
             f"{log.source}: the laser is mounted at ({mx:.4f}, {my:.4f}) m from the robot's centre; set "
-            f"unicycle.sensor_x and unicycle.sensor_y to it (now {u.sensor_x}, {u.sensor_y})"
+            f"{section}.sensor_x and {section}.sensor_y to it (now {u.sensor_x}, {u.sensor_y})"
         )
-    raw, scans = laser_odom_raw(log)
+    raw, scans = laser_odom_raw(log, controls="odometry" if odometry else "unicycle")
     reference = None
     if d.reference is not None:
         q, where = Path(d.reference).expanduser(), find(given)

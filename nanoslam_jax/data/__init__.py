@@ -12,6 +12,8 @@ from nanoslam_jax.data._laser import (
 from nanoslam_jax.data._laser_log import (
     LaserOdomLog as LaserOdomLog,
     laser_odom_raw as laser_odom_raw,
+    odometry_rows as odometry_rows,
+    odometry_rows_from_unicycle as odometry_rows_from_unicycle,
     laser_poses as laser_poses,
 )
 from nanoslam_jax.data._loader import (
@@ -51,6 +53,8 @@ __all__ = [
     "read_carmen",
     "LaserOdomLog",
     "laser_odom_raw",
+    "odometry_rows",
+    "odometry_rows_from_unicycle",
     "laser_poses",
     "load_reference",
     "MRCLAM_ROBOTS",

@@ -15,10 +15,17 @@ from jaxtyping import Float
 from nanoslam_jax.data._laser import LaserScans
 from nanoslam_jax.data._types import RawLog
 
-__all__ = ["CONTROL_LAYOUTS", "LaserOdomLog", "laser_odom_raw", "laser_poses"]
+__all__ = [
+    "CONTROL_LAYOUTS",
+    "LaserOdomLog",
+    "laser_odom_raw",
+    "laser_poses",
+    "odometry_rows",
+    "odometry_rows_from_unicycle",
+]
 
 #: The control layouts :func:`laser_odom_raw` writes.
-CONTROL_LAYOUTS = ("unicycle",)
+CONTROL_LAYOUTS = ("unicycle", "odometry")
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,39 @@ def _unicycle_rows(t: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return np.concatenate([rows, [[t[-1], 0.0, 0.0]]], axis=0)
 
 
+def odometry_rows(t: Float[np.ndarray, " n"], pose: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 4"]:
+    """One ``(time, vx, vy, omega)`` row per interval between consecutive odometry poses: the
+    increment from pose ``i`` to pose ``i + 1`` in the body frame of pose ``i`` (forward, left,
+    heading change wrapped), divided by the interval, the controls of the ``odometry`` motion
+    model, which composes them back into the poses exactly. The last row (at the last time) holds
+    no motion.
+
+    Args:
+        t: strictly increasing times (s).
+        pose: the odometry pose ``(x, y, theta)`` at each time.
+    """
+    t, pose = np.asarray(t, dtype=np.float64), np.asarray(pose, dtype=np.float64)
+    dt = np.diff(t)
+    d = np.diff(pose[:, :2], axis=0)
+    c, s = np.cos(pose[:-1, 2]), np.sin(pose[:-1, 2])
+    fwd = c * d[:, 0] + s * d[:, 1]
+    left = -s * d[:, 0] + c * d[:, 1]
+    dth = _wrap(np.diff(pose[:, 2]))
+    rows = np.stack([t[:-1], fwd / dt, left / dt, dth / dt], axis=1)
+    return np.concatenate([rows, [[t[-1], 0.0, 0.0, 0.0]]], axis=0)
+
+
+def odometry_rows_from_unicycle(dr: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 4"]:
+    """``(time, v, omega)`` rows of a differential-drive robot as the ``odometry`` model's
+    ``(time, vx, vy, omega)`` rows: the odometry pose stream that the unicycle's first-order step
+    integrates moves the robot's centre by ``dt (v, 0, omega)`` in its own frame each row, so the
+    rows are ``(time, v, 0, omega)``."""
+    dr = np.asarray(dr, dtype=np.float64)
+    if dr.ndim != 2 or dr.shape[1] != 3:
+        raise ValueError(f"odometry_rows_from_unicycle: expected (time, v, omega) rows, got shape {dr.shape}")
+    return np.stack([dr[:, 0], dr[:, 1], np.zeros(dr.shape[0]), dr[:, 2]], axis=1)
+
+
 def laser_odom_raw(log: LaserOdomLog, controls: str = "unicycle") -> tuple[RawLog, LaserScans]:
     """What the filter runs on from a laser log: the odometry as controls and the scans.
 
@@ -101,7 +141,10 @@ def laser_odom_raw(log: LaserOdomLog, controls: str = "unicycle") -> tuple[RawLo
             from its time to the next row's; two rows per interval between consecutive scan times (a
             turn in place by half the heading change, then the chord along the middle heading with
             the other half), which the unicycle model's step follows exactly with no sensor offset,
-            and a last row of no motion at the last scan.
+            and a last row of no motion at the last scan; ``'odometry'``: ``(time, vx, vy, omega)``
+            rows, one per interval between consecutive scan times, the body-frame increment of the
+            robot's odometry pose over the interval as rates (:func:`odometry_rows`), the controls
+            of the ``odometry`` motion model (its sensor offset the mounting's ``(x, y)``).
 
     Returns:
         ``(raw, scans)``: a :class:`~nanoslam_jax.data.RawLog` with the controls in ``dr`` (no
@@ -116,7 +159,8 @@ def laser_odom_raw(log: LaserOdomLog, controls: str = "unicycle") -> tuple[RawLo
     t, first = np.unique(t_all, return_index=True)
     if t.size < 2:
         raise ValueError(f"{log.source or 'laser log'}: needs at least two distinct scan times, got {t.size}")
-    dr = _unicycle_rows(t, log.odom[first])
+    pose = log.odom[first]
+    dr = _unicycle_rows(t, pose) if controls == "unicycle" else odometry_rows(t, pose)
     scans = dataclasses.replace(log.scans, angles=log.scans.angles + log.laser_pose[2])
     raw = RawLog(dr=dr, detections=np.zeros((0, 4)), gps=np.zeros((0, 3)), source=log.source)
     return raw, scans

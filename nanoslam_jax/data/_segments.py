@@ -30,6 +30,10 @@ def _check_inputs(
         raise ValueError(f"data.k_max must be >= 1 or None, got {k_max}")
     if max_dr_per_segment < 1:
         raise ValueError(f"data.max_dr_per_segment must be >= 1, got {max_dr_per_segment}")
+    if np.ndim(raw.dr) != 2 or np.shape(raw.dr)[1] < 1:
+        raise ValueError(
+            f"log {raw.source!r}: dead-reckoning rows must be (time, controls...), got shape {np.shape(raw.dr)}"
+        )
     t = raw.dr[:, 0]
     if t.size == 0:
         raise ValueError(f"log {raw.source!r} has no dead-reckoning samples")
@@ -76,12 +80,13 @@ def _segment_layout(
 
 
 def _dr_pieces(
-    dr: Float[np.ndarray, "n_dr 3"], layout: dict[str, np.ndarray], max_pieces: int
-) -> tuple[Float[np.ndarray, "segments dr"], Float[np.ndarray, "segments dr 2"], Bool[np.ndarray, "segments dr"]]:
-    """The padded DR pieces ``(dt, u, dr_mask)`` of every segment.
+    dr: Float[np.ndarray, "n_dr cols"], layout: dict[str, np.ndarray], max_pieces: int
+) -> tuple[Float[np.ndarray, "segments dr"], Float[np.ndarray, "segments dr c"], Bool[np.ndarray, "segments dr"]]:
+    """The padded DR pieces ``(dt, u, dr_mask)`` of every segment (``u``: the rows' columns after
+    the time, as many as the log has).
 
     Args:
-        dr: ``time, ve, alpha`` rows, strictly increasing time.
+        dr: ``time, u...`` rows (``time, ve, alpha`` for the car), strictly increasing time.
         layout: the output of :func:`_segment_layout`.
         max_pieces: padded number of pieces per segment.
     """
@@ -92,7 +97,7 @@ def _dr_pieces(
     idx = np.minimum(layout["first"][:, None] + k, t.size - 1)
     dt = np.minimum(t_next[idx], layout["hi"][:, None]) - np.maximum(t[idx], layout["lo"][:, None])
     dt = np.where(mask, dt, 0.0)
-    u = np.where(mask[..., None], dr[idx, 1:3], 0.0)
+    u = np.where(mask[..., None], dr[idx, 1:], 0.0)
     return dt, u, mask
 
 
@@ -184,7 +189,9 @@ def make_segments(
             diameter).
 
     Returns:
-        :class:`Segments` of numpy arrays: ``time (S,)``, ``dt (S, D)``, ``u (S, D, 2)``,
+        :class:`Segments` of numpy arrays: ``time (S,)``, ``dt (S, D)``, ``u (S, D, C)`` (``C``
+        the DR rows' columns after the time: 2 for ``(ve, alpha)`` or ``(v, omega)``, 3 for the
+        odometry model's ``(vx, vy, omega)``),
         ``dr_mask (S, D)``, ``z (S, K, measurement_dim)``, ``z_mask (S, K)``, ``diam (S, K)``, ``is_scan (S,)``, ``z_id (S, K)`` (-1: unknown), ``z_kind (S, K)`` (0 for one type) with ``D = max_dr_per_segment``
         and ``K = k_max``; padding is zero with the mask False.
 

@@ -14,7 +14,9 @@ class RawLog:
     """A Victoria Park-format log on the host, in the SLAM conventions of the spec.
 
     Attributes:
-        dr: ``(N, 3)`` dead reckoning ``time_s, ve_mps, alpha_rad``, strictly increasing time.
+        dr: ``(N, 1 + C)`` dead reckoning ``time_s`` and the ``C`` controls held from it (the car's
+            ``ve_mps, alpha_rad``; ``v, omega`` of a differential-drive robot; ``vx, vy, omega``
+            of the odometry model), strictly increasing time.
         detections: ``(M, 4)`` tree detections ``time_s, range_m, bearing_rad, diameter_m`` with
             the bearing already in the **vehicle frame** (file bearing minus pi/2, wrapped);
             rows sharing a time form one scan; time non-decreasing. Detections of another
@@ -62,7 +64,7 @@ class Segments(NamedTuple):
     Attributes:
         time: scan time of each segment (s).
         dt: integration interval of each DR piece (s).
-        u: controls ``(ve, alpha)`` of each DR piece.
+        u: controls of each DR piece (``(ve, alpha)`` for the car; as many as the log's DR rows have).
         dr_mask: which DR pieces are real.
         z: detections ``(range, bearing)``, bearing in the vehicle frame, wrapped (``d``: the
             measurement model's ``measurement_dim`` values).
@@ -80,7 +82,7 @@ class Segments(NamedTuple):
 
     time: Float[Array, " segments"]
     dt: Float[Array, "segments dr"]
-    u: Float[Array, "segments dr 2"]
+    u: Float[Array, "segments dr c"]
     dr_mask: Bool[Array, "segments dr"]
     z: Float[Array, "segments k_max d"]
     z_mask: Bool[Array, "segments k_max"]

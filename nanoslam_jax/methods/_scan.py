@@ -59,6 +59,18 @@ def _check_filter_method(static: Static) -> None:
         )
 
 
+def check_controls(params: Params, segments: Segments) -> None:
+    """Raise a ValueError naming ``model.motion`` when the segments' DR pieces hold fewer controls
+    than the motion model reads (its ``control_dim``), e.g. a log of ``(v, omega)`` rows with the
+    odometry model's ``(vx, vy, omega)``."""
+    have, need = int(np.shape(segments.u)[-1]), int(params.motion.control_dim)
+    if have < need:
+        raise ValueError(
+            f"model.motion: {type(params.motion).__name__} reads {need} controls per DR piece, the log's "
+            f"segments hold {have}; the log's DR rows must be (time, {need} controls)"
+        )
+
+
 def _masked_step(static: Static, params: Params, state, inp: tuple):
     seg, valid, rel_prior = inp
     method = static.method
@@ -341,6 +353,7 @@ def run_filter(
             scan over the log, e.g. EKF-SLAM's growth with the map).
     """
     _check_filter_method(static)
+    check_controls(params, segments)
     state = _init(static, params, jax.random.key(seed))
     return _drive(_chunk, static, params, state, segments, chunk, progress, time_axis=0, timed=timed)
 
@@ -369,6 +382,7 @@ def run_batch(
     Each member's particles stay on one device (``static.devices`` is ignored).
     """
     _check_filter_method(static)
+    check_controls(params, segments)
     static = dataclasses.replace(static, devices=1)  # a batch member's particles stay on one device
     keys = jax.vmap(jax.random.key)(jnp.asarray(np.asarray(seeds)))
     state = _init_batch(static, params, keys)
@@ -397,6 +411,7 @@ def text_progress(label: str = "filter", stream=sys.stderr) -> Callable[[int, in
 @jax.jit
 def dead_reckoning(params: Params, segments: Segments) -> Float[Array, "segments 3"]:
     """Noise-free propagation of the pose from the origin through every segment (the DR baseline)."""
+    check_controls(params, segments)
 
     def body(x, seg):
         x = predict_mean(x, seg.dt, seg.u, params)

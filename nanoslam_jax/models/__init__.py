@@ -13,6 +13,7 @@ from nanoslam_jax.models._motion import (
     Unicycle as Unicycle,
     check_motion_model as check_motion_model,
 )
+from nanoslam_jax.models._odometry import Odometry as Odometry, rot_trans_rot as rot_trans_rot
 from nanoslam_jax.models._measurement import (
     AbstractMeasurementModel as AbstractMeasurementModel,
     RangeBearing as RangeBearing,
@@ -68,6 +69,8 @@ __all__ = [
     "Ackermann",
     "Unicycle",
     "RandomWalk",
+    "Odometry",
+    "rot_trans_rot",
     "check_motion_model",
     "AbstractMeasurementModel",
     "RangeBearing",

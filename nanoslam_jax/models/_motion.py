@@ -7,8 +7,10 @@ model's class compiles a new one. The filter needs only
 
 - :meth:`AbstractMotionModel.step`: the noise-free motion ``x' = f(x, u, dt)``;
 - :meth:`AbstractMotionModel.noise_sqrt`: a lower square root of the process noise of one piece,
-  either on the controls (``x' = f(x, u + w, dt)``, ``noise = "control"``) or added to the pose
-  (``x' = f(x, u, dt) + w``, ``noise = "additive"``).
+  either on the controls (``x' = f(x, u + w, dt)``, ``noise = "control"``), added to the pose
+  (``x' = f(x, u, dt) + w``, ``noise = "additive"``) or applied by the model's own
+  :meth:`~AbstractMotionModel.noisy_step` (``noise = "custom"``: noise whose effect depends on the
+  controls, as the odometry model's does).
 
 Jacobians come from autodiff of :meth:`~AbstractMotionModel.step`
 (:meth:`~AbstractMotionModel.jacobians`). A model whose motion is a body-frame increment that
@@ -19,8 +21,10 @@ step into ``rates(u)`` and ``move(x, rates, dt)``, which the unscented prior use
 sigma points with fewer evaluations; the results are those of :meth:`step`.
 
 Built in: :class:`Ackermann` (the Victoria Park car, encoder speed and steering),
-:class:`Unicycle` (differential drive with ``(v, omega)`` odometry and an optional sensor offset)
-and :class:`RandomWalk` (no odometry: the pose is driven by process noise alone).
+:class:`Unicycle` (differential drive with ``(v, omega)`` odometry and an optional sensor offset),
+:class:`RandomWalk` (no odometry: the pose is driven by process noise alone) and, in
+:mod:`nanoslam_jax.models._odometry`, ``Odometry`` (a pose stream as odometry: body-frame
+increments with Thrun's rotation-translation-rotation noise).
 """
 
 from __future__ import annotations
@@ -68,13 +72,16 @@ class AbstractMotionModel(eqx.Module):
     Class attributes a model sets:
         control_dim: length of the control vector ``u`` of each log piece (0: none is used).
         noise: ``"control"`` (the noise ``w`` is added to the controls, ``noise_dim ==
-            control_dim``) or ``"additive"`` (``w`` is added to the pose, ``noise_dim == 3``).
+            control_dim``), ``"additive"`` (``w`` is added to the pose, ``noise_dim == 3``) or
+            ``"custom"`` (the model overrides :meth:`noisy_step`, which applies ``w``; ``noise_dim
+            == 3`` unless the model overrides :attr:`noise_dim`; Jacobians with respect to ``w``
+            at ``w = 0`` by autodiff of :meth:`noisy_step`).
         rigid: the motion is a body-frame increment depending on ``(u, dt)`` only and the noise
             is invariant under rotations of the plane (see the module docstring).
     """
 
     control_dim: ClassVar[int]
-    noise: ClassVar[Literal["control", "additive"]]
+    noise: ClassVar[Literal["control", "additive", "custom"]]
     rigid: ClassVar[bool] = False
 
     @abc.abstractmethod
@@ -107,9 +114,12 @@ class AbstractMotionModel(eqx.Module):
     def noisy_step(
         self, x: Float[Array, "3"], u: Float[Array, " c"], w: Float[Array, " w"], dt: Float[ArrayLike, ""]
     ) -> Float[Array, "3"]:
-        """:meth:`step` with the noise ``w`` applied (on the controls or added to the pose)."""
+        """:meth:`step` with the noise ``w`` applied (on the controls or added to the pose; a model
+        with ``noise = "custom"`` overrides it)."""
         if self.noise == "control":
             return self.step(x, u + w, dt)
+        if self.noise == "custom":
+            raise NotImplementedError(f"{type(self).__name__}: a model with noise 'custom' overrides noisy_step")
         y = self.step(x, u, dt) + w
         return y.at[2].set(wrap_angle(y[2]))
 
@@ -119,6 +129,9 @@ class AbstractMotionModel(eqx.Module):
         """Jacobians of the motion with respect to the pose and the noise (autodiff)."""
         if self.noise == "control":
             return jax.jacfwd(self.step, argnums=(0, 1))(x, u, dt)
+        if self.noise == "custom":
+            w = jnp.zeros((self.noise_dim,), dtype=jnp.result_type(x))
+            return jax.jacfwd(self.noisy_step, argnums=(0, 2))(x, u, w, dt)
         F = jax.jacfwd(self.step)(x, u, dt)
         return F, jnp.eye(3, dtype=F.dtype)
 
@@ -129,7 +142,7 @@ class AbstractRateModel(AbstractMotionModel):
     ``rates`` only, which the unscented prior uses (each sigma point perturbs either the pose or
     the controls)."""
 
-    noise: ClassVar[Literal["control", "additive"]] = "control"
+    noise: ClassVar[Literal["control", "additive", "custom"]] = "control"
     rigid: ClassVar[bool] = True
 
     @abc.abstractmethod
@@ -234,7 +247,7 @@ class RandomWalk(AbstractMotionModel):
     """
 
     control_dim: ClassVar[int] = 0
-    noise: ClassVar[Literal["control", "additive"]] = "additive"
+    noise: ClassVar[Literal["control", "additive", "custom"]] = "additive"
     rigid: ClassVar[bool] = True
 
     sigma_xy: Float[Array, ""] = eqx.field(default=_RANDOM_WALK.sigma_xy, converter=_f)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from nanoslam_jax.lib._fields import _f
 
-__all__ = ["VehicleConfig", "UnicycleConfig", "RandomWalkConfig", "SensorDefaults"]
+__all__ = ["VehicleConfig", "UnicycleConfig", "OdometryConfig", "RandomWalkConfig", "SensorDefaults"]
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,32 @@ class UnicycleConfig:
     sensor_y: float = _f(0.0, doc="sensor to the left of the robot's centre (m)")
     sigma_v: float = _f(0.05, lo=0.0, lo_open=True, doc="speed noise (m/s) per odometry sample")
     sigma_omega_deg: float = _f(5.0, lo=0.0, lo_open=True, doc="turn-rate noise (deg/s) per odometry sample")
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    """The odometry motion model (model.motion: odometry): controls (vx, vy, omega), the body-frame
+    rates of the increment between two odometry poses, with the rotation-translation-rotation noise
+    of Thrun's sample_motion_model_odometry (variances alpha1 rot1^2 + alpha2 trans^2 of each
+    rotation, alpha3 trans^2 + alpha4 (rot1^2 + rot2^2) of the translation)."""
+
+    alpha1: float = _f(0.05, lo=0.0, doc="rotation noise from rotation: variance (rad^2) per rad^2 turned")
+    alpha2: float = _f(0.01, lo=0.0, doc="rotation noise from translation: variance (rad^2) per m^2 travelled")
+    alpha3: float = _f(0.05, lo=0.0, doc="translation noise from translation: variance (m^2) per m^2 travelled")
+    alpha4: float = _f(0.01, lo=0.0, doc="translation noise from rotation: variance (m^2) per rad^2 turned")
+    floor_xy: float = _f(
+        0.001, lo=0.0, lo_open=True, doc="noise floor (m, standard deviation) of each position coordinate per piece"
+    )
+    floor_phi_deg: float = _f(
+        0.01, lo=0.0, lo_open=True, doc="noise floor (deg, standard deviation) of the heading per piece"
+    )
+    min_translation: float = _f(
+        0.001,
+        lo=0.0,
+        doc="below this distance (m) per piece the direction of travel is straight ahead (a turn in place)",
+    )
+    sensor_x: float = _f(0.0, doc="sensor forward of the robot's base (m)")
+    sensor_y: float = _f(0.0, doc="sensor to the left of the robot's base (m)")
 
 
 @dataclass(frozen=True)

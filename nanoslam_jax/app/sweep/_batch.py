@@ -74,7 +74,8 @@ def log_key(cfg: Config) -> tuple:
     """What determines the log of a configuration (its data section; and the simulator's inputs)."""
     laser = (cfg.detector,) if cfg.data.detections != "file" else ()  # the detections come from the detector
     if cfg.data.kind == "simulated":
-        return (cfg.data, cfg.sim, cfg.vehicle, cfg.model.motion, cfg.unicycle) + laser
+        mounting = (cfg.odometry.sensor_x, cfg.odometry.sensor_y) if cfg.model.motion == "odometry" else ()
+        return (cfg.data, cfg.sim, cfg.vehicle, cfg.model.motion, cfg.unicycle) + mounting + laser
     if cfg.data.kind == "indoor":
         return (cfg.data, cfg.indoor, cfg.model.measurement) + laser
     return (cfg.data,) + laser

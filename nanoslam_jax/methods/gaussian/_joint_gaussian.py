@@ -53,7 +53,7 @@ def ekf_slam_predict(
     mean: Float[Array, " n"],
     cov: Float[Array, "n n"],
     dt: Float[Array, " dr"],
-    u: Float[Array, "dr 2"],
+    u: Float[Array, "dr c"],
     dr_mask: Bool[Array, " dr"],
     params: Params,
 ) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
@@ -62,7 +62,7 @@ def ekf_slam_predict(
     Args:
         mean, cov: joint Gaussian at the start of the segment.
         dt: piece durations (padding: 0).
-        u: piece controls ``(ve, alpha)``.
+        u: piece controls (the motion model's ``control_dim`` values).
         dr_mask: which pieces are real (masked pieces change nothing).
         params: the motion model (``params.motion``) with its process noise.
 

@@ -132,7 +132,7 @@ def pose_time_update(
     x: Float[Array, "3"],
     S: Float[Array, "3 3"],
     dt: Float[Array, " dr"],
-    u: Float[Array, "dr 2"],
+    u: Float[Array, "dr c"],
     dr_mask: Bool[Array, " dr"],
     params: Params,
     noise_scale_sqrt: Float[Array, "w w"] | None = None,

@@ -94,7 +94,7 @@ def predict(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
     dt: Float[Array, " dr"],
-    u: Float[Array, "dr 2"],
+    u: Float[Array, "dr c"],
     dr_mask: Bool[Array, " dr"],
     params: Params,
     kind: str = "unscented",
@@ -105,7 +105,7 @@ def predict(
         x: pose at the start of the segment.
         P: its covariance.
         dt: piece durations (padding: 0).
-        u: piece controls ``(ve, alpha)``.
+        u: piece controls (the motion model's ``control_dim`` values).
         dr_mask: which pieces are real (padding leaves the Gaussian unchanged).
         params: hyperparameters (vehicle constants, control noise, unscented parameters).
         kind: ``'unscented'`` (augmented unscented transform) or ``'linearized'``.
@@ -127,7 +127,7 @@ def predict(
 
 
 def predict_mean(
-    x: Float[Array, "3"], dt: Float[Array, " dr"], u: Float[Array, "dr 2"], params: Params
+    x: Float[Array, "3"], dt: Float[Array, " dr"], u: Float[Array, "dr c"], params: Params
 ) -> Float[Array, "3"]:
     """Noise-free propagation (dead reckoning) through a segment's pieces (padding has dt = 0)."""
 
@@ -140,7 +140,7 @@ def predict_mean(
 
 def relative_prior(
     dt: Float[Array, " dr"],
-    u: Float[Array, "dr 2"],
+    u: Float[Array, "dr c"],
     dr_mask: Bool[Array, " dr"],
     params: Params,
     kind: str = "unscented",

@@ -117,7 +117,7 @@ def particle_update(
     pose_cov: Float[Array, "3 3"],
     lm: LandmarkMap,
     dt: Float[Array, " dr"],
-    u: Float[Array, "dr 2"],
+    u: Float[Array, "dr c"],
     dr_mask: Bool[Array, " dr"],
     z: Float[Array, "k d"],
     z_mask: Bool[Array, " k"],
