@@ -33,6 +33,7 @@ import yaml
 from nanoslam_jax import __version__, enable_compile_cache
 from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE
 from nanoslam_jax.app.config import ConfigError, load_config
+from nanoslam_jax.methods import _params
 from nanoslam_jax.methods import run_filter
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.app.sweep import _batch, _plan
@@ -252,7 +253,7 @@ def test_shipped_sweep_files_load_and_expand():
 
 
 @pytest.mark.slow
-def test_groups_and_batches():
+def test_groups_and_batches(monkeypatch):
     """Runs are grouped by static settings; batches are as equal as possible, and fixed per group."""
     grid = {"noise.sigma_r": [0.3 + 0.01 * i for i in range(13)]}
     spec = spec_of({"base": BASE, "grid": grid, "seeds": 5, "shapes": {"filter.n_particles": [4, 8]}})
@@ -269,9 +270,20 @@ def test_groups_and_batches():
     assert plan_groups(spec, runs, logs, batch=100, split=2)[0].batch == 33
     tasks = make_tasks(spec, groups, logs, done={r.run_id for r in runs[:40]})
     assert [t.n_real for t in tasks] == [25, 33, 32] and all(t.batch == 33 for t in tasks)
-    # filter.row_buckets: auto counts the particles one call carries per device: 4 x 33 and
+    # filter.row_buckets: auto is off for this little work: 33 runs of 4 or 8 particles over the
+    # short log's segments in 2 batches...
+    n_seg = int(log.segments.time.shape[0])
+    assert 8 * 33 * n_seg * 2 < _params.ROW_BUCKETS_WORK
+    assert {t.static.row_buckets for t in tasks} == {()}
+    # ...and with work enough it counts the particles one call carries per device: 4 x 33 and
     # 8 x 33 vmapped (>= 64), 4 x 16 per device of two, but one run at a time under lax.map.
-    assert [t.static.row_buckets for t in tasks] == [(4, 8)] * 3
+    monkeypatch.setattr(_params, "ROW_BUCKETS_WORK", 4 * 33 * n_seg * 2)
+    tasks = make_tasks(spec, groups, logs, done=set())
+    assert [t.static.row_buckets for t in tasks] == [(4, 8)] * 4
+    monkeypatch.setattr(_params, "ROW_BUCKETS_WORK", 4 * 33 * n_seg * 2 + 1)  # g0's 4 particles: not enough
+    assert [t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set())] == [(), (), (4, 8), (4, 8)]
+    monkeypatch.setattr(_params, "ROW_BUCKETS_WORK", 1)
+    tasks = make_tasks(spec, groups, logs, done={r.run_id for r in runs[:40]})
     assert {t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set(), devices=2)} == {(4, 8)}
     assert {t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set(), vectorize="map")} == {()}
     assert all(t.static.devices == 1 for t in tasks)

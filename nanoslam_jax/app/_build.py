@@ -25,12 +25,13 @@ def method_static(cfg: Config) -> Hashable:
     return static_of(get_method(cfg.filter.method), cfg)
 
 
-def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
+def settings_from_config(cfg: Config, k_max: int, segments: int = 0) -> tuple[Static, Params]:
     """Split a :class:`Config` into the static settings and the traced hyperparameters.
 
     Args:
         cfg: the run configuration.
         k_max: detections per segment of the log (from the segments' shape).
+        segments: the segments the run covers (for ``filter.row_buckets: auto``; 0: unknown).
     """
     f, nz = cfg.filter, cfg.noise
     method = get_method(f.method)
@@ -51,7 +52,7 @@ def settings_from_config(cfg: Config, k_max: int) -> tuple[Static, Params]:
         manage=cfg.map.manage,
         occlusion=cfg.map.occlusion,
         landmark_update=method.landmark_update,
-        row_buckets=row_buckets(f.row_buckets, f.n_particles),
+        row_buckets=row_buckets(f.row_buckets, f.n_particles, segments),
         devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(method, settings)),
         adaptive_noise=nz.adaptive,
         method_settings=settings,

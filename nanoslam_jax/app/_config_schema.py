@@ -14,7 +14,7 @@ from typing import Literal, Optional
 from nanoslam_jax.lib._fields import _f
 from nanoslam_jax.methods._builtin import ADAPTIVE_NOISE_METHODS as ADAPTIVE_NOISE_METHODS
 from nanoslam_jax.methods._method_settings import IteratedStatic, NanoStatic, NasrukfStatic
-from nanoslam_jax.methods._params import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM, Static
+from nanoslam_jax.methods._params import ROW_BUCKETS_FROM, ROW_BUCKETS_WORK, SPLIT_DEVICES_FROM, Static
 from nanoslam_jax.eval._settings import MetricsConfig
 from nanoslam_jax.frontend._settings import DetectorConfig
 from nanoslam_jax.models._settings import (
@@ -289,7 +289,9 @@ class FilterConfig:
         "detection rows, the fewest that hold the scan's detections, and the association over the "
         "16, 32 or all window slots that hold the particles' landmarks (the same results to rounding; "
         "compiled three times, so compilation takes longer): 'auto' from "
-        f"{ROW_BUCKETS_FROM} particles up, where the particles' arithmetic outweighs per-operation overhead",
+        f"{ROW_BUCKETS_FROM} particles per call up, for a program that runs at least {ROW_BUCKETS_WORK:,} "
+        "particle-segments over all its calls (a sweep's batches): below that the longer compilation costs more "
+        "than the split saves",
     )
     split_devices: Literal["auto", "always", "never"] = _f(
         "auto",

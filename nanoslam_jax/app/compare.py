@@ -167,7 +167,7 @@ def run_method(
     seg = log.segments
     n = int(seg.time.shape[0])
     t = np.asarray(seg.time)
-    static, params = settings_from_config(cfg, seg.k_max)
+    static, params = settings_from_config(cfg, seg.k_max, n)
     res = MethodResult(m, method, rows=[])
     seeds = [spec.first_seed] if deterministic(method) else list(range(spec.first_seed, spec.first_seed + spec.seeds))
 

@@ -584,7 +584,7 @@ def execute(
     stats0 = compile_stats()
     log = load_log(cfg, data_dir) if log is None else log
     seg = log.segments
-    static, params = settings_from_config(cfg, seg.k_max)
+    static, params = settings_from_config(cfg, seg.k_max, int(seg.time.shape[0]))
     t = np.asarray(seg.time)
     metrics: dict = {
         "method": cfg.filter.method,

@@ -20,8 +20,11 @@ from nanoslam_jax.methods._method_settings import BeamParams as BeamParams
 from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, RangeBearing, is_range_bearing
 
 #: ``filter.row_buckets: auto`` splits the per-row work (proposal, weight, landmark updates) and the
-#: association's window from this many particles up.
+#: association's window from this many particles up (per call of the program)...
 ROW_BUCKETS_FROM = 64
+#: ...and only for a program that runs at least this many particle-segments over all its calls: the
+#: split compiles the per-row work three times, which costs more than it saves on less work.
+ROW_BUCKETS_WORK = 20_000_000
 #: ``filter.split_devices: auto`` splits a run's particles over the CPU devices from this many up.
 SPLIT_DEVICES_FROM = 64
 
@@ -220,10 +223,21 @@ class Params(NamedTuple):
 ROW_BUCKETS = (4, 8)
 
 
-def row_buckets(setting: str, particles: int) -> tuple[int, ...]:
-    """The row buckets for ``filter.row_buckets`` and the particles one program
-    carries (for a vmapped sweep batch: particles times runs)."""
-    on = setting == "always" or (setting == "auto" and particles >= ROW_BUCKETS_FROM)
+def row_buckets(setting: str, particles: int, segments: int = 0, calls: int = 1) -> tuple[int, ...]:
+    """The row buckets for ``filter.row_buckets``.
+
+    Args:
+        setting: ``"auto"``, ``"always"`` or ``"never"``.
+        particles: the particles one call of the program carries (for a vmapped sweep batch:
+            particles times runs).
+        segments: the segments one call runs over (0: unknown, and ``auto`` is off).
+        calls: how many times the compiled program is called (a sweep's batches).
+
+    ``auto`` is on from :data:`ROW_BUCKETS_FROM` particles per call and
+    :data:`ROW_BUCKETS_WORK` particle-segments over all calls.
+    """
+    work = particles * segments * calls
+    on = setting == "always" or (setting == "auto" and particles >= ROW_BUCKETS_FROM and work >= ROW_BUCKETS_WORK)
     return ROW_BUCKETS if on else ()
 
 

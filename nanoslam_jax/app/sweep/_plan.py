@@ -140,10 +140,14 @@ def make_tasks(
         # optimistix's least squares fails under shard_map (see `shardable`): such a group's
         # batches run whole on one device.
         split = devices if shardable(g.static.method, g.static.method_settings) else 1
-        # The proposal's row buckets pay off by the particles one call carries (per device).
+        # The proposal's row buckets pay off by the particles one call carries (per device) and the
+        # work the one compiled program does over the group's batches.
         per_call = g.static.n_particles * (max(1, g.batch // split) if vectorize == "vmap" else 1)
+        calls = -(-len(pending) // g.batch) * (1 if vectorize == "vmap" else g.batch)
+        n_seg = int(by_id[g.log_id].segments.time.shape[0])
+        setting = g.runs[0].point.config.filter.row_buckets
         static = dataclasses.replace(
-            g.static, row_buckets=row_buckets(g.runs[0].point.config.filter.row_buckets, per_call), devices=1
+            g.static, row_buckets=row_buckets(setting, per_call, n_seg, calls), devices=1
         )  # the batch, not a run's particles, is split over devices
         # The smoother runs on the host after the batch, on each run's path and map; its map
         # history needs the run in chunks of output.chunk segments, as `nanoslam run` makes it.
