@@ -12,6 +12,7 @@ from pathlib import Path
 
 import jax
 import pytest
+from tests.helpers.paths import SHARED_DATA
 
 # The library is tested in float64, the precision its entry points compute in (importing the
 # package changes no JAX setting: nanoslam_jax.float64).
@@ -36,28 +37,29 @@ DATA_FIXTURES = ("vp_dir", "mrclam_dir")
 #: (it gives whole modules to its workers, in collection order: ``--dist loadfile
 #: --no-loadscope-reorder`` in pyproject.toml). A long module started last would run alone while
 #: the other worker idles; started first, the many short modules fill in behind it. The others
-#: keep pytest's order. A module missing from this list only costs balance, never a test.
+#: keep pytest's order. A module missing from this list only costs balance, never a test. The
+#: paths are relative to this folder.
 LONG_MODULES = (
-    "test_methods.py",
-    "test_cache.py",
-    "test_filter.py",
-    "test_cli.py",
-    "test_motion_models.py",
-    "test_study.py",
-    "test_mrclam.py",
-    "test_sweep.py",
-    "test_nasrukf.py",
-    "test_landmarks.py",
-    "test_ufastslam.py",
-    "test_adaptive_process.py",
-    "test_smoother.py",
-    "test_frontend.py",
-    "test_best_config.py",
-    "test_measurement_models.py",
-    "test_path.py",
-    "test_known_association.py",
-    "test_ekf_slam.py",
-    "test_management.py",
+    "unit/methods/test_methods.py",
+    "unit/lib/test_cache.py",
+    "unit/methods/test_filter.py",
+    "e2e/test_cli.py",
+    "unit/models/test_motion_models.py",
+    "unit/app/test_study.py",
+    "unit/data/test_mrclam.py",
+    "unit/app/test_sweep.py",
+    "unit/methods/test_nasrukf.py",
+    "unit/methods/test_landmarks.py",
+    "unit/methods/test_ufastslam.py",
+    "unit/methods/test_adaptive_process.py",
+    "unit/smoother/test_smoother.py",
+    "unit/frontend/test_frontend.py",
+    "e2e/test_best_config.py",
+    "unit/models/test_measurement_models.py",
+    "unit/methods/test_path.py",
+    "unit/methods/test_known_association.py",
+    "unit/methods/test_ekf_slam.py",
+    "unit/methods/test_management.py",
 )
 
 
@@ -67,7 +69,13 @@ def pytest_collection_modifyitems(config, items):
         if any(name in DATA_FIXTURES for name in getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.data)
     rank = {name: i for i, name in enumerate(LONG_MODULES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_MODULES)))  # stable: order within kept
+    here = Path(__file__).resolve().parent
+
+    def module(item) -> str:
+        path = Path(item.path).resolve()
+        return path.relative_to(here).as_posix() if path.is_relative_to(here) else path.name
+
+    items.sort(key=lambda item: rank.get(module(item), len(LONG_MODULES)))  # stable: order within kept
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -104,7 +112,7 @@ def release_compiled_programs():
 @pytest.fixture(scope="session")
 def vp_dir() -> Path:
     """The real Victoria Park log at ../shared/data/victoria_park (skips the test when absent)."""
-    path = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "victoria_park"
+    path = SHARED_DATA / "victoria_park"
     if not (path / "measurements.dat").is_file():
         pytest.skip(f"Victoria Park log not found at {path}; see README.md to obtain it")
     return path

@@ -668,7 +668,7 @@ def compile_program(
     ``fn.lower(static, *args).compile()``. Otherwise the lowered program is exported
     (:mod:`jax.export`) to ``exported/`` under :func:`program_key`, or read from there, and
     compiled (the XLA layer of the cache then loads the executable). The result is the same
-    program: outputs are identical bit for bit (``tests/test_cache.py``). An entry is data only
+    program: outputs are identical bit for bit (``tests/unit/lib/test_cache.py``). An entry is data only
     (JAX's serialised module and a JSON header); one that does not load or does not match the key
     and the arguments is traced afresh and overwritten. A program whose output holds a node other
     than tuples, lists, dicts, None, NamedTuples and subtrees of its inputs is compiled but not

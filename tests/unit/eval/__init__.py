@@ -1,0 +1,1 @@
+"""Unit tests of ``nanoslam_jax.eval``."""
