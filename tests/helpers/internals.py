@@ -19,6 +19,9 @@ of a package other than the one it tests (``tests/unit/test_test_layout.py``).
   (``motion_model_from_config``; tests/unit/models/test_odometry.py).
 - ``nanoslam_jax.methods.maps._association``: the generic innovation and information of a
   measurement model (``innovation_information``; tests/unit/models/test_measurement_models.py).
+- ``nanoslam_jax.methods._params``: the module whose ``ROW_BUCKETS_WORK`` threshold a sweep's
+  plan reads for ``filter.row_buckets: auto`` (``filter_params``, patched by
+  tests/unit/app/test_sweep.py).
 - ``nanoslam_jax.methods.particle._prior``: one piece of the prior's unscented transform
   (``ut_piece``), the motion models' fast path against the generic one
   (tests/unit/models/test_motion_models.py).
@@ -31,6 +34,7 @@ from nanoslam_jax.eval._feature_metrics import break_point_line_errors
 from nanoslam_jax.eval._scoring import with_arcs
 from nanoslam_jax.lib._cache import CACHE_ENV, ProgramInfo, watch_compiles, watched_compile
 from nanoslam_jax.lib._cache import _exported_dir as exported_dir
+from nanoslam_jax.methods import _params as filter_params
 from nanoslam_jax.methods.maps._association import innovation_information
 from nanoslam_jax.methods.particle._prior import _ut_piece as ut_piece
 
@@ -39,6 +43,7 @@ __all__ = [
     "ProgramInfo",
     "break_point_line_errors",
     "exported_dir",
+    "filter_params",
     "innovation_information",
     "motion_model_from_config",
     "study_runner",

@@ -33,7 +33,6 @@ import yaml
 from nanoslam_jax import __version__, enable_compile_cache
 from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE
 from nanoslam_jax.app.config import ConfigError, load_config
-from nanoslam_jax.methods import _params
 from nanoslam_jax.methods import run_filter
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.app.sweep import _batch, _plan
@@ -51,6 +50,7 @@ from nanoslam_jax.app.sweep import (
 )
 from nanoslam_jax.app.sweep._batch import BatchOutput, BatchTask, _score, log_key
 from tests.helpers.paths import REPO_ROOT
+from tests.helpers.internals import filter_params
 
 BASE = {
     "name": "sweep-test",
@@ -274,16 +274,16 @@ def test_groups_and_batches(monkeypatch):
     # filter.row_buckets: auto is off for this little work: 33 runs of 4 or 8 particles over the
     # short log's segments in 2 batches...
     n_seg = int(log.segments.time.shape[0])
-    assert 8 * 33 * n_seg * 2 < _params.ROW_BUCKETS_WORK
+    assert 8 * 33 * n_seg * 2 < filter_params.ROW_BUCKETS_WORK
     assert {t.static.row_buckets for t in tasks} == {()}
     # ...and with work enough it counts the particles one call carries per device: 4 x 33 and
     # 8 x 33 vmapped (>= 64), 4 x 16 per device of two, but one run at a time under lax.map.
-    monkeypatch.setattr(_params, "ROW_BUCKETS_WORK", 4 * 33 * n_seg * 2)
+    monkeypatch.setattr(filter_params, "ROW_BUCKETS_WORK", 4 * 33 * n_seg * 2)
     tasks = make_tasks(spec, groups, logs, done=set())
     assert [t.static.row_buckets for t in tasks] == [(4, 8)] * 4
-    monkeypatch.setattr(_params, "ROW_BUCKETS_WORK", 4 * 33 * n_seg * 2 + 1)  # g0's 4 particles: not enough
+    monkeypatch.setattr(filter_params, "ROW_BUCKETS_WORK", 4 * 33 * n_seg * 2 + 1)  # g0's 4 particles: not enough
     assert [t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set())] == [(), (), (4, 8), (4, 8)]
-    monkeypatch.setattr(_params, "ROW_BUCKETS_WORK", 1)
+    monkeypatch.setattr(filter_params, "ROW_BUCKETS_WORK", 1)
     tasks = make_tasks(spec, groups, logs, done={r.run_id for r in runs[:40]})
     assert {t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set(), devices=2)} == {(4, 8)}
     assert {t.static.row_buckets for t in make_tasks(spec, groups, logs, done=set(), vectorize="map")} == {()}
