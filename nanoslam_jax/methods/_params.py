@@ -24,7 +24,7 @@ from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, R
 ROW_BUCKETS_FROM = 64
 #: ...and only for a program that runs at least this many particle-segments over all its calls: the
 #: split compiles the per-row work three times, which costs more than it saves on less work.
-ROW_BUCKETS_WORK = 20_000_000
+ROW_BUCKETS_WORK = 5_000_000
 #: ``filter.split_devices: auto`` splits a run's particles over the CPU devices from this many up.
 SPLIT_DEVICES_FROM = 64
 
