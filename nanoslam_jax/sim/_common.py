@@ -248,7 +248,7 @@ def detections(
     ids = [li[k]]
 
     # ---- clutter: Poisson per scan, uniform over the footprint sector
-    n_clut = rng_clut.poisson(sim.clutter_rate, n_s) if sim.clutter_rate > 0 else np.zeros(n_s, int)
+    n_clut = np.asarray(rng_clut.poisson(sim.clutter_rate, n_s) if sim.clutter_rate > 0 else np.zeros(n_s, int))
     tot = int(n_clut.sum())
     if tot:
         c_t = np.repeat(scan_t, n_clut)
