@@ -183,7 +183,8 @@ def log_key(cfg: Config) -> str:
     """What a config's log depends on: configs with the same key run on the same log."""
     d = config_to_dict(cfg)
     return json.dumps(
-        [d[k] for k in ("data", "sim", "indoor", "vehicle", "detector")] + [cfg.model.measurement], sort_keys=True
+        [d[k] for k in ("data", "sim", "city", "indoor", "vehicle", "detector")] + [cfg.model.measurement],
+        sort_keys=True,
     )
 
 

@@ -24,7 +24,7 @@ from nanoslam_jax.models._settings import (
     UnicycleConfig,
     VehicleConfig,
 )
-from nanoslam_jax.sim._settings import IndoorConfig, SimConfig
+from nanoslam_jax.sim._settings import CityConfig, IndoorConfig, SimConfig
 from nanoslam_jax.smoother._settings import SmootherConfig
 
 #: The built-in models' noise and sensor defaults, which the noise, data and map sections take.
@@ -40,11 +40,12 @@ _NANO, _ITERATED, _NASRUKF = NanoStatic(), IteratedStatic(), NasrukfStatic()
 class DataConfig:
     """Where the log comes from and how it is cut into fixed-shape segments."""
 
-    kind: Literal["victoria_park", "simulated", "indoor"] = _f(
+    kind: Literal["victoria_park", "simulated", "city", "indoor"] = _f(
         "victoria_park",
         static=True,
         doc="'victoria_park': read a log directory (Victoria Park-format, or another data.format); 'simulated': "
-        "simulate one (see sim); 'indoor': simulate an indoor log in memory (section indoor), or read the "
+        "simulate one (see sim); 'city': simulate a city-sized log in memory (section city, with the sensor "
+        "and noise of sim); 'indoor': simulate an indoor log in memory (section indoor), or read the "
         "directory --data (or data.path) that `nanoslam simulate --scenario indoor` wrote; its true walls, "
         "corners and pillars score a map of lines (Table 1's metrics)",
     )
@@ -620,5 +621,6 @@ class Config:
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     sim: SimConfig = field(default_factory=SimConfig)
+    city: CityConfig = field(default_factory=CityConfig)
     indoor: IndoorConfig = field(default_factory=IndoorConfig)
     output: OutputConfig = field(default_factory=OutputConfig)

@@ -3,6 +3,7 @@
     nanoslam run [CONFIG] [--out DIR [--overwrite]] [--data DIR] [--set key=value ...]
     nanoslam config [CONFIG] [--set key=value ...]
     nanoslam simulate --out DIR [--seed S] [--config CONFIG] [--laser] [--set sim.key=value ...]
+    nanoslam simulate --scenario city --out DIR [--seed S] [--set city.key=value ...] [--set sim.key=value ...]
     nanoslam simulate --scenario indoor --out DIR [--seed S] [--set indoor.key=value ...]
     nanoslam compare COMPARISON [--out DIR] [--data DIR] [--seeds S] [--set key=value ...]
                      [--quick] [--resume] [--methods LABEL ...] [--particles N ...]
@@ -118,9 +119,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--scenario",
-        choices=["park", "indoor"],
+        choices=["park", "city", "indoor"],
         default="park",
-        help="'park': the Victoria Park-like log (section sim); 'indoor': rooms or corridors with walls, "
+        help="'park': the Victoria Park-like log (section sim); 'city': a drive of city.distance_m (20 km) "
+        "through a street grid of about 10,000 trees and lamp posts, with the park's sensor and noise (sections "
+        "city and sim, --seed sets city.seed; docs/simulate_city.md); 'indoor': rooms or corridors with walls, "
         "corners, doors and pillars, a low-speed differential-drive vehicle, raw scans and the truth "
         "of every line, arc, corner and break point (section indoor, --seed sets indoor.seed; "
         "docs/simulate_indoor.md)",
@@ -336,9 +339,9 @@ def _run(args) -> int:
     if args.data is not None and args.config is None and not sets_kind:
         overrides = _log_kind_overrides(args.data) + overrides
     cfg = load_config(args.config, overrides)
-    if args.data is not None and cfg.data.kind == "simulated":
+    if args.data is not None and cfg.data.kind in ("simulated", "city"):
         raise ConfigError(
-            f"--data {args.data}: {args.config or 'the config'} has data.kind simulated, which reads no "
+            f"--data {args.data}: {args.config or 'the config'} has data.kind {cfg.data.kind}, which reads no "
             "directory; give a config with data.kind victoria_park (or indoor), or --set data.kind=victoria_park"
         )
     setup_run_devices(cfg)
@@ -395,6 +398,8 @@ def _simulate(args) -> int:
 
     if args.scenario == "indoor":
         return _simulate_indoor(args)
+    if args.scenario == "city":
+        return _simulate_city(args)
     overrides = list(args.overrides) + ([f"sim.seed={args.seed}"] if args.seed is not None else [])
     cfg = load_config(args.config, overrides)
     unicycle = cfg.unicycle if cfg.model.motion == "unicycle" else None
@@ -416,6 +421,25 @@ def _simulate(args) -> int:
             f"LASER.txt: {log.scans.n_scans} scans of {log.scans.n_beams} beams; laser_truth.csv: "
             f"{int((log.truth[:, 2] >= 3).sum())} trees hit by 3 or more beams over all scans"
         )
+    return 0
+
+
+def _simulate_city(args) -> int:
+    from nanoslam_jax.sim.city import simulate_city_to_dir
+
+    if args.laser:
+        raise ConfigError("--laser applies to --scenario park; the city log has no raw scans")
+    overrides = list(args.overrides) + ([f"city.seed={args.seed}"] if args.seed is not None else [])
+    cfg = load_config(args.config, overrides)
+    unicycle = cfg.unicycle if cfg.model.motion == "unicycle" else None
+    log = simulate_city_to_dir(args.out, cfg.city, cfg.sim, cfg.vehicle, unicycle)
+    raw, c = log.raw, cfg.city
+    n_scans = len(set(raw.detections[:, 0].tolist()))
+    print(
+        f"wrote {args.out}: a city of {c.blocks}x{c.blocks} blocks (seed {c.seed}), {c.distance_m:g} m in "
+        f"{raw.dr[-1, 0]:.0f} s, {raw.dr.shape[0]} DR samples, {raw.detections.shape[0]} detections in "
+        f"{n_scans} scans, {log.world.landmarks.shape[0]} landmarks"
+    )
     return 0
 
 

@@ -30,6 +30,7 @@ from nanoslam_jax.app._config_schema import (
     DataConfig,
     DetectorConfig,
     FilterConfig,
+    CityConfig,
     IndoorConfig,
     IteratedConfig,
     MapConfig,
@@ -65,6 +66,7 @@ __all__ = [
     "NasrukfConfig",
     "MetricsConfig",
     "SimConfig",
+    "CityConfig",
     "IndoorConfig",
     "OutputConfig",
     "SmootherConfig",
@@ -274,10 +276,11 @@ def _check_consistency(cfg: Config, where: str) -> None:
             f"{where}key 'noise.adaptive': the adaptive noise estimate is of one detection type; a map of several "
             f"types (model.measurement {cfg.model.measurement!r}) takes each type's configured noise"
         )
-    if (lines_in or circles_in or features_in) and d.kind == "simulated":
+    if (lines_in or circles_in or features_in) and d.kind in ("simulated", "city"):
         raise ConfigError(
-            f"{where}key 'data.detections': the simulated park log has no raw scans; expected 'file' "
-            f"with data.kind simulated (or data.kind indoor for line segments and circles), got {d.detections!r}"
+            f"{where}key 'data.detections': the simulated {'park' if d.kind == 'simulated' else 'city'} log has "
+            f"no raw scans; expected 'file' with data.kind {d.kind} (or data.kind indoor for line segments and "
+            f"circles), got {d.detections!r}"
         )
     mp = cfg.map
     if mp.manage and mp.p_false >= mp.p_detect:
@@ -306,6 +309,12 @@ def _check_consistency(cfg: Config, where: str) -> None:
             f"{where}key 'indoor.pillar_radius_min': expected a value <= indoor.pillar_radius_max "
             f"({ind.pillar_radius_max}), got {ind.pillar_radius_min}"
         )
+    cty = cfg.city
+    if cty.turn_radius > 0.5 * cty.street_width + 0.25 * cty.block_size:
+        raise ConfigError(
+            f"{where}key 'city.turn_radius': expected a value <= city.street_width / 2 + city.block_size / 4 "
+            f"({0.5 * cty.street_width + 0.25 * cty.block_size:g}), got {cty.turn_radius}"
+        )
     if cfg.noise.forgetting >= 1.0:
         raise ConfigError(f"{where}key 'noise.forgetting': expected a value < 1, got {cfg.noise.forgetting}")
     if cfg.nasrukf.process_forgetting >= 1.0:
@@ -324,9 +333,10 @@ def _check_consistency(cfg: Config, where: str) -> None:
             f"{where}key 'nasrukf.measurement': 'beams' measures line and arc features beam by beam; expected "
             f"data.detections laser_beams (raw scans), got {d.detections!r}"
         )
-    if beams_in and d.kind == "simulated":
+    if beams_in and d.kind in ("simulated", "city"):
         raise ConfigError(
-            f"{where}key 'data.detections': the simulated park log has no raw scans; expected data.kind indoor "
+            f"{where}key 'data.detections': the simulated {'park' if d.kind == 'simulated' else 'city'} log has "
+            "no raw scans; expected data.kind indoor "
             "(or a log directory with raw scans) for laser_beams"
         )
     if cfg.nasrukf.adaptive_process and cfg.filter.method != "nasrukf":

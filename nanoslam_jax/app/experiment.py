@@ -199,6 +199,17 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
         else:
             raw = simulate_config(cfg)
         frame, source = "slam", f"simulated (seed {cfg.sim.seed})"
+    elif cfg.data.kind == "city":
+        from nanoslam_jax.sim.city import simulate_city
+
+        if odometry:  # a differential-drive robot with its sensor at the odometry model's offset
+            o = cfg.odometry
+            unicycle: Optional[UnicycleConfig] = UnicycleConfig(sensor_x=o.sensor_x, sensor_y=o.sensor_y)
+        else:
+            unicycle = cfg.unicycle if cfg.model.motion == "unicycle" else None
+        raw = simulate_city(cfg.city, cfg.sim, cfg.vehicle, unicycle).raw
+        frame = "slam"
+        source = f"simulated city ({cfg.city.blocks}x{cfg.city.blocks} blocks, {cfg.city.distance_m:g} m, seed {cfg.city.seed})"
     elif cfg.data.kind == "indoor" and data_dir is None and cfg.data.path is None:
         from nanoslam_jax.sim.indoor import feature_truth, simulate_indoor
 

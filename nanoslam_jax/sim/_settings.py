@@ -1,4 +1,4 @@
-"""The simulators' settings: the park-like log and the indoor scenario."""
+"""The simulators' settings: the park-like log, the city and the indoor scenario."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Literal
 
 from nanoslam_jax.lib._fields import _f
 
-__all__ = ["SimConfig", "IndoorConfig"]
+__all__ = ["SimConfig", "CityConfig", "IndoorConfig"]
 
 
 @dataclass(frozen=True)
@@ -117,6 +117,80 @@ class SimConfig:
         lo=0.0,
         static=True,
         doc="raw scans: walls, fences and bushes keep at least this gap (m) to every trunk, and 3 m to the path",
+    )
+
+
+@dataclass(frozen=True)
+class CityConfig:
+    """The city (``nanoslam simulate --scenario city``, ``data.kind: city``; docs/simulate_city.md): a car
+    drives a street grid lined with trees and lamp posts, with the park's sensor, detections, clutter,
+    misses, speed, rates and odometry noise (section sim)."""
+
+    seed: int = _f(0, lo=0, static=True, doc="seed of the city, the route, the odometry noise and the detections")
+    distance_m: float = _f(20000.0, lo=100.0, static=True, doc="distance driven (m), at the mean speed sim.speed")
+    blocks: int = _f(
+        12,
+        lo=2,
+        static=True,
+        doc="the city is blocks x blocks square blocks; blocks + 1 streets run each way (12: 1.4 km across)",
+    )
+    block_size: float = _f(
+        100.0, lo=30.0, hi=1000.0, static=True, doc="side of a block (m), from kerb to kerb across it"
+    )
+    street_width: float = _f(
+        16.0,
+        lo=6.0,
+        hi=60.0,
+        static=True,
+        doc="width of a street (m) from kerb to kerb; the car drives its centreline, the trees stand on the kerbs",
+    )
+    tree_spacing: float = _f(
+        10.0,
+        lo=2.0,
+        static=True,
+        doc="trees along each side of every street: floor(block_size / tree_spacing) per block side, evenly spaced",
+    )
+    tree_jitter: float = _f(
+        1.5,
+        lo=0.0,
+        static=True,
+        doc="a street tree moves by up to this (m, uniform) along its kerb from its even spot, and up to 0.5 m "
+        "into the block",
+    )
+    interior_density: float = _f(
+        32.0,
+        lo=0.0,
+        static=True,
+        doc="trees per hectare in the blocks' interiors (the block less a 5 m margin; the count per block is "
+        "rounded): defaults give 10,080 landmarks",
+    )
+    lamp_posts: bool = _f(
+        True,
+        static=True,
+        doc="a lamp post (diameter 0.15 to 0.25 m) at every corner of every block, 1 m in from both kerbs",
+    )
+    turn_radius: float = _f(
+        8.0,
+        lo=6.0,
+        hi=30.0,
+        static=True,
+        doc="radius (m) of the route's arcs at turns (the car's tightest turn is about 6 m); at most "
+        "street_width / 2 + block_size / 4",
+    )
+    p_straight: float = _f(
+        0.5,
+        lo=0.0,
+        hi=1.0,
+        static=True,
+        doc="at an intersection the route goes straight with this probability, else turns left or right "
+        "(equally likely; never back, never off the grid)",
+    )
+    revisit_every_m: float = _f(
+        2000.0,
+        lo=0.0,
+        static=True,
+        doc="every this many metres (m; 0: never) the route drives the shortest way to the street it has not "
+        "driven for the longest (of those it left at least this far back) and along it, then walks on",
     )
 
 

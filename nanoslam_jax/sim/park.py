@@ -60,10 +60,21 @@ from typing import Union
 import numpy as np
 from scipy.spatial import cKDTree
 
+from nanoslam_jax.sim._common import (
+    GPS_RATE,
+    MAX_STEER,
+    detections,
+    drive,
+    logged_controls,
+    poses_at,
+    scan_times,
+    simulated_log,
+    speed_profile,
+    vehicle_for,
+)
 from nanoslam_jax.sim._settings import SimConfig
 from nanoslam_jax.models._settings import UnicycleConfig, VehicleConfig
 from nanoslam_jax.data._types import RawLog
-from nanoslam_jax.lib._angles import wrap_angle_np
 
 __all__ = [
     "simulate",
@@ -84,48 +95,11 @@ PATH_CLEARANCE = 3.0
 MIN_SEMI_AXIS = 20.0
 #: Aspect ratio A / B of the reference superellipse.
 PATH_ASPECT = 1.3
-#: GPS rate of the simulated log (Hz).
-GPS_RATE = 5.0
-#: Bound on the true steering angle (rad).
-MAX_STEER = 0.45
-#: Steering rate limit (rad/s) and first-order steering lag (s) of the simulated driver.
-STEER_RATE = 0.6
-STEER_TAU = 0.25
 #: Path polyline spacing (m).
 _PATH_DS = 0.25
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def _wrap_scalar(a: float) -> float:
-    w = math.fmod(a + math.pi, 2.0 * math.pi)
-    if w < 0.0:
-        w += 2.0 * math.pi
-    w -= math.pi
-    return w + 2.0 * math.pi if w <= -math.pi else w
-
-
-def _step_np(x: np.ndarray, u: np.ndarray, dt: np.ndarray, vehicle: VehicleConfig) -> np.ndarray:
-    """Vectorised numpy twin of :func:`nanoslam_jax.models.vehicle_step`.
-
-    Args:
-        x: ``(n, 3)`` laser poses.
-        u: ``(n, 2)`` controls ``(ve, alpha)``.
-        dt: ``(n,)`` intervals (s).
-        vehicle: car constants.
-
-    Returns:
-        ``(n, 3)`` poses after ``dt``, heading wrapped.
-    """
-    L, H, a, b = vehicle.wheelbase, vehicle.encoder_offset, vehicle.laser_a, vehicle.laser_b
-    phi, ve, alpha = x[:, 2], u[:, 0], u[:, 1]
-    vc = ve / (1.0 - np.tan(alpha) * H / L)
-    w = vc / L * np.tan(alpha)
-    s, c = np.sin(phi), np.cos(phi)
-    dx = vc * c - w * (a * s + b * c)
-    dy = vc * s + w * (a * c - b * s)
-    return np.stack([x[:, 0] + dt * dx, x[:, 1] + dt * dy, wrap_angle_np(phi + dt * w)], axis=1)
 
 
 def _superellipse(aspect: float, n: int = 20000) -> tuple[np.ndarray, float]:
@@ -222,76 +196,6 @@ def _place_trees(rng: np.random.Generator, n: int, lo: np.ndarray, side: float, 
     return trees
 
 
-def _drive(
-    path: np.ndarray, ve: np.ndarray, dt: float, vehicle: VehicleConfig, lookahead: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pure-pursuit driving of the laser pose along ``path``; returns (poses (n, 3), alpha (n,)).
-
-    ``poses[k]`` is the pose at DR sample ``k``; ``alpha[k]`` the true steering held over
-    ``[t_k, t_k + dt)``. Plain-Python scalar loop (about 10k steps per 0.1 s).
-    """
-    L, H, a, b = vehicle.wheelbase, vehicle.encoder_offset, vehicle.laser_a, vehicle.laser_b
-    n = ve.shape[0]
-    px_l, py_l = path[:, 0].tolist(), path[:, 1].tolist()
-    m = len(px_l)
-    ds = float(np.mean(np.hypot(*np.diff(np.vstack([path, path[:1]]), axis=0).T)))
-    n_look = max(1, int(round(lookahead / ds)))
-    poses = np.empty((n, 3))
-    alphas = np.empty(n)
-    x = y = phi = 0.0
-    alpha = 0.0
-    idx = 0
-    max_dalpha = STEER_RATE * dt
-    for k in range(n):
-        poses[k, 0], poses[k, 1], poses[k, 2] = x, y, phi
-        s, c = math.sin(phi), math.cos(phi)
-        rx, ry = x - a * c + b * s, y - a * s - b * c  # rear-axle centre
-        # nearest path point: hill-climb forward from the last one
-        i0 = idx % m
-        d_cur = (px_l[i0] - rx) ** 2 + (py_l[i0] - ry) ** 2
-        for _ in range(m):
-            i1 = (idx + 1) % m
-            d_next = (px_l[i1] - rx) ** 2 + (py_l[i1] - ry) ** 2
-            if d_next > d_cur:
-                break
-            idx, d_cur = idx + 1, d_next
-        g = (idx + n_look) % m
-        gx, gy = px_l[g] - rx, py_l[g] - ry
-        lx, ly = c * gx + s * gy, -s * gx + c * gy
-        kappa = 2.0 * ly / max(lx * lx + ly * ly, 1e-9)
-        cmd = min(max(math.atan(L * kappa), -MAX_STEER), MAX_STEER)
-        d_alpha = (cmd - alpha) * min(dt / STEER_TAU, 1.0)
-        alpha = min(max(alpha + min(max(d_alpha, -max_dalpha), max_dalpha), -MAX_STEER), MAX_STEER)
-        alphas[k] = alpha
-        # vehicle model (same expression order as nanoslam_jax.models.vehicle_step)
-        ta = math.tan(alpha)
-        vc = ve[k] / (1.0 - ta * H / L)
-        w = vc / L * ta
-        x = x + dt * (vc * c - w * (a * s + b * c))
-        y = y + dt * (vc * s + w * (a * c - b * s))
-        phi = _wrap_scalar(phi + dt * w)
-    return poses, alphas
-
-
-def _poses_at(
-    times: np.ndarray, dr_t: np.ndarray, dr_poses: np.ndarray, u: np.ndarray, vehicle: VehicleConfig
-) -> np.ndarray:
-    """True poses at arbitrary times inside the DR span (held control over the remaining fraction).
-
-    Args:
-        times: ``(n,)`` query times in ``[dr_t[0], dr_t[-1]]``.
-        dr_t: ``(N,)`` DR sample times.
-        dr_poses: ``(N, 3)`` true poses at the DR samples.
-        u: ``(N, 2)`` true controls held over each DR interval.
-        vehicle: car constants.
-
-    Returns:
-        ``(n, 3)`` poses.
-    """
-    idx = np.clip(np.searchsorted(dr_t, times, side="right") - 1, 0, dr_t.shape[0] - 1)
-    return _step_np(dr_poses[idx], u[idx], times - dr_t[idx], vehicle)
-
-
 # --------------------------------------------------------------------------- public API
 
 
@@ -326,11 +230,7 @@ def simulate(
           ``truth_landmarks``), -1 for clutter; ``landmark_ids``: ``0 .. n_trees - 1``.
     """
     sim = SimConfig() if sim is None else sim
-    vehicle = VehicleConfig() if vehicle is None else vehicle
-    if unicycle is not None:  # the car's model with no encoder offset moves the sensor as a unicycle does
-        vehicle = VehicleConfig(
-            wheelbase=vehicle.wheelbase, encoder_offset=0.0, laser_a=unicycle.sensor_x, laser_b=unicycle.sensor_y
-        )
+    vehicle = vehicle_for(VehicleConfig() if vehicle is None else vehicle, unicycle)
     rng_tree, rng_prof, rng_ctrl, rng_det, rng_clut = (
         np.random.default_rng(s) for s in np.random.SeedSequence(sim.seed).spawn(5)
     )
@@ -339,11 +239,7 @@ def simulate(
     n_dr = int(math.floor(sim.duration * sim.dr_rate + 1e-9)) + 1
     dr_t = np.arange(n_dr) / sim.dr_rate
     dt = 1.0 / sim.dr_rate
-    period = rng_prof.uniform(25.0, 45.0)
-    phase = rng_prof.uniform(0.0, 2.0 * np.pi)
-    ramp = np.clip(dr_t / 3.0, 0.0, 1.0)
-    ramp = ramp * ramp * (3.0 - 2.0 * ramp)  # smoothstep: start from rest
-    ve_true = sim.speed * ramp * (1.0 + 0.1 * np.sin(2.0 * np.pi * dr_t / period + phase))
+    ve_true = speed_profile(sim.speed, dr_t, rng_prof)
     distance = float(np.sum(ve_true[:-1]) * dt)
 
     # ---- path, park and trees
@@ -354,86 +250,15 @@ def simulate(
 
     # ---- truth at DR samples (closed-loop driver) and logged controls
     lookahead = max(5.0, 2.0 * sim.speed)
-    dr_poses, alpha_true = _drive(path, ve_true, dt, vehicle, lookahead)
+    dr_poses, alpha_true = drive(path, ve_true, dt, vehicle, lookahead)
     u_true = np.stack([ve_true, alpha_true], axis=1)
-    ve_log = ve_true + rng_ctrl.normal(0.0, 1.0, n_dr) * sim.sigma_v
-    alpha_log = (
-        alpha_true
-        + rng_ctrl.normal(0.0, 1.0, n_dr) * math.radians(sim.sigma_alpha_deg)
-        + math.radians(sim.steering_bias_deg)
-    )
-    dr = np.stack([dr_t, ve_log, alpha_log], axis=1)
-    if unicycle is not None:
-        omega_true = ve_true / vehicle.wheelbase * np.tan(alpha_true)
-        omega_log = (
-            omega_true
-            + rng_ctrl.normal(0.0, 1.0, n_dr) * math.radians(sim.sigma_omega_deg)
-            + math.radians(sim.omega_bias_deg)
-        )
-        dr = np.stack([dr_t, ve_log, omega_log], axis=1)
+    dr = logged_controls(dr_t, ve_true, alpha_true, sim, vehicle, rng_ctrl, unicycle=unicycle is not None)
 
-    # ---- scan times: ~scan_rate Hz, random phase, jitter, never on a DR sample
-    t_end = dr_t[-1]
-    scan_period = 1.0 / sim.scan_rate
-    n_scan = int(math.floor(t_end / scan_period)) + 2
-    scan_t = rng_prof.uniform(0.05, 0.95) * scan_period + np.arange(n_scan) * scan_period
-    scan_t = scan_t + rng_prof.uniform(-0.05, 0.05, n_scan) * scan_period
-    frac = scan_t * sim.dr_rate - np.round(scan_t * sim.dr_rate)
-    scan_t = np.where(np.abs(frac) < 0.02, scan_t + 0.05 / sim.dr_rate, scan_t)
-    scan_t = scan_t[(scan_t > 0.0) & (scan_t < t_end)]
-    scan_poses = _poses_at(scan_t, dr_t, dr_poses, u_true, vehicle)
-
-    # ---- detections
-    max_range = sim.max_range
-    half_fov = 0.5 * math.radians(sim.fov_deg)
-    n_s, n_l = scan_t.shape[0], trees.shape[0]
-    dx = trees[None, :, 0] - scan_poses[:, None, 0]
-    dy = trees[None, :, 1] - scan_poses[:, None, 1]
-    r = np.hypot(dx, dy) + rng_det.normal(0.0, 1.0, (n_s, n_l)) * sim.sigma_r
-    beta_noise = rng_det.normal(0.0, 1.0, (n_s, n_l)) * math.radians(sim.sigma_beta_deg)
-    beta = wrap_angle_np(np.arctan2(dy, dx) - scan_poses[:, None, 2] + beta_noise)
-    hit = rng_det.random((n_s, n_l)) < sim.p_detect
-    diam = np.clip(tree_diam[None, :] + rng_det.normal(0.0, 0.02, (n_s, n_l)), 0.1, 0.6)
-    keep = hit & (r > 0.0) & (r < max_range) & (np.abs(beta) <= half_fov)
-    si, li = np.nonzero(keep)
-    rows = [np.stack([scan_t[si], r[si, li], beta[si, li], diam[si, li]], axis=1)]
-    ids = [li]
-
-    # ---- clutter: Poisson per scan, uniform over the footprint sector
-    n_clut = rng_clut.poisson(sim.clutter_rate, n_s) if sim.clutter_rate > 0 else np.zeros(n_s, int)
-    tot = int(n_clut.sum())
-    if tot:
-        c_t = np.repeat(scan_t, n_clut)
-        c_r = max_range * np.sqrt(1.0 - rng_clut.random(tot))  # in (0, max_range]
-        c_r = np.minimum(c_r, np.nextafter(max_range, 0.0))
-        c_b = wrap_angle_np(rng_clut.uniform(-half_fov, half_fov, tot))
-        c_d = rng_clut.uniform(0.1, 0.6, tot)
-        rows.append(np.stack([c_t, c_r, c_b, c_d], axis=1))
-        ids.append(np.full(tot, -1))
-    det = np.concatenate(rows, axis=0)
-    order = np.lexsort((det[:, 2], det[:, 0]))
-    det, det_ids = det[order], np.concatenate(ids)[order]
-
-    # ---- ground truth streams
-    gps_t = np.arange(int(math.floor(t_end * GPS_RATE + 1e-9)) + 1) / GPS_RATE
-    gps_t = gps_t[gps_t <= t_end]
-    gps_xy = _poses_at(gps_t, dr_t, dr_poses, u_true, vehicle)[:, :2]
-    truth_t = np.concatenate([dr_t, scan_t])
-    truth_p = np.concatenate([dr_poses, scan_poses], axis=0)
-    order = np.argsort(truth_t, kind="stable")
-    truth_poses = np.concatenate([truth_t[order, None], truth_p[order]], axis=1)
-
-    return RawLog(
-        dr=dr,
-        detections=det,
-        gps=np.concatenate([gps_t[:, None], gps_xy], axis=1),
-        truth_poses=truth_poses,
-        truth_landmarks=trees,
-        truth_diameters=tree_diam,
-        source="simulated",
-        detection_ids=det_ids,
-        landmark_ids=np.arange(trees.shape[0]),
-    )
+    # ---- scans, detections, truth
+    scan_t = scan_times(dr_t[-1], sim, rng_prof)
+    scan_poses = poses_at(scan_t, dr_t, dr_poses, u_true, vehicle)
+    det, det_ids = detections(scan_t, scan_poses, trees, tree_diam, sim, rng_det, rng_clut)
+    return simulated_log(dr, dr_poses, u_true, scan_t, scan_poses, det, det_ids, trees, tree_diam, vehicle)
 
 
 def simulate_config(cfg) -> RawLog:

@@ -448,7 +448,7 @@ def _gps_floor(out: Path, spec: StudySpec, points: list[StudyPoint], data_dir: O
     from nanoslam_jax.app.sweep import load_log_data
 
     cfg = points[0].config
-    if cfg.data.kind == "simulated":
+    if cfg.data.kind in ("simulated", "city"):
         return None
     try:
         log = load_log_data(cfg, data_dir, spec.segments)

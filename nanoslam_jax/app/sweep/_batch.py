@@ -76,6 +76,9 @@ def log_key(cfg: Config) -> tuple:
     if cfg.data.kind == "simulated":
         mounting = (cfg.odometry.sensor_x, cfg.odometry.sensor_y) if cfg.model.motion == "odometry" else ()
         return (cfg.data, cfg.sim, cfg.vehicle, cfg.model.motion, cfg.unicycle) + mounting + laser
+    if cfg.data.kind == "city":
+        mounting = (cfg.odometry.sensor_x, cfg.odometry.sensor_y) if cfg.model.motion == "odometry" else ()
+        return (cfg.data, cfg.city, cfg.sim, cfg.vehicle, cfg.model.motion, cfg.unicycle) + mounting + laser
     if cfg.data.kind == "indoor":
         return (cfg.data, cfg.indoor, cfg.model.measurement) + laser
     return (cfg.data,) + laser
