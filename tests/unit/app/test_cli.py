@@ -13,36 +13,13 @@ import pytest
 from nanoslam_jax.app.cli import main
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.data import load_victoria_park
+from tests.helpers.cli import SIM_FILES
+from tests.helpers.cli import call as _call
+from tests.helpers.cli import check_one_line_error as _check_one_line_error
 from tests.helpers.paths import REPO_ROOT
 
 ROOT = REPO_ROOT
 DR_CONFIG = ROOT / "configs" / "dead_reckoning.yaml"
-SIM_FILES = [
-    "inputs.dat",
-    "measurements.dat",
-    "gps.dat",
-    "truth_poses.dat",
-    "truth_landmarks.dat",
-    "truth_diameters.dat",
-]
-
-
-def _call(capsys, argv):
-    """``main(argv)`` -> (exit code, stdout, stderr)."""
-    capsys.readouterr()
-    rc = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def _check_one_line_error(rc, err, *fragments):
-    assert rc == 2
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("nanoslam: error: ")
-    assert "Traceback" not in err
-    for f in fragments:
-        assert f in lines[0], (f, lines[0])
 
 
 # --------------------------------------------------------------------------- entry points
