@@ -33,7 +33,7 @@ SLOW = (
 FAST = (
     "tests/unit/app/test_cli.py::test_missing_or_unknown_command_is_a_usage_error",
     "tests/unit/methods/test_filter.py::test_scan_prefix_is_the_scan_of_the_prefix",
-    "tests/unit/app/test_sweep.py::test_grid_expansion_is_the_cartesian_product_with_seeds",
+    "tests/unit/app/test_sweep_spec.py::test_grid_expansion_is_the_cartesian_product_with_seeds",
     "tests/unit/app/test_study.py::test_summary_medians_quartiles_and_worst_seed_by_hand",
 )
 
