@@ -22,6 +22,7 @@ from typing import Any, Literal
 
 import yaml
 
+from nanoslam_jax.app._config_checks import CHECKS
 from nanoslam_jax.app._config_schema import (
     ADAPTIVE_NOISE_METHODS,
     ROW_BUCKETS_FROM,
@@ -125,7 +126,61 @@ def type_name(tp: Any) -> str:
     return _type_name(tp)
 
 
+def _coerce_bool(value: Any, key: str, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}key '{key}': expected true or false, got {value!r}")
+    return value
+
+
+def _coerce_int(value: Any, key: str, where: str) -> int:
+    """An integer; a float with an integral value becomes one."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        raise ConfigError(f"{where}key '{key}': expected an integer, got {value!r}")
+    return value
+
+
+def _coerce_float(value: Any, key: str, where: str) -> float:
+    """A finite number, as a float."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{where}key '{key}': expected a number, got {value!r}")
+    value = float(value)
+    if value != value or value in (float("inf"), float("-inf")):
+        raise ConfigError(f"{where}key '{key}': expected a finite number, got {value!r}")
+    return value
+
+
+def _coerce_dict(value: Any, key: str, where: str) -> dict:
+    """A mapping of names to numbers; a value may itself be such a mapping (a composite measurement
+    model's per-type parameters)."""
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}key '{key}': expected a mapping of names to numbers, got {value!r}")
+    return {str(k): _coerce(v, dict if isinstance(v, dict) else float, f"{key}.{k}", where) for k, v in value.items()}
+
+
+def _coerce_str(value: Any, key: str, where: str) -> str:
+    if not isinstance(value, str):
+        raise ConfigError(f"{where}key '{key}': expected a string, got {value!r}")
+    return value
+
+
+#: The coercion of each plain (not generic) field type.
+_PLAIN_COERCIONS: dict[Any, Any] = {
+    bool: _coerce_bool,
+    int: _coerce_int,
+    float: _coerce_float,
+    dict: _coerce_dict,
+    str: _coerce_str,
+}
+
+
 def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
+    """``value`` as a field of annotation ``tp`` takes it.
+
+    Raises:
+        ConfigError: naming ``key`` (after ``where``) and what it expects, when ``value`` does not fit.
+    """
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = typing.get_args(tp)
@@ -137,40 +192,15 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
         if value not in typing.get_args(tp):
             raise ConfigError(f"{where}key '{key}': expected {_type_name(tp)}, got {value!r}")
         return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}key '{key}': expected true or false, got {value!r}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            if isinstance(value, float) and value.is_integer():
-                return int(value)
-            raise ConfigError(f"{where}key '{key}': expected an integer, got {value!r}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}key '{key}': expected a number, got {value!r}")
-        value = float(value)
-        if value != value or value in (float("inf"), float("-inf")):
-            raise ConfigError(f"{where}key '{key}': expected a finite number, got {value!r}")
-        return value
     if origin is tuple:  # a fixed number of numbers, e.g. a pose [x, y, theta]
         n = len(typing.get_args(tp))
         if not isinstance(value, (list, tuple)) or len(value) != n:
             raise ConfigError(f"{where}key '{key}': expected {_type_name(tp)}, got {value!r}")
         return tuple(_coerce(v, float, f"{key}[{i}]", where) for i, v in enumerate(value))
-    if tp is dict:
-        if not isinstance(value, dict):
-            raise ConfigError(f"{where}key '{key}': expected a mapping of names to numbers, got {value!r}")
-        # A value may itself be a mapping of names to numbers (a composite measurement model's per-type parameters).
-        return {
-            str(k): _coerce(v, dict if isinstance(v, dict) else float, f"{key}.{k}", where) for k, v in value.items()
-        }
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}key '{key}': expected a string, got {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {tp!r} for {key}")
+    coerce = _PLAIN_COERCIONS.get(tp)
+    if coerce is None:
+        raise TypeError(f"unsupported config type {tp!r} for {key}")
+    return coerce(value, key, where)
 
 
 def _check_range(value: Any, meta: Any, key: str, where: str) -> None:
@@ -209,203 +239,15 @@ def _build(cls: type, raw: Any, prefix: str, where: str) -> Any:
 
 
 def _check_consistency(cfg: Config, where: str) -> None:
-    d = cfg.data
-    if d.min_range >= d.max_range:
-        raise ConfigError(
-            f"{where}key 'data.min_range': expected a value < data.max_range ({d.max_range}), got {d.min_range}"
-        )
-    if d.kind == "victoria_park" and d.format == "mrclam":
-        if d.detections != "file":
-            raise ConfigError(
-                f"{where}key 'data.detections': an MRCLAM log has no laser scans, only its sightings; "
-                f"expected 'file' with data.format mrclam, got {d.detections!r}"
-            )
-        if cfg.model.motion == "ackermann":
-            raise ConfigError(
-                f"{where}key 'model.motion': an MRCLAM log's odometry is (v, omega) of a differential-drive "
-                "robot, not the car's (speed, steering); expected unicycle (or odometry, random_walk, or your "
-                "own model) with data.format mrclam, got 'ackermann'"
-            )
-    if d.format == "carmen" and d.detections == "file":
-        raise ConfigError(
-            f"{where}key 'data.detections': a CARMEN log holds laser scans, no detections; expected one of "
-            "laser, laser_lines, laser_beams, laser_circles, laser_features with data.format carmen, got 'file'"
-        )
-    if d.format == "carmen" and cfg.model.motion == "ackermann":
-        raise ConfigError(
-            f"{where}key 'model.motion': a CARMEN log's odometry becomes (v, omega) controls of a "
-            "differential-drive robot or pose increments; expected unicycle or odometry (or random_walk, or "
-            "your own model) with data.format carmen, got 'ackermann'"
-        )
-    if d.reference is not None and d.format not in ("carmen", "rosbag"):
-        raise ConfigError(
-            f"{where}key 'data.reference': a reference path is scored with data.format carmen or rosbag only"
-        )
-    if d.kind == "victoria_park" and d.format == "rosbag" and d.detections == "file":
-        raise ConfigError(
-            f"{where}key 'data.detections': a ROS bag holds laser scans, not detections; expected one of the "
-            "laser values (laser_lines, laser_beams, laser_circles, laser_features, laser) with data.format rosbag"
-        )
-    lines_in = d.detections == "laser_lines"
-    if lines_in and cfg.model.measurement != "line":
-        raise ConfigError(
-            f"{where}key 'model.measurement': data.detections laser_lines gives line segments "
-            f"(rho, alpha); expected 'line', got {cfg.model.measurement!r}"
-        )
-    if cfg.model.measurement == "line" and not lines_in and (d.kind == "indoor" or d.detections == "laser"):
-        raise ConfigError(
-            f"{where}key 'data.detections': model.measurement line takes line segments; expected "
-            f"'laser_lines' with data.kind {d.kind!r}, got {d.detections!r}"
-        )
-    circles_in = d.detections == "laser_circles"
-    if circles_in != (cfg.model.measurement == "circle") and (circles_in or d.kind == "indoor"):
-        raise ConfigError(
-            f"{where}key 'model.measurement': data.detections laser_circles gives circles (range, bearing, "
-            f"radius) and model.measurement circle takes them; got data.detections {d.detections!r} with "
-            f"model.measurement {cfg.model.measurement!r}"
-        )
-    features_in = d.detections == "laser_features"
-    if features_in != (cfg.model.measurement == "line+circle") and (features_in or d.kind == "indoor"):
-        raise ConfigError(
-            f"{where}key 'model.measurement': data.detections laser_features gives line segments and circles "
-            f"with their types and model.measurement line+circle takes them; got data.detections "
-            f"{d.detections!r} with model.measurement {cfg.model.measurement!r}"
-        )
-    if "+" in cfg.model.measurement and cfg.noise.adaptive:
-        raise ConfigError(
-            f"{where}key 'noise.adaptive': the adaptive noise estimate is of one detection type; a map of several "
-            f"types (model.measurement {cfg.model.measurement!r}) takes each type's configured noise"
-        )
-    if (lines_in or circles_in or features_in) and d.kind in ("simulated", "city"):
-        raise ConfigError(
-            f"{where}key 'data.detections': the simulated {'park' if d.kind == 'simulated' else 'city'} log has "
-            f"no raw scans; expected 'file' with data.kind {d.kind} (or data.kind indoor for line segments and "
-            f"circles), got {d.detections!r}"
-        )
-    mp = cfg.map
-    if mp.manage and mp.p_false >= mp.p_detect:
-        raise ConfigError(
-            f"{where}key 'map.p_false': expected a value < map.p_detect ({mp.p_detect}), got {mp.p_false}"
-        )
-    if mp.manage and not mp.remove_probability < mp.birth_probability <= mp.max_probability:
-        raise ConfigError(
-            f"{where}key 'map.birth_probability': expected map.remove_probability "
-            f"({mp.remove_probability}) < map.birth_probability <= map.max_probability "
-            f"({mp.max_probability}), got {mp.birth_probability}"
-        )
-    if mp.manage and not mp.confirm_probability <= mp.max_probability:
-        raise ConfigError(
-            f"{where}key 'map.confirm_probability': expected a value <= map.max_probability "
-            f"({mp.max_probability}), got {mp.confirm_probability}"
-        )
-    ind = cfg.indoor
-    if ind.speed_min > ind.speed_max:
-        raise ConfigError(
-            f"{where}key 'indoor.speed_min': expected a value <= indoor.speed_max ({ind.speed_max}), "
-            f"got {ind.speed_min}"
-        )
-    if ind.pillar_radius_min > ind.pillar_radius_max:
-        raise ConfigError(
-            f"{where}key 'indoor.pillar_radius_min': expected a value <= indoor.pillar_radius_max "
-            f"({ind.pillar_radius_max}), got {ind.pillar_radius_min}"
-        )
-    cty = cfg.city
-    if cty.turn_radius > 0.5 * cty.street_width + 0.25 * cty.block_size:
-        raise ConfigError(
-            f"{where}key 'city.turn_radius': expected a value <= city.street_width / 2 + city.block_size / 4 "
-            f"({0.5 * cty.street_width + 0.25 * cty.block_size:g}), got {cty.turn_radius}"
-        )
-    if cfg.noise.forgetting >= 1.0:
-        raise ConfigError(f"{where}key 'noise.forgetting': expected a value < 1, got {cfg.noise.forgetting}")
-    if cfg.nasrukf.process_forgetting >= 1.0:
-        raise ConfigError(
-            f"{where}key 'nasrukf.process_forgetting': expected a value < 1, got {cfg.nasrukf.process_forgetting}"
-        )
-    beams_in, beams_filter = d.detections == "laser_beams", cfg.nasrukf.measurement == "beams"
-    if beams_in and not (beams_filter and cfg.filter.method == "nasrukf"):
-        raise ConfigError(
-            f"{where}key 'data.detections': laser_beams gives one range per beam, which only NASRUKF's "
-            "per-beam measurement takes; expected filter.method nasrukf with nasrukf.measurement beams, got "
-            f"filter.method {cfg.filter.method!r} and nasrukf.measurement {cfg.nasrukf.measurement!r}"
-        )
-    if beams_filter and cfg.filter.method == "nasrukf" and not beams_in:
-        raise ConfigError(
-            f"{where}key 'nasrukf.measurement': 'beams' measures line and arc features beam by beam; expected "
-            f"data.detections laser_beams (raw scans), got {d.detections!r}"
-        )
-    if beams_in and d.kind in ("simulated", "city"):
-        raise ConfigError(
-            f"{where}key 'data.detections': the simulated {'park' if d.kind == 'simulated' else 'city'} log has "
-            "no raw scans; expected data.kind indoor "
-            "(or a log directory with raw scans) for laser_beams"
-        )
-    if cfg.nasrukf.adaptive_process and cfg.filter.method != "nasrukf":
-        raise ConfigError(
-            f"{where}key 'nasrukf.adaptive_process': the adaptive process-noise estimate is "
-            f"NASRUKF's, not filter.method {cfg.filter.method!r}'s; set it to false or use nasrukf"
-        )
-    from nanoslam_jax.app.registry import get_method, method_names
+    """Apply the consistency checks (:data:`nanoslam_jax.app._config_checks.CHECKS`) in order.
 
-    try:
-        method = get_method(cfg.filter.method)
-        method.method_params(cfg.filter.method_params)
-    except ValueError as e:
-        raise ConfigError(f"{where}{e}") from None
-    if cfg.noise.adaptive and not method.adaptive_noise:
-        adaptive = [m for m in method_names() if get_method(m).adaptive_noise]
-        raise ConfigError(
-            f"{where}key 'noise.adaptive': the adaptive noise estimate is available for "
-            f"filter.method {', '.join(adaptive)}, not {cfg.filter.method!r}; "
-            "set noise.adaptive to false"
-        )
-    if cfg.filter.estimate == "path" and method.kind != "particle":
-        raise ConfigError(
-            f"{where}key 'filter.estimate': 'path' follows the particles' ancestry; filter.method "
-            f"{cfg.filter.method!r} has no particles; use best (or mean)"
-        )
-    if cfg.smoother.enabled and cfg.filter.estimate != "path":
-        raise ConfigError(
-            f"{where}key 'smoother.enabled': the smoother starts from the final best particle's "
-            f"ancestral path, which a run records only with filter.estimate: path (got "
-            f"{cfg.filter.estimate!r}); set filter.estimate to path"
-        )
-    from nanoslam_jax.app._models import (
-        has_own_section,
-        measurement_model_class,
-        measurement_model_of,
-        motion_model_class,
-        motion_model_of,
-    )
-    from nanoslam_jax.models import Composite, check_measurement_model
-
-    try:
-        motion = motion_model_class(cfg.model.motion)
-        if cfg.model.motion_params and has_own_section(motion):
-            raise ValueError(
-                f"key 'model.motion_params': the built-in model {cfg.model.motion!r} takes its "
-                f"parameters from its own section; model.motion_params is for a model named by import path"
-            )
-        motion_model_of(motion, cfg)
-        measurement = measurement_model_class(cfg.model.measurement)
-        if (
-            cfg.model.measurement_params
-            and has_own_section(measurement)
-            and not issubclass(measurement, Composite)  # one mapping of parameters per type
-        ):
-            raise ValueError(
-                f"key 'model.measurement_params': the built-in model {cfg.model.measurement!r} takes "
-                "its parameters from its own sections; model.measurement_params is for a model named "
-                "by import path"
-            )
-        measurement_model_of(measurement, cfg)
-        check_measurement_model(measurement, cfg.filter.method, cfg.smoother.enabled)
-    except ValueError as e:
-        raise ConfigError(f"{where}{e}") from None
-    if cfg.filter.new_landmark < cfg.filter.gate:
-        raise ConfigError(
-            f"{where}key 'filter.new_landmark': expected a value >= filter.gate ({cfg.filter.gate}), "
-            f"got {cfg.filter.new_landmark}"
-        )
+    Raises:
+        ConfigError: with the message of the first rule ``cfg`` breaks, after ``where``.
+    """
+    for check in CHECKS:
+        message = check(cfg)
+        if message is not None:
+            raise ConfigError(f"{where}{message}")
 
 
 def config_from_dict(raw: Any, *, source: str | None = None) -> Config:
