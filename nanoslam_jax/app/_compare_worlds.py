@@ -243,7 +243,7 @@ def _bands(tracks: list[Optional[_Track]], t: np.ndarray, field: str, scale: flo
 
 
 def _figures(out: Path, spec: CompareSpec, results: list, tracks: list, maps: dict) -> None:
-    from nanoslam_jax.eval.plotting import plot_error_bands, plot_feature_map
+    from nanoslam_jax.eval.plotting import FeatureMapDrawing, plot_error_bands, plot_feature_map
 
     ok = [tr for trs in tracks for tr in trs if tr is not None]
     if ok:
@@ -270,12 +270,8 @@ def _figures(out: Path, spec: CompareSpec, results: list, tracks: list, maps: di
         true_walls, est_walls = wall_segments(m.truth, m.lines)
         plot_feature_map(
             out / "fig6_map.png",
-            m.true_path,
-            true_walls[np.all(np.isfinite(true_walls), axis=1)],
-            m.truth.arcs,
-            m.path,
-            est_walls[np.all(np.isfinite(est_walls), axis=1)],
-            m.arcs,
+            FeatureMapDrawing(m.true_path, true_walls[np.all(np.isfinite(true_walls), axis=1)], m.truth.arcs),
+            FeatureMapDrawing(m.path, est_walls[np.all(np.isfinite(est_walls), axis=1)], m.arcs),
             title=f"{spec.name}: {results[0].spec.label}, world {seed} (the median position RMSE)",
             label=results[0].spec.label,
         )

@@ -8,7 +8,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from nanoslam_jax.eval._rerun import polar_points, write_rerun
+from nanoslam_jax.eval._rerun import RecordingOptions, RerunMap, polar_points, write_rerun
 
 #: How far (s) a raw scan's time may be from a segment's for its returns to be that segment's scan.
 SCAN_TIME_TOLERANCE = 1e-3
@@ -84,8 +84,6 @@ def record_run(result: Any, out_dir: str | Path, columns: list[str], names: Opti
         scan_points(log.segments, log.scans),
         particles=particles,
         pose_cov=cov,
-        landmarks=points,
-        confirmed=confirmed,
-        lines=lines,
-        name=f"nanoslam {cfg.name}",
+        final_map=RerunMap(landmarks=points, confirmed=confirmed, lines=lines),
+        options=RecordingOptions(name=f"nanoslam {cfg.name}"),
     )

@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 __all__ = [
+    "FeatureGates",
     "line_feature_errors",
     "arc_feature_errors",
     "point_feature_errors",
@@ -262,6 +265,48 @@ def _summary(errors: np.ndarray) -> tuple[float, float]:
     return (float(np.median(e)), float(e.max())) if e.size else (float("nan"), float("nan"))
 
 
+class FeatureGates(NamedTuple):
+    """How :func:`feature_map_errors` matches estimated features to true ones.
+
+    Attributes:
+        line_gate: lines whose matching cost exceeds this are unmatched (:func:`line_feature_errors`'s ``gate``).
+        lever: metres per radian of angle in a line's matching cost (:func:`line_feature_errors`).
+        max_slope: the largest slope of a true line written ``y = a x + b`` (:func:`line_feature_errors`).
+        arc_gate: arcs whose centres lie farther apart are unmatched (:func:`arc_feature_errors`'s ``gate``).
+        point_gate: break points farther apart are unmatched (:func:`point_feature_errors`'s ``gate``).
+    """
+
+    line_gate: float = 0.5
+    lever: float = 1.0
+    max_slope: float = 1.0
+    arc_gate: float = 0.5
+    point_gate: float = 0.2
+
+
+def _put_summary(summary: dict, name: str, errors: np.ndarray) -> None:
+    """``summary[name + "_median"]`` and ``summary[name + "_worst"]`` of ``errors`` (:func:`_summary`)."""
+    summary[f"{name}_median"], summary[f"{name}_worst"] = _summary(errors)
+
+
+def _corner_errors(est_lines: np.ndarray, true_lines: np.ndarray, match: np.ndarray, corners: np.ndarray) -> dict:
+    """The corners where pairs of true lines meet against where their matched estimates meet: ``error``,
+    ``true`` and ``estimate`` (NaN where a line is unmatched or the lines are parallel)."""
+    pairs = np.asarray(corners, dtype=np.int64).reshape(-1, 2)
+    tru = _lines_np(true_lines)
+    n_true = tru.shape[0]
+    if pairs.size and (pairs.min() < 0 or pairs.max() >= n_true):
+        raise ValueError(f"corners: expected indices into the {n_true} true lines, got {pairs.min()}..{pairs.max()}")
+    est = _lines_np(est_lines)
+    true_xy = line_intersections(tru[pairs[:, 0]], tru[pairs[:, 1]])
+    m = match[pairs]
+    ok = np.all(m >= 0, axis=1)
+    est_xy = np.full_like(true_xy, np.nan)
+    if ok.any():
+        est_xy[ok] = line_intersections(est[m[ok, 0]], est[m[ok, 1]])
+    err = np.hypot(*(est_xy - true_xy).T)
+    return {"error": err, "true": true_xy, "estimate": est_xy}
+
+
 def feature_map_errors(
     est_lines: np.ndarray,
     true_lines: np.ndarray,
@@ -271,11 +316,7 @@ def feature_map_errors(
     corners: np.ndarray | None = None,
     est_break_points: np.ndarray | None = None,
     true_break_points: np.ndarray | None = None,
-    line_gate: float = 0.5,
-    lever: float = 1.0,
-    max_slope: float = 1.0,
-    arc_gate: float = 0.5,
-    point_gate: float = 0.2,
+    gates: FeatureGates = FeatureGates(),
 ) -> dict:
     """The second paper's Table 1 for a map of lines (and arcs): line slope and intercept errors, arc
     centre and radius errors, corner and break point position errors, with a summary.
@@ -298,9 +339,7 @@ def feature_map_errors(
             corner, or None.
         est_break_points: ``(B', 2)`` estimated break points, or None (the map's lines alone).
         true_break_points: ``(B, 2)`` true break points, or None.
-        line_gate, lever, max_slope: see :func:`line_feature_errors`.
-        arc_gate: see :func:`arc_feature_errors`.
-        point_gate: see :func:`point_feature_errors` (break points).
+        gates: how features are matched (:class:`FeatureGates`).
 
     Returns:
         A dict: ``lines`` (:func:`line_feature_errors`), ``arcs`` (:func:`arc_feature_errors`, or
@@ -316,7 +355,7 @@ def feature_map_errors(
     Raises:
         ValueError: when ``corners`` names a line that ``true_lines`` does not hold.
     """
-    lines = line_feature_errors(est_lines, true_lines, line_gate, lever, max_slope)
+    lines = line_feature_errors(est_lines, true_lines, gates.line_gate, gates.lever, gates.max_slope)
     summary: dict = {"n_lines": lines["n_true"], "n_lines_matched": lines["n_matched"]}
     for name, key in (
         ("line_slope", "slope_error"),
@@ -324,41 +363,26 @@ def feature_map_errors(
         ("line_rho", "rho_error"),
         ("line_alpha", "alpha_error"),
     ):
-        summary[f"{name}_median"], summary[f"{name}_worst"] = _summary(lines[key])
+        _put_summary(summary, name, lines[key])
     arcs = None
     if true_arcs is not None:
-        arcs = arc_feature_errors(np.zeros((0, 3)) if est_arcs is None else est_arcs, true_arcs, arc_gate)
+        arcs = arc_feature_errors(np.zeros((0, 3)) if est_arcs is None else est_arcs, true_arcs, gates.arc_gate)
         summary["n_arcs"], summary["n_arcs_matched"] = arcs["n_true"], arcs["n_matched"]
         for name, key in (("arc_centre", "centre_error"), ("arc_radius", "radius_error")):
-            summary[f"{name}_median"], summary[f"{name}_worst"] = _summary(arcs[key])
+            _put_summary(summary, name, arcs[key])
     corner = None
     if corners is not None:
-        pairs = np.asarray(corners, dtype=np.int64).reshape(-1, 2)
-        n_true = lines["n_true"]
-        if pairs.size and (pairs.min() < 0 or pairs.max() >= n_true):
-            raise ValueError(
-                f"corners: expected indices into the {n_true} true lines, got {pairs.min()}..{pairs.max()}"
-            )
-        tru = _lines_np(true_lines)
-        est = _lines_np(est_lines)
-        true_xy = line_intersections(tru[pairs[:, 0]], tru[pairs[:, 1]])
-        m = lines["match"][pairs]
-        ok = np.all(m >= 0, axis=1)
-        est_xy = np.full_like(true_xy, np.nan)
-        if ok.any():
-            est_xy[ok] = line_intersections(est[m[ok, 0]], est[m[ok, 1]])
-        err = np.hypot(*(est_xy - true_xy).T)
-        corner = {"error": err, "true": true_xy, "estimate": est_xy}
-        summary["n_corners"], summary["n_corners_matched"] = int(pairs.shape[0]), int(np.isfinite(err).sum())
-        summary["corner_median"], summary["corner_worst"] = _summary(err)
+        corner = _corner_errors(est_lines, true_lines, lines["match"], corners)
+        err = corner["error"]
+        summary["n_corners"], summary["n_corners_matched"] = int(err.shape[0]), int(np.isfinite(err).sum())
+        _put_summary(summary, "corner", corner["error"])
     breaks = None
     if true_break_points is not None:
         breaks = (
             break_point_line_errors(est_lines, true_lines, lines["match"], true_break_points)
             if est_break_points is None
-            else point_feature_errors(est_break_points, true_break_points, point_gate)
+            else point_feature_errors(est_break_points, true_break_points, gates.point_gate)
         )
-    if breaks is not None:
         summary["n_break_points"], summary["n_break_points_matched"] = breaks["n_true"], breaks["n_matched"]
-        summary["break_point_median"], summary["break_point_worst"] = _summary(breaks["error"])
+        _put_summary(summary, "break_point", breaks["error"])
     return {"lines": lines, "arcs": arcs, "corners": corner, "break_points": breaks, "summary": summary}

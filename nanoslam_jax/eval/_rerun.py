@@ -16,7 +16,7 @@ on two time lines, ``scan`` (the segment's index) and ``time`` (its time, s):
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -89,6 +89,75 @@ def _decimated(path: np.ndarray, most: int) -> np.ndarray:
     return path[keep]
 
 
+class RerunMap(NamedTuple):
+    """The final map of a run, logged at its last scan.
+
+    Attributes:
+        landmarks: ``(L, 2)`` the point landmarks, or None.
+        confirmed: ``(L,)`` which of them are confirmed (drawn dark; the others grey), or None: all.
+        lines: ``(M, 2)`` the lines ``(rho, alpha)`` in the world frame, or None.
+    """
+
+    landmarks: Optional[np.ndarray] = None
+    confirmed: Optional[np.ndarray] = None
+    lines: Optional[np.ndarray] = None
+
+
+class RecordingOptions(NamedTuple):
+    """How the recording is written.
+
+    Attributes:
+        name: the recording's application id.
+        path_points: the most poses ``world/path`` holds at one scan (evenly spaced, the current pose
+            always last): the recording grows with scans times this.
+    """
+
+    name: str = "nanoslam"
+    path_points: int = 500
+
+
+def _per_scan_cov(pose_cov: Optional[np.ndarray], n: int) -> Optional[np.ndarray]:
+    """``(S, 3, 3)`` the pose covariance at each scan: as given, or a ``(3, 3)`` one at the last scan
+    (NaN before it); None when there is none."""
+    cov = None if pose_cov is None else np.asarray(pose_cov, dtype=float)
+    if cov is not None and cov.shape == (3, 3):
+        cov = np.concatenate([np.full((n - 1, 3, 3), np.nan), cov[None]]) if n else cov[None][:0]
+    return cov
+
+
+def _log_scan(rr, rec, x: np.ndarray, path: np.ndarray, particles, cov, scan_points) -> None:
+    """Log one scan at pose ``x``: the path so far (``path``, already decimated), the pose, and the
+    particles, the covariance's ellipse and the scan's points where given."""
+    rec.log("world/path", rr.LineStrips2D([path], colors=[_PATH]))
+    rec.log(
+        "world/pose",
+        rr.Points2D([x[:2]], colors=[_POSE], radii=[0.3]),
+        rr.Arrows2D(origins=[x[:2]], vectors=[[2.0 * np.cos(x[2]), 2.0 * np.sin(x[2])]], colors=[_POSE]),
+        rr.AnyValues(pose=x.copy()),
+    )
+    if particles is not None:
+        rec.log("world/particles", rr.Points2D(np.asarray(particles)[:, :2], colors=[_PARTICLES], radii=[0.1]))
+    if cov is not None and np.all(np.isfinite(cov[:2, :2])):
+        rec.log("world/ellipse", rr.LineStrips2D([ellipse(x, cov[:2, :2])], colors=[_ELLIPSE]))
+    if scan_points is not None:
+        rec.log("world/scan", rr.Points2D(to_world(x, scan_points), colors=[_SCAN], radii=[0.08]))
+
+
+def _log_map(rr, rec, poses: np.ndarray, final_map: RerunMap) -> None:
+    """Log the final map: its point landmarks, and its lines as segments long enough to cross the path."""
+    landmarks, confirmed, lines = final_map
+    if landmarks is not None and len(landmarks):
+        lm = np.asarray(landmarks, dtype=float).reshape(-1, 2)
+        ok = np.ones(len(lm), bool) if confirmed is None else np.asarray(confirmed, bool)
+        colors = np.where(ok[:, None], _CONFIRMED, _TENTATIVE).astype(np.uint8)
+        rec.log("world/landmarks", rr.Points2D(lm, colors=colors, radii=[0.4]))
+    if lines is not None and len(lines):
+        finite = poses[np.all(np.isfinite(poses), axis=1), :2]
+        extent = float(np.ptp(finite, axis=0).max()) if len(finite) else 0.0
+        strips = line_segments(np.asarray(lines)[:, :2], 0.5 * extent + 10.0)
+        rec.log("world/lines", rr.LineStrips2D(list(strips), colors=[_CONFIRMED]))
+
+
 def write_rerun(
     path: str | Path,
     times: np.ndarray,
@@ -97,11 +166,8 @@ def write_rerun(
     *,
     particles: Optional[np.ndarray] = None,
     pose_cov: Optional[np.ndarray] = None,
-    landmarks: Optional[np.ndarray] = None,
-    confirmed: Optional[np.ndarray] = None,
-    lines: Optional[np.ndarray] = None,
-    name: str = "nanoslam",
-    path_points: int = 500,
+    final_map: RerunMap = RerunMap(),
+    options: RecordingOptions = RecordingOptions(),
 ) -> Path:
     """Write a Rerun recording (``.rrd``) of a run, one time step per scan (see the module's docs).
 
@@ -114,12 +180,8 @@ def write_rerun(
         particles: ``(S, P, 3)`` every particle's pose at each scan, or None.
         pose_cov: the pose's covariance: ``(S, 3, 3)`` at each scan (NaN where unknown), or
             ``(3, 3)`` at the last scan only, or None.
-        landmarks: ``(L, 2)`` the final map's point landmarks, or None.
-        confirmed: ``(L,)`` which of them are confirmed (drawn dark; the others grey), or None: all.
-        lines: ``(M, 2)`` the final map's lines ``(rho, alpha)`` in the world frame, or None.
-        name: the recording's application id.
-        path_points: the most poses ``world/path`` holds at one scan (evenly spaced, the
-            current pose always last): the recording grows with scans times this.
+        final_map: the final map (:class:`RerunMap`: landmarks, which are confirmed, lines).
+        options: the recording's name and the length of its path (:class:`RecordingOptions`).
 
     Returns:
         The file written.
@@ -135,12 +197,10 @@ def write_rerun(
         raise ValueError(f"write_rerun: poses must be (S, 3) = ({n}, 3) for {n} times, got {poses.shape}")
     if scan_points is not None and len(scan_points) != n:
         raise ValueError(f"write_rerun: {len(scan_points)} scans of points for {n} times")
-    cov = None if pose_cov is None else np.asarray(pose_cov, dtype=float)
-    if cov is not None and cov.shape == (3, 3):
-        cov = np.concatenate([np.full((n - 1, 3, 3), np.nan), cov[None]]) if n else cov[None][:0]
+    cov = _per_scan_cov(pose_cov, n)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    rec = rr.RecordingStream(name, make_default=False, make_thread_default=False)
+    rec = rr.RecordingStream(options.name, make_default=False, make_thread_default=False)
     rec.save(str(out))
     try:
         for i in range(n):
@@ -149,31 +209,17 @@ def write_rerun(
             x = poses[i]
             if not np.all(np.isfinite(x)):
                 continue  # a non-finite pose: nothing drawn at this scan
-            rec.log("world/path", rr.LineStrips2D([_decimated(poses[: i + 1, :2], path_points)], colors=[_PATH]))
-            rec.log(
-                "world/pose",
-                rr.Points2D([x[:2]], colors=[_POSE], radii=[0.3]),
-                rr.Arrows2D(origins=[x[:2]], vectors=[[2.0 * np.cos(x[2]), 2.0 * np.sin(x[2])]], colors=[_POSE]),
-                rr.AnyValues(pose=x.copy()),
+            _log_scan(
+                rr,
+                rec,
+                x,
+                _decimated(poses[: i + 1, :2], options.path_points),
+                None if particles is None else particles[i],
+                None if cov is None else cov[i],
+                None if scan_points is None else scan_points[i],
             )
-            if particles is not None:
-                rec.log(
-                    "world/particles", rr.Points2D(np.asarray(particles[i])[:, :2], colors=[_PARTICLES], radii=[0.1])
-                )
-            if cov is not None and np.all(np.isfinite(cov[i][:2, :2])):
-                rec.log("world/ellipse", rr.LineStrips2D([ellipse(x, cov[i][:2, :2])], colors=[_ELLIPSE]))
-            if scan_points is not None:
-                rec.log("world/scan", rr.Points2D(to_world(x, scan_points[i]), colors=[_SCAN], radii=[0.08]))
-        if n and landmarks is not None and len(landmarks):
-            lm = np.asarray(landmarks, dtype=float).reshape(-1, 2)
-            ok = np.ones(len(lm), bool) if confirmed is None else np.asarray(confirmed, bool)
-            colors = np.where(ok[:, None], _CONFIRMED, _TENTATIVE).astype(np.uint8)
-            rec.log("world/landmarks", rr.Points2D(lm, colors=colors, radii=[0.4]))
-        if n and lines is not None and len(lines):
-            finite = poses[np.all(np.isfinite(poses), axis=1), :2]
-            extent = float(np.ptp(finite, axis=0).max()) if len(finite) else 0.0
-            strips = line_segments(np.asarray(lines)[:, :2], 0.5 * extent + 10.0)
-            rec.log("world/lines", rr.LineStrips2D(list(strips), colors=[_CONFIRMED]))
+        if n:
+            _log_map(rr, rec, poses, final_map)
         rec.flush()
     finally:
         rec.disconnect()

@@ -48,7 +48,7 @@ import numpy as np
 
 from nanoslam_jax.eval.metrics import GPS_DAT_ROTATION_DEG, jump_mask, relative_gps, rigid_align, rotation_matrix
 
-__all__ = ["GpsFloor", "estimate_gps_floor", "gps_floor_of_log", "floor_markdown"]
+__all__ = ["FloorWindows", "GpsFloor", "estimate_gps_floor", "gps_floor_of_log", "floor_markdown"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,6 +204,23 @@ def _offset_fit(gt, ref, t, pose, keep, inside, window: float) -> tuple[tuple, f
     return (float(sol.x[0]), float(sol.x[1])), float(sol.x[2]), rms(sol.fun), rms(resid(q0))
 
 
+@dataclasses.dataclass(frozen=True)
+class FloorWindows:
+    """The windows :func:`estimate_gps_floor` measures over (seconds).
+
+    Attributes:
+        local: window lengths W of the short-term error.
+        reference: the W of the ``rmse_aligned`` floor (added to ``local`` if absent).
+        frame: lengths T of the initial stretches the frame is fitted on.
+        offset: window length of the antenna/clock offset fit.
+    """
+
+    local: Sequence[float] = (5.0, 10.0, 20.0, 60.0)
+    reference: float = 10.0
+    frame: Sequence[float] = (30.0, 40.0, 60.0, 80.0, 120.0)
+    offset: float = 20.0
+
+
 def estimate_gps_floor(
     gps: np.ndarray,
     t: np.ndarray,
@@ -212,10 +229,7 @@ def estimate_gps_floor(
     rotation_deg: float = -35.4,
     jump_speed: float = 8.0,
     source_rotation_deg: float = GPS_DAT_ROTATION_DEG,
-    windows: Sequence[float] = (5.0, 10.0, 20.0, 60.0),
-    reference_window: float = 10.0,
-    frame_windows: Sequence[float] = (30.0, 40.0, 60.0, 80.0, 120.0),
-    offset_window: float = 20.0,
+    windows: FloorWindows = FloorWindows(),
 ) -> GpsFloor:
     """Estimate the GPS's share of the RMSE (see the module docstring).
 
@@ -225,10 +239,7 @@ def estimate_gps_floor(
         pose: ``(T, 3)`` DR laser poses ``x, y, phi`` in the SLAM frame.
         rotation_deg, source_rotation_deg: the fixed frame (:func:`~nanoslam_jax.eval.metrics.relative_gps`).
         jump_speed: fixes implying a faster jump are jumps (:func:`~nanoslam_jax.eval.metrics.jump_mask`).
-        windows: window lengths W (s) of the short-term error.
-        reference_window: the W of the ``rmse_aligned`` floor (added to ``windows`` if absent).
-        frame_windows: lengths T (s) of the initial stretches the frame is fitted on.
-        offset_window: window length (s) of the antenna/clock offset fit.
+        windows: the lengths of the windows the errors are measured over (:class:`FloorWindows`).
     """
     gps = np.asarray(gps, float)
     t, pose = np.asarray(t, float), np.asarray(pose, float)
@@ -238,13 +249,13 @@ def estimate_gps_floor(
     inside = (gt >= t[0]) & (gt <= t[-1])
     if inside.sum() < 10:
         raise ValueError(f"only {int(inside.sum())} GPS fixes fall inside the DR path's span [{t[0]}, {t[-1]}] s")
-    offset, clock, fit_rms, fit_rms0 = _offset_fit(gt, ref, t, pose, keep, inside, offset_window)
+    offset, clock, fit_rms, fit_rms0 = _offset_fit(gt, ref, t, pose, keep, inside, windows.offset)
     # The path the GPS antenna follows by the fitted offset and shift (the DR path when the fit failed).
     o, tau = (offset, clock) if math.isfinite(clock) else ((0.0, 0.0), 0.0)
     P, phi = _pose_at(gt + tau, t, pose)
     P = P + np.stack([np.cos(phi) * o[0] - np.sin(phi) * o[1], np.sin(phi) * o[0] + np.cos(phi) * o[1]], axis=1)
     local, ref_rot = [], None
-    for w in sorted(set(windows) | {reference_window}):
+    for w in sorted(set(windows.local) | {windows.reference}):
         res, rot = _local_residuals(gt, ref, P, keep, inside, w)
         ok = np.isfinite(res)
         local.append(
@@ -255,18 +266,18 @@ def estimate_gps_floor(
                 int(ok.sum()),
             )
         )
-        if w == reference_window:
+        if w == windows.reference:
             ref_rot = rot
     jumps = _jump_offsets(gt, ref, keep, inside)
     n_in, n_clean = int(inside.sum()), int((keep & inside).sum())
     jump_rmse = float(np.sqrt(np.sum(jumps**2) / n_in))
-    clean = next(c for w, _, c, _ in local if w == reference_window)
+    clean = next(c for w, _, c, _ in local if w == windows.reference)
     aligned = float(np.sqrt(clean**2 * n_clean / n_in + jump_rmse**2))
     g = ref[inside]
     # What a frame rotated by `deg` about the first fix costs an exact path, RMS over the fixes.
     shift = lambda deg: float(np.sqrt(np.mean(np.sum((g @ rotation_matrix(deg).T - g) ** 2, axis=1))))  # noqa: E731
     frame = []
-    for T in frame_windows:
+    for T in windows.frame:
         m = inside & keep & (gt <= t[0] + T)
         if m.sum() < 5:
             continue
@@ -296,7 +307,7 @@ def estimate_gps_floor(
         aligned_floor=aligned,
         fixed_floor_low=float(math.hypot(min(fr), aligned)),
         fixed_floor_high=float(math.hypot(max(fr), aligned)),
-        reference_window=float(reference_window),
+        reference_window=float(windows.reference),
     )
 
 

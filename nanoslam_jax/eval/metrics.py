@@ -60,6 +60,7 @@ __all__ = [
     "point_feature_errors",
     "line_intersections",
     "feature_map_errors",
+    "FeatureGates",
     "MIN_SCANS_OBSERVABLE",
 ]
 
@@ -508,6 +509,7 @@ def survey_summary(
 
 
 from nanoslam_jax.eval._feature_metrics import (  # noqa: E402
+    FeatureGates,
     arc_feature_errors,
     feature_map_errors,
     line_feature_errors,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import matplotlib
 
@@ -190,14 +190,24 @@ def plot_error_bands(
     plt.close(fig)
 
 
+class FeatureMapDrawing(NamedTuple):
+    """A track with its map of walls and arcs, one side of :func:`plot_feature_map`.
+
+    Attributes:
+        path: ``(N, 2)`` the positions along the track.
+        walls: ``(W, 4)`` the walls as segments ``x0, y0, x1, y1``.
+        arcs: ``(P, 3)`` the circles ``xc, yc, R``.
+    """
+
+    path: np.ndarray
+    walls: np.ndarray
+    arcs: np.ndarray
+
+
 def plot_feature_map(
     path: Path,
-    true_path: np.ndarray,
-    true_walls: np.ndarray,
-    true_arcs: np.ndarray,
-    est_path: np.ndarray,
-    est_walls: np.ndarray,
-    est_arcs: np.ndarray,
+    truth: FeatureMapDrawing,
+    estimate: FeatureMapDrawing,
     title: str = "",
     label: str = "estimate",
 ) -> None:
@@ -205,15 +215,13 @@ def plot_feature_map(
 
     Args:
         path: output PNG.
-        true_path: ``(N, 2)`` the true positions.
-        true_walls: ``(W, 4)`` the true walls as segments ``x0, y0, x1, y1``.
-        true_arcs: ``(P, 3)`` the true circles ``xc, yc, R``.
-        est_path: ``(T, 2)`` the estimated positions.
-        est_walls: ``(E, 4)`` the estimated walls as segments.
-        est_arcs: ``(A, 3)`` the estimated circles.
+        truth: the true track, walls and circles.
+        estimate: the estimated track, walls and circles.
         title: the figure's title.
         label: the estimate's name in the legend.
     """
+    true_path, true_walls, true_arcs = truth
+    est_path, est_walls, est_arcs = estimate
     fig, ax = plt.subplots(figsize=(8, 8))
     th = np.linspace(0.0, 2.0 * np.pi, 181)
 

@@ -11,7 +11,7 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import execute, run_experiment
-from nanoslam_jax.eval._rerun import ellipse, write_rerun
+from nanoslam_jax.eval._rerun import RecordingOptions, RerunMap, ellipse, write_rerun
 
 rerun_chunk = pytest.importorskip("rerun.chunk", reason="output.rerun needs rerun-sdk (the viz extra)")
 
@@ -50,10 +50,8 @@ def test_writer_logs_every_scan_pose_scan_points_and_path(tmp_path):
         pts,
         particles=parts,
         pose_cov=cov,
-        landmarks=lm,
-        confirmed=confirmed,
-        lines=np.array([[2.0, 0.5]]),
-        path_points=4,
+        final_map=RerunMap(landmarks=lm, confirmed=confirmed, lines=np.array([[2.0, 0.5]])),
+        options=RecordingOptions(path_points=4),
     )
     rec = read_rrd(path)
     n = len(t)
