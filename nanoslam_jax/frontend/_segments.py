@@ -239,18 +239,26 @@ def extract_lines(
         points.scan[bp_idx][order], points.beam[bp_idx][order], bp_x[order], bp_y[order], bp_beyond[order]
     )
 
-    lines = _merge_collinear(points, seg, sums, is_line, x0, y0, x1, y1, cfg)
+    lines = _merge_collinear(points, seg, sums, is_line, _Ends(x0, y0, x1, y1), cfg)
     return lines, corners, breakpoints, has_line
 
 
-def _merge_collinear(
-    points: Points, seg: Segments, sums: _LineFit, is_line, x0, y0, x1, y1, cfg: DetectorConfig
-) -> Lines:
+class _Ends(NamedTuple):
+    """The ends of every segment projected onto its fitted line: ``(x0, y0)`` at its first point,
+    ``(x1, y1)`` at its last."""
+
+    x0: np.ndarray
+    y0: np.ndarray
+    x1: np.ndarray
+    y1: np.ndarray
+
+
+def _merge_collinear(points: Points, seg: Segments, sums: _LineFit, is_line, ends: _Ends, cfg: DetectorConfig) -> Lines:
     """Lines of neighbouring clusters (next to each other in a scan) on one straight line joined into one."""
     li = np.flatnonzero(is_line)
     alpha, rho, _ = fit_lines(_LineFit(*(f[li] for f in sums)))
     scan = points.scan[seg.start[li]]
-    ex0, ey0, ex1, ey1 = x0[li], y0[li], x1[li], y1[li]
+    ex0, ey0, ex1, ey1 = ends.x0[li], ends.y0[li], ends.x1[li], ends.y1[li]
     da = np.abs(np.arctan2(np.sin(alpha[1:] - alpha[:-1]), np.cos(alpha[1:] - alpha[:-1])))
     d_next = np.abs(ex0[1:] * np.cos(alpha[:-1]) + ey0[1:] * np.sin(alpha[:-1]) - rho[:-1])
     d_prev = np.abs(ex1[:-1] * np.cos(alpha[1:]) + ey1[:-1] * np.sin(alpha[1:]) - rho[1:])
