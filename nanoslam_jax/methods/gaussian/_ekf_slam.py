@@ -44,6 +44,7 @@ Per segment (:func:`ekf_slam_step`):
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -136,6 +137,8 @@ def init_ekf_state(static: Static, params: Params) -> EkfSlamState:
 
 
 class _Carry(NamedTuple):
+    """The state of the loop over a scan's detections."""
+
     mean: Float[Array, " n"]
     cov: Float[Array, "n n"]
     available: Bool[Array, " capacity"]
@@ -145,6 +148,23 @@ class _Carry(NamedTuple):
     n_associated: Int[Array, ""]
     n_new: Int[Array, ""]
     overflow: Int[Array, ""]
+
+
+class _Detections(NamedTuple):
+    """A scan's detections as the loop takes them.
+
+    Attributes:
+        z_mask: the real detections (of a known landmark id with known association).
+        order: their indices, first ``n_real`` entries (the rest 0).
+        n_real: how many there are.
+        pre: the non-sequential association with the landmarks after the prediction (slot,
+            matched, new per detection; :func:`_batch_association`), None otherwise.
+    """
+
+    z_mask: Bool[Array, " k"]
+    order: Int[Array, " k"]
+    n_real: Int[Array, ""]
+    pre: tuple[Int[Array, " k"], Bool[Array, " k"], Bool[Array, " k"]] | None
 
 
 def _diameter_terms(book: LandmarkMap, d: Float[Array, ""], params: Params) -> Float[Array, " capacity"]:
@@ -167,7 +187,7 @@ def _batch_association(
     k_max = z_mask.shape[0]
     terms = jax.vmap(_diameter_terms, (None, 0, None))(book, seg.diam, params)
     composite = is_composite(params.measurement)
-    d2 = jax.vmap(association_distances, (None, None, 0, None, None, 0, None, None, 0 if composite else None))(
+    d2 = jax.vmap(association_distances, (None, None, 0, None, None, 0, None, (None, 0) if composite else None))(
         mean,
         cov,
         seg.z,
@@ -175,8 +195,7 @@ def _batch_association(
         book.active,
         terms,
         params.measurement,
-        book.kind if composite else None,
-        seg.z_kind if composite else None,
+        (book.kind, seg.z_kind) if composite else None,
     )
     j = jnp.argmin(d2, axis=1)
     best = jnp.min(d2, axis=1)
@@ -207,6 +226,233 @@ def _remove(mean, cov, book: LandmarkMap, remove: Bool[Array, " capacity"]):
     return mean, cov, book._replace(active=book.active & ~remove)
 
 
+def _detections(
+    static: Static, params: Params, mean: Float[Array, " n"], cov: Float[Array, "n n"], seg: Segments, valid, book
+) -> _Detections:
+    """The scan's real detections in order, with their non-sequential association when the step
+    associates them all at once (``static.sequential`` off, association not ``known``).
+
+    Args:
+        static, params: the step's settings.
+        mean, cov: the joint Gaussian after the prediction.
+        seg: the segment; ``valid``: False for padding (no detection is real).
+        book: the landmark bookkeeping after the prediction.
+    """
+    z_mask = seg.z_mask & valid
+    k_max = z_mask.shape[0]
+    n_real = jnp.sum(z_mask).astype(jnp.int32)
+    (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
+    pre = None
+    if static.association == "known":  # a detection without a landmark id is not associated
+        z_mask = z_mask & (seg.z_id >= 0)
+        n_real = jnp.sum(z_mask).astype(jnp.int32)
+        (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
+    elif not static.sequential:
+        pre = _batch_association(mean, cov, seg, z_mask, book, params)
+    return _Detections(z_mask, order, n_real, pre)
+
+
+def _associate(
+    static: Static, params: Params, c: _Carry, seg: Segments, k: Int[Array, ""], kind, pre
+) -> tuple[Int[Array, ""], Bool[Array, ""], Bool[Array, ""]]:
+    """Detection ``k``'s landmark slot, whether it is matched to it and whether it starts a new
+    landmark: by its landmark id (association ``known``), the nearest available landmark in the
+    current state (``static.sequential``), or the scan's association ``pre``.
+
+    Args:
+        static, params: the step's settings.
+        c: the loop's state before this detection.
+        seg: the segment; ``k``: the detection's index; ``kind``: its type (composite models, else None).
+        pre: the non-sequential association (:attr:`_Detections.pre`).
+    """
+    if static.association == "known":  # the landmark started by this id, or a new one
+        same = c.book.active & (c.book.ident == seg.z_id[k])
+        j = jnp.argmax(same).astype(jnp.int32)
+        matched = jnp.any(same)
+        return j, matched, ~matched
+    if static.sequential:
+        d2 = association_distances(
+            c.mean,
+            c.cov,
+            seg.z[k],
+            params.R,
+            c.available,
+            _diameter_terms(c.book, seg.diam[k], params),
+            params.measurement,
+            (c.book.kind, kind),
+        )
+        j = jnp.argmin(d2).astype(jnp.int32)
+        best = jnp.min(d2)
+        return j, best < params.gate, best > params.new_landmark
+    pre_slot, pre_matched, pre_new = pre
+    return pre_slot[k].astype(jnp.int32), pre_matched[k], pre_new[k]
+
+
+class _Change(NamedTuple):
+    """What one detection changes: landmark ``slot`` is updated where ``matched``; a new landmark
+    fills slot ``free`` where ``add``."""
+
+    slot: Int[Array, ""]
+    matched: Bool[Array, ""]
+    free: Int[Array, ""]
+    add: Bool[Array, ""]
+
+
+def _book_detection(
+    static: Static, params: Params, b: LandmarkMap, scan, seg: Segments, k, kind, change: _Change
+) -> LandmarkMap:
+    """The bookkeeping ``b`` after detection ``k`` of type ``kind`` (None: no types) makes
+    ``change`` (a new landmark is born at ``scan``); the scatters of a change that does not happen
+    go to slot ``capacity`` and are dropped."""
+    j, matched, free, add = change
+    mp = params.map
+    capacity = static.capacity
+    dk = seg.diam[k]
+    jc = jnp.where(matched, j, capacity)
+    fc = jnp.where(add, free, capacity)
+    d_new, dv_new = diameter_update(b.diam[j], b.diam_var[j], dk, mp.sigma_diameter)
+    var_d = jnp.square(mp.sigma_diameter)
+    return b._replace(
+        active=b.active.at[fc].set(True, mode="drop"),
+        hits=b.hits.at[jc].add(1, mode="drop").at[fc].set(1, mode="drop"),
+        misses=b.misses.at[fc].set(0, mode="drop"),
+        log_odds=b.log_odds.at[fc].set(mp.log_odds_birth, mode="drop"),
+        confirmed=b.confirmed.at[fc].set(not static.manage, mode="drop"),
+        born=b.born.at[fc].set(scan, mode="drop"),
+        diam=b.diam.at[jc].set(d_new, mode="drop").at[fc].set(dk, mode="drop"),
+        diam_var=b.diam_var.at[jc].set(dv_new, mode="drop").at[fc].set(var_d, mode="drop"),
+        ident=None if b.ident is None else b.ident.at[fc].set(seg.z_id[k], mode="drop"),
+        kind=None if b.kind is None else b.kind.at[fc].set(kind, mode="drop"),
+    )
+
+
+def _detection_step(
+    static: Static, params: Params, scan: Int[Array, ""], seg: Segments, dets: _Detections, i, c: _Carry
+) -> _Carry:
+    """The ``i``-th real detection of the scan (the body of the loop over them): association, the
+    EKF update of a matched landmark, the augmentation with a new one, the bookkeeping.
+
+    Args:
+        static, params: the step's settings.
+        scan: the scan counter before the segment (a new landmark's ``born``).
+        seg: the segment; ``dets``: its detections in order.
+        i: the detection's rank among the real ones.
+        c: the loop's state before it.
+
+    Returns:
+        The loop's state after it.
+    """
+    capacity = static.capacity
+    model = params.measurement
+    dim = model.landmark_dim
+    composite = is_composite(model)
+    assert seg.z_kind is not None or not composite, "a composite model's segments have z_kind"
+    slots = jnp.arange(capacity)
+    k = dets.order[i]
+    zk = seg.z[k]
+    # A composite's detection is updated and starts a landmark by its type's model and noise.
+    kk = seg.z_kind[k] if seg.z_kind is not None and composite else None
+    model_k = model.of_kind(kk) if composite else model  # type: ignore[attr-defined]  # a Composite
+    R_k = model_k.noise_cov() if composite else params.R
+    j, matched, new = _associate(static, params, c, seg, k, kk, dets.pre)
+    free = jnp.argmin(c.book.active).astype(jnp.int32)  # the lowest free slot
+    room = ~c.book.active[free]
+    add = new & room
+    # No conditionals around the big buffers (they would copy P): masked operations whose
+    # covariance work is skipped (update: zero tiles; augment: dropped scatters).
+    mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R_k, size=3 + dim * c.count, apply=matched, model=model_k)
+    mean, cov = ekf_slam_augment(mean, cov, zk, free, R_k, apply=add, model=model_k)
+    book = _book_detection(static, params, c.book, scan, seg, k, kk, _Change(j, matched, free, add))
+    claimed = matched & (slots == j)
+    created = add & (slots == free)
+    # Sequential: a landmark is claimed once per scan; a new one can be matched next.
+    available = (c.available & ~claimed) | created if static.sequential else c.available
+    return _Carry(
+        mean=mean,
+        cov=cov,
+        available=available,
+        book=book,
+        seen=(c.seen | claimed) & ~created,
+        count=jnp.maximum(c.count, jnp.where(add, free + 1, 0)),
+        n_associated=c.n_associated + matched.astype(jnp.int32),
+        n_new=c.n_new + add.astype(jnp.int32),
+        overflow=c.overflow + (new & ~room).astype(jnp.int32),
+    )
+
+
+def _manage(static: Static, params: Params, state: EkfSlamState, seg: Segments, valid, z_mask, c: _Carry) -> _Carry:
+    """Landmark management after the scan's detections (``static.manage``; the loop's state
+    unchanged without it): existence of the landmarks near the updated pose mean (gathered as the
+    particle filters' local window; those created in this scan are not tested), removal of those
+    that fail it (marginalised out), and the new high-water mark.
+
+    Args:
+        static, params: the step's settings.
+        state: the state before the segment (its landmarks: those before this scan).
+        seg: the segment; ``valid``: False for padding; ``z_mask``: its real detections.
+        c: the loop's state after the detections.
+
+    Returns:
+        ``c`` with the managed joint Gaussian, bookkeeping and ``count``.
+    """
+    if not static.manage:
+        return c
+    capacity = static.capacity
+    mp = params.map
+    dim = params.measurement.landmark_dim
+    mean, cov, book = c.mean, c.cov, c.book
+    old = state.landmarks.active
+    full = book._replace(mean=landmark_means(mean, dim), cov=landmark_blocks(cov, capacity, dim), active=old)
+    radius = params.max_range + params.window_margin
+    local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius, model=params.measurement)
+    local = manage_window(
+        local,
+        mean[:3],
+        c.seen.at[idx].get(mode="fill", fill_value=False),
+        seg.z,
+        z_mask,
+        seg.diam,
+        valid & seg.is_scan,
+        state.scan,
+        params.measurement,
+        mp,
+        static.occlusion,
+    )
+    managed = drop_stale(scatter_window(full, local, idx), state.scan, mp)
+    remove = old & ~managed.active
+    created = book.active & ~old
+    book = managed._replace(active=old | created, mean=book.mean, cov=book.cov)
+    mean, cov, book = _remove(mean, cov, book, remove)
+    return c._replace(mean=mean, cov=cov, book=book, count=_high_water(book.active))
+
+
+def _output(state: EkfSlamState, seg: Segments, valid, c: _Carry) -> tuple[EkfSlamState, GaussianStepOutput]:
+    """The new state and the segment's record from the loop's state ``c`` after management
+    (``state``: the state before the segment; ``valid``: False for padding)."""
+    book = c.book
+    diag = jnp.diagonal(c.cov)
+    finite = jnp.all(jnp.isfinite(c.mean)) & jnp.all(jnp.isfinite(diag))
+    new_state = EkfSlamState(
+        mean=c.mean,
+        cov=c.cov,
+        landmarks=book,
+        count=c.count,
+        overflow=state.overflow + c.overflow,
+        scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
+    )
+    record = GaussianStepOutput(
+        pose=new_state.pose,
+        pose_cov=new_state.pose_cov,
+        n_landmarks=jnp.sum(book.active).astype(jnp.int32),
+        n_confirmed=jnp.sum(book.active & book.confirmed).astype(jnp.int32),
+        n_associated=c.n_associated,
+        n_new=c.n_new,
+        overflow=c.overflow,
+        n_nonfinite=(~finite).astype(jnp.int32),
+    )
+    return new_state, record
+
+
 def ekf_slam_step(
     static: Static,
     params: Params,
@@ -229,142 +475,13 @@ def ekf_slam_step(
         The new state and the segment's :class:`~._gaussian.GaussianStepOutput` (the pose mean
         and its covariance).
     """
-    capacity = static.capacity
-    R, mp, model = params.R, params.map, params.measurement
-    dim = model.landmark_dim
-    var_d = jnp.square(mp.sigma_diameter)
     valid = jnp.asarray(valid)
     # A padding segment has no real DR piece (dr_mask False): the prediction is then exact identity.
     mean, cov = ekf_slam_predict(state.mean, state.cov, seg.dt, seg.u, seg.dr_mask & valid, params)
-
-    z_mask = seg.z_mask & valid
-    k_max = z_mask.shape[0]
-    n_real = jnp.sum(z_mask).astype(jnp.int32)
-    (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
-    slots = jnp.arange(capacity)
-    known = static.association == "known"
-    if known:  # a detection without a landmark id is not associated
-        z_mask = z_mask & (seg.z_id >= 0)
-        n_real = jnp.sum(z_mask).astype(jnp.int32)
-        (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
-    elif not static.sequential:
-        pre_slot, pre_matched, pre_new = _batch_association(mean, cov, seg, z_mask, state.landmarks, params)
-
-    composite = is_composite(model)
-    z_kind = seg.z_kind
-    assert z_kind is not None or not composite, "a composite model's segments have z_kind"
-
-    def body(i, c: _Carry) -> _Carry:
-        k = order[i]
-        zk, dk = seg.z[k], seg.diam[k]
-        # A composite's detection is updated and starts a landmark by its type's model and noise.
-        kk = z_kind[k] if z_kind is not None and composite else None
-        model_k = model.of_kind(kk) if composite else model  # type: ignore[attr-defined]  # a Composite
-        R_k = model_k.noise_cov() if composite else R
-        if known:  # the landmark started by this id, or a new one
-            same = c.book.active & (c.book.ident == seg.z_id[k])
-            j = jnp.argmax(same).astype(jnp.int32)
-            matched = jnp.any(same)
-            new = ~matched
-        elif static.sequential:
-            d2 = association_distances(
-                c.mean, c.cov, zk, R, c.available, _diameter_terms(c.book, dk, params), model, c.book.kind, kk
-            )
-            j = jnp.argmin(d2).astype(jnp.int32)
-            best = jnp.min(d2)
-            matched = best < params.gate
-            new = best > params.new_landmark
-        else:
-            j, matched, new = pre_slot[k].astype(jnp.int32), pre_matched[k], pre_new[k]
-        free = jnp.argmin(c.book.active).astype(jnp.int32)  # the lowest free slot
-        room = ~c.book.active[free]
-        add = new & room
-        # No conditionals around the big buffers (they would copy P): masked operations whose
-        # covariance work is skipped (update: zero tiles; augment: dropped scatters).
-        mean, cov = ekf_slam_update(c.mean, c.cov, zk, j, R_k, size=3 + dim * c.count, apply=matched, model=model_k)
-        mean, cov = ekf_slam_augment(mean, cov, zk, free, R_k, apply=add, model=model_k)
-        # Bookkeeping of the one slot that changes (scatters to ``capacity`` are dropped).
-        b = c.book
-        jc = jnp.where(matched, j, capacity)
-        fc = jnp.where(add, free, capacity)
-        d_new, dv_new = diameter_update(b.diam[j], b.diam_var[j], dk, mp.sigma_diameter)
-        book = b._replace(
-            active=b.active.at[fc].set(True, mode="drop"),
-            hits=b.hits.at[jc].add(1, mode="drop").at[fc].set(1, mode="drop"),
-            misses=b.misses.at[fc].set(0, mode="drop"),
-            log_odds=b.log_odds.at[fc].set(mp.log_odds_birth, mode="drop"),
-            confirmed=b.confirmed.at[fc].set(not static.manage, mode="drop"),
-            born=b.born.at[fc].set(state.scan, mode="drop"),
-            diam=b.diam.at[jc].set(d_new, mode="drop").at[fc].set(dk, mode="drop"),
-            diam_var=b.diam_var.at[jc].set(dv_new, mode="drop").at[fc].set(var_d, mode="drop"),
-            ident=None if b.ident is None else b.ident.at[fc].set(seg.z_id[k], mode="drop"),
-            kind=None if b.kind is None else b.kind.at[fc].set(kk, mode="drop"),
-        )
-        claimed = matched & (slots == j)
-        created = add & (slots == free)
-        # Sequential: a landmark is claimed once per scan; a new one can be matched next.
-        available = (c.available & ~claimed) | created if static.sequential else c.available
-        return _Carry(
-            mean=mean,
-            cov=cov,
-            available=available,
-            book=book,
-            seen=(c.seen | claimed) & ~created,
-            count=jnp.maximum(c.count, jnp.where(add, free + 1, 0)),
-            n_associated=c.n_associated + matched.astype(jnp.int32),
-            n_new=c.n_new + add.astype(jnp.int32),
-            overflow=c.overflow + (new & ~room).astype(jnp.int32),
-        )
-
+    dets = _detections(static, params, mean, cov, seg, valid, state.landmarks)
     zero = jnp.zeros((), jnp.int32)
     book0 = state.landmarks
-    init = _Carry(mean, cov, book0.active, book0, jnp.zeros(capacity, bool), state.count, zero, zero, zero)
-    c = jax.lax.fori_loop(0, n_real, body, init)
-    mean, cov, book, count = c.mean, c.cov, c.book, c.count
-    if static.manage:
-        # Existence of the landmarks near the updated pose mean (gathered as the particle filters'
-        # local window); those created in this scan are not tested.
-        old = book0.active
-        full = book._replace(mean=landmark_means(mean, dim), cov=landmark_blocks(cov, capacity, dim), active=old)
-        radius = params.max_range + params.window_margin
-        local, idx, _ = gather_window(full, mean[:2], min(static.window, capacity), radius, model=params.measurement)
-        local = manage_window(
-            local,
-            mean[:3],
-            c.seen.at[idx].get(mode="fill", fill_value=False),
-            seg.z,
-            z_mask,
-            seg.diam,
-            valid & seg.is_scan,
-            state.scan,
-            params.measurement,
-            mp,
-            static.occlusion,
-        )
-        managed = drop_stale(scatter_window(full, local, idx), state.scan, mp)
-        remove = old & ~managed.active
-        created = book.active & ~old
-        book = managed._replace(active=old | created, mean=book.mean, cov=book.cov)
-        mean, cov, book = _remove(mean, cov, book, remove)
-        count = _high_water(book.active)
-    diag = jnp.diagonal(cov)
-    finite = jnp.all(jnp.isfinite(mean)) & jnp.all(jnp.isfinite(diag))
-    new_state = EkfSlamState(
-        mean=mean,
-        cov=cov,
-        landmarks=book,
-        count=count,
-        overflow=state.overflow + c.overflow,
-        scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
-    )
-    record = GaussianStepOutput(
-        pose=new_state.pose,
-        pose_cov=new_state.pose_cov,
-        n_landmarks=jnp.sum(book.active).astype(jnp.int32),
-        n_confirmed=jnp.sum(book.active & book.confirmed).astype(jnp.int32),
-        n_associated=c.n_associated,
-        n_new=c.n_new,
-        overflow=c.overflow,
-        n_nonfinite=(~finite).astype(jnp.int32),
-    )
-    return new_state, record
+    init = _Carry(mean, cov, book0.active, book0, jnp.zeros(static.capacity, bool), state.count, zero, zero, zero)
+    body = functools.partial(_detection_step, static, params, state.scan, seg, dets)
+    c = jax.lax.fori_loop(0, dets.n_real, body, init)
+    return _output(state, seg, valid, _manage(static, params, state, seg, valid, dets.z_mask, c))

@@ -151,13 +151,13 @@ def association_distances(
     available: Bool[Array, " capacity"],
     diam_term: Float[Array, " capacity"] | float = 0.0,
     model: AbstractMeasurementModel | None = None,
-    slot_kind: Int[Array, " capacity"] | None = None,
-    z_kind: Int[Array, ""] | None = None,
+    kinds: tuple[Int[Array, " capacity"] | None, Int[Array, ""] | None] | None = None,
 ) -> Float[Array, " capacity"]:
     """Squared Mahalanobis distance of ``z`` to every available landmark (inf elsewhere), plus
     ``diam_term`` (the tree-diameter term of each slot, or 0); ``model``: the measurement model
-    (default range-bearing); ``slot_kind``, ``z_kind``: the slots' and the detection's types for a
-    composite model (a slot of another type is not available)."""
+    (default range-bearing); ``kinds``: ``(slot_kind, z_kind)``, the slots' and the detection's
+    types for a composite model (a slot of another type is not available; None: no types)."""
+    slot_kind, z_kind = (None, None) if kinds is None else kinds
     if slot_kind is not None and z_kind is not None:
         available = available & (slot_kind == z_kind)
     nu, S = slot_innovations(mean, cov, z, R, available, model, slot_kind, z_kind)

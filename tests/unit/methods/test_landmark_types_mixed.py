@@ -75,7 +75,7 @@ def test_a_detection_is_never_associated_with_a_landmark_of_another_type(sequent
     mean = jnp.concatenate([x, jnp.asarray(line), jnp.asarray(circle)])
     cov = jnp.eye(9) * 0.01
     d2 = association_distances(
-        mean, cov, z_line, LINE_CIRCLE.noise_cov(), jnp.array([True, True]), 0.0, LINE_CIRCLE, local.kind[:2], 1
+        mean, cov, z_line, LINE_CIRCLE.noise_cov(), jnp.array([True, True]), 0.0, LINE_CIRCLE, (local.kind[:2], 1)
     )
     assert np.isinf(d2[0]) and np.isfinite(d2[1])
 
