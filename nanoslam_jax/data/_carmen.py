@@ -156,100 +156,121 @@ def _lines(path: Path) -> list[str]:
         raise LogFormatError(f"{path}: cannot read the file ({e})") from None
 
 
-def _numbers(path: Path, line: int, kind: str, tok: list[str], lo: int, hi: int, what: str) -> np.ndarray:
-    """Tokens ``lo:hi`` as finite floats, or a LogFormatError naming the field."""
-    out = np.empty(hi - lo)
-    for i in range(lo, hi):
-        try:
-            v = float(tok[i])
-        except ValueError:
-            v = math.nan
-            ok = False
-        else:
-            ok = math.isfinite(v)
-        if not ok:
+@dataclass(frozen=True)
+class _Fields:
+    """One message line split into its fields, with its place in the file for the error messages."""
+
+    path: Path
+    line: int  # 1-based
+    kind: str  # the message type, the first field
+    tok: list[str]
+
+    def numbers(self, lo: int, hi: int, what: str) -> np.ndarray:
+        """Fields ``lo:hi`` as finite floats, or a LogFormatError naming the field."""
+        out = np.empty(hi - lo)
+        for i in range(lo, hi):
+            try:
+                v = float(self.tok[i])
+            except ValueError:
+                v = math.nan
+                ok = False
+            else:
+                ok = math.isfinite(v)
+            if not ok:
+                raise LogFormatError(
+                    f"{self.path} line {self.line} ({self.kind}, field {i + 1}, {what}): expected a finite number, "
+                    f"got {self.tok[i]!r}"
+                )
+            out[i - lo] = v
+        return out
+
+    def count(self, i: int, what: str) -> int:
+        """Field ``i`` as an integer >= 0, or a LogFormatError naming the field."""
+        if i >= len(self.tok):
             raise LogFormatError(
-                f"{path} line {line} ({kind}, field {i + 1}, {what}): expected a finite number, got {tok[i]!r}"
+                f"{self.path} line {self.line} ({self.kind}): too few fields, expected {what} in field {i + 1}"
             )
-        out[i - lo] = v
-    return out
+        try:
+            n = int(self.tok[i])
+        except ValueError:
+            n = -1
+        if n < 0:
+            raise LogFormatError(
+                f"{self.path} line {self.line} ({self.kind}, field {i + 1}): expected {what} (an integer >= 0), got "
+                f"{self.tok[i]!r}"
+            )
+        return n
+
+    def need(self, n_fields: int, why: str) -> None:
+        """A LogFormatError unless the line has at least ``n_fields`` fields."""
+        if len(self.tok) < n_fields:
+            raise LogFormatError(
+                f"{self.path} line {self.line} ({self.kind}): too few fields, expected at least {n_fields} ({why}), "
+                f"got {len(self.tok)}"
+            )
 
 
-def _count(path: Path, line: int, kind: str, tok: list[str], i: int, what: str) -> int:
-    if i >= len(tok):
-        raise LogFormatError(f"{path} line {line} ({kind}): too few fields, expected {what} in field {i + 1}")
-    try:
-        n = int(tok[i])
-    except ValueError:
-        n = -1
-    if n < 0:
-        raise LogFormatError(
-            f"{path} line {line} ({kind}, field {i + 1}): expected {what} (an integer >= 0), got {tok[i]!r}"
-        )
-    return n
+def _parse_flaser(f: _Fields, out: _Parsed) -> None:
+    """``FLASER n r_1 .. r_n x y theta odom_x odom_y odom_theta ipc_timestamp ...``: a scan with both poses."""
+    n = f.count(1, "the number of readings")
+    f.need(n + 9, f"{n} readings, two poses and the ipc_timestamp")
+    r = f.numbers(2, 2 + n, "a range")
+    p = f.numbers(2 + n, 9 + n, "a pose or the ipc_timestamp")
+    out.scans.append(_Scan(f.line, f.kind, float(p[6]), r, laser=p[0:3], robot=p[3:6]))
 
 
-def _need(path: Path, line: int, kind: str, tok: list[str], n_fields: int, why: str) -> None:
-    if len(tok) < n_fields:
-        raise LogFormatError(
-            f"{path} line {line} ({kind}): too few fields, expected at least {n_fields} ({why}), got {len(tok)}"
-        )
+def _parse_laser(f: _Fields, out: _Parsed) -> None:
+    """``ROBOTLASER1`` (with both poses) and ``RAWLASERn`` (without a pose): a scan stating its geometry."""
+    head = f.numbers(1, min(8, len(f.tok)), "the laser's settings")
+    f.need(9, "the laser's settings and the number of readings")
+    n = f.count(8, "the number of readings")
+    f.need(10 + n, f"{n} readings and the number of remission values")
+    r = f.numbers(9, 9 + n, "a range")
+    m = f.count(9 + n, "the number of remission values")
+    j = 10 + n + m
+    scan = _Scan(f.line, f.kind, 0.0, r, start=float(head[1]), step=float(head[3]), max_range=float(head[4]))
+    if f.kind == "ROBOTLASER1":
+        f.need(j + 12, f"{n} readings, {m} remission values, two poses, 5 values and the ipc_timestamp")
+        p = f.numbers(j, j + 12, "a pose, velocity, safety value or the ipc_timestamp")
+        scan.laser, scan.robot, scan.time = p[0:3], p[3:6], float(p[11])
+    else:
+        f.need(j + 1, f"{n} readings, {m} remission values and the ipc_timestamp")
+        scan.time = float(f.numbers(j, j + 1, "the ipc_timestamp")[0])
+    out.scans.append(scan)
+
+
+def _parse_odom(f: _Fields, out: _Parsed) -> None:
+    """``ODOM x y theta tv rv accel ipc_timestamp ...``: the odometry pose, kept as ``(t, x, y, theta)``."""
+    f.need(8, "x, y, theta, tv, rv, accel and the ipc_timestamp")
+    p = f.numbers(1, 8, "a pose, velocity or the ipc_timestamp")
+    out.odom_line.append(f.line)
+    out.odom.append(np.array([p[6], p[0], p[1], p[2]]))
+
+
+#: The parser of each message type read; every other type is skipped.
+_PARSERS = {"FLASER": _parse_flaser, "ROBOTLASER1": _parse_laser, "ODOM": _parse_odom} | {
+    k: _parse_laser for k in _RAWLASER
+}
 
 
 def _parse(path: Path) -> _Parsed:
     """Every scan and ODOM line of the file, in file order, with its 1-based line number."""
-    scans: list[_Scan] = []
-    odom_line: list[int] = []
-    odom: list[np.ndarray] = []
+    text = _lines(path)
+    out = _Parsed(path, [], [], [], {})
     comments = 0
     skipped: dict[str, int] = {}
-    text = _lines(path)
     for k, raw in enumerate(text):
-        line = k + 1
         tok = raw.split()
         if not tok or tok[0].startswith("#"):
             comments += 1
             continue
-        kind = tok[0]
-        if kind == "FLASER":
-            n = _count(path, line, kind, tok, 1, "the number of readings")
-            _need(path, line, kind, tok, n + 9, f"{n} readings, two poses and the ipc_timestamp")
-            r = _numbers(path, line, kind, tok, 2, 2 + n, "a range")
-            p = _numbers(path, line, kind, tok, 2 + n, 9 + n, "a pose or the ipc_timestamp")
-            scans.append(_Scan(line, kind, float(p[6]), r, laser=p[0:3], robot=p[3:6]))
-        elif kind == "ROBOTLASER1" or kind in _RAWLASER:
-            head = _numbers(path, line, kind, tok, 1, min(8, len(tok)), "the laser's settings")
-            _need(path, line, kind, tok, 9, "the laser's settings and the number of readings")
-            n = _count(path, line, kind, tok, 8, "the number of readings")
-            _need(path, line, kind, tok, 10 + n, f"{n} readings and the number of remission values")
-            r = _numbers(path, line, kind, tok, 9, 9 + n, "a range")
-            m = _count(path, line, kind, tok, 9 + n, "the number of remission values")
-            j = 10 + n + m
-            scan = _Scan(line, kind, 0.0, r, start=float(head[1]), step=float(head[3]), max_range=float(head[4]))
-            if kind == "ROBOTLASER1":
-                _need(
-                    path,
-                    line,
-                    kind,
-                    tok,
-                    j + 12,
-                    f"{n} readings, {m} remission values, two poses, 5 values and the ipc_timestamp",
-                )
-                p = _numbers(path, line, kind, tok, j, j + 12, "a pose, velocity, safety value or the ipc_timestamp")
-                scan.laser, scan.robot, scan.time = p[0:3], p[3:6], float(p[11])
-            else:
-                _need(path, line, kind, tok, j + 1, f"{n} readings, {m} remission values and the ipc_timestamp")
-                scan.time = float(_numbers(path, line, kind, tok, j, j + 1, "the ipc_timestamp")[0])
-            scans.append(scan)
-        elif kind == "ODOM":
-            _need(path, line, kind, tok, 8, "x, y, theta, tv, rv, accel and the ipc_timestamp")
-            p = _numbers(path, line, kind, tok, 1, 8, "a pose, velocity or the ipc_timestamp")
-            odom_line.append(line)
-            odom.append(np.array([p[6], p[0], p[1], p[2]]))
+        parser = _PARSERS.get(tok[0])
+        if parser is None:
+            skipped[tok[0]] = skipped.get(tok[0], 0) + 1
         else:
-            skipped[kind] = skipped.get(kind, 0) + 1
-    counts = dict(lines=len(text), comments=comments, skipped=skipped)
-    return _Parsed(path, scans, odom_line, odom, counts)
+            parser(_Fields(path, k + 1, tok[0], tok), out)
+    out.counts = dict(lines=len(text), comments=comments, skipped=skipped)
+    return out
 
 
 def _wrap(a):
@@ -279,22 +300,8 @@ def _check_duplicates(path: Path, t: np.ndarray, poses: np.ndarray, lines: np.nd
         )
 
 
-def read_carmen(
-    path: str | os.PathLike,
-    *,
-    laser_start_deg: Optional[float] = None,
-    laser_step_deg: Optional[float] = None,
-    no_return: Optional[float] = None,
-) -> tuple[LaserOdomLog, CarmenCounts]:
-    """Read a CARMEN log; :func:`load_carmen` with what was found besides the scans.
-
-    Args: as :func:`load_carmen`.
-
-    Returns:
-        ``(log, counts)``: the :class:`LaserOdomLog` and the :class:`CarmenCounts`.
-    """
-    file = find_carmen_file(path)
-    parsed = _parse(file)
+def _readings_per_scan(file: Path, parsed: _Parsed) -> int:
+    """The number of readings every scan line has, or a LogFormatError (no scans, or counts that differ)."""
     scans = parsed.scans
     if not scans:
         raise LogFormatError(
@@ -309,7 +316,13 @@ def read_carmen(
                 f"{file} line {s.line} ({s.kind}): {s.ranges.size} readings, but line {first.line} has {n}; "
                 f"expected the same number of readings on every scan line"
             )
-    # beam angles: the overrides, else the first line that states them, else the convention
+    return n
+
+
+def _beam_angles(
+    file: Path, scans: list, n: int, laser_start_deg: Optional[float], laser_step_deg: Optional[float]
+) -> np.ndarray:
+    """The beam angles (rad): the overrides, else the first line that states them, else the convention."""
     stated = next((s for s in scans if s.start is not None), None)
     for s in scans:
         if (
@@ -329,83 +342,136 @@ def read_carmen(
     step_deg = step_deg if laser_step_deg is None else float(laser_step_deg)
     if not step_deg > 0:
         raise ValueError(f"{file}: the beam spacing must be > 0 deg, got {step_deg}")
-    angles = np.deg2rad(start_deg + step_deg * np.arange(n))
+    return np.deg2rad(start_deg + step_deg * np.arange(n))
+
+
+def _no_return_threshold(file: Path, scans: list, no_return: Optional[float]) -> float:
+    """Readings at or above this are no returns: ``no_return``, else the first stated range limit, else the SICK's."""
     limit = next((s.max_range for s in scans if s.max_range is not None and s.max_range > 0), None)
     threshold = float(no_return) if no_return is not None else (limit if limit is not None else SICK_NO_RETURN)
     if not threshold > 0:
         raise ValueError(f"{file}: the no-return threshold must be > 0 m, got {threshold}")
+    return threshold
 
-    lines = np.array([s.line for s in scans])
-    t = np.array([s.time for s in scans])
+
+def _ranges(file: Path, scans: list, n: int, threshold: float) -> np.ndarray:
+    """``(S, n)`` the scans' readings, no returns set to ``threshold``; a LogFormatError for a negative one."""
     ranges = np.stack([s.ranges for s in scans]) if n else np.zeros((len(scans), 0))
     neg = np.argwhere(ranges < 0)
     if neg.size:
         i, b = (int(v) for v in neg[0])
         raise LogFormatError(
-            f"{file} line {lines[i]} ({scans[i].kind}, reading {b + 1}): expected a range >= 0, got {ranges[i, b]!r}"
+            f"{file} line {scans[i].line} ({scans[i].kind}, reading {b + 1}): expected a range >= 0, got "
+            f"{ranges[i, b]!r}"
         )
-    ranges = np.where(ranges >= threshold, threshold, ranges)
+    return np.where(ranges >= threshold, threshold, ranges)
+
+
+def _posed_scans(file: Path, scans: list, t: np.ndarray, lines: np.ndarray) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """``(S, 3)`` the robot pose the scan lines state (NaN for a line without one) and the laser's mounting
+    (None without a posed line); a LogFormatError for a mounting that changes or two poses at one time."""
+    posed = np.array([s.robot is not None for s in scans])
+    odom = np.full((len(scans), 3), np.nan)
+    if not posed.any():
+        return odom, None
+    robot = np.stack([s.robot for s in scans if s.robot is not None])
+    laser = np.stack([s.laser for s in scans if s.laser is not None])
+    m = _between(robot, laser)
+    mount = m[0]
+    dev = _between(np.broadcast_to(mount, m.shape), m)
+    bad = np.flatnonzero((np.hypot(dev[:, 0], dev[:, 1]) > MOUNT_TOL_M) | (np.abs(dev[:, 2]) > MOUNT_TOL_RAD))
+    if bad.size:
+        ln = lines[posed][int(bad[0])]
+        raise LogFormatError(
+            f"{file} line {ln}: the laser's pose relative to the robot's, {tuple(round(float(v), 4) for v in m[bad[0]])}, differs "
+            f"from line {lines[posed][0]}'s, {tuple(round(float(v), 4) for v in mount)}; expected a fixed mounting (within "
+            f"{MOUNT_TOL_M} m, {MOUNT_TOL_RAD} rad)"
+        )
+    odom[posed] = robot
+    _check_duplicates(file, t[posed], robot, lines[posed], "a scan")
+    return odom, mount
+
+
+def _odom_track(file: Path, parsed: _Parsed) -> tuple[Optional[np.ndarray], int]:
+    """``(K, 4)`` the ODOM lines' ``(t, x, y, theta)`` sorted by time (None without any) and how many of them
+    step back in time; a LogFormatError for two poses at one time."""
+    if not parsed.odom:
+        return None, 0
+    o = np.stack(parsed.odom)
+    o_lines = np.array(parsed.odom_line)
+    out_of_order = _steps_back(o[:, 0])
+    k = np.argsort(o[:, 0], kind="stable")
+    o, o_lines = o[k], o_lines[k]
+    _check_duplicates(file, o[:, 0], o[:, 1:], o_lines, "an ODOM line")
+    return o, out_of_order
+
+
+def _interpolate_unposed(
+    file: Path, scans: list, t: np.ndarray, lines: np.ndarray, odom: np.ndarray, o: Optional[np.ndarray]
+) -> np.ndarray:
+    """Fill in ``odom`` (in place) at the scans without a pose from the ODOM track ``o``: position linearly,
+    heading along the shorter arc. Returns which scans to keep (those without a pose outside the track's
+    span are dropped); a LogFormatError when there is no track or no scan to keep."""
+    need = np.array([s.robot is None for s in scans])
+    if not need.any():
+        return np.ones(len(scans), bool)
+    if o is None:
+        ln = lines[need][0]
+        raise LogFormatError(
+            f"{file} line {ln} ({scans[int(np.flatnonzero(need)[0])].kind}): a scan without a pose, and the file "
+            f"has no ODOM lines to interpolate one from"
+        )
+    _, keep = np.unique(o[:, 0], return_index=True)
+    o = o[keep]
+    inside = (t >= o[0, 0]) & (t <= o[-1, 0])
+    tq = t[need]
+    x = np.interp(tq, o[:, 0], o[:, 1])
+    y = np.interp(tq, o[:, 0], o[:, 2])
+    # the angle on the circle: interpolate the unwrapped heading
+    th = _wrap(np.interp(tq, o[:, 0], np.unwrap(o[:, 3])))
+    odom[need] = np.stack([x, y, th], axis=1)
+    drop = need & ~inside
+    if int(drop.sum()) == len(scans):
+        raise LogFormatError(
+            f"{file}: no scan lies within the time span of the ODOM lines ({o[0, 0]!r} to {o[-1, 0]!r}); no pose "
+            f"to interpolate"
+        )
+    return ~drop
+
+
+def read_carmen(
+    path: str | os.PathLike,
+    *,
+    laser_start_deg: Optional[float] = None,
+    laser_step_deg: Optional[float] = None,
+    no_return: Optional[float] = None,
+) -> tuple[LaserOdomLog, CarmenCounts]:
+    """Read a CARMEN log; :func:`load_carmen` with what was found besides the scans.
+
+    Args: as :func:`load_carmen`.
+
+    Returns:
+        ``(log, counts)``: the :class:`LaserOdomLog` and the :class:`CarmenCounts`.
+    """
+    file = find_carmen_file(path)
+    parsed = _parse(file)
+    n = _readings_per_scan(file, parsed)
+    scans = parsed.scans
+    angles = _beam_angles(file, scans, n, laser_start_deg, laser_step_deg)
+    threshold = _no_return_threshold(file, scans, no_return)
+    ranges = _ranges(file, scans, n, threshold)
+    lines = np.array([s.line for s in scans])
+    t = np.array([s.time for s in scans])
     out_of_order = _steps_back(t)
     order = np.argsort(t, kind="stable")
     t, ranges, lines, scans = t[order], ranges[order], lines[order], [scans[i] for i in order]
-
-    posed = np.array([s.robot is not None for s in scans])
-    odom = np.full((len(scans), 3), np.nan)
-    mount = None
-    if posed.any():
-        robot = np.stack([s.robot for s in scans if s.robot is not None])
-        laser = np.stack([s.laser for s in scans if s.laser is not None])
-        m = _between(robot, laser)
-        mount = m[0]
-        dev = _between(np.broadcast_to(mount, m.shape), m)
-        bad = np.flatnonzero((np.hypot(dev[:, 0], dev[:, 1]) > MOUNT_TOL_M) | (np.abs(dev[:, 2]) > MOUNT_TOL_RAD))
-        if bad.size:
-            ln = lines[posed][int(bad[0])]
-            raise LogFormatError(
-                f"{file} line {ln}: the laser's pose relative to the robot's, {tuple(round(float(v), 4) for v in m[bad[0]])}, differs "
-                f"from line {lines[posed][0]}'s, {tuple(round(float(v), 4) for v in mount)}; expected a fixed mounting (within "
-                f"{MOUNT_TOL_M} m, {MOUNT_TOL_RAD} rad)"
-            )
-        odom[posed] = robot
-        _check_duplicates(file, t[posed], robot, lines[posed], "a scan")
-    dropped = 0
-    n_odom = len(parsed.odom)
-    if n_odom:
-        o = np.stack(parsed.odom)
-        o_lines = np.array(parsed.odom_line)
-        out_of_order += _steps_back(o[:, 0])
-        k = np.argsort(o[:, 0], kind="stable")
-        o, o_lines = o[k], o_lines[k]
-        _check_duplicates(file, o[:, 0], o[:, 1:], o_lines, "an ODOM line")
-    if not posed.all():
-        if not n_odom:
-            ln = lines[~posed][0]
-            raise LogFormatError(
-                f"{file} line {ln} ({scans[int(np.flatnonzero(~posed)[0])].kind}): a scan without a pose, and the file "
-                f"has no ODOM lines to interpolate one from"
-            )
-        keep_t, keep = np.unique(o[:, 0], return_index=True)
-        o = o[keep]
-        inside = (t >= o[0, 0]) & (t <= o[-1, 0])
-        need = ~posed
-        tq = t[need]
-        x = np.interp(tq, o[:, 0], o[:, 1])
-        y = np.interp(tq, o[:, 0], o[:, 2])
-        # the angle on the circle: interpolate the unwrapped heading
-        th = _wrap(np.interp(tq, o[:, 0], np.unwrap(o[:, 3])))
-        odom[need] = np.stack([x, y, th], axis=1)
-        drop = need & ~inside
-        dropped = int(drop.sum())
-        if dropped == len(scans):
-            raise LogFormatError(
-                f"{file}: no scan lies within the time span of the ODOM lines ({o[0, 0]!r} to {o[-1, 0]!r}); no pose "
-                f"to interpolate"
-            )
-        keep_s = ~drop
-        t, ranges, odom = t[keep_s], ranges[keep_s], odom[keep_s]
+    odom, mount = _posed_scans(file, scans, t, lines)
+    o, odom_steps_back = _odom_track(file, parsed)
+    out_of_order += odom_steps_back
+    keep = _interpolate_unposed(file, scans, t, lines, odom, o)
     log = LaserOdomLog(
-        scans=LaserScans(t, ranges, angles, max_range=threshold, source=str(file)),
-        odom=odom,
+        scans=LaserScans(t[keep], ranges[keep], angles, max_range=threshold, source=str(file)),
+        odom=odom[keep],
         laser_pose=np.zeros(3) if mount is None else mount,
         out_of_order=out_of_order,
         source=str(file),
@@ -413,11 +479,11 @@ def read_carmen(
     counts = CarmenCounts(
         lines=parsed.counts["lines"],
         scans=len(scans),
-        odom=n_odom,
+        odom=len(parsed.odom),
         comments=parsed.counts["comments"],
         skipped=parsed.counts["skipped"],
         out_of_order=out_of_order,
-        dropped=dropped,
+        dropped=int(np.sum(~keep)),
     )
     return log, counts
 

@@ -263,6 +263,94 @@ def _interpolate(t: np.ndarray, ts: np.ndarray, poses: np.ndarray) -> np.ndarray
     return np.column_stack([xy, yaw])
 
 
+def _laser_pose_arg(laser_pose: Optional[Sequence[float]]) -> Optional[np.ndarray]:
+    """The ``laser_pose`` argument as ``(x, y, theta)`` with the angle wrapped, or None; a ValueError unless
+    it is three finite numbers."""
+    if laser_pose is None:
+        return None
+    pose_arg = np.asarray(laser_pose, dtype=np.float64)
+    if pose_arg.shape != (3,) or not np.all(np.isfinite(pose_arg)):
+        raise ValueError(f"laser_pose: expected three finite numbers (x, y, theta), got {laser_pose!r}")
+    return np.array([pose_arg[0], pose_arg[1], float(wrap_angle_np(pose_arg[2]))])
+
+
+def _scans_in_odometry_span(
+    path: Path, scan_topic: str, odom_topic: str, stamps: np.ndarray, odom_t: np.ndarray
+) -> tuple[np.ndarray, int]:
+    """The indices of the scans stamped within the odometry's span, sorted by stamp, and how many scans
+    were stamped earlier than the one before them (each with a warning to ``load_rosbag``'s caller)."""
+    out_of_order = int(np.count_nonzero(np.diff(stamps) < 0))
+    if out_of_order:
+        warnings.warn(
+            f"{path} topic {scan_topic}: {out_of_order} scans were stamped earlier than the scan before them; "
+            "sorted by stamp",
+            stacklevel=3,
+        )
+    order = np.argsort(stamps, kind="stable")
+    inside = order[(stamps[order] >= odom_t[0]) & (stamps[order] <= odom_t[-1])]
+    before = int(np.count_nonzero(stamps < odom_t[0]))
+    after = int(np.count_nonzero(stamps > odom_t[-1]))
+    if inside.size == 0:
+        raise LogFormatError(
+            f"{path}: no scan on {scan_topic} lies within the odometry's time span on {odom_topic} "
+            f"({_seconds(int(odom_t[0]))!r} to {_seconds(int(odom_t[-1]))!r} s); scans run from "
+            f"{_seconds(int(stamps.min()))!r} to {_seconds(int(stamps.max()))!r} s"
+        )
+    if before or after:
+        warnings.warn(
+            f"{path}: dropped {before} scans on {scan_topic} stamped before the first odometry message on "
+            f"{odom_topic} and {after} after the last (no odometry to interpolate)",
+            stacklevel=3,
+        )
+    return inside, out_of_order
+
+
+def _scan_ranges(messages: list[_Scan], inside: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(ranges, angles, max_range)`` of the scans ``inside``: no returns set to the largest ``range_max``,
+    the beams in increasing angle."""
+    first = messages[0]
+    max_range = max(m.range_max for m in messages)
+    rows = []
+    for k in inside:
+        m = messages[k]
+        r = m.ranges
+        ok = np.isfinite(r) & (r >= m.range_min) & (r < m.range_max)
+        rows.append(np.where(ok, r, max_range))
+    ranges = np.array(rows, dtype=np.float64)
+    angles = first.angle_min + np.arange(first.ranges.size) * first.angle_increment
+    if first.angle_increment < 0:
+        angles, ranges = angles[::-1], ranges[:, ::-1]
+    return ranges, angles, max_range
+
+
+def _laser_mounting(
+    path: Path, tree: dict[str, tuple[str, np.ndarray]], base: str, laser: str, pose_arg: Optional[np.ndarray]
+) -> np.ndarray:
+    """The laser's mounting in the base frame: from ``/tf_static``, else ``pose_arg``, else zero (warnings to
+    ``load_rosbag``'s caller where it is zero or ``pose_arg`` is ignored)."""
+    mount = _mounting(tree, base, laser)
+    if mount is None:
+        if tree:
+            why = (
+                f"{TF_STATIC} has no chain of transforms from the odometry's frame {base!r} to the scans' frame "
+                f"{laser!r}"
+            )
+        else:
+            why = f"the bag has no {TF_STATIC}"
+        if pose_arg is not None:
+            mount = pose_arg
+        else:
+            mount = np.zeros(3)
+            warnings.warn(f"{path}: {why}; the laser's mounting is taken as zero (give laser_pose)", stacklevel=3)
+    elif pose_arg is not None and not np.allclose(pose_arg, mount):
+        warnings.warn(
+            f"{path}: laser_pose {pose_arg.tolist()} ignored; the bag's {TF_STATIC} gives the mounting "
+            f"{mount.tolist()} of frame {laser!r} in {base!r}",
+            stacklevel=3,
+        )
+    return mount
+
+
 def load_rosbag(
     path: str | os.PathLike,
     *,
@@ -300,12 +388,7 @@ def load_rosbag(
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: ROS bag not found; expected a ROS 1 .bag file or a ROS 2 bag directory")
-    pose_arg = None
-    if laser_pose is not None:
-        pose_arg = np.asarray(laser_pose, dtype=np.float64)
-        if pose_arg.shape != (3,) or not np.all(np.isfinite(pose_arg)):
-            raise ValueError(f"laser_pose: expected three finite numbers (x, y, theta), got {laser_pose!r}")
-        pose_arg = np.array([pose_arg[0], pose_arg[1], float(wrap_angle_np(pose_arg[2]))])
+    pose_arg = _laser_pose_arg(laser_pose)
     bag = _Bag(path)
     try:
         bag.require(scan_topic, LASER_SCAN, "data.scan_topic")
@@ -316,65 +399,10 @@ def load_rosbag(
     finally:
         bag.close()
 
-    first = messages[0]
     stamps = np.array([m.stamp for m in messages], dtype=np.int64)
-    out_of_order = int(np.count_nonzero(np.diff(stamps) < 0))
-    if out_of_order:
-        warnings.warn(
-            f"{path} topic {scan_topic}: {out_of_order} scans were stamped earlier than the scan before them; "
-            "sorted by stamp",
-            stacklevel=2,
-        )
-    order = np.argsort(stamps, kind="stable")
-    inside = order[(stamps[order] >= odom_t[0]) & (stamps[order] <= odom_t[-1])]
-    before = int(np.count_nonzero(stamps < odom_t[0]))
-    after = int(np.count_nonzero(stamps > odom_t[-1]))
-    if inside.size == 0:
-        raise LogFormatError(
-            f"{path}: no scan on {scan_topic} lies within the odometry's time span on {odom_topic} "
-            f"({_seconds(int(odom_t[0]))!r} to {_seconds(int(odom_t[-1]))!r} s); scans run from "
-            f"{_seconds(int(stamps.min()))!r} to {_seconds(int(stamps.max()))!r} s"
-        )
-    if before or after:
-        warnings.warn(
-            f"{path}: dropped {before} scans on {scan_topic} stamped before the first odometry message on "
-            f"{odom_topic} and {after} after the last (no odometry to interpolate)",
-            stacklevel=2,
-        )
-
-    max_range = max(m.range_max for m in messages)
-    rows = []
-    for k in inside:
-        m = messages[k]
-        r = m.ranges
-        ok = np.isfinite(r) & (r >= m.range_min) & (r < m.range_max)
-        rows.append(np.where(ok, r, max_range))
-    ranges = np.array(rows, dtype=np.float64)
-    angles = first.angle_min + np.arange(first.ranges.size) * first.angle_increment
-    if first.angle_increment < 0:
-        angles, ranges = angles[::-1], ranges[:, ::-1]
-
-    mount = _mounting(tree, base, first.frame)
-    if mount is None:
-        if tree:
-            why = (
-                f"{TF_STATIC} has no chain of transforms from the odometry's frame {base!r} to the scans' frame "
-                f"{first.frame!r}"
-            )
-        else:
-            why = f"the bag has no {TF_STATIC}"
-        if pose_arg is not None:
-            mount = pose_arg
-        else:
-            mount = np.zeros(3)
-            warnings.warn(f"{path}: {why}; the laser's mounting is taken as zero (give laser_pose)", stacklevel=2)
-    elif pose_arg is not None and not np.allclose(pose_arg, mount):
-        warnings.warn(
-            f"{path}: laser_pose {pose_arg.tolist()} ignored; the bag's {TF_STATIC} gives the mounting "
-            f"{mount.tolist()} of frame {first.frame!r} in {base!r}",
-            stacklevel=2,
-        )
-
+    inside, out_of_order = _scans_in_odometry_span(path, scan_topic, odom_topic, stamps, odom_t)
+    ranges, angles, max_range = _scan_ranges(messages, inside)
+    mount = _laser_mounting(path, tree, base, messages[0].frame, pose_arg)
     scan_t = stamps[inside]
     scans = LaserScans(
         time=np.array([_seconds(int(t)) for t in scan_t], dtype=np.float64),
