@@ -12,7 +12,7 @@ fixed order, so a seed gives the same log whatever calls it.
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -263,12 +263,26 @@ def detections(
     return det[order], np.concatenate(ids)[order]
 
 
+class DriveTruth(NamedTuple):
+    """A simulated drive: its logged controls and the truth at the DR samples and the scans.
+
+    Attributes:
+        dr: ``(N, 3)`` logged controls (their first column the DR times).
+        dr_poses: ``(N, 3)`` true laser poses at the DR samples.
+        u_true: ``(N, 2)`` true controls held over each DR interval.
+        scan_t: ``(S,)`` scan times.
+        scan_poses: ``(S, 3)`` the true poses at the scan times.
+    """
+
+    dr: np.ndarray
+    dr_poses: np.ndarray
+    u_true: np.ndarray
+    scan_t: np.ndarray
+    scan_poses: np.ndarray
+
+
 def simulated_log(
-    dr: np.ndarray,
-    dr_poses: np.ndarray,
-    u_true: np.ndarray,
-    scan_t: np.ndarray,
-    scan_poses: np.ndarray,
+    truth: DriveTruth,
     det: np.ndarray,
     det_ids: np.ndarray,
     landmarks: np.ndarray,
@@ -278,14 +292,12 @@ def simulated_log(
     """The :class:`RawLog` of a simulated drive with its truth: poses at every DR and scan time, GPS at 5 Hz.
 
     Args:
-        dr: ``(N, 3)`` logged controls (their first column the DR times).
-        dr_poses: ``(N, 3)`` true laser poses at the DR samples.
-        u_true: ``(N, 2)`` true controls held over each DR interval.
-        scan_t: ``(S,)`` scan times; scan_poses: ``(S, 3)`` the true poses there.
+        truth: the logged controls and the true poses (:class:`DriveTruth`).
         det: ``(M, 4)`` detections; det_ids: ``(M,)`` their landmarks (-1: clutter).
         landmarks: ``(L, 2)``; diameters: ``(L,)``.
         vehicle: car constants (the poses between DR samples).
     """
+    dr, dr_poses, u_true, scan_t, scan_poses = truth
     dr_t = dr[:, 0]
     t_end = dr_t[-1]
     gps_t = np.arange(int(math.floor(t_end * GPS_RATE + 1e-9)) + 1) / GPS_RATE

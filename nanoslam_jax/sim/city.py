@@ -49,6 +49,7 @@ import numpy as np
 from nanoslam_jax.data._types import RawLog
 from nanoslam_jax.models._settings import UnicycleConfig, VehicleConfig
 from nanoslam_jax.sim._common import (
+    DriveTruth,
     detections,
     drive,
     logged_controls,
@@ -356,7 +357,7 @@ def simulate_city(
     scan_poses = poses_at(scan_t, dr_t, dr_poses, u_true, vehicle)
     pairs = _grid_pairs(scan_poses[:, :2], landmarks, sim.max_range + 6.0 * sim.sigma_r + 1.0)
     det, det_ids = detections(scan_t, scan_poses, landmarks, diam, sim, rng_det, rng_clut, pairs)
-    raw = simulated_log(dr, dr_poses, u_true, scan_t, scan_poses, det, det_ids, landmarks, diam, vehicle)
+    raw = simulated_log(DriveTruth(dr, dr_poses, u_true, scan_t, scan_poses), det, det_ids, landmarks, diam, vehicle)
     world = CityWorld(
         origin=origin,
         pitch=pitch,

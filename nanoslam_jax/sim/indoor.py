@@ -64,6 +64,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import maximum_filter1d
@@ -224,6 +225,167 @@ def _pose_at(
 # --------------------------------------------------------------------------- the log
 
 
+class _Drive(NamedTuple):
+    """The true drive at the odometry samples.
+
+    Attributes:
+        t: ``(N,)`` the sample times ``k dt``.
+        controls: ``(N, 2)`` the true ``(v, omega)`` of each sample, held over its period.
+        laser: ``(N + 1, 3)`` the laser poses at the samples and one period after the last (heading unwrapped).
+        ref: ``(N + 1, 3)`` the reference point's poses there.
+    """
+
+    t: np.ndarray
+    controls: np.ndarray
+    laser: np.ndarray
+    ref: np.ndarray
+
+
+def _drive(cfg: IndoorConfig, path: IndoorPath, sensor: np.ndarray, rng: np.random.Generator) -> _Drive:
+    """The true controls along ``path`` and the poses they give under the Euler step (module docstring)."""
+    dt = cfg.odom_period
+    n = int(math.floor(cfg.duration / dt + 1e-9)) + 1  # samples at k dt, k = 0 .. n - 1
+    s = _arc_lengths(path, cfg, rng, n + 2)
+    centre, theta, v, w = _controls(path, s, sensor, dt)
+    controls = np.stack([v, w], axis=1)  # (n, 2): sample k's controls over [t_k, t_k + dt)
+    t = np.arange(n) * dt
+    c0, s0 = math.cos(theta[0]), math.sin(theta[0])
+    p0 = centre[0] + np.array([c0 * sensor[0] - s0 * sensor[1], s0 * sensor[0] + c0 * sensor[1]])
+    laser = _integrate(p0, float(theta[0]), controls, sensor, dt)  # (n + 1, 3)
+    cth, sth = np.cos(laser[:, 2]), np.sin(laser[:, 2])
+    ref = np.stack(
+        [
+            laser[:, 0] - (cth * sensor[0] - sth * sensor[1]),
+            laser[:, 1] - (sth * sensor[0] + cth * sensor[1]),
+            laser[:, 2],
+        ],
+        axis=1,
+    )
+    return _Drive(t, controls, laser, ref)
+
+
+def _odometry(cfg: IndoorConfig, drive: _Drive, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(slip, sigma, logged)``: the samples in a slip episode, the noise's standard deviations at each
+    and the logged controls (white noise that grows ``slip_factor``-fold in slip episodes, none standing still)."""
+    controls = drive.controls
+    v, w = controls[:, 0], controls[:, 1]
+    slip = _slip_mask(drive.t, cfg, rng)
+    turning = (np.abs(v) > 1e-9) | (np.abs(w) > 1e-9)
+    factor = np.where(slip, cfg.slip_factor, 1.0) * turning
+    sigma = np.stack([cfg.sigma_v * factor, math.radians(cfg.sigma_omega_deg) * factor], axis=1)
+    logged = controls + rng.normal(0.0, 1.0, controls.shape) * sigma
+    return slip, sigma, logged
+
+
+class _Scans(NamedTuple):
+    """The simulated laser scans.
+
+    Attributes:
+        time: ``(S,)`` the scan times.
+        pose: ``(S, 3)`` the true laser pose at each (heading unwrapped).
+        scans: the measured scans.
+        kind: ``(S, B)`` what each beam's return came from (:data:`KIND_NONE` where it was lost).
+        obj: ``(S, B)`` which object it came from (-1 where lost).
+    """
+
+    time: np.ndarray
+    pose: np.ndarray
+    scans: LaserScans
+    kind: np.ndarray
+    obj: np.ndarray
+
+
+def _laser_scans(
+    cfg: IndoorConfig, world: IndoorWorld, drive: _Drive, sensor: np.ndarray, rng: np.random.Generator
+) -> _Scans:
+    """Ray-cast a fan every ``scan_period`` from the true laser pose, with range noise, dropouts and
+    spurious ranges (module docstring)."""
+    t = drive.t
+    n = t.size
+    n_scan = int(math.floor(t[-1] / cfg.scan_period + 1e-9)) + 1
+    scan_t = np.arange(n_scan) * cfg.scan_period
+    scan_t = scan_t[scan_t <= t[-1]]
+    scan_pose = _pose_at(scan_t, t, drive.laser[:n], drive.controls, sensor)
+    angles = fan_angles(cfg.laser_beams, cfg.fov_deg)
+    true_r, kind, obj, _ = ray_cast(scan_pose, angles, indoor_laser_world(world), cfg.max_range)
+    shape = true_r.shape
+    hit = np.isfinite(true_r)
+    meas = np.where(hit, true_r, 0.0) + rng.normal(0.0, cfg.range_noise, shape)
+    dropped = hit & (rng.random(shape) < cfg.dropout)
+    spurious = rng.random(shape) < cfg.spurious
+    upper = np.where(hit, true_r, cfg.max_range)
+    spur_r = _SPURIOUS_MIN + rng.random(shape) * np.maximum(upper - _SPURIOUS_MIN, 0.0)
+    meas = np.where(dropped | ~hit, NO_RETURN, meas)
+    meas = np.where(spurious, np.minimum(spur_r, upper), meas)
+    meas = np.where(meas >= cfg.max_range, NO_RETURN, np.maximum(meas, 0.0))
+    lost = dropped | spurious
+    kind = np.where(lost, KIND_NONE, kind)
+    obj = np.where(lost, -1, obj)
+    scans = LaserScans(time=scan_t, ranges=meas, angles=angles, max_range=cfg.max_range, source="simulated")
+    return _Scans(scan_t, scan_pose, scans, kind, obj)
+
+
+def _pillar_detections(
+    cfg: IndoorConfig, world: IndoorWorld, sc: _Scans, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pillars seen by 3 or more beams of a scan: ``(M, 4)`` detections ``time, range, bearing,
+    diameter`` of their centres (measurements.dat) and ``(M,)`` the pillar of each."""
+    n_scan = sc.time.shape[0]
+    n_p = world.pillars.shape[0]
+    pillar_beam = sc.kind == KIND_TREE
+    counts = np.bincount((np.nonzero(pillar_beam)[0] * n_p + sc.obj[pillar_beam]), minlength=n_scan * n_p)
+    si, pi = np.divmod(np.flatnonzero(counts.reshape(n_scan, n_p).ravel() >= 3), n_p)
+    dxy = world.pillars[pi, :2] - sc.pose[si, :2]
+    rng_true = np.hypot(dxy[:, 0], dxy[:, 1])
+    det = np.stack(
+        [
+            sc.time[si],
+            rng_true + rng.normal(0.0, cfg.range_noise, si.size),
+            wrap_angle_np(
+                np.arctan2(dxy[:, 1], dxy[:, 0])
+                - sc.pose[si, 2]
+                + rng.normal(0.0, 1.0, si.size) * cfg.range_noise / rng_true
+            ),
+            np.maximum(2 * world.pillars[pi, 2] + rng.normal(0.0, cfg.range_noise, si.size), 0.0),
+        ],
+        axis=1,
+    ).reshape(-1, 4)
+    return det, pi
+
+
+def _raw_log(
+    world: IndoorWorld, drive: _Drive, logged: np.ndarray, sc: _Scans, det: np.ndarray, pillar: np.ndarray
+) -> RawLog:
+    """The :class:`RawLog`: the logged odometry, the pillar detections, the true laser positions as the GPS and
+    the true poses at every sample and scan time."""
+    t = drive.t
+    n = t.size
+    laser = drive.laser
+    truth_t = np.concatenate([t, sc.time])
+    truth_p = np.concatenate([laser[:n], sc.pose], axis=0)
+    truth_t, first = np.unique(truth_t, return_index=True)
+    truth_poses = np.concatenate([truth_t[:, None], truth_p[first]], axis=1)
+    truth_poses[:, 3] = wrap_angle_np(truth_poses[:, 3])
+    return RawLog(
+        dr=np.concatenate([t[:, None], logged], axis=1),
+        detections=det,
+        gps=np.concatenate([t[:, None], laser[:n, :2]], axis=1),
+        truth_poses=truth_poses,
+        truth_landmarks=world.pillars[:, :2].copy(),
+        truth_diameters=2 * world.pillars[:, 2],
+        source="simulated",
+        detection_ids=pillar.astype(np.int64),
+        landmark_ids=np.arange(world.pillars.shape[0]),
+    )
+
+
+def _wrapped(poses: np.ndarray) -> np.ndarray:
+    """A copy of ``(N, 3)`` poses with the heading wrapped."""
+    out = poses.copy()
+    out[:, 2] = wrap_angle_np(out[:, 2])
+    return out
+
+
 def simulate_indoor(cfg: IndoorConfig | None = None) -> IndoorLog:
     """Simulate an indoor log (see the module docstring).
 
@@ -243,110 +405,26 @@ def simulate_indoor(cfg: IndoorConfig | None = None) -> IndoorLog:
     )
     world, path = build_world(cfg, rng_world)
     sensor = np.array([-cfg.sensor_ls, 0.0])
-    dt = cfg.odom_period
-    n = int(math.floor(cfg.duration / dt + 1e-9)) + 1  # samples at k dt, k = 0 .. n - 1
-    s = _arc_lengths(path, cfg, rng_drive, n + 2)
-    centre, theta, v, w = _controls(path, s, sensor, dt)
-    controls = np.stack([v, w], axis=1)  # (n, 2): sample k's controls over [t_k, t_k + dt)
-    t = np.arange(n) * dt
-    c0, s0 = math.cos(theta[0]), math.sin(theta[0])
-    p0 = centre[0] + np.array([c0 * sensor[0] - s0 * sensor[1], s0 * sensor[0] + c0 * sensor[1]])
-    laser = _integrate(p0, float(theta[0]), controls, sensor, dt)  # (n + 1, 3)
-    cth, sth = np.cos(laser[:, 2]), np.sin(laser[:, 2])
-    ref = np.stack(
-        [
-            laser[:, 0] - (cth * sensor[0] - sth * sensor[1]),
-            laser[:, 1] - (sth * sensor[0] + cth * sensor[1]),
-            laser[:, 2],
-        ],
-        axis=1,
-    )
-
-    # odometry: white noise whose standard deviation grows slip_factor-fold in slip episodes
-    slip = _slip_mask(t, cfg, rng_odo)
-    turning = (np.abs(v) > 1e-9) | (np.abs(w) > 1e-9)
-    factor = np.where(slip, cfg.slip_factor, 1.0) * turning
-    sigma = np.stack([cfg.sigma_v * factor, math.radians(cfg.sigma_omega_deg) * factor], axis=1)
-    logged = controls + rng_odo.normal(0.0, 1.0, controls.shape) * sigma
-
-    # scans
-    n_scan = int(math.floor(t[-1] / cfg.scan_period + 1e-9)) + 1
-    scan_t = np.arange(n_scan) * cfg.scan_period
-    scan_t = scan_t[scan_t <= t[-1]]
-    scan_pose = _pose_at(scan_t, t, laser[:n], controls, sensor)
-    angles = fan_angles(cfg.laser_beams, cfg.fov_deg)
-    true_r, kind, obj, _ = ray_cast(scan_pose, angles, indoor_laser_world(world), cfg.max_range)
-    shape = true_r.shape
-    hit = np.isfinite(true_r)
-    meas = np.where(hit, true_r, 0.0) + rng_laser.normal(0.0, cfg.range_noise, shape)
-    dropped = hit & (rng_laser.random(shape) < cfg.dropout)
-    spurious = rng_laser.random(shape) < cfg.spurious
-    upper = np.where(hit, true_r, cfg.max_range)
-    spur_r = _SPURIOUS_MIN + rng_laser.random(shape) * np.maximum(upper - _SPURIOUS_MIN, 0.0)
-    meas = np.where(dropped | ~hit, NO_RETURN, meas)
-    meas = np.where(spurious, np.minimum(spur_r, upper), meas)
-    meas = np.where(meas >= cfg.max_range, NO_RETURN, np.maximum(meas, 0.0))
-    lost = dropped | spurious
-    kind = np.where(lost, KIND_NONE, kind)
-    obj = np.where(lost, -1, obj)
-    scans = LaserScans(time=scan_t, ranges=meas, angles=angles, max_range=cfg.max_range, source="simulated")
-
-    # pillars seen by 3 or more beams of a scan: their centres as detections (measurements.dat)
-    n_p = world.pillars.shape[0]
-    pillar_beam = kind == KIND_TREE
-    counts = np.bincount((np.nonzero(pillar_beam)[0] * n_p + obj[pillar_beam]), minlength=n_scan * n_p)
-    si, pi = np.divmod(np.flatnonzero(counts.reshape(n_scan, n_p).ravel() >= 3), n_p)
-    dxy = world.pillars[pi, :2] - scan_pose[si, :2]
-    rng_true = np.hypot(dxy[:, 0], dxy[:, 1])
-    det = np.stack(
-        [
-            scan_t[si],
-            rng_true + rng_det.normal(0.0, cfg.range_noise, si.size),
-            wrap_angle_np(
-                np.arctan2(dxy[:, 1], dxy[:, 0])
-                - scan_pose[si, 2]
-                + rng_det.normal(0.0, 1.0, si.size) * cfg.range_noise / rng_true
-            ),
-            np.maximum(2 * world.pillars[pi, 2] + rng_det.normal(0.0, cfg.range_noise, si.size), 0.0),
-        ],
-        axis=1,
-    ).reshape(-1, 4)
-
-    truth_t = np.concatenate([t, scan_t])
-    truth_p = np.concatenate([laser[:n], scan_pose], axis=0)
-    truth_t, first = np.unique(truth_t, return_index=True)
-    truth_poses = np.concatenate([truth_t[:, None], truth_p[first]], axis=1)
-    truth_poses[:, 3] = wrap_angle_np(truth_poses[:, 3])
-    raw = RawLog(
-        dr=np.concatenate([t[:, None], logged], axis=1),
-        detections=det,
-        gps=np.concatenate([t[:, None], laser[:n, :2]], axis=1),
-        truth_poses=truth_poses,
-        truth_landmarks=world.pillars[:, :2].copy(),
-        truth_diameters=2 * world.pillars[:, 2],
-        source="simulated",
-        detection_ids=pi.astype(np.int64),
-        landmark_ids=np.arange(n_p),
-    )
-    ref_w = ref[:n].copy()
-    ref_w[:, 2] = wrap_angle_np(ref_w[:, 2])
-    laser_w = laser[:n].copy()
-    laser_w[:, 2] = wrap_angle_np(laser_w[:, 2])
-    scan_pose[:, 2] = wrap_angle_np(scan_pose[:, 2])
+    drive = _drive(cfg, path, sensor, rng_drive)
+    slip, sigma, logged = _odometry(cfg, drive, rng_odo)
+    sc = _laser_scans(cfg, world, drive, sensor, rng_laser)
+    det, pillar = _pillar_detections(cfg, world, sc, rng_det)
+    raw = _raw_log(world, drive, logged, sc, det, pillar)
+    n = drive.t.size
     return IndoorLog(
         raw=raw,
-        scans=scans,
+        scans=sc.scans,
         world=world,
         path=path,
-        time=t,
-        pose=ref_w,
-        sensor_pose=laser_w,
-        controls=controls,
+        time=drive.t,
+        pose=_wrapped(drive.ref[:n]),
+        sensor_pose=_wrapped(drive.laser[:n]),
+        controls=drive.controls,
         sigma=sigma,
         slip=slip,
-        scan_pose=scan_pose,
-        kind=kind,
-        object_id=obj,
+        scan_pose=_wrapped(sc.pose),
+        kind=sc.kind,
+        object_id=sc.obj,
     )
 
 

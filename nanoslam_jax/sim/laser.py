@@ -248,6 +248,94 @@ def _segment_t(ox, oy, dx, dy, seg):
     return np.where((denom != 0.0) & (t > 0.0) & (s >= 0.0) & (s <= 1.0), t, np.inf)
 
 
+class _Rays(NamedTuple):
+    """The beams of a chunk of ``C`` poses, shaped to broadcast against ``K`` surfaces (:func:`_circle_t`).
+
+    Attributes:
+        p: ``(C, 3)`` the poses.
+        ox, oy: ``(C, 1, 1)`` the beams' origin.
+        dx, dy: ``(C, B, 1)`` their unit directions.
+    """
+
+    p: np.ndarray
+    ox: np.ndarray
+    oy: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+
+
+class _Nearest(NamedTuple):
+    """The nearest surface found so far along each beam of a chunk: ``(C, B)`` its distance (inf: none),
+    kind and object; :meth:`offer` keeps the nearer of it and a candidate (the earlier one on a tie)."""
+
+    best: np.ndarray
+    kind: np.ndarray
+    obj: np.ndarray
+
+    def offer(self, t, k, o) -> None:
+        better = t < self.best
+        self.best[:] = np.where(better, t, self.best)
+        self.kind[:] = np.where(better, k, self.kind)
+        self.obj[:] = np.where(better, o, self.obj)
+
+
+def _rays(p: np.ndarray, angles: np.ndarray) -> _Rays:
+    th = p[:, 2, None] + angles[None, :]
+    return _Rays(p, p[:, 0, None, None], p[:, 1, None, None], np.cos(th)[..., None], np.sin(th)[..., None])
+
+
+def _offer_trees(rays: _Rays, world: LaserWorld, max_range: float, nearest: _Nearest, span: np.ndarray) -> None:
+    """Offer each beam's nearest trunk among those within ``max_range`` of the chunk's poses; count in ``span``
+    (``(C, T)``, in place) the beams that cross each trunk within range."""
+    p = rays.p
+    near = np.flatnonzero(
+        np.min(
+            np.hypot(world.trees[None, :, 0] - p[:, 0, None], world.trees[None, :, 1] - p[:, 1, None])
+            - world.tree_radius[None, :],
+            axis=0,
+        )
+        < max_range
+    )
+    if near.size:
+        t = _circle_t(
+            rays.ox, rays.oy, rays.dx, rays.dy, world.trees[near, 0], world.trees[near, 1], world.tree_radius[near]
+        )
+        span[:, near] = np.sum(t < max_range, axis=1)
+        j = np.argmin(t, axis=2)
+        nearest.offer(np.take_along_axis(t, j[..., None], axis=2)[..., 0], KIND_TREE, near[j])
+
+
+def _offer_lines(rays: _Rays, lines: LaserWorld, fence_return: np.ndarray | None, nearest: _Nearest) -> None:
+    """Offer each beam's nearest wall or fence (``lines``: the world's straight segments); a fence only to the
+    beams ``fence_return`` (``(C, B)``, or None: all) marks."""
+    t = _segment_t(rays.ox, rays.oy, rays.dx, rays.dy, lines.segments[None, None])
+    if fence_return is not None:
+        t = np.where((lines.segment_kind == KIND_FENCE)[None, None, :] & ~fence_return[:, :, None], np.inf, t)
+    j = np.argmin(t, axis=2)
+    nearest.offer(np.take_along_axis(t, j[..., None], axis=2)[..., 0], lines.segment_kind[j], lines.segment_object[j])
+
+
+def _offer_bushes(rays: _Rays, world: LaserWorld, bush_seg: np.ndarray, max_range: float, nearest: _Nearest) -> None:
+    """Offer each beam's nearest bush edge (``bush_seg``: ``(K, V, 4)`` the bushes' edges), testing only the
+    (scan, beam, bush) triples whose ray crosses the bush's bounding circle."""
+    c, n_b = nearest.best.shape
+    p, dx, dy = rays.p, rays.dx, rays.dy
+    tb = _circle_t(rays.ox, rays.oy, dx, dy, world.bush_centres[:, 0], world.bush_centres[:, 1], world.bush_radius)
+    s_i, b_i, k_i = np.nonzero(tb < max_range)
+    if s_i.size:
+        segs = bush_seg[k_i]  # (n, V, 4)
+        t = _segment_t(p[s_i, 0, None], p[s_i, 1, None], dx[s_i, b_i], dy[s_i, b_i], segs).min(axis=1)
+        order = np.lexsort((t, s_i * n_b + b_i))
+        flat = (s_i * n_b + b_i)[order]
+        first = np.concatenate([[True], flat[1:] != flat[:-1]])
+        sel = order[first]
+        cand = np.full((c, n_b), np.inf)
+        cobj = np.full((c, n_b), -1, dtype=np.int64)
+        cand[s_i[sel], b_i[sel]] = t[sel]
+        cobj[s_i[sel], b_i[sel]] = k_i[sel]
+        nearest.offer(cand, KIND_BUSH, cobj)
+
+
 def ray_cast(
     poses: Float[np.ndarray, "S 3"],
     angles: Float[np.ndarray, " B"],
@@ -277,67 +365,31 @@ def ray_cast(
     kind = np.full((n_s, n_b), KIND_NONE, dtype=np.int64)
     obj = np.full((n_s, n_b), -1, dtype=np.int64)
     span = np.zeros((n_s, n_t), dtype=np.int64)
-    lines = world.segment_kind != KIND_BUSH
-    line_seg, line_kind, line_obj = world.segments[lines], world.segment_kind[lines], world.segment_object[lines]
-    bush_seg = world.segments[~lines].reshape(-1, BUSH_VERTICES, 4)
+    is_line = world.segment_kind != KIND_BUSH
+    lines = world._replace(
+        segments=world.segments[is_line],
+        segment_kind=world.segment_kind[is_line],
+        segment_object=world.segment_object[is_line],
+    )
+    bush_seg = world.segments[~is_line].reshape(-1, BUSH_VERTICES, 4)
     for a in range(0, n_s, _CHUNK):
-        p = poses[a : a + _CHUNK]
-        c = p.shape[0]
-        ox, oy = p[:, 0, None, None], p[:, 1, None, None]
-        th = p[:, 2, None] + angles[None, :]
-        dx, dy = np.cos(th)[..., None], np.sin(th)[..., None]
-        best = np.full((c, n_b), np.inf)
-        bk = np.full((c, n_b), KIND_NONE, dtype=np.int64)
-        bo = np.full((c, n_b), -1, dtype=np.int64)
-
-        def offer(t, k, o, best=best, bk=bk, bo=bo):
-            better = t < best
-            best[:] = np.where(better, t, best)
-            bk[:] = np.where(better, k, bk)
-            bo[:] = np.where(better, o, bo)
-
-        # trunks near the chunk's poses
-        if n_t:
-            near = np.flatnonzero(
-                np.min(
-                    np.hypot(world.trees[None, :, 0] - p[:, 0, None], world.trees[None, :, 1] - p[:, 1, None])
-                    - world.tree_radius[None, :],
-                    axis=0,
-                )
-                < max_range
-            )
-            if near.size:
-                t = _circle_t(ox, oy, dx, dy, world.trees[near, 0], world.trees[near, 1], world.tree_radius[near])
-                span[a : a + c, near] = np.sum(t < max_range, axis=1)
-                j = np.argmin(t, axis=2)
-                offer(np.take_along_axis(t, j[..., None], axis=2)[..., 0], KIND_TREE, near[j])
-        # walls and fences
-        if line_seg.shape[0]:
-            t = _segment_t(ox, oy, dx, dy, line_seg[None, None])
-            if fence_return is not None:
-                t = np.where((line_kind == KIND_FENCE)[None, None, :] & ~fence_return[a : a + c, :, None], np.inf, t)
-            j = np.argmin(t, axis=2)
-            offer(np.take_along_axis(t, j[..., None], axis=2)[..., 0], line_kind[j], line_obj[j])
-        # bushes: only the (scan, beam, bush) triples whose ray crosses the bush's bounding circle
+        rays = _rays(poses[a : a + _CHUNK], angles)
+        c = rays.p.shape[0]
+        nearest = _Nearest(
+            np.full((c, n_b), np.inf),
+            np.full((c, n_b), KIND_NONE, dtype=np.int64),
+            np.full((c, n_b), -1, dtype=np.int64),
+        )
+        if n_t:  # trunks near the chunk's poses
+            _offer_trees(rays, world, max_range, nearest, span[a : a + c])
+        if lines.segments.shape[0]:
+            _offer_lines(rays, lines, None if fence_return is None else fence_return[a : a + c], nearest)
         if bush_seg.shape[0]:
-            tb = _circle_t(ox, oy, dx, dy, world.bush_centres[:, 0], world.bush_centres[:, 1], world.bush_radius)
-            s_i, b_i, k_i = np.nonzero(tb < max_range)
-            if s_i.size:
-                segs = bush_seg[k_i]  # (n, V, 4)
-                t = _segment_t(p[s_i, 0, None], p[s_i, 1, None], dx[s_i, b_i], dy[s_i, b_i], segs).min(axis=1)
-                order = np.lexsort((t, s_i * n_b + b_i))
-                flat = (s_i * n_b + b_i)[order]
-                first = np.concatenate([[True], flat[1:] != flat[:-1]])
-                sel = order[first]
-                cand = np.full((c, n_b), np.inf)
-                cobj = np.full((c, n_b), -1, dtype=np.int64)
-                cand[s_i[sel], b_i[sel]] = t[sel]
-                cobj[s_i[sel], b_i[sel]] = k_i[sel]
-                offer(cand, KIND_BUSH, cobj)
-        seen = best < max_range
-        ranges[a : a + c] = np.where(seen, best, np.inf)
-        kind[a : a + c] = np.where(seen, bk, KIND_NONE)
-        obj[a : a + c] = np.where(seen, bo, -1)
+            _offer_bushes(rays, world, bush_seg, max_range, nearest)
+        seen = nearest.best < max_range
+        ranges[a : a + c] = np.where(seen, nearest.best, np.inf)
+        kind[a : a + c] = np.where(seen, nearest.kind, KIND_NONE)
+        obj[a : a + c] = np.where(seen, nearest.obj, -1)
     return ranges, kind, obj, span
 
 

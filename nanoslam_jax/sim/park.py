@@ -61,6 +61,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from nanoslam_jax.sim._common import (
+    DriveTruth,
     GPS_RATE,
     MAX_STEER,
     detections,
@@ -258,7 +259,8 @@ def simulate(
     scan_t = scan_times(dr_t[-1], sim, rng_prof)
     scan_poses = poses_at(scan_t, dr_t, dr_poses, u_true, vehicle)
     det, det_ids = detections(scan_t, scan_poses, trees, tree_diam, sim, rng_det, rng_clut)
-    return simulated_log(dr, dr_poses, u_true, scan_t, scan_poses, det, det_ids, trees, tree_diam, vehicle)
+    drive_truth = DriveTruth(dr, dr_poses, u_true, scan_t, scan_poses)
+    return simulated_log(drive_truth, det, det_ids, trees, tree_diam, vehicle)
 
 
 def simulate_config(cfg) -> RawLog:
