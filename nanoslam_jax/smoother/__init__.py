@@ -2,7 +2,9 @@
 squares over the whole log, with loop closures (:mod:`._smoother`)."""
 
 from nanoslam_jax.smoother._smoother import (
+    DetectionNoise as DetectionNoise,
     LoopClosureSettings as LoopClosureSettings,
+    SegmentData as SegmentData,
     SmootherSettings as SmootherSettings,
     Smoothed as Smoothed,
     associate_path as associate_path,
@@ -17,7 +19,9 @@ from nanoslam_jax.smoother._smoother import (
 )
 
 __all__ = [
+    "DetectionNoise",
     "LoopClosureSettings",
+    "SegmentData",
     "SmootherSettings",
     "Smoothed",
     "associate_path",

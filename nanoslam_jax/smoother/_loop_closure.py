@@ -105,15 +105,12 @@ def _inliers(new, old, tree, th, tr, radius, forbidden):
     return i[keep], j[keep]
 
 
-def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndarray, np.ndarray]:
-    """RANSAC over pairs of correspondences: the transform of ``new`` onto ``old`` with the most
-    inliers (refined by least squares on them). Returns the inlier pairs (indices into ``new`` and
-    ``old``); empty when no transform reaches the acceptance thresholds."""
+def _hypotheses(new, old, s: LoopClosureSettings, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate transforms of ``new`` onto ``old``: ``(H,)`` rotation angles and ``(H, 2)`` translations,
+    one for each pair of ``new`` and pair of ``old`` landmarks about as far apart, within the turn and the
+    search distance of the settings (empty when there are none)."""
     n, m = len(new), len(old)
-    empty = (np.zeros(0, int), np.zeros(0, int))
-    need = s.min_inliers
-    if n < need or m < need or n < 2:
-        return empty
+    none = (np.zeros(0), np.zeros((0, 2)))
     ia, ib = np.triu_indices(n, 1)
     dn = np.linalg.norm(new[ia] - new[ib], axis=1)
     use = dn > 4 * s.radius  # short pairs fix the rotation badly
@@ -129,7 +126,7 @@ def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndar
     hi = np.searchsorted(do, dn + 2 * s.radius)
     cnt = hi - lo
     if cnt.sum() == 0:
-        return empty
+        return none
     h_new = np.repeat(np.arange(len(ia)), cnt)
     h_old = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi)])
     pa, pb, qa, qb = new[ia[h_new]], new[ib[h_new]], old[ka[h_old]], old[kb[h_old]]
@@ -139,32 +136,57 @@ def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndar
     centre = new.mean(0)
     moved = np.stack([c * centre[0] - sn * centre[1], sn * centre[0] + c * centre[1]], 1) + tr - centre
     ok = (np.abs(th) <= s.max_turn) & (np.linalg.norm(moved, axis=1) <= s.search)
-    th, tr = th[ok], tr[ok]
-    if len(th) == 0:
-        return empty
-    tree = cKDTree(old)
-    # Count every hypothesis's inliers (not yet one-to-one, nor checked for co-observation), in
-    # chunks that bound the memory.
+    return th[ok], tr[ok]
+
+
+def _inlier_counts(new, tree, th, tr, radius) -> np.ndarray:
+    """Every hypothesis's inliers (not yet one-to-one, nor checked for co-observation), counted in
+    chunks that bound the memory."""
+    n = len(new)
     counts = np.zeros(len(th), int)
     for a in range(0, len(th), 20000):
         t_, r_ = th[a : a + 20000], tr[a : a + 20000]
         R = np.stack([np.stack([np.cos(t_), -np.sin(t_)], 1), np.stack([np.sin(t_), np.cos(t_)], 1)], 1)
         pts = np.einsum("hij,nj->hni", R, new) + r_[:, None, :]
-        d, _ = tree.query(pts.reshape(-1, 2), distance_upper_bound=s.radius)
+        d, _ = tree.query(pts.reshape(-1, 2), distance_upper_bound=radius)
         counts[a : a + 20000] = np.isfinite(d).reshape(len(t_), n).sum(1)
+    return counts
+
+
+def _refined_inliers(new, old, tree, th, tr, radius, forbidden) -> tuple[np.ndarray, np.ndarray]:
+    """The one-to-one inliers of a transform, refined by least squares on them while that adds inliers
+    (three times at most)."""
+    i, j = _inliers(new, old, tree, th, tr, radius, forbidden)
+    for _ in range(3):
+        if len(i) < 2:
+            break
+        t2, r2 = _rigid_fit(new[i], old[j])
+        i2, j2 = _inliers(new, old, tree, t2, r2, radius, forbidden)
+        if len(i2) <= len(i):
+            break
+        i, j = i2, j2
+    return i, j
+
+
+def _register(new, old, forbidden, s: LoopClosureSettings, rng) -> tuple[np.ndarray, np.ndarray]:
+    """RANSAC over pairs of correspondences: the transform of ``new`` onto ``old`` with the most
+    inliers (refined by least squares on them). Returns the inlier pairs (indices into ``new`` and
+    ``old``); empty when no transform reaches the acceptance thresholds."""
+    n, m = len(new), len(old)
+    empty = (np.zeros(0, int), np.zeros(0, int))
+    need = s.min_inliers
+    if n < need or m < need or n < 2:
+        return empty
+    th, tr = _hypotheses(new, old, s, rng)
+    if len(th) == 0:
+        return empty
+    tree = cKDTree(old)
+    counts = _inlier_counts(new, tree, th, tr, s.radius)
     best_i, best_j = empty
     for h in np.argsort(-counts)[:5]:  # the leading hypotheses, made one-to-one and refined
         if counts[h] < need:
             break
-        i, j = _inliers(new, old, tree, th[h], tr[h], s.radius, forbidden)
-        for _ in range(3):
-            if len(i) < 2:
-                break
-            t2, r2 = _rigid_fit(new[i], old[j])
-            i2, j2 = _inliers(new, old, tree, t2, r2, s.radius, forbidden)
-            if len(i2) <= len(i):
-                break
-            i, j = i2, j2
+        i, j = _refined_inliers(new, old, tree, th[h], tr[h], s.radius, forbidden)
         if len(i) > len(best_i):
             best_i, best_j = i, j
     if len(best_i) < need:

@@ -48,6 +48,7 @@ one. It is compared with the filter's own estimate of the same run wherever it i
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
@@ -64,11 +65,13 @@ from nanoslam_jax.smoother._loop_closure import (
     path_moved_by_copies,
     loop_closure_settings,
 )
-from nanoslam_jax.smoother._least_squares import _solve
+from nanoslam_jax.smoother._least_squares import Factors, Observations, _solve
 from nanoslam_jax.models import wrap_angle_np
 
 __all__ = [
+    "DetectionNoise",
     "LoopClosureSettings",
+    "SegmentData",
     "SmootherSettings",
     "Smoothed",
     "associate_path",
@@ -235,18 +238,195 @@ def associate_path(
     return seg[ok], det[ok], idx[ok]
 
 
+class SegmentData(NamedTuple):
+    """What the log gives the smoother at each segment.
+
+    Attributes:
+        z, z_mask: the detections per segment (``Segments.z``, ``Segments.z_mask``).
+        motion_mean, motion_cov: each segment's motion prior in its start pose's frame
+            (:func:`segment_motion`); the pose before the first segment is the origin.
+        time_s: each segment's time (s), or None; needed by the loop closure (``SmootherSettings.loop_closure``).
+    """
+
+    z: Float[np.ndarray, "segments k 2"]
+    z_mask: Bool[np.ndarray, "segments k"]
+    motion_mean: Float[np.ndarray, "segments 3"]
+    motion_cov: Float[np.ndarray, "segments 3 3"]
+    time_s: Float[np.ndarray, " segments"] | None = None
+
+
+class DetectionNoise(NamedTuple):
+    """The detections' noise and association gate.
+
+    Attributes:
+        sigma_r, sigma_beta: measurement noise (m, rad).
+        gate: chi-square gate of the association.
+    """
+
+    sigma_r: float
+    sigma_beta: float
+    gate: float
+
+
+def _associate(path, landmarks, z, z_mask, noise: DetectionNoise):
+    """:func:`associate_path` with the noise and gate of ``noise``."""
+    return associate_path(path, landmarks, z, z_mask, noise.sigma_r, noise.sigma_beta, noise.gate)
+
+
+def _map_with_held(path, lm_all, data: SegmentData, noise: DetectionNoise, settings: SmootherSettings, held):
+    """The landmarks to solve for and the association to them: ``lm_all``, joined by the ``held`` landmarks
+    that explain at least ``settings.map_history_min`` detections it leaves unexplained when it explains
+    less than ``settings.map_history_below`` of them. Returns ``(landmarks, (seg, det, lid))``."""
+    z, z_mask = data.z, data.z_mask
+    seg, det, lid = _associate(path, lm_all, z, z_mask, noise)
+    if held is not None and len(held) and len(seg) < settings.map_history_below * np.sum(z_mask):
+        left = np.array(z_mask, bool)
+        left[seg, det] = False
+        _, _, j = _associate(path, held, z, left, noise)
+        held = np.asarray(held, float).reshape(-1, 2)
+        back = held[np.bincount(j, minlength=len(held)) >= settings.map_history_min]
+        if len(back):
+            lm_all = np.concatenate([lm_all, back])
+            seg, det, lid = _associate(path, lm_all, z, z_mask, noise)
+    return lm_all, (seg, det, lid)
+
+
+def _factors(data: SegmentData, noise: DetectionNoise, settings: SmootherSettings) -> Factors:
+    """The factors' weights: the odometry's whitening from the motion prior's covariance scaled and floored
+    (``settings``), the detections' from the measurement noise."""
+    cov = (
+        settings.odometry_scale * np.asarray(data.motion_cov, float)
+        + np.diag([settings.floor_xy**2, settings.floor_xy**2, settings.floor_phi**2])
+        + 1e-12 * np.eye(3)
+    )
+    w_odo = np.transpose(np.linalg.cholesky(np.linalg.inv(cov)), (0, 2, 1))  # whitened e = W e, W'W = cov^-1
+    w_det = np.array([1.0 / noise.sigma_r, 1.0 / noise.sigma_beta])
+    motion = np.asarray(data.motion_mean, float)
+    return Factors(motion, w_odo, w_det, settings.huber, settings.max_iter, settings.tol)
+
+
+@dataclass
+class _Solution:
+    """The smoothing's current solution and its account (what :class:`Smoothed` reports)."""
+
+    poses: np.ndarray
+    landmarks: np.ndarray
+    seg: np.ndarray  # the associated detections: segment, landmark, range and bearing
+    lid: np.ndarray
+    zz: np.ndarray
+    iterations: int
+    cost: float
+    converged: bool
+    owner: np.ndarray  # each landmark's original (itself unless joined as a copy)
+    merged: int = 0
+    rejected: int = 0
+
+
+def _solve_from(start, sol: _Solution, seg, zz, lid, factors: Factors):
+    """:func:`_solve` from the poses ``start`` and the current landmarks over the detections given."""
+    return _solve(start, sol.landmarks, Observations(seg, zz, lid), factors)
+
+
+def _best_start(sol: _Solution, starts, joined, keep, noise: DetectionNoise, settings: SmootherSettings, factors):
+    """Solve from each of ``starts`` (poses and association) in turn, until the copies' detections (``joined``)
+    fit the landmarks that are not copies (``keep``) well enough. Returns the solve whose copies' detections
+    fit best and which of them fit (within the gate)."""
+    assert settings.loop_closure is not None
+    best = None
+    for start, a_seg, a_z, a_lid in starts:
+        s = _solve_from(start, sol, a_seg, a_z, a_lid, factors)
+        sol.iterations += s[2]
+        # Verification: a true loop closure lets the copies' detections fit a landmark
+        # as the others do once the path has moved; a false one leaves them outside the
+        # gate. A group that does not fit is dropped and the rest solved again.
+        fit = (
+            np.min(
+                _whitened_d2(
+                    s[0][sol.seg[joined]][:, None],
+                    s[1][keep][None],
+                    sol.zz[joined][:, None],
+                    noise.sigma_r,
+                    noise.sigma_beta,
+                ),
+                axis=1,
+            )
+            < noise.gate
+        )
+        if best is None or np.mean(fit) > np.mean(best[1]):
+            best = (s, fit)
+        if np.mean(fit) >= settings.loop_closure.accept:
+            break
+    assert best is not None  # starts is never empty
+    return best
+
+
+def _join_copies(sol: _Solution, parent, group, t, data: SegmentData, noise, settings: SmootherSettings, factors):
+    """Solve with each copy (``parent``) joined to its original; a group of joins whose detections do not fit
+    is dropped (``parent`` reset in place) and the rest tried once more. Returns the solve's
+    ``(poses, landmarks, cost, converged)`` where every group fits, else None."""
+    assert settings.loop_closure is not None
+    seg, lid, zz = sol.seg, sol.lid, sol.zz
+    for _ in range(2):
+        new_lid = parent[lid]
+        joined = new_lid != lid
+        if not np.any(joined):
+            return None
+        keep = np.nonzero(parent == np.arange(len(parent)))[0]
+        # Two starts: the path moved as the copies' transforms say, every detection
+        # associated again to the landmarks that are not copies (a large correction, which
+        # Levenberg-Marquardt does not make from the drifted path); and, unless the joins
+        # fit from there as a whole, the path as it is with the copies' detections given to
+        # their originals. The solution that explains more of the copies' detections is kept.
+        moved = path_moved_by_copies(sol.poses, sol.landmarks, seg, lid, parent, group, t, settings.loop_closure)
+        starts = [(sol.poses, seg, zz, new_lid)]
+        if moved is not sol.poses:
+            s2, d2, j2 = _associate(moved, sol.landmarks[keep], data.z, data.z_mask, noise)
+            starts.insert(0, (moved, s2, np.asarray(data.z)[s2, d2].reshape(-1, 2), keep[j2]))
+        (p2, l2, _, _, c2, conv2), fit = _best_start(sol, starts, joined, keep, noise, settings, factors)
+        g = group[lid[joined]]
+        bad = [k for k in np.unique(g) if np.mean(fit[g == k]) < settings.loop_closure.accept]
+        if not bad:
+            return p2, l2, c2, conv2
+        sol.rejected += len(bad)
+        drop = np.isin(group, bad)
+        parent[drop] = np.nonzero(drop)[0]
+    return None
+
+
+def _close_loops(sol: _Solution, data: SegmentData, noise: DetectionNoise, settings: SmootherSettings, factors):
+    """Up to ``settings.loop_closure_rounds`` times: find the landmarks mapped twice, join them where their
+    detections fit (:func:`_join_copies`), associate every detection again and solve (``sol`` in place)."""
+    assert settings.loop_closure is not None and data.time_s is not None
+    t = np.asarray(data.time_s, float)
+    for _ in range(settings.loop_closure_rounds):
+        first = np.full(len(sol.landmarks), np.inf)
+        np.minimum.at(first, sol.lid, t[sol.seg])
+        together = co_observed(sol.seg, sol.lid, len(sol.landmarks))
+        parent, group = find_duplicates(sol.landmarks, first, together, settings.loop_closure)
+        while np.any(parent[parent] != parent):  # chains of copies end at the original
+            parent = parent[parent]
+        joined = _join_copies(sol, parent, group, t, data, noise, settings, factors)
+        if joined is None:
+            break
+        sol.merged += int(np.sum(parent != np.arange(len(parent))))  # copies joined earlier have no detections
+        sol.poses, sol.landmarks, sol.cost, sol.converged = joined
+        sol.owner = parent[sol.owner]
+        # The path has moved: associate every detection again, to the landmarks that remain.
+        live = np.nonzero(sol.owner == np.arange(len(sol.owner)))[0]
+        seg, det, lid = _associate(sol.poses, sol.landmarks[live], data.z, data.z_mask, noise)
+        sol.seg, sol.lid, sol.zz = seg, live[lid], np.asarray(data.z)[seg, det].reshape(-1, 2)
+        sol.poses, sol.landmarks, it, _, sol.cost, sol.converged = _solve_from(
+            sol.poses, sol, sol.seg, sol.zz, sol.lid, factors
+        )
+        sol.iterations += it
+
+
 def smooth_path(
     path: Float[np.ndarray, "segments 3"],
     landmarks: Float[np.ndarray, "landmarks 2"],
-    z: Float[np.ndarray, "segments k 2"],
-    z_mask: Bool[np.ndarray, "segments k"],
-    motion_mean: Float[np.ndarray, "segments 3"],
-    motion_cov: Float[np.ndarray, "segments 3 3"],
-    sigma_r: float,
-    sigma_beta: float,
-    gate: float,
+    data: SegmentData,
+    noise: DetectionNoise,
     settings: SmootherSettings = SmootherSettings(),
-    time_s: Float[np.ndarray, " segments"] | None = None,
     held: Float[np.ndarray, "held 2"] | None = None,
 ) -> Smoothed:
     """Smooth a path and its map by Levenberg-Marquardt over odometry and detection factors.
@@ -254,13 +434,9 @@ def smooth_path(
     Args:
         path: the initial pose at each segment (the final best particle's ancestral path).
         landmarks: the initial landmark positions (its map's confirmed landmarks).
-        z, z_mask: the log's detections per segment (``Segments.z``, ``Segments.z_mask``).
-        motion_mean, motion_cov: each segment's motion prior in its start pose's frame
-            (:func:`segment_motion`); the pose before the first segment is the origin.
-        sigma_r, sigma_beta: measurement noise (m, rad).
-        gate: chi-square gate of the association.
+        data: the log's detections, motion priors and times per segment (:class:`SegmentData`).
+        noise: the measurement noise and the association's gate (:class:`DetectionNoise`).
         settings: the smoother's settings.
-        time_s: each segment's time (s); needed by the loop closure (``settings.loop_closure``).
         held: landmarks the run held earlier but not at its end (:func:`held_landmarks`). When
             ``landmarks`` explain less than ``settings.map_history_below`` of the detections along
             ``path``, each that explains at least ``settings.map_history_min`` of the others joins
@@ -272,113 +448,27 @@ def smooth_path(
     t0 = time.perf_counter()
     path = np.asarray(path, float)
     lm_all = np.asarray(landmarks, float).reshape(-1, 2)
-    seg, det, lid = associate_path(path, lm_all, z, z_mask, sigma_r, sigma_beta, gate)
-    if held is not None and len(held) and len(seg) < settings.map_history_below * np.sum(z_mask):
-        left = np.array(z_mask, bool)
-        left[seg, det] = False
-        _, _, j = associate_path(path, held, z, left, sigma_r, sigma_beta, gate)
-        held = np.asarray(held, float).reshape(-1, 2)
-        back = held[np.bincount(j, minlength=len(held)) >= settings.map_history_min]
-        if len(back):
-            lm_all = np.concatenate([lm_all, back])
-            seg, det, lid = associate_path(path, lm_all, z, z_mask, sigma_r, sigma_beta, gate)
-    zz = np.asarray(z)[seg, det].reshape(-1, 2)
-    cov = (
-        settings.odometry_scale * np.asarray(motion_cov, float)
-        + np.diag([settings.floor_xy**2, settings.floor_xy**2, settings.floor_phi**2])
-        + 1e-12 * np.eye(3)
+    lm_all, (seg, det, lid) = _map_with_held(path, lm_all, data, noise, settings, held)
+    zz = np.asarray(data.z)[seg, det].reshape(-1, 2)
+    factors = _factors(data, noise, settings)
+    poses, lm_out, iterations, initial_cost, cost, converged = _solve(
+        path, lm_all.copy(), Observations(seg, zz, lid), factors
     )
-    w_odo = np.transpose(np.linalg.cholesky(np.linalg.inv(cov)), (0, 2, 1))  # whitened e = W e, W'W = cov^-1
-    w_det = np.array([1.0 / sigma_r, 1.0 / sigma_beta])
-    motion = np.asarray(motion_mean, float)
-
-    def solve(poses, lms, seg_, zz_, lid_):
-        return _solve(poses, lms, seg_, zz_, lid_, motion, w_odo, w_det, settings)
-
-    poses, lm_out = path, lm_all.copy()
-    poses, lm_out, iterations, initial_cost, cost, converged = solve(poses, lm_out, seg, zz, lid)
-    merged, rejected, owner = 0, 0, np.arange(len(lm_out))
-    if settings.loop_closure is not None and time_s is not None and len(lid):
-        t = np.asarray(time_s, float)
-        for _ in range(settings.loop_closure_rounds):
-            first = np.full(len(lm_out), np.inf)
-            np.minimum.at(first, lid, t[seg])
-            parent, group = find_duplicates(lm_out, first, co_observed(seg, lid, len(lm_out)), settings.loop_closure)
-            while np.any(parent[parent] != parent):  # chains of copies end at the original
-                parent = parent[parent]
-            kept = False
-            for _ in range(2):
-                new_lid = parent[lid]
-                joined = new_lid != lid
-                if not np.any(joined):
-                    break
-                keep = np.nonzero(parent == np.arange(len(parent)))[0]
-                # Two starts: the path moved as the copies' transforms say, every detection
-                # associated again to the landmarks that are not copies (a large correction, which
-                # Levenberg-Marquardt does not make from the drifted path); and, unless the joins
-                # fit from there as a whole, the path as it is with the copies' detections given to
-                # their originals. The solution that explains more of the copies' detections is kept.
-                moved = path_moved_by_copies(poses, lm_out, seg, lid, parent, group, t, settings.loop_closure)
-                starts = [(poses, seg, zz, new_lid)]
-                if moved is not poses:
-                    s2, d2, j2 = associate_path(moved, lm_out[keep], z, z_mask, sigma_r, sigma_beta, gate)
-                    starts.insert(0, (moved, s2, np.asarray(z)[s2, d2].reshape(-1, 2), keep[j2]))
-                best = None
-                for start, a_seg, a_z, a_lid in starts:
-                    sol = solve(start, lm_out, a_seg, a_z, a_lid)
-                    iterations += sol[2]
-                    # Verification: a true loop closure lets the copies' detections fit a landmark
-                    # as the others do once the path has moved; a false one leaves them outside the
-                    # gate. A group that does not fit is dropped and the rest solved again.
-                    fit = (
-                        np.min(
-                            _whitened_d2(
-                                sol[0][seg[joined]][:, None],
-                                sol[1][keep][None],
-                                zz[joined][:, None],
-                                sigma_r,
-                                sigma_beta,
-                            ),
-                            axis=1,
-                        )
-                        < gate
-                    )
-                    if best is None or np.mean(fit) > np.mean(best[1]):
-                        best = (sol, fit)
-                    if np.mean(fit) >= settings.loop_closure.accept:
-                        break
-                assert best is not None  # starts is never empty
-                (p2, l2, _, _, c2, conv2), fit = best
-                g = group[lid[joined]]
-                bad = [k for k in np.unique(g) if np.mean(fit[g == k]) < settings.loop_closure.accept]
-                if not bad:
-                    kept = True
-                    break
-                rejected += len(bad)
-                drop = np.isin(group, bad)
-                parent[drop] = np.nonzero(drop)[0]
-            if not kept:
-                break
-            merged += int(np.sum(parent != np.arange(len(parent))))  # copies joined earlier have no detections
-            poses, lm_out, cost, converged, owner = p2, l2, c2, conv2, parent[owner]
-            # The path has moved: associate every detection again, to the landmarks that remain.
-            live = np.nonzero(owner == np.arange(len(owner)))[0]
-            seg, det, lid = associate_path(poses, lm_out[live], z, z_mask, sigma_r, sigma_beta, gate)
-            lid, zz = live[lid], np.asarray(z)[seg, det].reshape(-1, 2)
-            poses, lm_out, it, _, cost, converged = solve(poses, lm_out, seg, zz, lid)
-            iterations += it
+    sol = _Solution(poses, lm_out, seg, lid, zz, iterations, cost, converged, np.arange(len(lm_out)))
+    if settings.loop_closure is not None and data.time_s is not None and len(lid):
+        _close_loops(sol, data, noise, settings, factors)
     return Smoothed(
-        poses=poses,
-        landmarks=lm_out[owner],
-        associated=int(len(seg)),
-        detections=int(np.sum(z_mask)),
-        iterations=iterations,
+        poses=sol.poses,
+        landmarks=sol.landmarks[sol.owner],
+        associated=int(len(sol.seg)),
+        detections=int(np.sum(data.z_mask)),
+        iterations=sol.iterations,
         initial_cost=float(initial_cost),
-        cost=float(cost),
-        converged=converged,
+        cost=float(sol.cost),
+        converged=sol.converged,
         seconds=time.perf_counter() - t0,
-        merged=merged,
-        rejected=rejected,
+        merged=sol.merged,
+        rejected=sol.rejected,
     )
 
 
@@ -461,15 +551,15 @@ def smooth_run(
     return smooth_path(
         path,
         landmarks,
-        np.asarray(segments.z),
-        np.asarray(segments.z_mask),
-        np.asarray(mean),
-        np.asarray(cov),
-        float(params.sigma_r),
-        float(params.sigma_beta),
-        float(params.gate),
+        SegmentData(
+            np.asarray(segments.z),
+            np.asarray(segments.z_mask),
+            np.asarray(mean),
+            np.asarray(cov),
+            np.asarray(segments.time),
+        ),
+        DetectionNoise(float(params.sigma_r), float(params.sigma_beta), float(params.gate)),
         settings,
-        np.asarray(segments.time),
         held,
     )
 

@@ -11,7 +11,13 @@ import scipy.sparse as sp
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.smoother._least_squares import _solve_normal
-from nanoslam_jax.smoother._smoother import SmootherSettings, associate_path, smooth_path
+from nanoslam_jax.smoother._smoother import (
+    DetectionNoise,
+    SegmentData,
+    SmootherSettings,
+    associate_path,
+    smooth_path,
+)
 
 
 def _wrap(a):
@@ -100,7 +106,8 @@ def test_least_squares_optimum_equals_scipys():
     p = _problem()
     T, M = len(p["truth"]), len(p["trees"])
     settings = SmootherSettings(odometry_scale=1.0, floor_xy=0.0, floor_phi=0.0, huber=1e9, max_iter=100, tol=1e-10)
-    got = smooth_path(p["start"], p["lm0"], p["z"], p["mask"], p["motion"], p["cov"], p["sr"], p["sb"], 1e6, settings)
+    data = SegmentData(p["z"], p["mask"], p["motion"], p["cov"])
+    got = smooth_path(p["start"], p["lm0"], data, DetectionNoise(p["sr"], p["sb"], 1e6), settings)
     assert got.converged and got.associated == p["mask"].sum()
 
     w = 1 / np.sqrt(np.diagonal(p["cov"], axis1=1, axis2=2))
@@ -140,13 +147,8 @@ def test_huber_bounds_a_wrong_detection():
             smooth_path(
                 p["truth"],
                 p["trees"],
-                z,
-                p["mask"],
-                p["motion"],
-                p["cov"],
-                p["sr"],
-                p["sb"],
-                1e6,
+                SegmentData(z, p["mask"], p["motion"], p["cov"]),
+                DetectionNoise(p["sr"], p["sb"], 1e6),
                 SmootherSettings(huber=huber, **kw),
             )
             for z in (p["z"], bad)
@@ -322,15 +324,9 @@ def _smooth(q, lm=None, held=None, **kw):
     return smooth_path(
         q["path"],
         q["lm"] if lm is None else lm,
-        q["z"],
-        q["mask"],
-        q["motion"],
-        q["cov"],
-        q["sr"],
-        q["sb"],
-        13.8,
+        SegmentData(q["z"], q["mask"], q["motion"], q["cov"], q["time"]),
+        DetectionNoise(q["sr"], q["sb"], 13.8),
         SmootherSettings(**{"loop_closure": None, **kw}),
-        q["time"],
         held,
     )
 
@@ -364,9 +360,14 @@ def test_loop_closure_leaves_a_map_without_copies_alone():
     from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     p = _mapped_twice(duplicate=False)
-    args = (p["path"], p["lm"], p["z"], p["mask"], p["motion"], p["cov"], p["sr"], p["sb"], 13.8)
-    plain = smooth_path(*args, SmootherSettings(loop_closure=None), p["time"])
-    closed = smooth_path(*args, SmootherSettings(loop_closure=LoopClosureSettings()), p["time"])
+    args = (
+        p["path"],
+        p["lm"],
+        SegmentData(p["z"], p["mask"], p["motion"], p["cov"], p["time"]),
+        DetectionNoise(p["sr"], p["sb"], 13.8),
+    )
+    plain = smooth_path(*args, SmootherSettings(loop_closure=None))
+    closed = smooth_path(*args, SmootherSettings(loop_closure=LoopClosureSettings()))
     assert closed.merged == 0 and closed.rejected == 0
     np.testing.assert_array_equal(closed.poses, plain.poses)
 
@@ -378,9 +379,14 @@ def test_loop_closure_drops_joins_that_do_not_fit():
     from nanoslam_jax.smoother._smoother import LoopClosureSettings
 
     p = _mapped_twice()
-    args = (p["path"], p["lm"], p["z"], p["mask"], p["motion"], p["cov"], p["sr"], p["sb"], 13.8)
-    plain = smooth_path(*args, SmootherSettings(loop_closure=None), p["time"])
-    strict = smooth_path(*args, SmootherSettings(loop_closure=LoopClosureSettings(accept=1.01)), p["time"])
+    args = (
+        p["path"],
+        p["lm"],
+        SegmentData(p["z"], p["mask"], p["motion"], p["cov"], p["time"]),
+        DetectionNoise(p["sr"], p["sb"], 13.8),
+    )
+    plain = smooth_path(*args, SmootherSettings(loop_closure=None))
+    strict = smooth_path(*args, SmootherSettings(loop_closure=LoopClosureSettings(accept=1.01)))
     assert strict.merged == 0 and strict.rejected >= 1
     np.testing.assert_array_equal(strict.poses, plain.poses)
 
