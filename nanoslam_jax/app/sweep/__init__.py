@@ -40,7 +40,7 @@ _EXPORTS = {
         "load_log_data",
         "compile_events",
     ),
-    "_runner": ("run_sweep", "SweepResult", "resolve_parallel", "AUTO_PARALLEL"),
+    "_runner": ("run_sweep", "SweepOverrides", "SweepResult", "resolve_parallel", "AUTO_PARALLEL"),
     "_results": (
         "ResultsFile",
         "read_results",
@@ -50,7 +50,7 @@ _EXPORTS = {
         "write_best_yaml",
         "TIMING_COLUMNS",
     ),
-    "_plots": ("plot_sweep", "plot_metric_vs_param", "plot_heatmap"),
+    "_plots": ("plot_sweep", "plot_metric_vs_param", "plot_heatmap", "RunMetric"),
     "_ray": ("ray_iter", "import_ray"),
     "_cli": ("add_sweep_parser", "sweep_command"),
 }
@@ -73,7 +73,7 @@ def __dir__() -> list[str]:
 
 if TYPE_CHECKING:  # pragma: no cover
     from nanoslam_jax.app.sweep._cli import add_sweep_parser, sweep_command  # noqa: F401
-    from nanoslam_jax.app.sweep._plots import plot_heatmap, plot_metric_vs_param, plot_sweep  # noqa: F401
+    from nanoslam_jax.app.sweep._plots import RunMetric, plot_heatmap, plot_metric_vs_param, plot_sweep  # noqa: F401
     from nanoslam_jax.app.sweep._ray import import_ray, ray_iter  # noqa: F401
     from nanoslam_jax.app.sweep._results import (  # noqa: F401
         TIMING_COLUMNS,
@@ -97,7 +97,13 @@ if TYPE_CHECKING:  # pragma: no cover
     )
     from nanoslam_jax.app.sweep._expand import expand, sample_random, spec_identity, stored_identity  # noqa: F401
     from nanoslam_jax.app.sweep._plan import Group, make_tasks, plan_groups  # noqa: F401
-    from nanoslam_jax.app.sweep._runner import AUTO_PARALLEL, SweepResult, resolve_parallel, run_sweep  # noqa: F401
+    from nanoslam_jax.app.sweep._runner import (  # noqa: F401
+        AUTO_PARALLEL,
+        SweepOverrides,
+        SweepResult,
+        resolve_parallel,
+        run_sweep,
+    )
     from nanoslam_jax.app.sweep._spec import (  # noqa: F401
         MAP_METRIC_KEYS,
         METRIC_KEYS,

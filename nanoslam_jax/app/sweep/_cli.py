@@ -96,7 +96,7 @@ def sweep_command(args) -> int:
     else:
         out = Path("results") / f"sweep-{spec.name}-{_dt.datetime.now():%Y%m%d-%H%M%S}"
 
-    from nanoslam_jax.app.sweep._runner import run_sweep
+    from nanoslam_jax.app.sweep._runner import SweepOverrides, run_sweep
 
     try:
         res = run_sweep(
@@ -105,11 +105,13 @@ def sweep_command(args) -> int:
             resume=args.resume,
             data_dir=args.data,
             progress=not args.quiet,
-            backend=args.backend,
-            parallel=args.parallel,
-            workers=args.workers,
-            batch=args.batch,
-            vectorize=args.vectorize,
+            overrides=SweepOverrides(
+                backend=args.backend,
+                parallel=args.parallel,
+                workers=args.workers,
+                batch=args.batch,
+                vectorize=args.vectorize,
+            ),
         )
     except KeyboardInterrupt:
         print(

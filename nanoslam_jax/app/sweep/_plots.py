@@ -8,7 +8,7 @@ import math
 import re
 import textwrap
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, NamedTuple, Optional, Sequence
 
 import matplotlib
 
@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 from nanoslam_jax.eval._scoring import metric_goal, number, seed_summary  # noqa: E402
 from nanoslam_jax.app.sweep._spec import ConfigPoint, SweepSpec  # noqa: E402
 
-__all__ = ["plot_sweep", "plot_metric_vs_param", "plot_heatmap"]
+__all__ = ["plot_sweep", "plot_metric_vs_param", "plot_heatmap", "RunMetric"]
 
 
 def _is_number(v: Any) -> bool:
@@ -30,16 +30,32 @@ def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
 
+class RunMetric(NamedTuple):
+    """A metric over a sweep's runs, as :func:`plot_metric_vs_param` draws it.
+
+    Attributes:
+        name: the metric's name (axis label).
+        values: the metric of each run.
+        failed: which runs failed (``None``: none). They are not drawn, but the median counts them
+            under the failed-seed rule (:func:`~nanoslam_jax.eval._scoring.seed_summary` with ``goal``):
+            a median that reaches them is infinite and left out of the line.
+        goal: the metric's goal (``'min'``, ``'max'`` or ``None``).
+    """
+
+    name: str
+    values: Sequence[float] | np.ndarray
+    failed: Optional[Sequence[bool] | np.ndarray] = None
+    goal: Optional[str] = "min"
+
+
 def plot_metric_vs_param(
     path: Path,
     key: str,
     xs: Sequence[Any],
-    ys: Sequence[float] | np.ndarray,
-    metric: str,
+    metric: RunMetric,
+    *,
     title: str = "",
     log_x: bool | None = None,
-    failed: Optional[Sequence[bool] | np.ndarray] = None,
-    goal: Optional[str] = "min",
 ) -> None:
     """Scatter of per-run values of ``metric`` against ``key`` and the median per distinct value.
 
@@ -47,15 +63,11 @@ def plot_metric_vs_param(
         path: output PNG.
         key: the swept parameter.
         xs: its value in each run (numbers, or anything else drawn as categories).
-        ys: the metric of each run.
-        metric: the metric's name (axis label).
+        metric: the metric of each run, which runs failed and the metric's goal.
         title: figure title.
         log_x: logarithmic x axis (default: positive values spanning more than a factor 20).
-        failed: which runs failed (default: none). They are not drawn, but the median counts them
-            under the failed-seed rule (:func:`~nanoslam_jax.eval._scoring.seed_summary` with ``goal``):
-            a median that reaches them is infinite and left out of the line.
-        goal: the metric's goal (``'min'``, ``'max'`` or ``None``).
     """
+    ys, failed, goal = metric.values, metric.failed, metric.goal
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     numeric = all(_is_number(x) for x in xs)
     distinct = sorted(set(xs), key=lambda v: v if numeric else str(v))
@@ -83,8 +95,8 @@ def plot_metric_vs_param(
     if log_x:
         ax.set_xscale("log")
     ax.set_xlabel(key)
-    ax.set_ylabel(metric)
-    ax.set_title(textwrap.fill(title or f"{metric} against {key}", 70), fontsize=9)
+    ax.set_ylabel(metric.name)
+    ax.set_title(textwrap.fill(title or f"{metric.name} against {key}", 70), fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -153,6 +165,7 @@ def plot_sweep(
         if not np.any(~failed & np.isfinite(ys)):
             continue
         log_keys = {p.key for p in spec.random.params if p.log} if spec.random else set()
+        run_metric = RunMetric(metric, ys, failed, goal)
         for key in spec.swept_keys:
             xs = [values[r["config_id"]][key] for r in runs]
             if len(set(map(repr, xs))) < 2:
@@ -162,12 +175,9 @@ def plot_sweep(
                 path,
                 key,
                 xs,
-                ys,
-                metric,
+                run_metric,
                 title=f"{spec.name}: {metric} against {key}",
                 log_x=True if key in log_keys else None,
-                failed=failed,
-                goal=goal,
             )
             written.append(path)
         grid = [(k, list(v)) for k, v in spec.grid if len(v) > 1]

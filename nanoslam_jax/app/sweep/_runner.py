@@ -17,7 +17,7 @@ import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Callable, Iterator, Optional, Sequence
+from typing import Any, Callable, Iterator, NamedTuple, Optional, Sequence
 
 import yaml
 
@@ -45,11 +45,13 @@ from nanoslam_jax.app.sweep._spec import (
     SMOOTHER_METRIC_KEYS,
     SURVEY_METRIC_KEYS,
     ConfigPoint,
+    Run,
     SweepSpec,
 )
 from nanoslam_jax.lib._precision import in_float64
 
 __all__ = [
+    "SweepOverrides",
     "SweepResult",
     "run_sweep",
     "resolve_parallel",
@@ -256,22 +258,78 @@ def _first_difference(a: Any, b: Any, prefix: str = "") -> str:
     return prefix.rstrip(".") or "(top level)"
 
 
-def _write_metadata(
-    out: Path,
-    spec: SweepSpec,
-    points: Sequence[ConfigPoint],
-    groups: Sequence[Group],
-    logs: dict,
-    skipped: list,
-    vectorize: str,
-) -> None:
+@dataclasses.dataclass(frozen=True)
+class SweepOverrides:
+    """Settings of one :func:`run_sweep` call that override the sweep file's ``run`` section.
+
+    Each ``None`` keeps the file's setting.
+
+    Attributes:
+        backend: ``'local'`` or ``'ray'`` (``run.backend``).
+        parallel: how the local backend uses several cores (``run.parallel``).
+        workers: cores to use (``run.workers``).
+        batch: runs per compiled call (``run.batch``).
+        vectorize: how a batch is computed in its program (``run.vectorize``); a resumed sweep
+            keeps the one it was started with.
+    """
+
+    backend: Optional[str] = None
+    parallel: Optional[str] = None
+    workers: Optional[int] = None
+    batch: Optional[int] = None
+    vectorize: Optional[str] = None
+
+
+class _Execution(NamedTuple):
+    """Where a sweep's batches run.
+
+    Attributes:
+        mode: ``'single'``, ``'devices'``, ``'processes'`` or ``'ray'``.
+        workers: the cores of the local modes (the worker processes of ``'processes'``); 1 on Ray.
+        devices: the JAX devices one batch is split over.
+        split: how many batches run side by side (the batch size is chosen for that many at once).
+    """
+
+    mode: str
+    workers: int
+    devices: int
+    split: int
+
+
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """What a sweep runs, before any batch runs.
+
+    Attributes:
+        points: the valid configurations.
+        runs: every run (configuration x seed).
+        skipped: the invalid configurations left out, as ``(values, reason)``.
+        logs: ``log_key -> (log_id, LogData)``, each log the configurations read loaded once.
+        groups: the shape groups.
+        metric_keys: the metric columns of ``results.csv``.
+        execution: where the batches run.
+        vectorize: the resolved ``vectorize`` (``'vmap'`` or ``'map'``).
+    """
+
+    points: Sequence[ConfigPoint]
+    runs: Sequence[Run]
+    skipped: list
+    logs: dict
+    groups: list[Group]
+    metric_keys: list[str]
+    execution: _Execution
+    vectorize: str
+
+
+def _write_metadata(out: Path, spec: SweepSpec, plan: _Plan) -> None:
+    """Write the resolved sweep, its base config, the versions, the groups and ``configs.csv``."""
     from nanoslam_jax.app.experiment import versions
 
     stamp = _dt.datetime.now().isoformat(timespec="seconds")
     d = spec_to_dict(spec)
     d["identity"] = spec_identity(spec)
-    d["vectorize"] = vectorize  # resolved; a resumed sweep keeps it (see run_sweep)
-    d["skipped_invalid"] = [{"values": v, "reason": r} for v, r in skipped]
+    d["vectorize"] = plan.vectorize  # resolved; a resumed sweep keeps it (see run_sweep)
+    d["skipped_invalid"] = [{"values": v, "reason": r} for v, r in plan.skipped]
     _write_atomic(
         out / "sweep.yaml",
         f"# resolved sweep, nanoslam-jax {__version__}, written {stamp}\n" + yaml.safe_dump(d, sort_keys=False),
@@ -284,7 +342,7 @@ def _write_metadata(
         out / "version.json",
         json.dumps({**versions(), "written": stamp, "command": " ".join(sys.argv)}, indent=2) + "\n",
     )
-    by_id = logs_by_id(logs)
+    by_id = logs_by_id(plan.logs)
     gd = {
         g.label: {
             "shapes": g.shape_values,
@@ -294,86 +352,66 @@ def _write_metadata(
             "segments": int(by_id[g.log_id].segments.time.shape[0]),
             "static": static_summary(g.static),
         }
-        for g in groups
+        for g in plan.groups
     }
     _write_atomic(out / "groups.yaml", yaml.safe_dump(gd, sort_keys=False))
     lines = ["config_id,group," + ",".join(spec.swept_keys)]
-    cfg_group = {r.config_id: g.label for g in groups for r in g.runs}
+    cfg_group = _config_groups(plan.groups)
     from nanoslam_jax.app.sweep._results import format_value
 
-    for p in points:
+    for p in plan.points:
         lines.append(
             ",".join([p.config_id, cfg_group[p.config_id]] + [format_value(p.values[k]) for k in spec.swept_keys])
         )
     _write_atomic(out / "configs.csv", "\n".join(lines) + "\n")
 
 
-@in_float64
-def run_sweep(
-    spec: SweepSpec,
-    out_dir: str | os.PathLike,
-    *,
-    resume: bool = False,
-    data_dir: Optional[str] = None,
-    progress: bool = True,
-    stream=sys.stderr,
-    on_batch: Optional[Callable[[list[dict]], None]] = None,
-    backend: Optional[str] = None,
-    parallel: Optional[str] = None,
-    workers: Optional[int] = None,
-    batch: Optional[int] = None,
-    vectorize: Optional[str] = None,
-) -> SweepResult:
-    """Run (or resume) a sweep and write its directory.
+def _config_groups(groups: Sequence[Group]) -> dict[str, str]:
+    """``config_id -> group label``."""
+    return {r.config_id: g.label for g in groups for r in g.runs}
 
-    Args:
-        spec: the validated sweep.
-        out_dir: the sweep directory (created). It keeps ``sweep.yaml`` (the resolved sweep),
-            ``base_config.yaml``, ``version.json``, ``configs.csv``, ``groups.yaml``,
-            ``results.csv``, and at the end ``summary.csv``, ``summary.md``, ``best.yaml`` and
-            ``plots/``.
-        resume: continue the sweep in ``out_dir``, skipping the runs ``results.csv`` holds.
-        data_dir: log directory overriding ``data.path``.
-        progress: report progress on ``stream``.
-        stream: where progress goes (stderr).
-        on_batch: called with each batch's rows after they are on disk (a hook for callers).
-        backend, parallel, workers, batch, vectorize: override ``spec.run``.
+
+def _check_out_dir(spec: SweepSpec, out: Path, resume: bool, vectorize: Optional[str]) -> Optional[str]:
+    """Check that ``out`` may take this sweep: a fresh directory, or (``resume``) one the same sweep
+    started; returns the ``vectorize`` to use (``vectorize``, else the resumed sweep's).
 
     Raises:
-        ConfigError: ``out_dir`` holds a sweep already (without ``resume``), or a different one.
-        KeyboardInterrupt: passed on after the finished batches are saved (resume later).
+        ConfigError: ``out`` holds a sweep already (without ``resume``), none or a different one
+            (with it), or one run with another ``vectorize``.
     """
-    opts = spec.run
-    backend = backend or opts.backend
-    out = Path(out_dir)
-    results_path = out / "results.csv"
-    if resume:
-        if not (out / "sweep.yaml").is_file():
-            raise ConfigError(f"{out}: no sweep to resume here (sweep.yaml not found)")
-        old = yaml.safe_load((out / "sweep.yaml").read_text()) or {}
-        held, wanted = stored_identity(old.get("identity")), spec_identity(spec)
-        if held != wanted:
-            key = _first_difference(held, wanted)
+    if not resume:
+        if (out / "results.csv").exists():
             raise ConfigError(
-                f"{out}: was made by a different sweep ('{key}' differs from {spec.source}); "
-                f"resume it with the same sweep file, or choose another --out"
+                f"{out}: holds a sweep already (results.csv); pass --resume to continue it, or choose another --out"
             )
-    elif results_path.exists():
+        return vectorize
+    if not (out / "sweep.yaml").is_file():
+        raise ConfigError(f"{out}: no sweep to resume here (sweep.yaml not found)")
+    old = yaml.safe_load((out / "sweep.yaml").read_text()) or {}
+    held, wanted = stored_identity(old.get("identity")), spec_identity(spec)
+    if held != wanted:
+        key = _first_difference(held, wanted)
         raise ConfigError(
-            f"{out}: holds a sweep already (results.csv); pass --resume to continue it, or choose another --out"
+            f"{out}: was made by a different sweep ('{key}' differs from {spec.source}); "
+            f"resume it with the same sweep file, or choose another --out"
         )
+    stored_vectorize = old.get("vectorize")
+    opts = spec.run
+    explicit = vectorize or (opts.vectorize if opts.vectorize != "auto" else None)
+    if stored_vectorize and explicit and explicit != stored_vectorize:
+        raise ConfigError(
+            f"{out}: was run with vectorize '{stored_vectorize}'; resuming with '{explicit}' would "
+            f"mix results that differ in rounding; resume with the same vectorize"
+        )
+    return vectorize or stored_vectorize
 
-    stored_vectorize = None
-    if resume:
-        stored_vectorize = old.get("vectorize")
-        explicit = vectorize or (opts.vectorize if opts.vectorize != "auto" else None)
-        if stored_vectorize and explicit and explicit != stored_vectorize:
-            raise ConfigError(
-                f"{out}: was run with vectorize '{stored_vectorize}'; resuming with '{explicit}' would "
-                f"mix results that differ in rounding; resume with the same vectorize"
-            )
-        vectorize = vectorize or stored_vectorize
 
+def _expand_registered(spec: SweepSpec) -> tuple[list[ConfigPoint], list[Run], list]:
+    """The sweep's configurations, runs and skipped configurations (:func:`expand`).
+
+    Raises:
+        ConfigError: a configuration names a filter method that is not registered.
+    """
     points, runs, skipped = expand(spec)
     for p in points:
         if p.config.filter.method not in method_names():
@@ -381,35 +419,46 @@ def run_sweep(
                 f"{spec.source}: filter.method {p.config.filter.method!r} is not registered; "
                 f"registered: {', '.join(method_names())}"
             )
-    prog = Progress(len(runs), 0, stream, progress)
+    return points, runs, skipped
 
-    if backend == "ray":
-        mode, n_workers, devices = "ray", 1, 1
-    else:
-        requested = parallel or opts.parallel
-        mode, n_workers = resolve_parallel(requested, workers or opts.workers)
-        devices = 1
-        if mode == "devices":
-            n_devices = n_workers * SWEEP_DEVICES_PER_CORE
-            devices = min(setup_devices(n_devices), n_devices)
-            if devices < n_workers and requested == "auto":  # JAX started before the sweep: next best
-                mode, devices = "processes", 1
-            elif devices < n_workers:
-                prog.message(
-                    f"sweep: only {devices} JAX device(s) (JAX had started before the sweep); "
-                    f"set jax_num_cpu_devices first, or use parallel: processes"
-                )
-                if devices == 1:
-                    mode = "single"
 
-    vectorize = resolve_vectorize(vectorize or opts.vectorize)
+def _resolve_execution(spec: SweepSpec, overrides: SweepOverrides, prog: Progress) -> _Execution:
+    """The execution mode, its cores and the devices of a batch. ``devices`` sets up JAX's CPU
+    devices; when JAX started before the sweep, ``auto`` falls back to ``processes``."""
+    opts = spec.run
+    if (overrides.backend or opts.backend) == "ray":
+        return _Execution("ray", 1, 1, spec.ray_num_cpus or 2)
+    requested = overrides.parallel or opts.parallel
+    mode, n_workers = resolve_parallel(requested, overrides.workers or opts.workers)
+    devices = 1
+    if mode == "devices":
+        n_devices = n_workers * SWEEP_DEVICES_PER_CORE
+        devices = min(setup_devices(n_devices), n_devices)
+        if devices < n_workers and requested == "auto":  # JAX started before the sweep: next best
+            mode, devices = "processes", 1
+        elif devices < n_workers:
+            prog.message(
+                f"sweep: only {devices} JAX device(s) (JAX had started before the sweep); "
+                f"set jax_num_cpu_devices first, or use parallel: processes"
+            )
+            if devices == 1:
+                mode = "single"
+    return _Execution(mode, n_workers, devices, n_workers if mode == "processes" else 1)
+
+
+def _load_logs(points: Sequence[ConfigPoint], data_dir: Optional[str], segments: Any) -> dict:
+    """``log_key -> (log_id, LogData)``: each log the configurations read, loaded once, in order."""
     logs: dict = {}
     for p in points:
         k = log_key(p.config)
         if k not in logs:
-            logs[k] = (len(logs), load_log_data(p.config, data_dir, spec.segments))
-    split = n_workers if mode == "processes" else (spec.ray_num_cpus or 2) if mode == "ray" else 1
-    groups = plan_groups(spec, runs, logs, batch=batch, split=split, devices=devices)
+            logs[k] = (len(logs), load_log_data(p.config, data_dir, segments))
+    return logs
+
+
+def _metric_keys(logs: dict, groups: Sequence[Group]) -> list[str]:
+    """The metric columns: the base metrics, and those of the map truth, the survey, the smoother
+    and the adaptive noise estimates (where any run has them)."""
     metric_keys = list(METRIC_KEYS) + (
         list(MAP_METRIC_KEYS) if any(l.map_truth is not None for _, l in logs.values()) else []
     )
@@ -424,50 +473,89 @@ def run_sweep(
             for g in groups
         ):
             metric_keys += list(NOISE_ARC_SUMMARY_KEYS)
-    rf = ResultsFile(results_path, _columns(spec, metric_keys))
+    return metric_keys
 
+
+def _plan_sweep(
+    spec: SweepSpec,
+    expanded: tuple[list[ConfigPoint], list[Run], list],
+    vectorize: Optional[str],
+    data_dir: Optional[str],
+    overrides: SweepOverrides,
+    prog: Progress,
+) -> _Plan:
+    """Choose where the sweep's runs (``expanded``: configurations, runs, skipped configurations)
+    run, load their logs and group them into batches."""
+    points, runs, skipped = expanded
+    execution = _resolve_execution(spec, overrides, prog)
+    resolved = resolve_vectorize(vectorize or spec.run.vectorize)
+    logs = _load_logs(points, data_dir, spec.segments)
+    groups = plan_groups(spec, runs, logs, batch=overrides.batch, split=execution.split, devices=execution.devices)
+    return _Plan(points, runs, skipped, logs, groups, _metric_keys(logs, groups), execution, resolved)
+
+
+def _open_results(rf: ResultsFile, out: Path, spec: SweepSpec, plan: _Plan, resume: bool) -> set:
+    """Create ``out`` and its files (a fresh sweep), or check and repair ``results.csv`` (a resumed
+    one); returns the run ids finished before."""
     out.mkdir(parents=True, exist_ok=True)
-    done: set = set()
-    if resume and results_path.exists():
+    if resume and rf.path.exists():
         try:
             rf.check_header()
         except ValueError as e:
             raise ConfigError(str(e)) from None
         rf.repair()
-        done = {r["run_id"] for r in read_results(results_path)}
-    else:
-        _write_metadata(out, spec, points, groups, logs, skipped, vectorize)
-        rf.create()
-    cache_dir = enable_compile_cache() if opts.compile_cache else None
+        return {r["run_id"] for r in read_results(rf.path)}
+    _write_metadata(out, spec, plan)
+    rf.create()
+    return set()
 
-    tasks = make_tasks(spec, groups, logs, done, devices=devices, vectorize=vectorize)
-    n_skipped = sum(1 for r in runs if r.run_id in done)
-    prog.done = prog.start_done = n_skipped
+
+def _announce(prog: Progress, spec: SweepSpec, plan: _Plan, tasks: Sequence[BatchTask], n_skipped: int) -> None:
+    """Report the sweep's size, its batches and where they run, and the groups that cannot be split."""
+    ex = plan.execution
     prog.message(
-        f"sweep {spec.name}: {len(points)} configurations x {len(spec.seeds)} seeds = {len(runs)} runs in "
-        f"{len(groups)} shape group(s), {len(tasks)} batches ({mode}, {vectorize}"
-        f"{f', {n_workers} workers' if mode == 'processes' else ''}"
-        f"{f', {devices} devices' if devices > 1 else ''}); "
-        f"{n_skipped} finished before" + (f", {len(skipped)} invalid configurations skipped" if skipped else "")
+        f"sweep {spec.name}: {len(plan.points)} configurations x {len(spec.seeds)} seeds = {len(plan.runs)} runs in "
+        f"{len(plan.groups)} shape group(s), {len(tasks)} batches ({ex.mode}, {plan.vectorize}"
+        f"{f', {ex.workers} workers' if ex.mode == 'processes' else ''}"
+        f"{f', {ex.devices} devices' if ex.devices > 1 else ''}); "
+        f"{n_skipped} finished before"
+        + (f", {len(plan.skipped)} invalid configurations skipped" if plan.skipped else "")
     )
-
-    unsplit = sorted({t.group for t in tasks if t.devices < devices})
+    unsplit = sorted({t.group for t in tasks if t.devices < ex.devices})
     if unsplit:
         prog.message(
             f"sweep: {', '.join(unsplit)}: each batch on one device (optimistix's least squares "
             f"cannot run under shard_map)"
         )
-    by_id = logs_by_id(logs)
-    if mode == "ray":
+
+
+def _batch_results(
+    spec: SweepSpec, plan: _Plan, tasks: Sequence[BatchTask], cache_dir: Optional[str]
+) -> Iterator[tuple[BatchTask, list[dict]]]:
+    """The batches' results, as they finish, from the execution mode's executor."""
+    by_id = logs_by_id(plan.logs)
+    ex = plan.execution
+    if ex.mode == "ray":
         from nanoslam_jax.app.sweep._ray import ray_iter
 
-        it = ray_iter(tasks, by_id, address=spec.ray_address, num_cpus=spec.ray_num_cpus, cache_dir=cache_dir)
-    elif mode == "processes" and tasks:
-        it = _process_iter(tasks, by_id, n_workers, cache_dir)
-    else:
-        it = _local_iter(tasks, by_id)
-    run_meta = {r.run_id: r for r in runs}
-    groups_of = {r.run_id: g.label for g in groups for r in g.runs}
+        return ray_iter(tasks, by_id, address=spec.ray_address, num_cpus=spec.ray_num_cpus, cache_dir=cache_dir)
+    if ex.mode == "processes" and tasks:
+        return _process_iter(tasks, by_id, ex.workers, cache_dir)
+    return _local_iter(tasks, by_id)
+
+
+def _run_batches(
+    it: Iterator[tuple[BatchTask, list[dict]]],
+    rf: ResultsFile,
+    plan: _Plan,
+    prog: Progress,
+    on_batch: Optional[Callable[[list[dict]], None]],
+) -> int:
+    """Append each batch's rows to ``results.csv`` as it finishes and report progress; returns the
+    runs made. The executor is closed however the loop ends."""
+    run_meta = {r.run_id: r for r in plan.runs}
+    groups_of = {r.run_id: g.label for g in plan.groups for r in g.runs}
+    split = plan.execution.split
     n_new = 0
     try:
         for task, results in it:
@@ -495,21 +583,25 @@ def run_sweep(
         close = getattr(it, "close", None)
         if close is not None:
             close()
+    return n_new
 
-    rows = read_results(results_path)
-    cfg_group = {r.config_id: g.label for g in groups for r in g.runs}
-    summary = summarize(rows, points, cfg_group, metric_keys, {spec.metric: spec.goal})
+
+def _finish(out: Path, spec: SweepSpec, plan: _Plan, prog: Progress, n_new: int) -> tuple[int, Optional[dict]]:
+    """Write the summary, ``best.yaml`` and the plots from ``results.csv`` and report the best
+    configuration; returns the failed runs recorded and the best configuration's summary."""
+    rows = read_results(out / "results.csv")
+    summary = summarize(rows, plan.points, _config_groups(plan.groups), plan.metric_keys, {spec.metric: spec.goal})
     best = select_best(summary, spec.metric, len(spec.seeds), spec.goal)
-    complete = len({r["run_id"] for r in rows} & set(run_meta)) == len(runs)
-    write_summary(out, summary, spec, metric_keys, best, complete)
+    complete = len({r["run_id"] for r in rows} & {r.run_id for r in plan.runs}) == len(plan.runs)
+    write_summary(out, summary, spec, plan.metric_keys, best, complete)
     if best is not None:
-        point = next(p for p in points if p.config_id == best["config_id"])
+        point = next(p for p in plan.points if p.config_id == best["config_id"])
         write_best_yaml(out / "best.yaml", spec, point, best)
     if spec.plots:
         from nanoslam_jax.app.sweep._plots import plot_sweep
 
         try:
-            plot_sweep(out / "plots", spec, points, rows, [spec.metric])
+            plot_sweep(out / "plots", spec, plan.points, rows, [spec.metric])
         except Exception as e:  # figures must never lose a sweep
             prog.message(f"sweep: plots failed: {_first_line(e)}\n{traceback.format_exc(limit=3)}")
     n_failed = sum(r["status"] != "ok" for r in rows)
@@ -521,4 +613,52 @@ def run_sweep(
             else "no configuration finished ok"
         )
     )
-    return SweepResult(out, len(runs), n_new, n_skipped, n_failed, best, tuple(groups))
+    return n_failed, best
+
+
+@in_float64
+def run_sweep(
+    spec: SweepSpec,
+    out_dir: str | os.PathLike,
+    *,
+    resume: bool = False,
+    data_dir: Optional[str] = None,
+    progress: bool = True,
+    stream=sys.stderr,
+    on_batch: Optional[Callable[[list[dict]], None]] = None,
+    overrides: SweepOverrides = SweepOverrides(),
+) -> SweepResult:
+    """Run (or resume) a sweep and write its directory.
+
+    Args:
+        spec: the validated sweep.
+        out_dir: the sweep directory (created). It keeps ``sweep.yaml`` (the resolved sweep),
+            ``base_config.yaml``, ``version.json``, ``configs.csv``, ``groups.yaml``,
+            ``results.csv``, and at the end ``summary.csv``, ``summary.md``, ``best.yaml`` and
+            ``plots/``.
+        resume: continue the sweep in ``out_dir``, skipping the runs ``results.csv`` holds.
+        data_dir: log directory overriding ``data.path``.
+        progress: report progress on ``stream``.
+        stream: where progress goes (stderr).
+        on_batch: called with each batch's rows after they are on disk (a hook for callers).
+        overrides: settings overriding ``spec.run`` (backend, parallel, workers, batch, vectorize).
+
+    Raises:
+        ConfigError: ``out_dir`` holds a sweep already (without ``resume``), or a different one.
+        KeyboardInterrupt: passed on after the finished batches are saved (resume later).
+    """
+    out = Path(out_dir)
+    vectorize = _check_out_dir(spec, out, resume, overrides.vectorize)
+    points, runs, skipped = _expand_registered(spec)
+    prog = Progress(len(runs), 0, stream, progress)
+    plan = _plan_sweep(spec, (points, runs, skipped), vectorize, data_dir, overrides, prog)
+    rf = ResultsFile(out / "results.csv", _columns(spec, plan.metric_keys))
+    done = _open_results(rf, out, spec, plan, resume)
+    cache_dir = enable_compile_cache() if spec.run.compile_cache else None
+    tasks = make_tasks(spec, plan.groups, plan.logs, done, devices=plan.execution.devices, vectorize=plan.vectorize)
+    n_skipped = sum(1 for r in plan.runs if r.run_id in done)
+    prog.done = prog.start_done = n_skipped
+    _announce(prog, spec, plan, tasks, n_skipped)
+    n_new = _run_batches(_batch_results(spec, plan, tasks, cache_dir), rf, plan, prog, on_batch)
+    n_failed, best = _finish(out, spec, plan, prog, n_new)
+    return SweepResult(out, len(plan.runs), n_new, n_skipped, n_failed, best, tuple(plan.groups))

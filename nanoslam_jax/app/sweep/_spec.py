@@ -363,37 +363,39 @@ def _parse_random(raw: Any, where: str) -> Optional[RandomSpec]:
             f"{where}: key 'random.params': expected a mapping of config keys to "
             f"{{low, high[, log]}} or {{choice: [...]}}, got {params_raw!r}"
         )
-    params = []
-    for key, d in params_raw.items():
-        _check_sweep_key(key, "random.params", where, want_static=False)
-        what = f"random.params.{key}"
-        if not isinstance(d, dict):
-            raise ConfigError(f"{where}: key '{what}': expected {{low, high[, log]}} or {{choice: [...]}}, got {d!r}")
-        unknown = [k for k in d if k not in ("low", "high", "log", "choice")]
-        if unknown:
-            raise ConfigError(f"{where}: unknown key '{what}.{unknown[0]}'; known keys here: low, high, log, choice")
-        if "choice" in d:
-            if set(d) != {"choice"}:
-                raise ConfigError(f"{where}: key '{what}': 'choice' cannot be combined with low/high/log")
-            params.append(RandomParam(key, choice=_value_list(d["choice"], key + ".choice", "random.params", where)))
-            continue
-        if "low" not in d or "high" not in d:
-            raise ConfigError(f"{where}: key '{what}': expected both 'low' and 'high' (or 'choice')")
-        lo, hi = _number(d["low"], what + ".low", where), _number(d["high"], what + ".high", where)
-        log = d.get("log", False)
-        if not isinstance(log, bool):
-            raise ConfigError(f"{where}: key '{what}.log': expected true or false, got {log!r}")
-        if not lo < hi:
-            raise ConfigError(f"{where}: key '{what}': expected low < high, got low {lo}, high {hi}")
-        if log and lo <= 0:
-            raise ConfigError(f"{where}: key '{what}': log sampling needs low > 0, got {lo}")
-        tp, _ = config_key_info(key, where)
-        if typing.get_origin(tp) in (typing.Union, types.UnionType):
-            tp = [a for a in typing.get_args(tp) if a is not type(None)][0]
-        if tp is not float:
-            raise ConfigError(f"{where}: key '{what}': '{key}' is not a float key; sample it with 'choice'")
-        params.append(RandomParam(key, lo, hi, log))
-    return RandomSpec(n, seed, combine, tuple(params))
+    params = tuple(_parse_random_param(key, d, where) for key, d in params_raw.items())
+    return RandomSpec(n, seed, combine, params)
+
+
+def _parse_random_param(key: str, d: Any, where: str) -> RandomParam:
+    """One entry of ``random.params``: ``{choice: [...]}`` or ``{low, high[, log]}`` of a float key."""
+    _check_sweep_key(key, "random.params", where, want_static=False)
+    what = f"random.params.{key}"
+    if not isinstance(d, dict):
+        raise ConfigError(f"{where}: key '{what}': expected {{low, high[, log]}} or {{choice: [...]}}, got {d!r}")
+    unknown = [k for k in d if k not in ("low", "high", "log", "choice")]
+    if unknown:
+        raise ConfigError(f"{where}: unknown key '{what}.{unknown[0]}'; known keys here: low, high, log, choice")
+    if "choice" in d:
+        if set(d) != {"choice"}:
+            raise ConfigError(f"{where}: key '{what}': 'choice' cannot be combined with low/high/log")
+        return RandomParam(key, choice=_value_list(d["choice"], key + ".choice", "random.params", where))
+    if "low" not in d or "high" not in d:
+        raise ConfigError(f"{where}: key '{what}': expected both 'low' and 'high' (or 'choice')")
+    lo, hi = _number(d["low"], what + ".low", where), _number(d["high"], what + ".high", where)
+    log = d.get("log", False)
+    if not isinstance(log, bool):
+        raise ConfigError(f"{where}: key '{what}.log': expected true or false, got {log!r}")
+    if not lo < hi:
+        raise ConfigError(f"{where}: key '{what}': expected low < high, got low {lo}, high {hi}")
+    if log and lo <= 0:
+        raise ConfigError(f"{where}: key '{what}': log sampling needs low > 0, got {lo}")
+    tp, _ = config_key_info(key, where)
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        tp = [a for a in typing.get_args(tp) if a is not type(None)][0]
+    if tp is not float:
+        raise ConfigError(f"{where}: key '{what}': '{key}' is not a float key; sample it with 'choice'")
+    return RandomParam(key, lo, hi, log)
 
 
 def _parse_seeds(raw: Any, base_seed: int, where: str) -> tuple[int, ...]:

@@ -37,6 +37,7 @@ from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.app.sweep import _batch
 from nanoslam_jax.app.sweep import (
     TIMING_COLUMNS,
+    SweepOverrides,
     expand,
     load_log_data,
     make_tasks,
@@ -317,7 +318,7 @@ def test_cli_end_to_end(main_sweep, tmp_path, capsys):
 @pytest.mark.slow
 def test_worker_processes_write_the_same_results(main_sweep, tmp_path):
     out = tmp_path / "proc"
-    res = run_sweep(spec_of(SMALL), out, progress=False, parallel="processes", workers=2)
+    res = run_sweep(spec_of(SMALL), out, progress=False, overrides=SweepOverrides(parallel="processes", workers=2))
     assert res.n_new == 8
     assert rows_by_id(out / "results.csv") == grid_rows_of_main(main_sweep)
 
@@ -329,7 +330,7 @@ def test_ray_backend_writes_the_same_results(main_sweep, tmp_path):
     out = tmp_path / "ray"
     spec = spec_of(SMALL, ray={"num_cpus": 1})  # one worker process: its two tasks reuse its program
     try:
-        res = run_sweep(spec, out, progress=False, backend="ray")
+        res = run_sweep(spec, out, progress=False, overrides=SweepOverrides(backend="ray"))
     finally:
         if ray.is_initialized():
             ray.shutdown()
@@ -349,15 +350,16 @@ def test_device_split_sweep_keeps_least_squares_methods_on_one_device(tmp_path):
         import csv, json
         import jax
         jax.config.update("jax_enable_x64", True)
-        from nanoslam_jax.app.sweep import _batch, run_sweep, sweep_from_dict
+        from nanoslam_jax.app.sweep import SweepOverrides, _batch, run_sweep, sweep_from_dict
         base = {BASE!r}
         raw = {{"base": base, "seeds": 2, "grid": {{"filter.gate": [5.991]}}, "plots": False,
                "run": {{"batch": 2, "vectorize": "vmap", "compile_cache": False}}}}
         both = sweep_from_dict({{**raw, "shapes": {{"filter.method": ["fastslam1", "iterated"]}}}})
-        run_sweep(both, {str(tmp_path / "devices")!r}, progress=False, parallel="devices", workers=2)  # 2 cores
+        run_sweep(both, {str(tmp_path / "devices")!r}, progress=False,
+                  overrides=SweepOverrides(parallel="devices", workers=2))  # 2 cores
         split = sorted({{(e["static"].method.name, e["devices"]) for e in _batch.compile_events()}})
         it = sweep_from_dict({{**raw, "base": {{**base, "filter": {{**base["filter"], "method": "iterated"}}}}}})
-        run_sweep(it, {str(tmp_path / "single")!r}, progress=False, parallel="single")
+        run_sweep(it, {str(tmp_path / "single")!r}, progress=False, overrides=SweepOverrides(parallel="single"))
         rows = {{}}
         for name in ("devices", "single"):
             with open({str(tmp_path)!r} + "/" + name + "/results.csv") as f:
