@@ -87,19 +87,15 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
-from nanoslam_jax.lib._linalg import chol3, inv2, inv3, mm, mmt, mt, mv, sandwich, sym
+from nanoslam_jax.lib._linalg import mmt, mv
 from nanoslam_jax.data import Segments
 from nanoslam_jax.models import (
-    inverse_range_bearing,
     is_range_bearing,
-    range_bearing,
-    range_bearing_jacobians,
     wrap_angle,
 )
-from nanoslam_jax.lib.quadrature import Unscented
-from nanoslam_jax.methods.maps._association import nearest_neighbours
+from nanoslam_jax.methods.maps._association import Association, nearest_neighbours
 from nanoslam_jax.methods.maps._landmarks import first_true
 from nanoslam_jax.methods.maps._management import diameter_update, drop_stale, manage_window, new_landmarks
 from nanoslam_jax.methods._params import Params, Static
@@ -107,194 +103,25 @@ from nanoslam_jax.methods.gaussian._srukf import (
     SigmaMeasurement,
     adaptive_noise_rows,
     adaptive_process_update,
-    chol_rank_update,
     measurement_update,
     predict_measurement,
     process_noise_basis,
-    srukf_transform,
 )
 from nanoslam_jax.methods._method_settings import nasrukf_params, nasrukf_static
 from nanoslam_jax.methods.gaussian._nasrukf_state import NasrukfFeatures, NasrukfState, configured_noise, feature_dim
 from nanoslam_jax.methods.gaussian._gaussian import GaussianStepOutput
-
-
-def _rule(params: Params) -> Unscented:
-    return Unscented(params.ut_alpha, params.ut_beta, params.ut_kappa)
-
-
-def _minus(a: Float[Array, "3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
-    """Pose difference ``a - b`` with the heading wrapped."""
-    d = a - b
-    return d.at[2].set(wrap_angle(d[2]))
-
-
-def pose_time_update(
-    x: Float[Array, "3"],
-    S: Float[Array, "3 3"],
-    dt: Float[Array, " dr"],
-    u: Float[Array, "dr c"],
-    dr_mask: Bool[Array, " dr"],
-    params: Params,
-    noise_scale_sqrt: Float[Array, "w w"] | None = None,
-) -> tuple[Float[Array, "3"], Float[Array, "3 3"], Float[Array, "3 3"], Float[Array, "3 3"]]:
-    """The pose's SR-UKF time update through a segment's DR pieces, with its start pose carried.
-
-    The state ``(x, x_start)`` starts as ``(x, x)`` with square root ``[[S, 0], [S, 0]]``; each
-    real piece is a :func:`~._srukf.srukf_transform` with the control noise augmented
-    (``x <- f(x, u + w)``, ``x_start`` unchanged). From the final square root
-    ``[[S_x, 0], [S_sx, D]]``: ``T = S_sx S_x^-1`` (the start pose's regression on the predicted
-    one) and ``D`` (the square root of ``Cov(x_start | x)``).
-
-    Args:
-        x, S: the pose mean and lower square root at the start of the segment.
-        dt, u, dr_mask: the segment's DR pieces (masked pieces change nothing).
-        params: vehicle constants, control noise, unscented parameters.
-        noise_scale_sqrt: a lower square root ``Lambda^(1/2)`` scaling the motion model's noise,
-            ``S(dt) Lambda^(1/2)`` (the estimated ``Q`` of eq. 9); None: the configured noise.
-
-    Returns:
-        The predicted mean and square root, ``T`` and ``D``.
-    """
-    rule = _rule(params)
-    zero = jnp.zeros((3, 3), S.dtype)
-    L = jnp.concatenate([jnp.concatenate([S, zero], 1), jnp.concatenate([S, zero], 1)], 0)
-    motion = params.motion
-
-    def body(i, carry):
-        y, L = carry
-
-        def move(p, w):
-            return jnp.concatenate([motion.noisy_step(p[:3], u[i], w, dt[i]), p[3:]])
-
-        Sw = motion.noise_sqrt(dt[i])
-        Sw = Sw if noise_scale_sqrt is None else Sw @ noise_scale_sqrt
-        yn, Ln = srukf_transform(y, L, move, Sw, rule, angles=(2, 5))
-        return jnp.where(dr_mask[i], yn, y), jnp.where(dr_mask[i], Ln, L)
-
-    n_pieces = jnp.max(jnp.where(dr_mask, jnp.arange(1, dr_mask.shape[0] + 1), 0))
-    y, L = jax.lax.fori_loop(0, n_pieces, body, (jnp.concatenate([x, x]), L))
-    Sx = L[:3, :3]
-    return y[:3], Sx, mm(L[3:, :3], inv3(Sx)), L[3:, 3:]
-
-
-def propagate_features(features: NasrukfFeatures, T: Float[Array, "3 3"], D: Float[Array, "3 3"]) -> NasrukfFeatures:
-    """The features' part of the joint time update: ``gain <- gain T``, ``sqrt sqrt' += gain D D' gain'``
-    (rank-one ``cholupdate`` with each column of ``gain D``)."""
-    cols = mm(features.gain, D)
-    sqrt = jax.vmap(chol_rank_update, (0, 0, None))(features.sqrt, cols, 1.0)
-    return features._replace(gain=mm(features.gain, T), sqrt=sqrt)
-
-
-def joint_sqrt(S: Float[Array, "3 3"], gain: Float[Array, "f 3"], sqrt: Float[Array, "f f"]) -> Float[Array, "n n"]:
-    """Lower square root ``[[S, 0], [gain S, sqrt]]`` of a feature's joint state (pose first)."""
-    f = gain.shape[0]
-    top = jnp.concatenate([S, jnp.zeros((3, f), S.dtype)], 1)
-    return jnp.concatenate([top, jnp.concatenate([gain @ S, sqrt], 1)], 0)
-
-
-def to_conditional(
-    x: Float[Array, "3"], m: Float[Array, " f"], L: Float[Array, "n n"], x_global: Float[Array, "3"]
-) -> tuple[Float[Array, " f"], Float[Array, "f 3"], Float[Array, "f f"]]:
-    """A joint state ``N((x, m), L L')`` fed back to the global pose (the feature's conditional kept).
-
-    Returns:
-        The feature's ``(mean, gain, sqrt)`` given the shared pose: ``gain = L_mx L_xx^-1``,
-        ``sqrt = L_mm``, ``mean = m + gain (x_global - x)``.
-    """
-    gain = mm(L[3:, :3], inv3(L[:3, :3]))
-    return m + gain @ _minus(x_global, x), gain, L[3:, 3:]
-
-
-def measure(y: Float[Array, " n"]) -> Float[Array, " mz"]:
-    """A joint state's predicted detection: range and bearing of the centre (and the diameter,
-    twice the radius, for arcs)."""
-    zb = range_bearing(y[:3], y[3:5])
-    return jnp.concatenate([zb, 2.0 * y[5:6]]) if y.shape[0] == 6 else zb
-
-
-def init_feature(
-    x: Float[Array, "3"], S: Float[Array, "3 3"], z: Float[Array, " mz"], noise: Float[Array, " mz"], params: Params
-) -> tuple[Float[Array, " n"], Float[Array, "n n"]]:
-    """A new feature's joint state: the SR unscented transform of (pose, detection) through
-    ``(x, m) = (x, g^-1(x, z))`` (and the radius as half the diameter for arcs).
-
-    Args:
-        x, S: the pose mean and lower square root.
-        z: the detection (range, bearing[, diameter]).
-        noise: measurement-noise variances.
-        params: unscented parameters.
-    """
-
-    def place(p, w):
-        zw = z + w
-        parts = [p, inverse_range_bearing(p, zw[:2])] + ([0.5 * zw[2:3]] if z.shape[0] == 3 else [])
-        return jnp.concatenate(parts)
-
-    return srukf_transform(x, S, place, jnp.diag(jnp.sqrt(noise)), _rule(params), angles=(2,))
-
-
-def association_information(
-    x: Float[Array, "3"],
-    P: Float[Array, "3 3"],
-    mean: Float[Array, "slots f"],
-    gain: Float[Array, "slots f 3"],
-    sqrt: Float[Array, "slots f f"],
-    R: Float[Array, "2 2"],
-) -> tuple[
-    tuple[Float[Array, " slots"], Float[Array, " slots"]],
-    tuple[Float[Array, " slots"], Float[Array, " slots"], Float[Array, " slots"]],
-]:
-    """Predicted range and bearing of each slot's centre and the entries of its inverse innovation
-    covariance ``J P J' + Gm C Gm' + R``, ``J = Gx + Gm gain`` (joint state linearised, autodiff)."""
-    c = mean[:, :2]
-    z_hat = jax.vmap(range_bearing, (None, 0))(x, c)
-    Gx, Gm = jax.vmap(range_bearing_jacobians, (None, 0))(x, c)
-    J = Gx + mm(Gm, gain[:, :2])
-    s = sqrt[:, :2, :2]
-    Si = inv2(sym(sandwich(J, P) + sandwich(Gm, mmt(s, s)) + R))
-    return (z_hat[:, 0], z_hat[:, 1]), (Si[:, 0, 0], Si[:, 0, 1], Si[:, 1, 1])
-
-
-def _information(L: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
-    """``(L L')^-1`` from a lower square root."""
-    Li = inv3(L)
-    return mm(mt(Li), Li)
-
-
-def fuse_poses(
-    x0: Float[Array, "3"],
-    S0: Float[Array, "3 3"],
-    xs: Float[Array, "k 3"],
-    Ls: Float[Array, "k 3 3"],
-    use: Bool[Array, " k"],
-    shared_prior: bool = True,
-) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
-    """The global pose from per-feature pose estimates, information-weighted (eq. 4-5).
-
-    Args:
-        x0, S0: the scan's prior pose (mean, lower square root).
-        xs, Ls: the per-feature pose estimates (means, lower square roots).
-        use: which estimates take part (none: the prior is returned).
-        shared_prior: the estimates all started from ``N(x0, S0 S0')`` (the filter's case): eq. 4
-            is applied to their information gains over it, ``Lambda = Lambda_0 + sum_i (Lambda_i -
-            Lambda_0)``, the exact posterior when the detections are independent given the pose.
-            False: eq. 4 as printed for independent estimates, ``Lambda = sum_i Lambda_i``. Both
-            ``x = x0 + Lambda^-1 sum_i Lambda_i (x_i - x0)`` (headings relative to ``x0``).
-
-    Returns:
-        The fused mean (heading wrapped) and the lower square root of ``Lambda^-1``.
-    """
-    I0 = _information(S0)
-    Ii = jax.vmap(_information)(Ls)
-    w = use.astype(x0.dtype)
-    eta = jnp.sum(w[:, None] * mv(Ii, jax.vmap(_minus, (0, None))(xs, x0)), axis=0)
-    if shared_prior:
-        Lam = I0 + jnp.sum(w[:, None, None] * (Ii - I0), axis=0)
-    else:
-        Lam = jnp.where(jnp.any(use), jnp.sum(w[:, None, None] * Ii, axis=0), I0)
-    P = sym(inv3(sym(Lam)))
-    x = x0 + P @ eta
-    return x.at[2].set(wrap_angle(x[2])), chol3(P)
+from nanoslam_jax.methods.gaussian._nasrukf_joint import (
+    _minus,
+    _rule,
+    association_information,
+    fuse_poses,
+    init_feature,
+    joint_sqrt,
+    measure,
+    pose_time_update,
+    propagate_features,
+    to_conditional,
+)
 
 
 class _Rows(NamedTuple):
@@ -302,6 +129,448 @@ class _Rows(NamedTuple):
 
     x: Float[Array, "k n"]
     L: Float[Array, "k n n"]
+
+
+class _Scan(NamedTuple):
+    """A segment's detections as the step reads them.
+
+    Attributes:
+        seg: the segment (a :class:`Segments` without the leading axis).
+        valid: False for a padding segment.
+        z_mask: the real detections (none in padding).
+        z: the measurements: range and bearing, and the diameter for arc features.
+    """
+
+    seg: Segments
+    valid: Bool[Array, ""]
+    z_mask: Bool[Array, " k"]
+    z: Float[Array, "k mz"]
+
+
+class _Prior(NamedTuple):
+    """The time update's result: the prior pose (mean ``x``, lower square root ``S``, covariance
+    ``P``), every feature propagated with it, and the process-noise basis accumulated so far."""
+
+    x: Float[Array, "3"]
+    S: Float[Array, "3 3"]
+    P: Float[Array, "3 3"]
+    features: NasrukfFeatures
+    basis: Array
+
+
+class _Window(NamedTuple):
+    """The features a scan is associated with.
+
+    Attributes:
+        idx: the local window's slots among all features (``capacity`` where unused).
+        n_near: features within range of the prior pose (beyond ``W`` they are left out).
+        in_window: which window slots hold a feature.
+        local: the window's features.
+        new_y, new_L: one provisional feature's joint state per detection (at the prior pose).
+        mean, gain, sqrt: the window's features (a finite dummy in unused slots), then the
+            provisional features, in conditional form (``W + K`` rows).
+    """
+
+    idx: Int[Array, " W"]
+    n_near: Int[Array, ""]
+    in_window: Bool[Array, " W"]
+    local: NasrukfFeatures
+    new_y: Float[Array, "k n"]
+    new_L: Float[Array, "k n n"]
+    mean: Float[Array, "slots f"]
+    gain: Float[Array, "slots f 3"]
+    sqrt: Float[Array, "slots f f"]
+
+
+class _Match(NamedTuple):
+    """The association of a scan's detections.
+
+    Attributes:
+        assoc: the association rule's result (slot among ``W + K`` or -1, new features).
+        matched: detections associated with a window or a provisional feature.
+        existing: those associated with a window feature.
+        provisional: those associated with an earlier detection's provisional feature.
+        slot: each detection's row among the ``W + K`` (an unmatched one: its own provisional).
+        ws, ps: the matched window slot and provisional row (clipped into range).
+    """
+
+    assoc: Association
+    matched: Bool[Array, " k"]
+    existing: Bool[Array, " k"]
+    provisional: Bool[Array, " k"]
+    slot: Int[Array, " k"]
+    ws: Int[Array, " k"]
+    ps: Int[Array, " k"]
+
+
+class _Fused(NamedTuple):
+    """The global pose after fusion (mean ``x``, lower square root ``S``) and the process-noise
+    estimate (``Lambda``, its count and the basis) after it."""
+
+    x: Float[Array, "3"]
+    S: Float[Array, "3 3"]
+    process_scale: Array
+    process_count: Array
+    basis: Array
+
+
+class _Updated(NamedTuple):
+    """Per detection row, after the fusion: the updated joint state and the provisional feature,
+    each as ``(mean, gain, sqrt)`` given the fused pose, and the updated diameter and its variance."""
+
+    upd: tuple[Array, Array, Array]
+    ini: tuple[Array, Array, Array]
+    diam: Float[Array, " k"]
+    diam_var: Float[Array, " k"]
+
+
+def _time_update(static: Static, params: Params, state: NasrukfState, scan: _Scan) -> _Prior:
+    """The pose's time update (with the estimated process noise under ``nasrukf.adaptive_process``),
+    then every feature's part of its joint state (:func:`pose_time_update`,
+    :func:`propagate_features`); a padding segment's pieces are all masked."""
+    seg, valid = scan.seg, scan.valid
+    dr_mask = seg.dr_mask & valid
+    if nasrukf_static(static).adaptive_process:
+        scale_sqrt = jnp.linalg.cholesky(state.process_scale)
+        basis = process_noise_basis(state.process_basis, state.pose, seg.dt, seg.u, dr_mask, params.motion)
+    else:
+        scale_sqrt, basis = None, state.process_basis
+    x0, S0, T, D = pose_time_update(state.pose, state.pose_sqrt, seg.dt, seg.u, dr_mask, params, scale_sqrt)
+    P0 = mmt(S0, S0)
+    feats = propagate_features(state.features, T, D)
+    return _Prior(x0, S0, P0, feats, basis)
+
+
+def _window(static: Static, params: Params, prior: _Prior, scan: _Scan, noise: Float[Array, " mz"]) -> _Window:
+    """The local window (at most ``filter.window`` features within ``max_range + window_margin`` of
+    the prior position) and one provisional feature per detection (:func:`init_feature` at the
+    prior pose with the measurement noise ``noise``)."""
+    capacity = static.capacity
+    W = min(static.window, capacity)
+    x0, S0 = prior.x, prior.S
+    f = prior.features
+    radius = params.max_range + params.window_margin
+    d2 = jnp.square(f.mean[:, 0] - x0[0]) + jnp.square(f.mean[:, 1] - x0[1])
+    idx, n_near = first_true(f.landmarks.active & (d2 < jnp.square(radius)), W)
+    local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), f)
+    in_window = idx < capacity
+    new_y, new_L = jax.vmap(init_feature, (None, None, 0, None, None))(x0, S0, scan.z, noise, params)
+    prov = jax.vmap(to_conditional, (0, 0, 0, None))(new_y[:, :3], new_y[:, 3:], new_L, x0)
+    # Unused window slots hold a finite dummy feature 1 m ahead of the pose (never matched).
+    dummy = jnp.concatenate([x0[:2] + jnp.array([1.0, 0.0]), jnp.ones(feature_dim(static) - 2)])
+    mean = jnp.concatenate([jnp.where(in_window[:, None], local.mean, dummy), prov[0]])
+    gain = jnp.concatenate([local.gain, prov[1]])
+    sqrt = jnp.concatenate([local.sqrt, prov[2]])
+    return _Window(idx, n_near, in_window, local, new_y, new_L, mean, gain, sqrt)
+
+
+def _associate(
+    static: Static, params: Params, prior: _Prior, win: _Window, scan: _Scan, noise: Float[Array, " mz"]
+) -> _Match:
+    """The scan's detections associated with the window's and the provisional features by the other
+    methods' rule and gates (:func:`~._association.nearest_neighbours`), innovation covariances from
+    the joint states at the prior pose (:func:`association_information`)."""
+    W = win.idx.shape[0]
+    seg, z_mask, in_window, local = scan.seg, scan.z_mask, win.in_window, win.local
+    K = seg.z.shape[0]
+    z_hat, s_inv = association_information(prior.x, prior.P, win.mean, win.gain, win.sqrt, jnp.diag(noise[:2]))
+    mp = params.map
+    var_d = jnp.square(mp.sigma_diameter)
+    diam_term = (
+        seg.diam,
+        jnp.concatenate([local.landmarks.diam, seg.diam]),
+        1.0 / (jnp.concatenate([local.landmarks.diam_var, jnp.full(K, var_d)]) + var_d),
+        mp.use_diameter,
+    )
+    known = static.association == "known"
+    id_term = None
+    if known:
+        ident = local.landmarks.ident
+        assert ident is not None, "known association keeps each feature's landmark id"
+        id_term = (seg.z_id, jnp.concatenate([ident, seg.z_id]))
+    assoc = nearest_neighbours(
+        z_hat, s_inv, in_window, seg.z, z_mask, params.gate, params.new_landmark, static.sequential, diam_term, id_term
+    )
+    matched = assoc.slot >= 0
+    existing = matched & (assoc.slot < W)
+    provisional = matched & ~existing
+    slot = jnp.where(matched, assoc.slot, W + jnp.arange(K))  # unmatched rows: their own provisional feature
+    ws = jnp.clip(assoc.slot, 0, W - 1)
+    ps = jnp.clip(assoc.slot - W, 0, K - 1)
+    return _Match(assoc, matched, existing, provisional, slot, ws, ps)
+
+
+def _measurement_updates(
+    static: Static,
+    params: Params,
+    state: NasrukfState,
+    prior: _Prior,
+    win: _Window,
+    match: _Match,
+    scan: _Scan,
+    noise: Float[Array, " mz"],
+) -> tuple[_Rows, Float[Array, " mz"], Array]:
+    """Every detection row's joint state (:class:`_Rows`, before and after) updated by its detection
+    (eq. 10-12, all in parallel), with the adaptive noise estimate first under ``noise.adaptive``
+    (eq. 11, :func:`~._srukf.adaptive_noise_rows`, each row's update with the estimate that
+    includes its own residual).
+
+    Returns:
+        The rows after their updates, and the noise estimate and its count after the scan.
+    """
+    z, x0, S0 = scan.z, prior.x, prior.S
+    K = z.shape[0]
+    rows = _Rows(
+        jax.vmap(lambda m: jnp.concatenate([x0, m]))(win.mean[match.slot]),
+        jax.vmap(joint_sqrt, (None, 0, 0))(S0, win.gain[match.slot], win.sqrt[match.slot]),
+    )
+    pred: SigmaMeasurement = jax.vmap(predict_measurement, (0, 0, None, None, None))(
+        rows.x, rows.L, measure, _rule(params), (1,)
+    )
+    if static.adaptive_noise:
+        nu0 = z - pred.z_hat
+        nu0 = nu0.at[:, 1].set(wrap_angle(nu0[:, 1]))
+        row_noise, noise, noise_count = adaptive_noise_rows(
+            noise,
+            state.noise_count,
+            nu0,
+            jax.vmap(SigmaMeasurement.variance)(pred),
+            match.matched,
+            params.forgetting,
+            params.noise_floor * configured_noise(static, params),
+        )
+    else:
+        row_noise, noise_count = jnp.broadcast_to(noise, (K,) + noise.shape), state.noise_count
+    post = _Rows(
+        *jax.vmap(measurement_update, (0, 0, 0, 0, 0, None, None))(
+            rows.x, rows.L, pred, z, jax.vmap(jnp.diag)(jnp.sqrt(row_noise)), (2,), (1,)
+        )[:2]
+    )
+    return post, noise, noise_count
+
+
+def _fuse(
+    static: Static, params: Params, state: NasrukfState, prior: _Prior, win: _Window, match: _Match, post: _Rows
+) -> _Fused:
+    """The global pose fused from the updated joint states of the features with enough data (eq.
+    4-5, :func:`fuse_poses`; tentative ones only with ``map.use_tentative``), and under
+    ``nasrukf.adaptive_process`` the estimated ``Q`` from their pose corrections and covariance
+    changes (:func:`~._srukf.adaptive_process_update`)."""
+    ns, nk = nasrukf_static(static), nasrukf_params(params)
+    x0, S0, P0, basis = prior.x, prior.S, prior.P, prior.basis
+    local, existing, ws = win.local, match.existing, match.ws
+    hits_before = jnp.where(existing, local.landmarks.hits[ws], 1)
+    fuse = match.matched & (hits_before >= nk.new_feature_hits)
+    if static.manage:  # tentative features (and those started in this scan) move the pose only if asked
+        fuse = fuse & ((existing & local.landmarks.confirmed[ws]) | params.map.use_tentative)
+    x_g, S_g = fuse_poses(x0, S0, post.x[:, :3], post.L[:, :3, :3], fuse)
+    process_scale, process_count = state.process_scale, state.process_count
+    if ns.adaptive_process:  # the estimated Q from the fused joint states' corrections and covariance changes
+        dx = jax.vmap(_minus, (0, None))(post.x[:, :3], x0)
+        Pi = mmt(post.L[:, :3, :3], post.L[:, :3, :3])
+        w = fuse.astype(x0.dtype)
+        change = jnp.sum(w[:, None, None] * (dx[:, :, None] * dx[:, None, :] + Pi - P0), axis=0) / jnp.maximum(
+            jnp.sum(w), 1.0
+        )
+        updated = jnp.any(fuse)
+        new_scale = adaptive_process_update(
+            process_scale, process_count, change, S0, basis, nk.process_forgetting, nk.process_floor
+        )
+        process_scale = jnp.where(updated, new_scale, process_scale)
+        process_count = process_count + updated.astype(process_count.dtype)
+        basis = jnp.where(updated, jnp.zeros_like(basis), basis)
+    return _Fused(x_g, S_g, process_scale, process_count, basis)
+
+
+def _feedback(
+    static: Static,
+    params: Params,
+    prior: _Prior,
+    win: _Window,
+    match: _Match,
+    post: _Rows,
+    x_g: Float[Array, "3"],
+    scan: _Scan,
+) -> tuple[NasrukfFeatures, _Updated]:
+    """Every joint state fed back to the fused pose ``x_g`` (eq. 3, :func:`to_conditional`): the
+    features move with the pose correction through their gains, and the updated window features
+    take their updated conditionals, one more hit and their updated diameters.
+
+    Returns:
+        The features, and the rows' updated and provisional conditionals and diameters (for the
+        new features).
+    """
+    capacity = static.capacity
+    mp = params.map
+    var_d = jnp.square(mp.sigma_diameter)
+    seg, x0, local, new_y, new_L = scan.seg, prior.x, win.local, win.new_y, win.new_L
+    existing, ws, ps = match.existing, match.ws, match.ps
+    upd = jax.vmap(to_conditional, (0, 0, 0, None))(post.x[:, :3], post.x[:, 3:], post.L, x_g)
+    ini = jax.vmap(to_conditional, (0, 0, 0, None))(new_y[:, :3], new_y[:, 3:], new_L, x_g)
+    feats = prior.features
+    feats = feats._replace(mean=feats.mean + mv(feats.gain, _minus(x_g, x0)))
+    target = jnp.where(existing, win.idx[ws], capacity)
+    d_old = jnp.where(existing, local.landmarks.diam[ws], seg.diam[ps])
+    dv_old = jnp.where(existing, local.landmarks.diam_var[ws], var_d)
+    upd_d, upd_dv = diameter_update(d_old, dv_old, seg.diam, mp.sigma_diameter)
+    lms = feats.landmarks
+    feats = feats._replace(
+        mean=feats.mean.at[target].set(upd[0], mode="drop"),
+        gain=feats.gain.at[target].set(upd[1], mode="drop"),
+        sqrt=feats.sqrt.at[target].set(upd[2], mode="drop"),
+        landmarks=lms._replace(
+            hits=lms.hits.at[target].add(1, mode="drop"),
+            diam=lms.diam.at[target].set(upd_d, mode="drop"),
+            diam_var=lms.diam_var.at[target].set(upd_dv, mode="drop"),
+        ),
+    )
+    return feats, _Updated(upd, ini, upd_d, upd_dv)
+
+
+def _manage(
+    static: Static,
+    params: Params,
+    state: NasrukfState,
+    scan: _Scan,
+    win: _Window,
+    match: _Match,
+    x_g: Float[Array, "3"],
+    feats: NasrukfFeatures,
+) -> NasrukfFeatures:
+    """Existence of the window's features at the fused pose ``x_g`` (``static.manage``; a removed
+    feature frees its slot; ``feats`` unchanged without management)."""
+    if not static.manage:
+        return feats
+    seg, valid, z_mask, in_window, idx = scan.seg, scan.valid, scan.z_mask, win.in_window, win.idx
+    mp = params.map
+    W = idx.shape[0]
+    existing, ws = match.existing, match.ws
+    book = feats.book()
+    win_book = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), book)
+    win_book = win_book._replace(active=in_window & win_book.active)
+    seen = jnp.zeros(W, bool).at[jnp.where(existing, ws, W)].set(True, mode="drop")
+    win_book = manage_window(
+        win_book,
+        x_g,
+        seen,
+        seg.z,
+        z_mask,
+        seg.diam,
+        valid & seg.is_scan,
+        state.scan,
+        params.measurement,
+        mp,
+        static.occlusion,
+    )
+    book = drop_stale(jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), book, win_book), state.scan, mp)
+    return feats._replace(landmarks=book)  # its mean and cov are not used
+
+
+def _add_new(
+    static: Static,
+    params: Params,
+    state: NasrukfState,
+    scan: _Scan,
+    match: _Match,
+    updated: _Updated,
+    feats: NasrukfFeatures,
+) -> tuple[NasrukfFeatures, Int[Array, ""], Int[Array, ""]]:
+    """New features as they leave the scan (updated if a later detection matched one), in the free
+    slots.
+
+    Returns:
+        The features, the number added and the number dropped for want of a slot.
+    """
+    capacity = static.capacity
+    mp = params.map
+    var_d = jnp.square(mp.sigma_diameter)
+    seg, upd, ini, upd_d, upd_dv = scan.seg, updated.upd, updated.ini, updated.diam, updated.diam_var
+    K = seg.z.shape[0]
+    known = static.association == "known"
+    is_new = match.assoc.is_new
+    pt = jnp.where(match.provisional, match.ps, K)
+    extra = jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop")
+    new_book = new_landmarks(
+        mean=ini[0][:, :2],
+        cov=jnp.broadcast_to(jnp.eye(2), (K, 2, 2)),
+        is_new=is_new,
+        extra_hits=extra,
+        diam=seg.diam.at[pt].set(upd_d, mode="drop"),
+        diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
+        scan=state.scan,
+        mp=mp,
+        manage=static.manage,
+        ident=seg.z_id if known else None,
+    )
+    new = NasrukfFeatures(
+        mean=ini[0].at[pt].set(upd[0], mode="drop"),
+        gain=ini[1].at[pt].set(upd[1], mode="drop"),
+        sqrt=ini[2].at[pt].set(upd[2], mode="drop"),
+        landmarks=new_book,
+    )
+    free, _ = first_true(~feats.landmarks.active, K)
+    free = free[jnp.clip(jnp.cumsum(is_new) - 1, 0, K - 1)]
+    room = free < capacity
+    dest = jnp.where(is_new & room, free, capacity)
+    feats = jax.tree.map(lambda a, b: a.at[dest].set(b, mode="drop"), feats, new)
+    added = jnp.sum(is_new & room).astype(jnp.int32)
+    overflow = jnp.sum(is_new & ~room).astype(jnp.int32)
+    return feats, added, overflow
+
+
+def _output(
+    state: NasrukfState,
+    scan: _Scan,
+    fused: _Fused,
+    feats: NasrukfFeatures,
+    noise: tuple[Float[Array, " mz"], Array],
+    tallies: tuple[Int[Array, ""], Int[Array, ""], Int[Array, ""], Int[Array, ""]],
+) -> tuple[NasrukfState, GaussianStepOutput]:
+    """The new state (exactly the old one for a padding segment) and the segment's record.
+
+    Args:
+        state: the state before the segment.
+        scan: the segment's detections (``valid``: False for padding).
+        fused: the fused pose and the process-noise estimate.
+        feats: the features after the scan.
+        noise: the measurement-noise estimate and its count.
+        tallies: the detections associated, the features added, those dropped for want of a slot,
+            and the features in range left out of the window.
+    """
+    valid, seg = scan.valid, scan.seg
+    noise_v, noise_count = noise
+    n_associated, added, overflow, window_overflow = tallies
+    # A padding segment leaves the state exactly as it was.
+    keep = lambda new_value, old: jax.tree.map(lambda a, b: jnp.where(valid, a, b), new_value, old)  # noqa: E731
+    new_state = NasrukfState(
+        pose=keep(fused.x, state.pose),
+        pose_sqrt=keep(fused.S, state.pose_sqrt),
+        features=keep(feats, state.features),
+        noise=keep(noise_v, state.noise),
+        noise_count=keep(noise_count, state.noise_count),
+        process_scale=keep(fused.process_scale, state.process_scale),
+        process_count=keep(fused.process_count, state.process_count),
+        process_basis=keep(fused.basis, state.process_basis),
+        count=jnp.where(valid, jnp.sum(feats.landmarks.active), state.count).astype(jnp.int32),
+        overflow=state.overflow + overflow,
+        scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
+    )
+    x = new_state.pose
+    finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(new_state.pose_sqrt))
+    record = GaussianStepOutput(
+        pose=x,
+        pose_cov=new_state.pose_cov,
+        n_landmarks=new_state.count,
+        n_confirmed=jnp.sum(new_state.features.landmarks.active & new_state.features.landmarks.confirmed).astype(
+            jnp.int32
+        ),
+        n_associated=n_associated,
+        n_new=added,
+        overflow=overflow,
+        n_nonfinite=(~finite).astype(jnp.int32),
+        window_overflow=window_overflow,
+    )
+    return new_state, record
 
 
 def nasrukf_step(
@@ -331,210 +600,19 @@ def nasrukf_step(
             f"model.measurement: NASRUKF runs range-bearing models only, not {type(params.measurement).__name__}"
         )
     valid = jnp.asarray(valid)
-    capacity, K = static.capacity, seg.z.shape[0]
-    W = min(static.window, capacity)
-    ns, nk = nasrukf_static(static), nasrukf_params(params)
-    arc = ns.feature == "arc"
+    W = min(static.window, static.capacity)
+    arc = nasrukf_static(static).feature == "arc"
     noise = state.noise if static.adaptive_noise else configured_noise(static, params)
-
-    # 1. Time update: the pose (with the estimated process noise), then every feature's part of its joint state.
-    dr_mask = seg.dr_mask & valid
-    if ns.adaptive_process:
-        scale_sqrt = jnp.linalg.cholesky(state.process_scale)
-        basis = process_noise_basis(state.process_basis, state.pose, seg.dt, seg.u, dr_mask, params.motion)
-    else:
-        scale_sqrt, basis = None, state.process_basis
-    x0, S0, T, D = pose_time_update(state.pose, state.pose_sqrt, seg.dt, seg.u, dr_mask, params, scale_sqrt)
-    P0 = mmt(S0, S0)
-    feats = propagate_features(state.features, T, D)
-
-    # 2. The local window and one provisional feature per detection (at the prior pose).
-    f = feats
-    radius = params.max_range + params.window_margin
-    d2 = jnp.square(f.mean[:, 0] - x0[0]) + jnp.square(f.mean[:, 1] - x0[1])
-    idx, n_near = first_true(f.landmarks.active & (d2 < jnp.square(radius)), W)
-    local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), f)
-    in_window = idx < capacity
-    z_mask = seg.z_mask & valid
     z = jnp.concatenate([seg.z, seg.diam[:, None]], 1) if arc else seg.z
-    new_y, new_L = jax.vmap(init_feature, (None, None, 0, None, None))(x0, S0, z, noise, params)
-    prov = jax.vmap(to_conditional, (0, 0, 0, None))(new_y[:, :3], new_y[:, 3:], new_L, x0)
-    # Unused window slots hold a finite dummy feature 1 m ahead of the pose (never matched).
-    dummy = jnp.concatenate([x0[:2] + jnp.array([1.0, 0.0]), jnp.ones(feature_dim(static) - 2)])
-    mean = jnp.concatenate([jnp.where(in_window[:, None], local.mean, dummy), prov[0]])
-    gain = jnp.concatenate([local.gain, prov[1]])
-    sqrt = jnp.concatenate([local.sqrt, prov[2]])
-
-    # 3. Association with the other methods' rule and gates.
-    z_hat, s_inv = association_information(x0, P0, mean, gain, sqrt, jnp.diag(noise[:2]))
-    mp = params.map
-    var_d = jnp.square(mp.sigma_diameter)
-    diam_term = (
-        seg.diam,
-        jnp.concatenate([local.landmarks.diam, seg.diam]),
-        1.0 / (jnp.concatenate([local.landmarks.diam_var, jnp.full(K, var_d)]) + var_d),
-        mp.use_diameter,
-    )
-    known = static.association == "known"
-    id_term = (seg.z_id, jnp.concatenate([local.landmarks.ident, seg.z_id])) if known else None
-    assoc = nearest_neighbours(
-        z_hat, s_inv, in_window, seg.z, z_mask, params.gate, params.new_landmark, static.sequential, diam_term, id_term
-    )
-    matched = assoc.slot >= 0
-    existing = matched & (assoc.slot < W)
-    provisional = matched & ~existing
-    slot = jnp.where(matched, assoc.slot, W + jnp.arange(K))  # unmatched rows: their own provisional feature
-    ws = jnp.clip(assoc.slot, 0, W - 1)
-    ps = jnp.clip(assoc.slot - W, 0, K - 1)
-
-    # 4. The matched joint states' measurement updates, with the adaptive noise estimate first.
-    rows = _Rows(
-        jax.vmap(lambda m: jnp.concatenate([x0, m]))(mean[slot]),
-        jax.vmap(joint_sqrt, (None, 0, 0))(S0, gain[slot], sqrt[slot]),
-    )
-    pred: SigmaMeasurement = jax.vmap(predict_measurement, (0, 0, None, None, None))(
-        rows.x, rows.L, measure, _rule(params), (1,)
-    )
-    if static.adaptive_noise:
-        nu0 = z - pred.z_hat
-        nu0 = nu0.at[:, 1].set(wrap_angle(nu0[:, 1]))
-        row_noise, noise, noise_count = adaptive_noise_rows(
-            noise,
-            state.noise_count,
-            nu0,
-            jax.vmap(SigmaMeasurement.variance)(pred),
-            matched,
-            params.forgetting,
-            params.noise_floor * configured_noise(static, params),
-        )
-    else:
-        row_noise, noise_count = jnp.broadcast_to(noise, (K,) + noise.shape), state.noise_count
-    post = _Rows(
-        *jax.vmap(measurement_update, (0, 0, 0, 0, 0, None, None))(
-            rows.x, rows.L, pred, z, jax.vmap(jnp.diag)(jnp.sqrt(row_noise)), (2,), (1,)
-        )[:2]
-    )
-
-    # 5. Fusion of the pose estimates of the features with enough data, 6. feedback.
-    hits_before = jnp.where(existing, local.landmarks.hits[ws], 1)
-    fuse = matched & (hits_before >= nk.new_feature_hits)
-    if static.manage:  # tentative features (and those started in this scan) move the pose only if asked
-        fuse = fuse & ((existing & local.landmarks.confirmed[ws]) | mp.use_tentative)
-    x_g, S_g = fuse_poses(x0, S0, post.x[:, :3], post.L[:, :3, :3], fuse)
-    process_scale, process_count = state.process_scale, state.process_count
-    if ns.adaptive_process:  # the estimated Q from the fused joint states' corrections and covariance changes
-        dx = jax.vmap(_minus, (0, None))(post.x[:, :3], x0)
-        Pi = mmt(post.L[:, :3, :3], post.L[:, :3, :3])
-        w = fuse.astype(x0.dtype)
-        change = jnp.sum(w[:, None, None] * (dx[:, :, None] * dx[:, None, :] + Pi - P0), axis=0) / jnp.maximum(
-            jnp.sum(w), 1.0
-        )
-        updated = jnp.any(fuse)
-        new_scale = adaptive_process_update(
-            process_scale, process_count, change, S0, basis, nk.process_forgetting, nk.process_floor
-        )
-        process_scale = jnp.where(updated, new_scale, process_scale)
-        process_count = process_count + updated.astype(process_count.dtype)
-        basis = jnp.where(updated, jnp.zeros_like(basis), basis)
-    upd = jax.vmap(to_conditional, (0, 0, 0, None))(post.x[:, :3], post.x[:, 3:], post.L, x_g)
-    ini = jax.vmap(to_conditional, (0, 0, 0, None))(new_y[:, :3], new_y[:, 3:], new_L, x_g)
-    feats = feats._replace(mean=feats.mean + mv(feats.gain, _minus(x_g, x0)))
-    target = jnp.where(existing, idx[ws], capacity)
-    d_old = jnp.where(existing, local.landmarks.diam[ws], seg.diam[ps])
-    dv_old = jnp.where(existing, local.landmarks.diam_var[ws], var_d)
-    upd_d, upd_dv = diameter_update(d_old, dv_old, seg.diam, mp.sigma_diameter)
-    lms = feats.landmarks
-    feats = feats._replace(
-        mean=feats.mean.at[target].set(upd[0], mode="drop"),
-        gain=feats.gain.at[target].set(upd[1], mode="drop"),
-        sqrt=feats.sqrt.at[target].set(upd[2], mode="drop"),
-        landmarks=lms._replace(
-            hits=lms.hits.at[target].add(1, mode="drop"),
-            diam=lms.diam.at[target].set(upd_d, mode="drop"),
-            diam_var=lms.diam_var.at[target].set(upd_dv, mode="drop"),
-        ),
-    )
-
-    # Existence of the window's features at the fused pose (a removed feature frees its slot).
-    if static.manage:
-        book = feats.book()
-        win = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), book)
-        win = win._replace(active=in_window & win.active)
-        seen = jnp.zeros(W, bool).at[jnp.where(existing, ws, W)].set(True, mode="drop")
-        win = manage_window(
-            win,
-            x_g,
-            seen,
-            seg.z,
-            z_mask,
-            seg.diam,
-            valid & seg.is_scan,
-            state.scan,
-            params.measurement,
-            mp,
-            static.occlusion,
-        )
-        book = drop_stale(jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), book, win), state.scan, mp)
-        feats = feats._replace(landmarks=book)  # its mean and cov are not used
-
-    # New features as they leave the scan (updated if a later detection matched one), in free slots.
-    is_new = assoc.is_new
-    pt = jnp.where(provisional, ps, K)
-    extra = jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop")
-    new_book = new_landmarks(
-        mean=ini[0][:, :2],
-        cov=jnp.broadcast_to(jnp.eye(2), (K, 2, 2)),
-        is_new=is_new,
-        extra_hits=extra,
-        diam=seg.diam.at[pt].set(upd_d, mode="drop"),
-        diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
-        scan=state.scan,
-        mp=mp,
-        manage=static.manage,
-        ident=seg.z_id if known else None,
-    )
-    new = NasrukfFeatures(
-        mean=ini[0].at[pt].set(upd[0], mode="drop"),
-        gain=ini[1].at[pt].set(upd[1], mode="drop"),
-        sqrt=ini[2].at[pt].set(upd[2], mode="drop"),
-        landmarks=new_book,
-    )
-    free, _ = first_true(~feats.landmarks.active, K)
-    free = free[jnp.clip(jnp.cumsum(is_new) - 1, 0, K - 1)]
-    room = free < capacity
-    dest = jnp.where(is_new & room, free, capacity)
-    feats = jax.tree.map(lambda a, b: a.at[dest].set(b, mode="drop"), feats, new)
-    added = jnp.sum(is_new & room).astype(jnp.int32)
-    overflow = jnp.sum(is_new & ~room).astype(jnp.int32)
-
-    # A padding segment leaves the state exactly as it was.
-    keep = lambda new_value, old: jax.tree.map(lambda a, b: jnp.where(valid, a, b), new_value, old)  # noqa: E731
-    new_state = NasrukfState(
-        pose=keep(x_g, state.pose),
-        pose_sqrt=keep(S_g, state.pose_sqrt),
-        features=keep(feats, state.features),
-        noise=keep(noise, state.noise),
-        noise_count=keep(noise_count, state.noise_count),
-        process_scale=keep(process_scale, state.process_scale),
-        process_count=keep(process_count, state.process_count),
-        process_basis=keep(basis, state.process_basis),
-        count=jnp.where(valid, jnp.sum(feats.landmarks.active), state.count).astype(jnp.int32),
-        overflow=state.overflow + overflow,
-        scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
-    )
-    x = new_state.pose
-    finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(new_state.pose_sqrt))
-    record = GaussianStepOutput(
-        pose=x,
-        pose_cov=new_state.pose_cov,
-        n_landmarks=new_state.count,
-        n_confirmed=jnp.sum(new_state.features.landmarks.active & new_state.features.landmarks.confirmed).astype(
-            jnp.int32
-        ),
-        n_associated=jnp.sum(matched).astype(jnp.int32),
-        n_new=added,
-        overflow=overflow,
-        n_nonfinite=(~finite).astype(jnp.int32),
-        window_overflow=jnp.maximum(n_near - W, 0).astype(jnp.int32),
-    )
-    return new_state, record
+    scan = _Scan(seg, valid, seg.z_mask & valid, z)
+    prior = _time_update(static, params, state, scan)
+    win = _window(static, params, prior, scan, noise)
+    match = _associate(static, params, prior, win, scan, noise)
+    post, noise, noise_count = _measurement_updates(static, params, state, prior, win, match, scan, noise)
+    fused = _fuse(static, params, state, prior, win, match, post)
+    feats, updated = _feedback(static, params, prior, win, match, post, fused.x, scan)
+    feats = _manage(static, params, state, scan, win, match, fused.x, feats)
+    feats, added, overflow = _add_new(static, params, state, scan, match, updated, feats)
+    n_associated = jnp.sum(match.matched).astype(jnp.int32)
+    window_overflow = jnp.maximum(win.n_near - W, 0).astype(jnp.int32)
+    return _output(state, scan, fused, feats, (noise, noise_count), (n_associated, added, overflow, window_overflow))
