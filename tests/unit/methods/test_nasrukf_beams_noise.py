@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nanoslam_jax.app.config import load_config
-from nanoslam_jax.methods.gaussian._nasrukf_beams import projected_rows
+from nanoslam_jax.methods.gaussian._nasrukf_beams_update import projected_rows
 from nanoslam_jax.methods.gaussian._srukf import predict_measurement
 from nanoslam_jax.lib.quadrature import Unscented
 

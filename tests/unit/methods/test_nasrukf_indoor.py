@@ -14,7 +14,7 @@ from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.data import Segments
 from nanoslam_jax.methods import run_filter
 from nanoslam_jax.app.filters import settings_from_config
-from nanoslam_jax.methods.gaussian._nasrukf_beams import stacked_update
+from nanoslam_jax.methods.gaussian._nasrukf_beams_update import stacked_update
 from nanoslam_jax.methods.gaussian._nasrukf_beams_state import ARC, EMPTY, LINE, Candidates, candidate_update, fit_group
 from nanoslam_jax.lib.quadrature import Unscented
 
@@ -252,7 +252,7 @@ def test_nasrukf_per_beam_tracks_a_simulated_indoor_log():
 
 
 def test_the_papers_line_form_measures_the_same_ranges_as_the_normal_form():
-    from nanoslam_jax.methods.gaussian._nasrukf_beams import line_ranges
+    from nanoslam_jax.methods.gaussian._nasrukf_beams_update import line_ranges
     from nanoslam_jax.methods.gaussian._nasrukf_beams_state import line_param, to_normal
 
     rng = np.random.default_rng(7)
