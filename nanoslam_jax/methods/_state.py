@@ -101,6 +101,9 @@ class FilterState(NamedTuple):
         resample_count: resampling steps so far.
         overflow: new landmarks dropped so far because a particle's map was full (all particles).
         scan: laser scans processed so far (the clock of the landmarks' ``born``).
+        slots: one past the highest active landmark slot of any particle (every active landmark
+            lies below; :func:`slots_in_use` of the particles' maps). A step's map work stays
+            below it.
     """
 
     particles: Particles
@@ -109,6 +112,7 @@ class FilterState(NamedTuple):
     resample_count: Int[Array, ""]
     overflow: Int[Array, ""]
     scan: Int[Array, ""]
+    slots: Int[Array, ""]
 
 
 def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterState:
@@ -129,7 +133,7 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         noise_count=jnp.zeros(n, jnp.int32),
     )
     zero = jnp.zeros((), jnp.int32)
-    return FilterState(particles, key, zero, zero, zero, zero)
+    return FilterState(particles, key, zero, zero, zero, zero, zero)
 
 
 def count_landmarks(landmarks: LandmarkMap) -> Int[Array, "*particles"]:

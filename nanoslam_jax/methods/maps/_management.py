@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from nanoslam_jax.lib._batching import map_prefix
 from nanoslam_jax.lib._trig import atan2, computed_once
 from nanoslam_jax.models import AbstractMeasurementModel, RangeBearing, is_range_bearing, range_bearing, row_models
 from nanoslam_jax.methods.maps._landmarks import window_prefixes
@@ -200,10 +201,23 @@ def fresh(born: Int[Array, "*n"], scan: Int[Array, ""] | int, mp: MapParams) -> 
     return (scan - born) <= mp.tentative_scans
 
 
-def drop_stale(lm: LandmarkMap, scan: Int[Array, ""] | int, mp: MapParams) -> LandmarkMap:
+def drop_stale(
+    lm: LandmarkMap, scan: Int[Array, ""] | int, mp: MapParams, used: Int[Array, ""] | None = None
+) -> LandmarkMap:
     """Deactivate, over the whole map, the tentative landmarks past their tentative period
-    (including those out of the local window, which no scan tests)."""
-    return lm._replace(active=lm.active & (lm.confirmed | fresh(lm.born, scan, mp)))
+    (including those out of the local window, which no scan tests).
+
+    ``used``: one past the highest active slot (the slots above are left as they are, since none
+    is active); ``None``: every slot is visited.
+    """
+
+    def kept(active, other):
+        confirmed, born = other
+        return active & (confirmed | fresh(born, scan, mp))
+
+    other = (lm.confirmed, lm.born)
+    active = kept(lm.active, other) if used is None else map_prefix(kept, lm.active, used, read=other)
+    return lm._replace(active=active)
 
 
 def new_landmarks(

@@ -12,7 +12,7 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 
-from nanoslam_jax.lib._batching import batch_max, take_if
+from nanoslam_jax.lib._batching import batch_max, map_prefix, prefix_max, take_if, take_prefix_if
 from nanoslam_jax.lib._trig import computed_once
 from nanoslam_jax.data import Segments
 from nanoslam_jax.models import circular_mean, is_composite
@@ -44,7 +44,6 @@ from nanoslam_jax.methods._state import (
     Particles,
     count_confirmed,
     count_landmarks,
-    slots_in_use,
 )
 
 
@@ -125,6 +124,7 @@ def particle_update(
     valid: Bool[Array, ""] | bool = True,
     rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
     slot_bucket: Int[Array, ""] | None = None,
+    slots_used: Int[Array, ""] | None = None,
     diam: Float[Array, " k"] | None = None,
     scan: Int[Array, ""] | int = 0,
     noise: Float[Array, " d"] | None = None,
@@ -147,6 +147,8 @@ def particle_update(
     ``slot_bucket``: index into ``static.slot_buckets`` of a map prefix that holds every active
     landmark (the local window, and with management the free slots, are searched there;
     ``None``: the whole map). The same for all particles, so under ``vmap`` it stays a branch.
+    ``slots_used``: one past the highest active slot of any particle (the stale tentative landmarks are
+    dropped below it; ``None``: over the whole map).
 
     ``diam``: the diameter reported with each detection (``None``: zeros); ``scan``: the count of
     laser scans before this one (the clock of the landmarks' ``born``).
@@ -300,7 +302,7 @@ def particle_update(
         # fields management changes are written back (scattering every field of all W slots
         # cost more than the management itself).
         lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
-        lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), scan, mp)
+        lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), scan, mp, slots_used)
     else:
         # Only the landmarks the scan's detections matched change: write those rows back.
         lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
@@ -438,10 +440,10 @@ def _step(
 
     # The smallest map prefix holding every active landmark of this device's particles (under a
     # sweep's vmap: of the batch), where the local windows are searched.
-    in_use = slots_in_use(p.landmarks)
+    in_use = batch_max(state.slots)
     slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
     out = jax.vmap(
-        particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 5 + (0, 0, None, None)
+        particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 6 + (0, 0, None, None)
     )(
         static,
         params,
@@ -458,6 +460,7 @@ def _step(
         valid & seg.is_scan,
         rel_prior,
         slot_bucket,
+        in_use,
         seg.diam,
         state.scan,
         mine(p.noise),
@@ -518,7 +521,11 @@ def _step(
         # ancestor are uniform, so they can be set before the copy.
         anc, best_after = ancestors(particles)
         log_w = jnp.where(record.resampled, uniform, particles.log_w)
-        particles = take_if(record.resampled, anc, particles._replace(log_w=log_w))
+        # Of the maps, only the slots that can hold a landmark after this step are copied: those
+        # below the step's start plus one new landmark per detection.
+        lms = take_prefix_if(record.resampled, anc, particles.landmarks, in_use + static.k_max)
+        rest = take_if(record.resampled, anc, particles._replace(log_w=log_w)._asdict() | {"landmarks": None})
+        particles = Particles(**rest | {"landmarks": lms})
         best = jnp.where(record.resampled, best_after, best)
         parents = jnp.where(record.resampled, anc, jnp.arange(n, dtype=anc.dtype)) if track else None
     else:
@@ -526,8 +533,13 @@ def _step(
         def do_resample(args):
             parts, _, _ = args
             anc, best_after = ancestors(parts)
-            # This device's new particles may descend from any device's: gather all maps.
-            lms = jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], parts.landmarks)
+
+            # This device's new particles may descend from any device's: gather all maps, block
+            # by block over the slots that can hold a landmark after this step.
+            def take(block):
+                return jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], block)
+
+            lms = map_prefix(take, parts.landmarks, in_use + static.k_max, axis=1)
             parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
             return parts._replace(log_w=uniform), best_after, (anc if track else None)
 
@@ -539,6 +551,9 @@ def _step(
         )
     if track:
         record = record._replace(poses=out.pose, ancestors=parents)
+    slots = prefix_max(particles.landmarks.active, in_use + static.k_max)
+    if axis is not None:
+        slots = jax.lax.pmax(slots, axis)
     new_state = FilterState(
         particles=particles,
         key=key,
@@ -546,5 +561,6 @@ def _step(
         resample_count=state.resample_count + record.resampled.astype(jnp.int32),
         overflow=state.overflow + record.overflow,
         scan=state.scan + (valid & seg.is_scan).astype(jnp.int32),
+        slots=slots,
     )
     return new_state, record

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.lib._batching import batch_max, take_if
+from nanoslam_jax.lib._batching import batch_max, map_prefix, prefix_max, take_if, take_prefix_if
 
 
 def _tree(rng, *lead):
@@ -112,3 +112,63 @@ def test_switch_on_batch_max_stays_a_branch_under_vmap():
     assert "cond" not in _primitives(jax.make_jaxpr(jax.vmap(plain))(i, v).jaxpr)  # every branch, selected
     assert "cond" in _primitives(jax.make_jaxpr(jax.vmap(bounded))(i, v).jaxpr)
     np.testing.assert_array_equal(jax.vmap(bounded)(i, v), np.cumsum(np.asarray(v), axis=1)[:, :4])
+
+
+def _maps(rng, n, slots, used):
+    """Stacked maps whose slots from ``used`` on hold nothing another entry could need."""
+    mean = rng.normal(size=(n, slots, 2))
+    active = rng.random((n, slots)) < 0.5
+    active[:, used:] = False
+    return {"mean": jnp.asarray(mean), "active": jnp.asarray(active)}
+
+
+@pytest.mark.parametrize("slots, used", [(256, 0), (256, 70), (256, 256), (100, 37), (100, 99), (30, 12)])
+def test_take_prefix_if_equals_take_if_below_used_and_keeps_the_rest(slots, used):
+    rng = np.random.default_rng(slots + used)
+    n = 7
+    tree = _maps(rng, n, slots, used)
+    anc = jnp.asarray(rng.integers(0, n, n))
+    full = take_if(jnp.asarray(True), anc, tree)
+    part = take_prefix_if(jnp.asarray(True), anc, tree, jnp.asarray(used))
+    for f in tree:
+        np.testing.assert_array_equal(np.asarray(part[f])[:, :used], np.asarray(full[f])[:, :used])
+        if slots % 64 == 0:  # whole blocks only: those above ``used`` are left as they were
+            cut = -(-used // 64) * 64
+            np.testing.assert_array_equal(np.asarray(part[f])[:, cut:], np.asarray(tree[f])[:, cut:])
+    same = take_prefix_if(jnp.asarray(False), anc, tree, jnp.asarray(used))
+    for f in tree:
+        np.testing.assert_array_equal(np.asarray(same[f]), np.asarray(tree[f]))
+
+
+def test_take_prefix_if_under_vmap_takes_each_members_own_branch():
+    rng = np.random.default_rng(3)
+    b, n, slots, used = 3, 5, 200, 90
+    trees = [_maps(rng, n, slots, used) for _ in range(b)]
+    tree = {f: jnp.stack([t[f] for t in trees]) for f in trees[0]}
+    anc = jnp.asarray(rng.integers(0, n, (b, n)))
+    flag = jnp.asarray([True, False, True])
+    got = jax.vmap(take_prefix_if, (0, 0, 0, None))(flag, anc, tree, jnp.asarray(used))
+    for i in range(b):
+        want = take_if(flag[i], anc[i], trees[i])
+        for f in tree:
+            np.testing.assert_array_equal(np.asarray(got[f][i])[:, :used], np.asarray(want[f])[:, :used])
+
+
+@pytest.mark.parametrize("slots", [20, 64, 200, 256])
+def test_prefix_max_is_one_past_the_highest_set_slot(slots):
+    rng = np.random.default_rng(slots)
+    for used in (0, 1, slots // 3, slots):
+        mask = np.zeros((4, slots), bool)
+        if used:
+            mask[rng.integers(0, 4, 3), rng.integers(0, used, 3)] = True
+        want = int(np.max(np.nonzero(mask)[1]) + 1) if mask.any() else 0
+        assert int(prefix_max(jnp.asarray(mask), jnp.asarray(used))) == want
+
+
+def test_map_prefix_applies_fn_below_used_and_reads_without_carrying():
+    x = jnp.arange(300.0)
+    other = jnp.full(300, 2.0)
+    out = map_prefix(lambda a, o: a * o, x, jnp.asarray(130), read=other)
+    np.testing.assert_array_equal(np.asarray(out)[:130], 2 * np.arange(130.0))
+    # whole blocks of 64 up to 192 and the tail past 256 are visited; the block 192-255 is not
+    np.testing.assert_array_equal(np.asarray(out)[192:256], np.arange(192.0, 256.0))
