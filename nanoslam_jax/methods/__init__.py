@@ -2,7 +2,12 @@
 methods (EKF-SLAM, NASRUKF) with their state protocol (:class:`GaussianState`), each method's
 nested settings, and the scan driver that runs any of them over a log."""
 
-from nanoslam_jax.methods.maps._association import Association as Association, associate as associate
+from nanoslam_jax.methods.maps._association import (
+    Association as Association,
+    Gating as Gating,
+    ScanDetections as ScanDetections,
+    associate as associate,
+)
 from nanoslam_jax.methods.maps._landmarks import (
     add_landmarks as add_landmarks,
     ekf_update as ekf_update,
@@ -12,7 +17,13 @@ from nanoslam_jax.methods.maps._landmarks import (
     scatter_window as scatter_window,
     update_slots as update_slots,
 )
+from nanoslam_jax.methods.maps._updates import (
+    AbstractLandmarkUpdate as AbstractLandmarkUpdate,
+    EkfLandmarkUpdate as EkfLandmarkUpdate,
+    UnscentedLandmarkUpdate as UnscentedLandmarkUpdate,
+)
 from nanoslam_jax.methods.maps._management import (
+    Management as Management,
     diameter_update as diameter_update,
     in_view as in_view,
     manage_window as manage_window,
@@ -130,7 +141,13 @@ from nanoslam_jax.methods.gaussian._srukf import (
 __all__ = [
     "ADAPTIVE_NOISE_METHODS",
     "Association",
+    "Gating",
+    "ScanDetections",
     "associate",
+    "AbstractLandmarkUpdate",
+    "EkfLandmarkUpdate",
+    "UnscentedLandmarkUpdate",
+    "Management",
     "add_landmarks",
     "ekf_update",
     "ekf_update_loglik",

@@ -275,20 +275,22 @@ def _pad(segments: Segments, length: int) -> tuple[Segments, np.ndarray]:
     return Segments(*padded), valid  # type: ignore[arg-type]  # numpy on the host
 
 
+class _Chunks(NamedTuple):
+    """How the driver runs a log: ``size`` segments per call of the compiled program,
+    ``progress(done, total, seconds)`` after each (or None), and ``timed``: each call's time kept."""
+
+    size: int
+    progress: Any = None
+    timed: bool = False
+
+
 def _drive(
-    chunk_fn,
-    static: Static,
-    params: Params,
-    state: Any,
-    segments: Segments,
-    chunk: int,
-    progress,
-    time_axis: int,
-    timed: bool = False,
+    chunk_fn, static: Static, params: Params, state: Any, segments: Segments, chunks: _Chunks, time_axis: int
 ) -> FilterRun:
-    """Compile ``chunk_fn`` once for ``chunk`` segments and call it over the padded log."""
+    """Compile ``chunk_fn`` once for ``chunks.size`` segments and call it over the padded log."""
+    progress, timed = chunks.progress, chunks.timed
     n = segments.time.shape[0]
-    chunk = max(1, min(chunk, n))
+    chunk = max(1, min(chunks.size, n))
     n_chunks = -(-n // chunk)
     padded, valid = _pad(segments, n_chunks * chunk)
 
@@ -355,7 +357,7 @@ def run_filter(
     _check_filter_method(static)
     check_controls(params, segments)
     state = _init(static, params, jax.random.key(seed))
-    return _drive(_chunk, static, params, state, segments, chunk, progress, time_axis=0, timed=timed)
+    return _drive(_chunk, static, params, state, segments, _Chunks(chunk, progress, timed), time_axis=0)
 
 
 def run_batch(
@@ -386,7 +388,7 @@ def run_batch(
     static = dataclasses.replace(static, devices=1)  # a batch member's particles stay on one device
     keys = jax.vmap(jax.random.key)(jnp.asarray(np.asarray(seeds)))
     state = _init_batch(static, params, keys)
-    return _drive(_chunk_batch, static, params, state, segments, chunk, progress, time_axis=1)
+    return _drive(_chunk_batch, static, params, state, segments, _Chunks(chunk, progress), time_axis=1)
 
 
 def stack_params(params: "list[Params]") -> Params:

@@ -63,7 +63,8 @@ from nanoslam_jax.methods.gaussian._joint_gaussian import (
 )
 from nanoslam_jax.methods.maps._landmarks import first_true, gather_window, scatter_window
 from nanoslam_jax.models import is_composite
-from nanoslam_jax.methods.maps._management import diameter_update, drop_stale, manage_window
+from nanoslam_jax.methods.maps._association import ScanDetections
+from nanoslam_jax.methods.maps._management import Management, diameter_update, drop_stale, manage_window
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods._state import LandmarkMap
 from nanoslam_jax.methods.gaussian._gaussian import GaussianStepOutput
@@ -409,14 +410,11 @@ def _manage(static: Static, params: Params, state: EkfSlamState, seg: Segments, 
         local,
         mean[:3],
         c.seen.at[idx].get(mode="fill", fill_value=False),
-        seg.z,
-        z_mask,
-        seg.diam,
+        ScanDetections(seg.z, z_mask, seg.diam),
         valid & seg.is_scan,
         state.scan,
         params.measurement,
-        mp,
-        static.occlusion,
+        Management(mp, static.occlusion),
     )
     managed = drop_stale(scatter_window(full, local, idx), state.scan, mp)
     remove = old & ~managed.active

@@ -95,9 +95,16 @@ from nanoslam_jax.models import (
     is_range_bearing,
     wrap_angle,
 )
-from nanoslam_jax.methods.maps._association import Association, nearest_neighbours
+from nanoslam_jax.methods.maps._association import Association, Gating, ScanDetections, SlotTerms, nearest_neighbours
 from nanoslam_jax.methods.maps._landmarks import first_true
-from nanoslam_jax.methods.maps._management import diameter_update, drop_stale, manage_window, new_landmarks
+from nanoslam_jax.methods.maps._management import (
+    Candidates,
+    Management,
+    diameter_update,
+    drop_stale,
+    manage_window,
+    new_landmarks,
+)
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.gaussian._srukf import (
     SigmaMeasurement,
@@ -288,9 +295,8 @@ def _associate(
         ident = local.landmarks.ident
         assert ident is not None, "known association keeps each feature's landmark id"
         id_term = (seg.z_id, jnp.concatenate([ident, seg.z_id]))
-    assoc = nearest_neighbours(
-        z_hat, s_inv, in_window, seg.z, z_mask, params.gate, params.new_landmark, static.sequential, diam_term, id_term
-    )
+    gating = Gating(params.gate, params.new_landmark, static.sequential)
+    assoc = nearest_neighbours(z_hat, s_inv, in_window, seg.z, z_mask, gating, SlotTerms(diam_term, id_term))
     matched = assoc.slot >= 0
     existing = matched & (assoc.slot < W)
     provisional = matched & ~existing
@@ -453,14 +459,11 @@ def _manage(
         win_book,
         x_g,
         seen,
-        seg.z,
-        z_mask,
-        seg.diam,
+        ScanDetections(seg.z, z_mask, seg.diam),
         valid & seg.is_scan,
         state.scan,
         params.measurement,
-        mp,
-        static.occlusion,
+        Management(mp, static.occlusion),
     )
     book = drop_stale(jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), book, win_book), state.scan, mp)
     return feats._replace(landmarks=book)  # its mean and cov are not used
@@ -490,18 +493,14 @@ def _add_new(
     is_new = match.assoc.is_new
     pt = jnp.where(match.provisional, match.ps, K)
     extra = jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop")
-    new_book = new_landmarks(
+    cand = Candidates(
         mean=ini[0][:, :2],
         cov=jnp.broadcast_to(jnp.eye(2), (K, 2, 2)),
-        is_new=is_new,
-        extra_hits=extra,
         diam=seg.diam.at[pt].set(upd_d, mode="drop"),
         diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
-        scan=state.scan,
-        mp=mp,
-        manage=static.manage,
         ident=seg.z_id if known else None,
     )
+    new_book = new_landmarks(cand, is_new, extra, state.scan, mp, static.manage)
     new = NasrukfFeatures(
         mean=ini[0].at[pt].set(upd[0], mode="drop"),
         gain=ini[1].at[pt].set(upd[1], mode="drop"),

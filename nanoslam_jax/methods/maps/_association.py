@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from nanoslam_jax.lib._linalg import inv_small, quad_form, sandwich, sym
 from nanoslam_jax.lib._trig import computed_once
@@ -95,22 +96,77 @@ def innovation_information(
     return (zr, zb), (s11 / det, -s01 / det, s00 / det)
 
 
+class ScanDetections(NamedTuple):
+    """A scan's detections, as association and landmark management take them.
+
+    Attributes:
+        z: the detections ``(k_max, d)``.
+        mask: which rows are real detections.
+        diam: the diameter reported with each detection (None: none).
+        ident: each detection's landmark id, for known association (``filter.association: known``;
+            -1: none), or None (association by distance).
+        kind: each detection's type, for a :class:`~nanoslam_jax.models.Composite` measurement
+            model, or None (one type).
+    """
+
+    z: Float[Array, "k_max d"]
+    mask: Bool[Array, " k_max"]
+    diam: Float[Array, " k_max"] | None = None
+    ident: Int[Array, " k_max"] | None = None
+    kind: Int[Array, " k_max"] | None = None
+
+
+class Gating(eqx.Module):
+    """The nearest-neighbour association rule: its chi-square gates and how detections take turns.
+
+    Attributes:
+        gate: a detection whose best squared Mahalanobis distance is below this is associated.
+        new_landmark: a detection whose best distance is above this starts a landmark.
+        sequential: (static) process detections in order, so a landmark is claimed at most once
+            and a landmark created by detection k can be matched by a later one. If False,
+            detections are associated independently with existing landmarks and, when two pick
+            the same landmark, only the closer keeps it.
+        use_diameter: add ``(d_k - d_j)^2 / (var_j + sigma_diameter^2)`` to the distance of
+            detection ``k`` to landmark ``j`` (its diameter estimate ``d_j``, variance ``var_j``;
+            a provisional landmark has the diameter of the detection that created it and variance
+            ``sigma_diameter^2``). The distance is then a 3-dof chi-square; the gates apply to it.
+            Only where the detections carry diameters.
+        sigma_diameter: diameter measurement noise (m).
+    """
+
+    gate: Float[ArrayLike, ""]
+    new_landmark: Float[ArrayLike, ""]
+    sequential: bool = eqx.field(static=True, default=True)
+    use_diameter: Bool[ArrayLike, ""] | bool = False
+    sigma_diameter: Float[ArrayLike, ""] | float = 1.0
+
+
+class SlotTerms(NamedTuple):
+    """What :func:`nearest_neighbours` adds to the innovation distances (each None: not used).
+
+    Attributes:
+        diam: ``(diam, slot_diam, slot_info, use)``: each detection's diameter, each slot's
+            diameter estimate and ``1 / (var_j + sigma_diameter^2)``, and whether the term
+            ``(d_k - d_j)^2 slot_info_j`` is added to the distances (see :class:`Gating`).
+        ident: ``(z_id, slot_id)``: known association by landmark id: detection ``k`` is at
+            distance 0 from the slots whose id is ``z_id[k] >= 0`` and at infinity from every other.
+        kind: ``(z_kind, slot_kind)``: each detection's and each slot's type (a composite model):
+            a detection is at infinity from every slot of another type.
+    """
+
+    diam: tuple | None = None
+    ident: tuple | None = None
+    kind: tuple | None = None
+
+
 def associate(
     local: LandmarkMap,
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
-    z: Float[Array, "k_max d"],
-    z_mask: Bool[Array, " k_max"],
+    dets: ScanDetections,
     R: Float[Array, "d d"],
-    gate: Float[Array, ""],
-    new_landmark: Float[Array, ""],
-    sequential: bool = True,
-    diam: Float[Array, " k_max"] | None = None,
-    use_diameter: Bool[Array, ""] | bool = False,
-    sigma_diameter: Float[Array, ""] | float = 1.0,
-    ids: Int[Array, " k_max"] | None = None,
+    gating: Gating,
     model: AbstractMeasurementModel | None = None,
-    z_kind: Int[Array, " k_max"] | None = None,
 ) -> Association:
     """Nearest-neighbour association with a chi-square gate and a new-landmark threshold, or by
     known landmark ids.
@@ -120,33 +176,21 @@ def associate(
             provisional landmark (slot ``window + k``, initialised at the prior mean), which a
             later detection may match if detection ``k`` starts a landmark.
         x, P: the particle's prior mean and covariance.
-        z, z_mask: the scan's detections and which are real.
+        dets: the scan's detections. With ``dets.ident`` (known association) a detection matches
+            the landmark whose ``ident`` is its id and starts one when none has it (its
+            provisional landmark carries the id); a detection without an id is not associated;
+            the distances are not used (``d2`` is 0 for a match). With ``dets.kind`` (a composite
+            ``model``; the local map then has the ``kind`` field) a detection is associated only
+            with the landmarks of its type.
         R: measurement noise covariance.
-        gate: a detection whose best d2 is below this is associated.
-        new_landmark: a detection whose best d2 is above this starts a landmark.
-        sequential: process detections in order, so a landmark is claimed at most once and a
-            landmark created by detection k can be matched by a later one. If False, detections
-            are associated independently with existing landmarks and, when two pick the same
-            landmark, only the closer keeps it.
-        diam: the diameter reported with each detection (None: no diameter term).
-        use_diameter: add ``(d_k - d_j)^2 / (var_j + sigma_diameter^2)`` to the distance of
-            detection ``k`` to landmark ``j`` (its diameter estimate ``d_j``, variance ``var_j``;
-            a provisional landmark has the diameter of the detection that created it and variance
-            ``sigma_diameter^2``). The distance is then a 3-dof chi-square; the gates apply to it.
-        sigma_diameter: diameter measurement noise (m).
-        ids: known association (``filter.association: known``): each detection's landmark id
-            (-1: none). A detection then matches the landmark whose ``ident`` is its id and starts
-            one when none has it (its provisional landmark carries the id); a detection without an
-            id is not associated. The distances are not used (``d2`` is 0 for a match).
+        gating: the association rule (gates, order, diameter term).
         model: the measurement model (default range-bearing).
-        z_kind: each detection's type, for a :class:`~nanoslam_jax.models.Composite` model (the
-            local map then has the ``kind`` field): a detection is associated only with the
-            landmarks of its type.
     """
+    z_kind = dets.kind
     # Provisional landmarks, one per detection, initialised at the prior mean.
     rows, ax = row_models(RangeBearing() if model is None else model, z_kind)
     R_rows, r_ax = row_noise(rows, ax, R)
-    prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, r_ax, ax))(x, z, R_rows, rows)
+    prov_mean, prov_cov = jax.vmap(init_landmark, (None, 0, r_ax, ax))(x, dets.z, R_rows, rows)
     mean, cov = jnp.concatenate([local.mean, prov_mean]), jnp.concatenate([local.cov, prov_cov])
     kind_term = None
     if z_kind is not None and is_composite(model):
@@ -157,21 +201,20 @@ def associate(
         kind_term = (z_kind, jnp.concatenate([local.kind, z_kind]))
     z_hat, s_inv = innovation_information(x, P, mean, cov, R, model, None if kind_term is None else kind_term[1])
     diam_term = None
-    if diam is not None:
-        var_d = jnp.square(sigma_diameter)
-        slot_diam = jnp.concatenate([local.diam, diam])
-        slot_var = jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, diam.shape)]) + var_d
-        diam_term = (diam, slot_diam, 1.0 / slot_var, use_diameter)
+    if dets.diam is not None:
+        var_d = jnp.square(gating.sigma_diameter)
+        slot_diam = jnp.concatenate([local.diam, dets.diam])
+        slot_var = jnp.concatenate([local.diam_var, jnp.broadcast_to(var_d, dets.diam.shape)]) + var_d
+        diam_term = (dets.diam, slot_diam, 1.0 / slot_var, gating.use_diameter)
     id_term = None
-    if ids is not None:
+    if dets.ident is not None:
         if local.ident is None:
             raise ValueError(
                 "association by landmark id needs a map with the ident field (LandmarkMap.empty(..., ident=True))"
             )
-        id_term = (ids, jnp.concatenate([local.ident, ids]))
-    return nearest_neighbours(
-        z_hat, s_inv, local.active, z, z_mask, gate, new_landmark, sequential, diam_term, id_term, model, kind_term
-    )
+        id_term = (dets.ident, jnp.concatenate([local.ident, dets.ident]))
+    terms = SlotTerms(diam_term, id_term, kind_term)
+    return nearest_neighbours(z_hat, s_inv, local.active, dets.z, dets.mask, gating, terms, model)
 
 
 def associate_window_prefix(local: LandmarkMap, *args, **kwargs) -> Association:
@@ -205,13 +248,9 @@ def nearest_neighbours(
     active: Bool[Array, " window"],
     z: Float[Array, "k_max d"],
     z_mask: Bool[Array, " k_max"],
-    gate: Float[Array, ""],
-    new_landmark: Float[Array, ""],
-    sequential: bool = True,
-    diam_term: tuple | None = None,
-    id_term: tuple | None = None,
+    gating: Gating,
+    terms: SlotTerms = SlotTerms(),
     model: AbstractMeasurementModel | None = None,
-    kind_term: tuple | None = None,
 ) -> Association:
     """The association rule of :func:`associate`, given every slot's predicted detection and
     innovation information (for filters whose innovation covariances are their own, e.g. NASRUKF's
@@ -224,19 +263,12 @@ def nearest_neighbours(
         s_inv: the entries ``(a00, a01, a11)`` of each slot's inverse innovation covariance; for
             a generic ``model``, the inverses ``(slots, d, d)``.
         active: which of the ``window`` local slots hold a landmark.
-        z, z_mask, gate, new_landmark, sequential: as for :func:`associate`.
-        diam_term: ``(diam, slot_diam, slot_info, use)``: each detection's diameter, each slot's
-            diameter estimate and ``1 / (var_j + sigma_diameter^2)``, and whether the term
-            ``(d_k - d_j)^2 slot_info_j`` is added to the distances (see :func:`associate`);
-            None: no diameter term.
-        id_term: ``(z_id, slot_id)``: known association by landmark id (see :func:`associate`):
-            detection ``k`` is at distance 0 from the slots whose id is ``z_id[k] >= 0`` and at
-            infinity from every other; None: by distance.
+        z, z_mask: the scan's detections and which are real.
+        gating: the association rule (:class:`Gating`).
+        terms: the diameter, id and type terms of the distances (:class:`SlotTerms`).
         model: the measurement model of a generic ``(z_hat, s_inv)`` (arrays from
             :func:`innovation_information`: its ``innovation`` gives the residuals); unused
             for the range-bearing components.
-        kind_term: ``(z_kind, slot_kind)``: each detection's and each slot's type (a composite
-            ``model``): a detection is at infinity from every slot of another type; None: one type.
     """
     k_max = z.shape[0]
     window = active.shape[0]
@@ -246,6 +278,8 @@ def nearest_neighbours(
     if components:
         (zr, zb), (a00, a01, a11) = z_hat, s_inv
     active = jnp.concatenate([active, jnp.zeros(k_max, bool)])
+    gate, new_landmark = gating.gate, gating.new_landmark
+    diam_term, id_term, kind_term = terms
     if diam_term is None:
         diam, slot_diam, slot_info, use_diameter = jnp.zeros(k_max, z.dtype), 0.0, 0.0, False
     else:
@@ -274,18 +308,8 @@ def nearest_neighbours(
             d2 = nr * (a00 * nr + a01 * nb) + nb * (a01 * nr + a11 * nb)
             return d2 + jnp.where(use_diameter, jnp.square(dk - slot_diam) * slot_info, 0.0)
 
-    if not sequential:
-        d2 = jax.vmap(distances)(z, diam, z_kind)
-        d2 = jnp.where(active[None, :], d2, jnp.inf)
-        j = jnp.argmin(d2, axis=1)
-        best = jnp.take_along_axis(d2, j[:, None], 1)[:, 0]
-        matched = z_mask & (best < gate)
-        # Keep only the closest claimant of each landmark.
-        claim = jnp.where(matched[:, None] & (j[:, None] == jnp.arange(d2.shape[1])), best[:, None], jnp.inf)
-        winner = jnp.argmin(claim, axis=0)
-        matched = matched & (winner[j] == jnp.arange(k_max))
-        is_new = z_mask & (best > new_landmark)
-        return Association(jnp.where(matched, j, -1), is_new, jnp.where(z_mask, best, jnp.inf))
+    if not gating.sequential:
+        return _independent(jax.vmap(distances)(z, diam, z_kind), active, z_mask, gating)
 
     slots = jnp.arange(window + k_max)
 
@@ -313,3 +337,21 @@ def nearest_neighbours(
     init = (active, jnp.full(k_max, -1), jnp.zeros(k_max, bool), jnp.full(k_max, jnp.inf, z.dtype))
     _, slot, is_new, d2 = jax.lax.fori_loop(0, n_steps, body, init)
     return Association(slot, is_new, d2)
+
+
+def _independent(
+    d2: Float[Array, "k_max slots"], active: Bool[Array, " slots"], z_mask: Bool[Array, " k_max"], gating: Gating
+) -> Association:
+    """Each detection's nearest slot, found independently (``gating.sequential`` False): when two
+    detections claim one landmark, only the closer keeps it."""
+    k_max = z_mask.shape[0]
+    d2 = jnp.where(active[None, :], d2, jnp.inf)
+    j = jnp.argmin(d2, axis=1)
+    best = jnp.take_along_axis(d2, j[:, None], 1)[:, 0]
+    matched = z_mask & (best < gating.gate)
+    # Keep only the closest claimant of each landmark.
+    claim = jnp.where(matched[:, None] & (j[:, None] == jnp.arange(d2.shape[1])), best[:, None], jnp.inf)
+    winner = jnp.argmin(claim, axis=0)
+    matched = matched & (winner[j] == jnp.arange(k_max))
+    is_new = z_mask & (best > gating.new_landmark)
+    return Association(jnp.where(matched, j, -1), is_new, jnp.where(z_mask, best, jnp.inf))

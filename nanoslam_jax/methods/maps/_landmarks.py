@@ -12,11 +12,10 @@ local landmark's existence).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from nanoslam_jax.lib._batching import batch_max
 from nanoslam_jax.lib._linalg import chol_small, gaussian_logpdf, inv_small, is_pd_small, mm, mmt, mt, mv, sandwich, sym
@@ -275,10 +274,10 @@ def ekf_update(
 
 
 def _unscented_landmark_points(
-    centre: Float[Array, " n"], cov: Float[Array, "n n"], alpha, beta, kappa
+    centre: Float[Array, " n"], cov: Float[Array, "n n"], rule: Unscented
 ) -> tuple[Float[Array, "p n"], Float[Array, " p"], Float[Array, " p"]]:
     """The ``p = 2n + 1`` unscented sigma points of ``N(centre, cov)`` and their weights."""
-    xi, wm, wc = Unscented(alpha=alpha, beta=beta, kappa=kappa).unit_points(centre.shape[-1])
+    xi, wm, wc = rule.unit_points(centre.shape[-1])
     return centre + mmt(xi, chol_small(sym(cov))), wm, wc
 
 
@@ -288,13 +287,8 @@ def ukf_update_loglik(
     mean: Float[Array, " l"],
     cov: Float[Array, "l l"],
     R: Float[Array, "d d"],
-    alpha: Float[ArrayLike, ""],
-    beta: Float[ArrayLike, ""],
-    kappa: Float[ArrayLike, ""],
-    *,
+    rule: Unscented,
     model: AbstractMeasurementModel | None = None,
-    h: Callable[[Float[Array, "3"], Float[Array, " l"]], Float[Array, " d"]] | None = None,
-    z_angle_index: int | None = 1,
 ) -> tuple[Float[Array, " l"], Float[Array, "l l"], Float[Array, ""]]:
     """Unscented (UKF) update of one landmark at pose ``x`` with detection ``z`` (UFastSLAM).
 
@@ -309,22 +303,18 @@ def ukf_update_loglik(
         mean: the landmark mean (l,).
         cov: the landmark covariance (l, l).
         R: measurement noise covariance (d, d).
-        alpha, beta, kappa: unscented parameters (scalars; may be traced).
+        rule: the unscented transform's parameters (may be traced).
         model: the measurement model (default range-bearing): its ``h`` and its angular
-            components (deviations and the innovation wrapped).
-        h: a measurement function ``h(pose, landmark) -> z_hat`` instead of the model's, with
-            ``z_angle_index``: the static index of the angle component of a detection, or None.
+            components ``angles`` (deviations and the innovation wrapped). Any object with these
+            two attributes serves.
 
     Returns:
         The updated mean and covariance and the detection's log-likelihood
         ``log N(nu; 0, S)``, as :func:`ekf_update_loglik`.
     """
-    if h is None:
-        model = _model(model)
-        h, angles = model.h, model.angles
-    else:
-        angles = () if z_angle_index is None else (z_angle_index,)
-    M, wm, wc = _unscented_landmark_points(mean, cov, alpha, beta, kappa)
+    model = _model(model)
+    h, angles = model.h, model.angles
+    M, wm, wc = _unscented_landmark_points(mean, cov, rule)
     Z = jax.vmap(h, (None, 0))(x, M)
     dZ = Z - Z[0]
     for i in angles:
@@ -345,9 +335,7 @@ def ukf_init_landmark(
     x: Float[Array, "3"],
     z: Float[Array, " d"],
     R: Float[Array, "d d"],
-    alpha: Float[ArrayLike, ""],
-    beta: Float[ArrayLike, ""],
-    kappa: Float[ArrayLike, ""],
+    rule: Unscented,
     model: AbstractMeasurementModel | None = None,
 ) -> tuple[Float[Array, " l"], Float[Array, "l l"]]:
     """New landmark by the unscented transform of the inverse model over ``z ~ N(z, R)`` (UFastSLAM).
@@ -359,9 +347,9 @@ def ukf_init_landmark(
         x: the (sampled) pose (3,).
         z: the detection (d,).
         R: measurement noise covariance (d, d).
-        alpha, beta, kappa: unscented parameters (scalars; may be traced).
+        rule: the unscented transform's parameters (may be traced).
         model: the measurement model (default range-bearing), whose inverse is used.
     """
-    Zs, wm, wc = _unscented_landmark_points(z, R, alpha, beta, kappa)
+    Zs, wm, wc = _unscented_landmark_points(z, R, rule)
     M = jax.vmap(_model(model).landmark_from, (None, 0))(x, Zs)
     return sigma_point_stats(M, wm, wc)

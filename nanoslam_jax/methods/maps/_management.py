@@ -28,8 +28,9 @@ traced :class:`~nanoslam_jax.methods.MapParams` field, so one compilation serves
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
@@ -37,6 +38,7 @@ from jaxtyping import Array, Bool, Float, Int
 from nanoslam_jax.lib._batching import map_prefix
 from nanoslam_jax.lib._trig import atan2, computed_once
 from nanoslam_jax.models import AbstractMeasurementModel, RangeBearing, is_range_bearing, range_bearing, row_models
+from nanoslam_jax.methods.maps._association import ScanDetections
 from nanoslam_jax.methods.maps._landmarks import window_prefixes
 from nanoslam_jax.methods._params import MapParams
 from nanoslam_jax.methods._state import LandmarkMap
@@ -105,18 +107,28 @@ def occluded(
     return jnp.any(occluder_mask[:, None] & nearer & covers, axis=0)
 
 
+class Management(eqx.Module):
+    """A landmark management policy: its traced hyperparameters and whether occlusion counts.
+
+    Attributes:
+        mp: the management hyperparameters (``map`` config section).
+        occlusion: (static) landmarks hidden behind a nearer detection or confirmed landmark
+            count no miss (range-bearing models only).
+    """
+
+    mp: MapParams
+    occlusion: bool = eqx.field(static=True, default=False)
+
+
 def manage_window(
     local: LandmarkMap,
     pose: Float[Array, "3"],
     seen: Bool[Array, " window"],
-    z: Float[Array, "k d"],
-    z_mask: Bool[Array, " k"],
-    diam: Float[Array, " k"],
+    dets: ScanDetections,
     observed: Bool[Array, ""] | bool,
     scan: Int[Array, ""] | int,
     model: AbstractMeasurementModel,
-    mp: MapParams,
-    occlusion: bool,
+    policy: Management,
 ) -> LandmarkMap:
     """Existence, confirmation and removal of a particle's local landmarks after a scan.
 
@@ -125,15 +137,14 @@ def manage_window(
             detections).
         pose: the particle's (sampled) pose.
         seen: which local landmarks a detection of this scan was associated with.
-        z, z_mask, diam: the scan's detections (occluders when ``occlusion``).
+        dets: the scan's detections (occluders with ``policy.occlusion``; ``dets.diam`` their
+            diameters).
         observed: the segment is a laser scan (False for padding and for the segments that split
             a long gap between scans: no misses are counted).
         scan: the current scan (the clock of ``born``).
         model: the measurement model: a landmark counts a miss where it is
             :meth:`~nanoslam_jax.models.AbstractMeasurementModel.visible`.
-        mp: management hyperparameters.
-        occlusion: (static) landmarks hidden behind a nearer detection or confirmed landmark
-            count no miss (range-bearing models only).
+        policy: the management hyperparameters and whether occlusion counts.
 
     Returns:
         The local map with updated ``log_odds``, ``misses``, ``confirmed`` and ``active``.
@@ -144,11 +155,13 @@ def manage_window(
     else:
         rows, ax = row_models(model, local.kind)  # a composite's landmarks: each by its type
         visible = jax.vmap(lambda md, m: md.visible(pose, m), (ax, 0))(rows, local.mean)
+    mp = policy.mp
     missed = observed & local.active & ~seen & visible
-    if occlusion and is_range_bearing(model):
-        occ_z = jnp.concatenate([z, z_pred])
+    if policy.occlusion and is_range_bearing(model):
+        diam = jnp.zeros(dets.mask.shape, dets.z.dtype) if dets.diam is None else dets.diam
+        occ_z = jnp.concatenate([dets.z, z_pred])
         occ_radius = jnp.concatenate([0.5 * diam, 0.5 * local.diam])
-        occ_mask = jnp.concatenate([z_mask, local.active & local.confirmed])
+        occ_mask = jnp.concatenate([dets.mask, local.active & local.confirmed])
         missed = missed & ~occluded(z_pred, occ_z, occ_radius, occ_mask, mp.occlusion_width)
     log_odds = local.log_odds + jnp.where(seen, mp.log_odds_hit, 0.0) + jnp.where(missed, mp.log_odds_miss, 0.0)
     log_odds = jnp.minimum(log_odds, mp.log_odds_max)
@@ -220,50 +233,60 @@ def drop_stale(
     return lm._replace(active=active)
 
 
+class Candidates(NamedTuple):
+    """The landmark each detection of a scan would start, as it leaves the scan.
+
+    Attributes:
+        mean, cov: each candidate's landmark (after any later detection of the same scan that
+            matched it).
+        diam, diam_var: each candidate's diameter estimate and variance.
+        ident: each candidate's landmark id (known association), or None (the map keeps no ids).
+        kind: each candidate's type (a composite measurement model), or None (the map keeps none).
+    """
+
+    mean: Float[Array, "k l"]
+    cov: Float[Array, "k l l"]
+    diam: Float[Array, " k"]
+    diam_var: Float[Array, " k"]
+    ident: Int[Array, " k"] | None = None
+    kind: Int[Array, " k"] | None = None
+
+
 def new_landmarks(
-    mean: Float[Array, "k l"],
-    cov: Float[Array, "k l l"],
+    cand: Candidates,
     is_new: Bool[Array, " k"],
     extra_hits: Int[Array, " k"],
-    diam: Float[Array, " k"],
-    diam_var: Float[Array, " k"],
     scan: Int[Array, ""] | int,
     mp: MapParams,
     manage: bool,
-    ident: Int[Array, " k"] | None = None,
-    kind: Int[Array, " k"] | None = None,
 ) -> LandmarkMap:
     """The landmarks a scan starts, as they leave the scan.
 
     Args:
-        mean, cov: each candidate's landmark (after any later detection of the same scan that
-            matched it).
+        cand: each detection's candidate landmark.
         is_new: which candidates are started.
         extra_hits: further detections of the same scan that matched each started landmark.
-        diam, diam_var: each candidate's diameter estimate and variance.
         scan: the current scan (``born``).
         mp: management hyperparameters.
         manage: (static) with management a landmark starts tentative at ``log_odds_birth`` (plus
             a hit per further detection) and is confirmed if it already qualifies; without it,
             every new landmark is confirmed.
-        ident: each candidate's landmark id (known association), or None (the map keeps no ids).
-        kind: each candidate's type (a composite measurement model), or None (the map keeps none).
     """
     k = is_new.shape[0]
     hits = is_new.astype(jnp.int32) + extra_hits
     log_odds = jnp.minimum(mp.log_odds_birth + extra_hits * mp.log_odds_hit, mp.log_odds_max)
     confirmed = confirm_rule(log_odds, hits, mp) if manage else jnp.ones(k, bool)
     return LandmarkMap(
-        mean=mean,
-        cov=cov,
+        mean=cand.mean,
+        cov=cand.cov,
         active=is_new,
         hits=hits,
         misses=jnp.zeros(k, jnp.int32),
-        log_odds=jnp.broadcast_to(log_odds, (k,)).astype(mean.dtype),
+        log_odds=jnp.broadcast_to(log_odds, (k,)).astype(cand.mean.dtype),
         confirmed=confirmed & is_new,
         born=jnp.full(k, scan, jnp.int32),
-        diam=diam,
-        diam_var=diam_var,
-        ident=None if ident is None else ident.astype(jnp.int32),
-        kind=None if kind is None else kind.astype(jnp.int32),
+        diam=cand.diam,
+        diam_var=cand.diam_var,
+        ident=None if cand.ident is None else cand.ident.astype(jnp.int32),
+        kind=None if cand.kind is None else cand.kind.astype(jnp.int32),
     )

@@ -12,10 +12,11 @@ from jaxtyping import Array, Bool, Float, Int
 
 from nanoslam_jax.lib._linalg import chol3, gaussian_logpdf, mv
 from nanoslam_jax.lib._trig import computed_once
-from nanoslam_jax.models import row_models, row_noise, wrap_angle
+from nanoslam_jax.lib.quadrature import Unscented
+from nanoslam_jax.models import row_models, wrap_angle
 from nanoslam_jax.methods.proposals import AbstractProposal, Detections, ProposalResult
 from nanoslam_jax.methods.maps._association import predicted_measurements
-from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
+from nanoslam_jax.methods.maps._updates import AbstractLandmarkUpdate, EkfLandmarkUpdate, UnscentedLandmarkUpdate
 from nanoslam_jax.methods._params import Params, Static
 
 
@@ -43,6 +44,30 @@ class RowResults(NamedTuple):
     upd_cov: Float[Array, "k l l"]
 
 
+class RowInputs(NamedTuple):
+    """A scan's detection rows as one particle's proposal and landmark updates take them.
+
+    Attributes:
+        det: the rows (detections, their matched landmarks, which rows are used).
+        existing: which rows matched a landmark of the map (else ``det``'s landmark is unused).
+        ps: for a row that matched a landmark an earlier row of the scan started, that row.
+        mask: which rows are real detections (the same for every particle).
+    """
+
+    det: Detections
+    existing: Bool[Array, " k"]
+    ps: Int[Array, " k"]
+    mask: Bool[Array, " k"]
+
+
+def landmark_update(static: Static, params: Params) -> AbstractLandmarkUpdate:
+    """The landmark start and update a method uses (``static.landmark_update``): unscented, with the
+    traced ``ut_*`` parameters, or the EKF."""
+    if static.landmark_update == "unscented":
+        return UnscentedLandmarkUpdate(Unscented(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa))
+    return EkfLandmarkUpdate()
+
+
 def row_work(
     static: Static,
     params: Params,
@@ -50,19 +75,18 @@ def row_work(
     x0: Float[Array, "3"],
     P0: Float[Array, "3 3"],
     R: Float[Array, "d d"],
-    det: Detections,
-    existing: Bool[Array, " k"],
-    ps: Int[Array, " k"],
+    rows: RowInputs,
     eps: Float[Array, "3"],
 ) -> RowResults:
     """The proposal, the sampled pose and each row's likelihoods, landmark start and landmark update.
 
     Args:
-        det: the rows (detections, their matched landmarks, which rows are used).
-        existing: which rows matched a landmark of the map (else ``det``'s landmark is unused).
-        ps: for a row that matched a landmark an earlier row of the scan started, that row.
+        x0, P0: the particle's prior.
+        R: measurement noise covariance.
+        rows: the detection rows.
         eps: the standard normal draw of the sampled pose.
     """
+    det, existing, ps = rows.det, rows.existing, rows.ps
     prop = proposal(x0, P0, det, R)
     x_s = prop.mean + mv(chol3(prop.cov), eps)
     x_s = computed_once(x_s.at[2].set(wrap_angle(x_s[2])))
@@ -70,32 +94,17 @@ def row_work(
     xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
     model = params.measurement
     # A composite's rows each take their type's model and noise (one shared model otherwise).
-    rows, ax = row_models(model, det.kind)
-    R_rows, r_ax = row_noise(rows, ax, R)
+    row_model, ax = row_models(model, det.kind)
     z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R, model, det.kind)
-    ll = gaussian_logpdf(jax.vmap(lambda md, z, zh: md.innovation(z, zh), (ax, 0, 0))(rows, det.z, z_hat), S)
+    ll = gaussian_logpdf(jax.vmap(lambda md, z, zh: md.innovation(z, zh), (ax, 0, 0))(row_model, det.z, z_hat), S)
     # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM).
-    unscented = static.landmark_update == "unscented"
-    ut = (params.ut_alpha, params.ut_beta, params.ut_kappa)
-    if unscented:
-        new_mean, new_cov = jax.vmap(ukf_init_landmark, (None, 0, None, None, None, None, None))(
-            x_s, det.z, R, *ut, model
-        )
-    else:
-        new_mean, new_cov = jax.vmap(init_landmark, (None, 0, r_ax, ax))(x_s, det.z, R_rows, rows)
+    updates = landmark_update(static, params)
+    new_mean, new_cov = updates.start(x_s, det.z, R, model, det.kind)
     # EKF (UFastSLAM: unscented) updates at the sampled pose; each landmark is matched at most once
     # per scan. A match to a landmark created earlier in this scan weighs with its likelihood at x_s.
     cur_mean = jnp.where(existing[:, None], det.mean, new_mean[ps])
     cur_cov = jnp.where(existing[:, None, None], det.cov, new_cov[ps])
-    if unscented:
-        ukf = lambda *a: ukf_update_loglik(*a, model=model)  # noqa: E731
-        upd_mean, upd_cov, llp = jax.vmap(ukf, (None, 0, 0, 0, None, None, None, None))(
-            x_s, det.z, cur_mean, cur_cov, R, *ut
-        )
-    else:
-        upd_mean, upd_cov, llp = jax.vmap(ekf_update_loglik, (None, 0, 0, 0, r_ax, ax))(
-            x_s, det.z, cur_mean, cur_cov, R_rows, rows
-        )
+    upd_mean, upd_cov, llp = updates.update(x_s, det.z, cur_mean, cur_cov, R, model, det.kind)
     # Both computed before the masked sums (a reduction fusion does not vectorise its operand).
     ll, llp = computed_once((ll, llp))
     return RowResults(prop, x_s, ll, llp, new_mean, new_cov, upd_mean, upd_cov)
@@ -108,36 +117,34 @@ def rows_over_buckets(
     x0: Float[Array, "3"],
     P0: Float[Array, "3 3"],
     R: Float[Array, "d d"],
-    det: Detections,
-    existing: Bool[Array, " k"],
-    ps: Int[Array, " k"],
+    rows: RowInputs,
     eps: Float[Array, "3"],
-    z_mask: Bool[Array, " k"],
 ) -> RowResults:
     """:func:`row_work` over the first ``b`` detection rows only, ``b`` the smallest of
-    ``static.row_buckets`` (then ``k_max``) that holds the scan's last real detection; the rows
-    after them are padded (zero means and likelihoods, unit covariances).
+    ``static.row_buckets`` (then ``k_max``) that holds the scan's last real detection
+    (``rows.mask``); the rows after them are padded (zero means and likelihoods, unit covariances).
 
     Rows past the last real detection are never associated and start no landmark, so the
     result is the same as over all ``k_max`` rows where it is used; the work is proportional to
     the rows (an iterative proposal's most of all), and most scans have far fewer detections
-    than the log's busiest one. The bucket depends only on the scan (``z_mask`` is shared by all
+    than the log's busiest one. The bucket depends only on the scan (``rows.mask`` is shared by all
     particles), so under ``vmap`` this stays a branch (``lax.switch`` with an unbatched index)
     and does not turn into computing every bucket. Only these per-row results cross the switch:
     with the whole particle update (the map's write-back) inside it, the switch's outputs would
     copy every particle's map at every step.
     """
-    k_max = z_mask.shape[0]
+    k_max = rows.mask.shape[0]
     sizes = sorted({b for b in static.row_buckets if 0 < b < k_max} | {k_max})
     if len(sizes) == 1:
-        return row_work(static, params, proposal, x0, P0, R, det, existing, ps, eps)
+        return row_work(static, params, proposal, x0, P0, R, rows, eps)
 
     def branch(b: int):
-        def rows(det, existing, ps):
+        def head(det, existing, ps):
             det, existing = jax.tree.map(lambda a: a[:b], (det, existing))
             # A row matching a landmark an earlier row started lies after that row; the other
             # rows' ``ps`` is unused.
-            out = row_work(static, params, proposal, x0, P0, R, det, existing, jnp.minimum(ps[:b], b - 1), eps)
+            sliced = RowInputs(det, existing, jnp.minimum(ps[:b], b - 1), rows.mask[:b])
+            out = row_work(static, params, proposal, x0, P0, R, sliced, eps)
 
             def pad(a, fill):
                 return jnp.concatenate([a, jnp.broadcast_to(jnp.asarray(fill, a.dtype), (k_max - b,) + a.shape[1:])])
@@ -151,8 +158,8 @@ def rows_over_buckets(
                 upd_cov=pad(out.upd_cov, jnp.eye(out.upd_cov.shape[-1])),
             )
 
-        return rows
+        return head
 
-    n_rows = jnp.max(jnp.where(z_mask, jnp.arange(1, k_max + 1), 0))
+    n_rows = jnp.max(jnp.where(rows.mask, jnp.arange(1, k_max + 1), 0))
     index = jnp.sum(n_rows > jnp.asarray(sizes[:-1]))
-    return jax.lax.switch(index, [branch(b) for b in sizes], det, existing, ps)
+    return jax.lax.switch(index, [branch(b) for b in sizes], rows.det, rows.existing, rows.ps)

@@ -17,7 +17,14 @@ from nanoslam_jax.lib._trig import computed_once
 from nanoslam_jax.data import Segments
 from nanoslam_jax.models import circular_mean, is_composite
 from nanoslam_jax.methods.proposals import AbstractProposal, Detections
-from nanoslam_jax.methods.maps._association import associate, associate_window_prefix, predicted_measurements
+from nanoslam_jax.methods.maps._association import (
+    Association,
+    Gating,
+    ScanDetections,
+    associate,
+    associate_window_prefix,
+    predicted_measurements,
+)
 from nanoslam_jax.methods.maps._landmarks import (
     MANAGED_FIELDS,
     add_landmarks,
@@ -29,8 +36,10 @@ from nanoslam_jax.methods.maps._landmarks import (
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.particle._prior import compose_prior, predict, relative_prior
 from nanoslam_jax.lib._resampling import effective_sample_size, normalise, resample
-from nanoslam_jax.methods.particle._rows import rows_over_buckets
+from nanoslam_jax.methods.particle._rows import RowInputs, RowResults, rows_over_buckets
 from nanoslam_jax.methods.maps._management import (
+    Candidates,
+    Management,
     diameter_update,
     drop_stale,
     manage_window,
@@ -108,226 +117,139 @@ class _ParticleOut(NamedTuple):
     noise_count: Int[Array, ""]
 
 
+class ParticleIn(NamedTuple):
+    """One particle as it enters a segment (vmapped over the particles).
+
+    Attributes:
+        pose, pose_cov: the particle's pose and its covariance (the prior's start with
+            ``static.prior_cov == 'propagate'``).
+        landmarks: the particle's map.
+        eps: the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
+        noise, noise_count: the particle's adaptive measurement-noise variances and how many
+            residuals they have seen (``static.adaptive_noise``; None: the configured noise).
+    """
+
+    pose: Float[Array, "3"]
+    pose_cov: Float[Array, "3 3"]
+    landmarks: LandmarkMap
+    eps: Float[Array, "3"]
+    noise: Float[Array, " d"] | None = None
+    noise_count: Int[Array, ""] | None = None
+
+
+class SegmentIn(NamedTuple):
+    """What one segment gives every particle (shared, not vmapped).
+
+    Attributes:
+        dt, u, dr_mask: the segment's odometry steps, controls and which steps are real.
+        dets: the scan's detections; ``dets.ident`` is given only with known association, and
+            ``dets.kind`` only for a composite measurement model.
+        observed: the segment is a laser scan. False marks padding, or a segment splitting a long
+            gap between scans: landmark management then counts no misses (for padding the caller
+            masks the pose and weight; with no detections the map is unchanged).
+        scan: the count of laser scans before this one (the clock of the landmarks' ``born``).
+        rel_prior: the segment's :func:`relative_prior`, shared by all particles, with
+            ``static.prior_cov == 'reset'``; the prior is then placed at the particle's pose
+            instead of propagated per particle (the same Gaussian up to rounding). None:
+            propagated per particle.
+        slot_bucket: index into ``static.slot_buckets`` of a map prefix that holds every active
+            landmark (the local window, and with management the free slots, are searched there;
+            None: the whole map). The same for all particles, so under ``vmap`` it stays a branch.
+        slots_used: one past the highest active slot of any particle (the stale tentative
+            landmarks are dropped below it; None: over the whole map).
+    """
+
+    dt: Float[Array, " dr"]
+    u: Float[Array, "dr c"]
+    dr_mask: Bool[Array, " dr"]
+    dets: ScanDetections
+    observed: Bool[Array, ""] | bool = True
+    scan: Int[Array, ""] | int = 0
+    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None
+    slot_bucket: Int[Array, ""] | None = None
+    slots_used: Int[Array, ""] | None = None
+
+
+class _Matches(NamedTuple):
+    """How a scan's rows relate to one particle's local window (from the association).
+
+    Attributes:
+        assoc: the association.
+        matched: the row matched a landmark (of the window or started earlier in the scan).
+        existing: the row matched a landmark of the window.
+        provisional: the row matched the landmark an earlier row of this scan started.
+        ws: the local slot of a row that matched an existing landmark (clipped for the others).
+        ps: the row that started the landmark a row matched (clipped for the others).
+        trusted: the matched landmark may shape the proposal and the weight (with management:
+            a confirmed one, or any with ``map.use_tentative``).
+        used: the rows that shape the proposal and the weight.
+    """
+
+    assoc: Association
+    matched: Bool[Array, " k"]
+    existing: Bool[Array, " k"]
+    provisional: Bool[Array, " k"]
+    ws: Int[Array, " k"]
+    ps: Int[Array, " k"]
+    trusted: Bool[Array, " k"]
+    used: Bool[Array, " k"]
+
+
 def particle_update(
-    static: Static,
-    params: Params,
-    proposal: AbstractProposal,
-    pose: Float[Array, "3"],
-    pose_cov: Float[Array, "3 3"],
-    lm: LandmarkMap,
-    dt: Float[Array, " dr"],
-    u: Float[Array, "dr c"],
-    dr_mask: Bool[Array, " dr"],
-    z: Float[Array, "k d"],
-    z_mask: Bool[Array, " k"],
-    eps: Float[Array, "3"],
-    valid: Bool[Array, ""] | bool = True,
-    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None,
-    slot_bucket: Int[Array, ""] | None = None,
-    slots_used: Int[Array, ""] | None = None,
-    diam: Float[Array, " k"] | None = None,
-    scan: Int[Array, ""] | int = 0,
-    noise: Float[Array, " d"] | None = None,
-    noise_count: Int[Array, ""] | None = None,
-    z_id: Int[Array, " k"] | None = None,
-    z_kind: Int[Array, " k"] | None = None,
+    static: Static, params: Params, proposal: AbstractProposal, particle: ParticleIn, seg: SegmentIn
 ) -> _ParticleOut:
     """Prior, association, proposal, sampling, landmark updates and weight of one particle.
-
-    ``eps`` is the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
-
-    ``valid`` False marks a segment that is not a laser scan (padding, or a segment splitting a
-    long gap between scans): landmark management then counts no misses (for padding the caller
-    masks the pose and weight; with no detections the map is unchanged).
-
-    ``rel_prior``: the segment's :func:`relative_prior`, shared by all particles, with
-    ``static.prior_cov == 'reset'``; the prior is then placed at ``pose`` instead of propagated
-    per particle (the same Gaussian up to rounding). ``None``: propagated here.
-
-    ``slot_bucket``: index into ``static.slot_buckets`` of a map prefix that holds every active
-    landmark (the local window, and with management the free slots, are searched there;
-    ``None``: the whole map). The same for all particles, so under ``vmap`` it stays a branch.
-    ``slots_used``: one past the highest active slot of any particle (the stale tentative landmarks are
-    dropped below it; ``None``: over the whole map).
-
-    ``diam``: the diameter reported with each detection (``None``: zeros); ``scan``: the count of
-    laser scans before this one (the clock of the landmarks' ``born``).
 
     With ``static.manage`` (landmark management, :mod:`._management`) only the rows matched to
     confirmed landmarks (all matched rows with ``map.use_tentative``) shape the proposal and the
     weight; a row that matched a tentative landmark then weighs as a new landmark does (``p0``).
 
-    ``noise``, ``noise_count``: the particle's adaptive measurement-noise variances and how many
-    residuals they have seen (``static.adaptive_noise``; default: the configured noise). The scan
-    is associated with them; then each associated detection's residual at the prior updates them
-    in order (eq. 11 of the NASRUKF paper with ``Gx P Gx' + Gm Sigma Gm'`` as the predicted
-    covariance, :func:`~._srukf.adaptive_noise_rows`) and the proposal, landmark updates and weight
-    use the result.
-
-    ``z_id``: each detection's landmark id, used with ``static.association == 'known'``.
-
-    ``z_kind``: each detection's type, for a :class:`~nanoslam_jax.models.Composite` measurement
-    model (None: one type).
+    With ``static.adaptive_noise`` the scan is associated with the particle's adaptive noise;
+    then each associated detection's residual at the prior updates it in order (eq. 11 of the
+    NASRUKF paper with ``Gx P Gx' + Gm Sigma Gm'`` as the predicted covariance,
+    :func:`~._srukf.adaptive_noise_rows`) and the proposal, landmark updates and weight use the result.
     """
-    mp = params.map
-    model = params.measurement
-    R_configured = params.R
-    configured = jnp.diagonal(R_configured)
-    noise = configured if noise is None else noise
-    noise_count = jnp.zeros((), jnp.int32) if noise_count is None else noise_count
-    R = jnp.diag(noise) if static.adaptive_noise else R_configured
-    W, K = static.window_size - static.k_max, static.k_max
-    diam = jnp.zeros(K, z.dtype) if diam is None else diam
-    if rel_prior is not None:
-        x0, P0 = compose_prior(pose, *rel_prior)
-    else:
-        P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else pose_cov
-        x0, P0 = predict(pose, P_start, dt, u, dr_mask, params, static.prior)
-    x0, P0 = computed_once((x0, P0))
-
+    configured = jnp.diagonal(params.R)
+    noise = configured if particle.noise is None else particle.noise
+    noise_count = jnp.zeros((), jnp.int32) if particle.noise_count is None else particle.noise_count
+    R = jnp.diag(noise) if static.adaptive_noise else params.R
+    K = static.k_max
+    dets = seg.dets
+    dets = dets._replace(diam=jnp.zeros(K, dets.z.dtype) if dets.diam is None else dets.diam)
+    x0, P0 = _prior(static, params, particle, seg)
     radius = params.max_range + params.window_margin
+    W = static.window_size - K
     local, idx, window_overflow = _over_slot_bucket(
-        static, slot_bucket, lambda b, lm, x: gather_window(lm, x, W, radius, b, model), lm, x0[:2]
+        static,
+        seg.slot_bucket,
+        lambda b, lm, x: gather_window(lm, x, W, radius, b, params.measurement),
+        particle.landmarks,
+        x0[:2],
     )
-    # With the row buckets (many particles per call), also the association over the window's
-    # prefix: the same association, compiled three times, which pays off only where the particles'
-    # arithmetic outweighs the longer compilation.
-    assoc_fn = associate_window_prefix if static.row_buckets else associate
-    assoc = assoc_fn(
-        local,
-        x0,
-        P0,
-        z,
-        z_mask,
-        R,
-        params.gate,
-        params.new_landmark,
-        static.sequential,
-        diam=diam,
-        use_diameter=mp.use_diameter,
-        sigma_diameter=mp.sigma_diameter,
-        ids=z_id if static.association == "known" else None,
-        model=model,
-        z_kind=z_kind,
-    )
-    matched = assoc.slot >= 0
-    existing = matched & (assoc.slot < W)
-    provisional = matched & ~existing  # matched the landmark an earlier detection of this scan created
-    ws = jnp.clip(assoc.slot, 0, W - 1)  # local slot of a row that matched an existing landmark
-    ps = jnp.clip(assoc.slot - W, 0, K - 1)  # detection that created the landmark a row matched
-    # Rows that shape the proposal and the weight: with management, those of confirmed landmarks.
-    trusted = (local.confirmed[ws] | mp.use_tentative) if static.manage else jnp.ones(K, bool)
-    used = existing & trusted
-    # Rows that match no used landmark are masked out everywhere they are used.
-    det = Detections(z, local.mean[ws], local.cov[ws], used, z_kind)
+    m = _match(static, params, local, x0, P0, dets, R)
+    det = Detections(dets.z, local.mean[m.ws], local.cov[m.ws], m.used, dets.kind)
     if static.adaptive_noise:
-        z_prior, S_prior = predicted_measurements(x0, P0, local.mean[ws], local.cov[ws], R, model)
-        _, noise, noise_count = adaptive_noise_rows(
-            noise,
-            noise_count,
-            jax.vmap(model.innovation)(z, z_prior),
-            jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
-            existing,
-            params.forgetting,
-            params.noise_floor * configured,
-        )
+        noise, noise_count = _adapt_noise(params, x0, P0, det, m.existing, noise, noise_count)
         R = jnp.diag(noise)
-
     # The proposal, the sampled pose, the weight's likelihoods and the landmarks' updates and
     # starts: over the scan's bucket of rows.
-    prop, x_s, ll, llp, new_mean, new_cov, upd_mean, upd_cov = rows_over_buckets(
-        static, params, proposal, x0, P0, R, det, existing, ps, eps, z_mask
+    rows = rows_over_buckets(
+        static, params, proposal, x0, P0, R, RowInputs(det, m.existing, m.ps, dets.mask), particle.eps
     )
-    if static.manage:
-        # A provisional landmark is tentative: its row weighs with its likelihood only with
-        # use_tentative; unused rows that start or match a tentative landmark weigh as new (p0).
-        as_new = assoc.is_new | (existing & ~trusted) | (provisional & ~mp.use_tentative)
-        dlogw = (
-            jnp.sum(jnp.where(used, ll, 0.0))
-            + jnp.sum(as_new) * params.log_p0
-            + jnp.sum(jnp.where(provisional & mp.use_tentative, llp, 0.0))
-        )
-    else:
-        dlogw = (
-            jnp.sum(jnp.where(existing, ll, 0.0))
-            + jnp.sum(assoc.is_new) * params.log_p0
-            + jnp.sum(jnp.where(provisional, llp, 0.0))
-        )
-
-    # Diameters: each matched row updates its landmark's estimate (scalar Kalman filter).
-    var_d = jnp.square(mp.sigma_diameter)
-    cur_d = jnp.where(existing, local.diam[ws], diam[ps])
-    cur_dv = jnp.where(existing, local.diam_var[ws], var_d)
-    upd_d, upd_dv = diameter_update(cur_d, cur_dv, diam, mp.sigma_diameter)
-
-    # The new landmarks as they leave the scan (a later detection of the scan may have updated one).
-    isn = assoc.is_new
-    pt = jnp.where(provisional, ps, K)
-    new = new_landmarks(
-        mean=new_mean.at[pt].set(upd_mean, mode="drop"),
-        cov=new_cov.at[pt].set(upd_cov, mode="drop"),
-        is_new=isn,
-        extra_hits=jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop"),
-        diam=diam.at[pt].set(upd_d, mode="drop"),
-        diam_var=jnp.full(K, var_d).at[pt].set(upd_dv, mode="drop"),
-        scan=scan,
-        mp=mp,
-        manage=static.manage,
-        ident=z_id if static.association == "known" else None,
-        kind=z_kind,
+    lm, overflow, (n_landmarks, n_confirmed) = _update_map(
+        static, params, particle.landmarks, (local, idx), m, rows, seg._replace(dets=dets)
     )
-
-    if static.manage:
-        wt = jnp.where(existing, ws, W)
-        local = update_slots(local, wt, upd_mean, upd_cov, upd_d, upd_dv)
-        seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
-
-        def manage(loc, sn):
-            return manage_window(
-                loc,
-                x_s,
-                sn,
-                z,
-                z_mask,
-                diam,
-                valid,
-                scan,
-                params.measurement,
-                mp,
-                static.occlusion,
-            )
-
-        local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
-        # The matched rows' estimates go straight to their slots (k rows); of the window only the
-        # fields management changes are written back (scattering every field of all W slots
-        # cost more than the management itself).
-        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
-        lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), scan, mp, slots_used)
-    else:
-        # Only the landmarks the scan's detections matched change: write those rows back.
-        lm = update_slots(lm, jnp.where(existing, idx[ws], lm.active.shape[0]), upd_mean, upd_cov, upd_d, upd_dv)
-    # Every active landmark lies in the slot bucket before this scan (management only frees
-    # slots), so the scan's new landmarks go to its first K free slots at most K past it: the
-    # free slots are searched there and the map's landmarks counted there, not over the capacity.
-    past = lambda b: None if b is None else b + K  # noqa: E731
-    free = None
-    if static.manage:
-        free = _over_slot_bucket(static, slot_bucket, lambda b, a: free_slots(a, K, past(b)), lm.active)
-    lm, overflow = add_landmarks(lm, new, isn, contiguous=not static.manage, free=free)
-    n_landmarks, n_confirmed = _over_slot_bucket(
-        static, slot_bucket, lambda b, m: _counts(jax.tree.map(lambda a: a[: past(b)], m)), lm
-    )
-    has_assoc = jnp.any(used)
+    has_assoc = jnp.any(m.used)
     return _ParticleOut(
-        pose=x_s,
-        pose_cov=prop.cov,
+        pose=rows.pose,
+        pose_cov=rows.proposal.cov,
         landmarks=lm,
-        dlogw=dlogw,
-        iterations=prop.iterations,
-        result=jnp.where(has_assoc, prop.result, 0),
+        dlogw=_log_weight(static, params, m, rows),
+        iterations=rows.proposal.iterations,
+        result=jnp.where(has_assoc, rows.proposal.result, 0),
         has_assoc=has_assoc,
-        n_associated=jnp.sum(matched),
-        n_new=jnp.sum(assoc.is_new),
+        n_associated=jnp.sum(m.matched),
+        n_new=jnp.sum(m.assoc.is_new),
         window_overflow=window_overflow,
         overflow=overflow,
         n_landmarks=n_landmarks,
@@ -335,6 +257,180 @@ def particle_update(
         noise=noise,
         noise_count=noise_count,
     )
+
+
+def _prior(
+    static: Static, params: Params, particle: ParticleIn, seg: SegmentIn
+) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+    """The particle's prior over its pose after the segment's odometry: the shared relative prior
+    placed at its pose, or its own prediction."""
+    if seg.rel_prior is not None:
+        x0, P0 = compose_prior(particle.pose, *seg.rel_prior)
+    else:
+        P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else particle.pose_cov
+        x0, P0 = predict(particle.pose, P_start, seg.dt, seg.u, seg.dr_mask, params, static.prior)
+    return computed_once((x0, P0))
+
+
+def _match(
+    static: Static,
+    params: Params,
+    local: LandmarkMap,
+    x0: Float[Array, "3"],
+    P0: Float[Array, "3 3"],
+    dets: ScanDetections,
+    R: Float[Array, "d d"],
+) -> _Matches:
+    """The scan's association with the particle's local window, and which rows it makes used."""
+    mp = params.map
+    gating = Gating(params.gate, params.new_landmark, static.sequential, mp.use_diameter, mp.sigma_diameter)
+    # With the row buckets (many particles per call), also the association over the window's
+    # prefix: the same association, compiled three times, which pays off only where the particles'
+    # arithmetic outweighs the longer compilation.
+    assoc_fn = associate_window_prefix if static.row_buckets else associate
+    assoc = assoc_fn(local, x0, P0, dets, R, gating, params.measurement)
+    W, K = local.active.shape[0], dets.mask.shape[0]
+    matched = assoc.slot >= 0
+    existing = matched & (assoc.slot < W)
+    ws = jnp.clip(assoc.slot, 0, W - 1)
+    # Rows that shape the proposal and the weight: with management, those of confirmed landmarks.
+    trusted = (local.confirmed[ws] | mp.use_tentative) if static.manage else jnp.ones(K, bool)
+    return _Matches(
+        assoc=assoc,
+        matched=matched,
+        existing=existing,
+        provisional=matched & ~existing,
+        ws=ws,
+        ps=jnp.clip(assoc.slot - W, 0, K - 1),
+        trusted=trusted,
+        used=existing & trusted,
+    )
+
+
+def _adapt_noise(
+    params: Params,
+    x0: Float[Array, "3"],
+    P0: Float[Array, "3 3"],
+    det: Detections,
+    existing: Bool[Array, " k"],
+    noise: Float[Array, " d"],
+    noise_count: Int[Array, ""],
+) -> tuple[Float[Array, " d"], Int[Array, ""]]:
+    """The particle's adaptive noise after each associated detection's residual at the prior."""
+    model = params.measurement
+    z_prior, S_prior = predicted_measurements(x0, P0, det.mean, det.cov, jnp.diag(noise), model)
+    _, noise, noise_count = adaptive_noise_rows(
+        noise,
+        noise_count,
+        jax.vmap(model.innovation)(det.z, z_prior),
+        jnp.diagonal(S_prior, axis1=1, axis2=2) - noise,
+        existing,
+        params.forgetting,
+        params.noise_floor * jnp.diagonal(params.R),
+    )
+    return noise, noise_count
+
+
+def _log_weight(static: Static, params: Params, m: _Matches, rows: RowResults) -> Float[Array, ""]:
+    """The particle's log-weight increment: the used rows' likelihoods, ``p0`` for each row that
+    weighs as a new landmark, and the likelihood at the sampled pose of rows matching a landmark
+    started earlier in the scan."""
+    if static.manage:
+        # A provisional landmark is tentative: its row weighs with its likelihood only with
+        # use_tentative; unused rows that start or match a tentative landmark weigh as new (p0).
+        use_tentative = params.map.use_tentative
+        as_new = m.assoc.is_new | (m.existing & ~m.trusted) | (m.provisional & ~use_tentative)
+        return (
+            jnp.sum(jnp.where(m.used, rows.ll, 0.0))
+            + jnp.sum(as_new) * params.log_p0
+            + jnp.sum(jnp.where(m.provisional & use_tentative, rows.llp, 0.0))
+        )
+    return (
+        jnp.sum(jnp.where(m.existing, rows.ll, 0.0))
+        + jnp.sum(m.assoc.is_new) * params.log_p0
+        + jnp.sum(jnp.where(m.provisional, rows.llp, 0.0))
+    )
+
+
+def _update_map(
+    static: Static,
+    params: Params,
+    lm: LandmarkMap,
+    window: tuple[LandmarkMap, Int[Array, " w"]],
+    m: _Matches,
+    rows: RowResults,
+    seg: SegmentIn,
+) -> tuple[LandmarkMap, Int[Array, ""], tuple[Int[Array, ""], Int[Array, ""]]]:
+    """The particle's map after the scan: matched landmarks updated, management over the window,
+    the scan's new landmarks added; with the overflow and the landmark counts."""
+    local, idx = window
+    dets, mp = seg.dets, params.map
+    W, K = local.active.shape[0], static.k_max
+    assert dets.diam is not None
+    # Diameters: each matched row updates its landmark's estimate (scalar Kalman filter).
+    var_d = jnp.square(mp.sigma_diameter)
+    cur_d = jnp.where(m.existing, local.diam[m.ws], dets.diam[m.ps])
+    cur_dv = jnp.where(m.existing, local.diam_var[m.ws], var_d)
+    upd_d, upd_dv = diameter_update(cur_d, cur_dv, dets.diam, mp.sigma_diameter)
+    new = _started(static, params, m, rows, dets, (upd_d, upd_dv), seg.scan)
+    upd = (rows.upd_mean, rows.upd_cov, upd_d, upd_dv)
+    if static.manage:
+        wt = jnp.where(m.existing, m.ws, W)
+        local = update_slots(local, wt, *upd)
+        seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
+        policy = Management(mp, static.occlusion)
+
+        def manage(loc, sn):
+            return manage_window(loc, rows.pose, sn, dets, seg.observed, seg.scan, params.measurement, policy)
+
+        local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
+        # The matched rows' estimates go straight to their slots (k rows); of the window only the
+        # fields management changes are written back (scattering every field of all W slots
+        # cost more than the management itself).
+        lm = update_slots(lm, jnp.where(m.existing, idx[m.ws], lm.active.shape[0]), *upd)
+        lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), seg.scan, mp, seg.slots_used)
+    else:
+        # Only the landmarks the scan's detections matched change: write those rows back.
+        lm = update_slots(lm, jnp.where(m.existing, idx[m.ws], lm.active.shape[0]), *upd)
+    # Every active landmark lies in the slot bucket before this scan (management only frees
+    # slots), so the scan's new landmarks go to its first K free slots at most K past it: the
+    # free slots are searched there and the map's landmarks counted there, not over the capacity.
+    past = lambda b: None if b is None else b + K  # noqa: E731
+    free = None
+    if static.manage:
+        free = _over_slot_bucket(static, seg.slot_bucket, lambda b, a: free_slots(a, K, past(b)), lm.active)
+    lm, overflow = add_landmarks(lm, new, m.assoc.is_new, contiguous=not static.manage, free=free)
+    counts = _over_slot_bucket(
+        static, seg.slot_bucket, lambda b, lm_: _counts(jax.tree.map(lambda a: a[: past(b)], lm_)), lm
+    )
+    return lm, overflow, counts
+
+
+def _started(
+    static: Static,
+    params: Params,
+    m: _Matches,
+    rows: RowResults,
+    dets: ScanDetections,
+    diam_upd: tuple[Float[Array, " k"], Float[Array, " k"]],
+    scan: Int[Array, ""] | int,
+) -> LandmarkMap:
+    """The landmarks the scan starts, as they leave it (a later detection of the scan may have
+    updated one)."""
+    assert dets.diam is not None
+    K = static.k_max
+    upd_d, upd_dv = diam_upd
+    pt = jnp.where(m.provisional, m.ps, K)
+    cand = Candidates(
+        mean=rows.new_mean.at[pt].set(rows.upd_mean, mode="drop"),
+        cov=rows.new_cov.at[pt].set(rows.upd_cov, mode="drop"),
+        diam=dets.diam.at[pt].set(upd_d, mode="drop"),
+        diam_var=jnp.full(K, jnp.square(params.map.sigma_diameter)).at[pt].set(upd_dv, mode="drop"),
+        ident=dets.ident,
+        kind=dets.kind,
+    )
+    extra_hits = jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop")
+    return new_landmarks(cand, m.assoc.is_new, extra_hits, scan, params.map, static.manage)
 
 
 def _over_slot_bucket(static: Static, slot_bucket: Int[Array, ""] | None, fn, *operands):
@@ -413,6 +509,73 @@ def filter_step(
     )(params, proposal, state, seg, jnp.asarray(valid), rel_prior)
 
 
+def _shared(
+    static: Static,
+    params: Params,
+    seg: Segments,
+    scan: Int[Array, ""],
+    valid: Bool[Array, ""],
+    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None,
+    in_use: Int[Array, ""],
+) -> SegmentIn:
+    """What the segment gives every particle: its odometry and detections, and the smallest map
+    prefix holding every active landmark of this device's particles (``in_use`` slots; under a
+    sweep's vmap: of the batch), where the local windows are searched."""
+    slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
+    dets = ScanDetections(
+        seg.z,
+        seg.z_mask,
+        seg.diam,
+        seg.z_id if static.association == "known" else None,
+        seg.z_kind if is_composite(params.measurement) else None,
+    )
+    return SegmentIn(seg.dt, seg.u, seg.dr_mask, dets, valid & seg.is_scan, scan, rel_prior, slot_bucket, in_use)
+
+
+def _reweight(
+    log_w: Float[Array, " n"], dlogw: Float[Array, " n"], valid: Bool[Array, ""]
+) -> tuple[Float[Array, " n"], Bool[Array, ""]]:
+    """The particles' normalised log-weights after a segment's increments (unchanged for padding),
+    and whether any was finite (else they are reset to uniform)."""
+    n = log_w.shape[0]
+    new = log_w + dlogw
+    finite = jnp.any(jnp.isfinite(new))
+    new = jnp.where(jnp.isnan(new), -jnp.inf, new)
+    new = jnp.where(finite, normalise(new), jnp.full((n,), -jnp.log(n)))
+    return jnp.where(valid, new, log_w), finite
+
+
+def _record(
+    out: _ParticleOut,
+    log_w: Float[Array, " n"],
+    best: Int[Array, ""],
+    valid: Bool[Array, ""],
+    finite: Bool[Array, ""],
+    resample_threshold: Float[Array, ""],
+) -> StepOutput:
+    """The segment's record from every particle's outputs and the new weights."""
+    n = log_w.shape[0]
+    ess = effective_sample_size(log_w)
+    return StepOutput(
+        best_pose=out.pose[best],
+        mean_pose=weighted_mean_pose(out.pose, log_w),
+        ess=ess,
+        resampled=valid & (ess < resample_threshold * n),
+        # Counted per particle where the maps are (indexing the best particle's map instead would
+        # move every map between the devices at every step when the particles are split).
+        n_landmarks=out.n_landmarks[best],
+        n_confirmed=out.n_confirmed[best],
+        iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
+        n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
+        n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),
+        n_associated=jnp.mean(out.n_associated.astype(float)),
+        n_new=jnp.mean(out.n_new.astype(float)),
+        window_overflow=jnp.max(out.window_overflow).astype(jnp.int32),
+        overflow=jnp.sum(out.overflow).astype(jnp.int32),
+        weight_reset=~finite,
+    )
+
+
 def _step(
     static: Static,
     axis: str | None,
@@ -438,36 +601,10 @@ def _step(
         first = jax.lax.axis_index(axis) * share
         mine = lambda a: jax.lax.dynamic_slice_in_dim(a, first, share)  # noqa: E731
 
-    # The smallest map prefix holding every active landmark of this device's particles (under a
-    # sweep's vmap: of the batch), where the local windows are searched.
     in_use = batch_max(state.slots)
-    slot_bucket = batch_max(jnp.sum(in_use > jnp.asarray(static.slot_buckets[:-1], jnp.int32)).astype(jnp.int32))
-    out = jax.vmap(
-        particle_update, (None, None, None, 0, 0, 0) + (None,) * 5 + (0,) + (None,) * 6 + (0, 0, None, None)
-    )(
-        static,
-        params,
-        proposal,
-        mine(p.pose),
-        mine(p.pose_cov),
-        p.landmarks,
-        seg.dt,
-        seg.u,
-        seg.dr_mask,
-        seg.z,
-        seg.z_mask,
-        mine(eps),
-        valid & seg.is_scan,
-        rel_prior,
-        slot_bucket,
-        in_use,
-        seg.diam,
-        state.scan,
-        mine(p.noise),
-        mine(p.noise_count),
-        seg.z_id,
-        seg.z_kind if is_composite(params.measurement) else None,
-    )
+    shared = _shared(static, params, seg, state.scan, valid, rel_prior, in_use)
+    particle = ParticleIn(mine(p.pose), mine(p.pose_cov), p.landmarks, mine(eps), mine(p.noise), mine(p.noise_count))
+    out = jax.vmap(particle_update, (None, None, None, 0, None))(static, params, proposal, particle, shared)
     if axis is not None:
         out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
     out = out._replace(
@@ -477,33 +614,10 @@ def _step(
         noise=jnp.where(valid, out.noise, p.noise),
         noise_count=jnp.where(valid, out.noise_count, p.noise_count),
     )
-    log_w = p.log_w + out.dlogw
-    finite = jnp.any(jnp.isfinite(log_w))
-    log_w = jnp.where(jnp.isnan(log_w), -jnp.inf, log_w)
-    log_w = jnp.where(finite, normalise(log_w), jnp.full((n,), -jnp.log(n)))
-    log_w = jnp.where(valid, log_w, p.log_w)
-    ess = effective_sample_size(log_w)
+    log_w, finite = _reweight(p.log_w, out.dlogw, valid)
     best = jnp.argmax(log_w).astype(jnp.int32)
     particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count)
-
-    record = StepOutput(
-        best_pose=out.pose[best],
-        mean_pose=weighted_mean_pose(out.pose, log_w),
-        ess=ess,
-        resampled=valid & (ess < params.resample_threshold * n),
-        # Counted per particle where the maps are (indexing the best particle's map instead would
-        # move every map between the devices at every step when the particles are split).
-        n_landmarks=out.n_landmarks[best],
-        n_confirmed=out.n_confirmed[best],
-        iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
-        n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
-        n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),
-        n_associated=jnp.mean(out.n_associated.astype(float)),
-        n_new=jnp.mean(out.n_new.astype(float)),
-        window_overflow=jnp.max(out.window_overflow).astype(jnp.int32),
-        overflow=jnp.sum(out.overflow).astype(jnp.int32),
-        weight_reset=~finite,
-    )
+    record = _record(out, log_w, best, valid, finite, params.resample_threshold)
 
     def ancestors(parts):
         anc = resample(static.resampler, k_res, parts.log_w)

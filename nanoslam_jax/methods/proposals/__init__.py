@@ -17,6 +17,8 @@ from nanoslam_jax.methods.proposals._nano import NanoProposal as NanoProposal
 from nanoslam_jax.methods.proposals._natural_gradient import (
     Gaussian as Gaussian,
     NaturalGradientKL as NaturalGradientKL,
+    NaturalGradientSettings as NaturalGradientSettings,
+    StateSpace as StateSpace,
     expected_grad_hess as expected_grad_hess,
     kl_gaussian as kl_gaussian,
     natural_gradient_gaussian as natural_gradient_gaussian,
@@ -36,6 +38,8 @@ __all__ = [
     "NanoProposal",
     "Gaussian",
     "NaturalGradientKL",
+    "NaturalGradientSettings",
+    "StateSpace",
     "expected_grad_hess",
     "kl_gaussian",
     "natural_gradient_gaussian",

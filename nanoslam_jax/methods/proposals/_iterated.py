@@ -22,9 +22,11 @@ from nanoslam_jax.methods.proposals._base import (
     pose_difference,
     wrap_pose,
 )
-from nanoslam_jax.methods.proposals._natural_gradient import Gaussian
+from nanoslam_jax.methods.proposals._natural_gradient import Gaussian, StateSpace
 
 SOLVERS = ("gauss_newton", "levenberg_marquardt")
+POSES = StateSpace(pose_difference, wrap_pose)
+"""Poses ``(x, y, heading)``: differences and iterates with the heading wrapped."""
 
 
 def _solver(name: str, tol: float):
@@ -44,8 +46,7 @@ def map_estimate(
     solver: str = "gauss_newton",
     max_iter: int = 10,
     tol: float = 1e-8,
-    diff=pose_difference,
-    project=wrap_pose,
+    space: StateSpace = POSES,
 ) -> tuple[Gaussian, jax.Array, jax.Array]:
     """MAP of ``N(x; x0, P0) prod_k N(r_k(x); 0, W_k^-1)`` and its Laplace (Gauss-Newton) precision.
 
@@ -60,13 +61,14 @@ def map_estimate(
         solver: ``'gauss_newton'`` or ``'levenberg_marquardt'``.
         max_iter: solver step cap.
         tol: solver ``rtol`` and ``atol``.
-        diff, project: state difference and projection (heading wrap for poses).
+        space: the state difference and projection (default: poses, the heading wrapped).
 
     Returns:
         The Laplace approximation ``N(x_map, (J'J)^-1)``, the number of steps and the optimistix
         result code (0 success, 1 step cap; 2 when the solution was non-finite and the prior mean
         was returned).
     """
+    diff, project = space
     U0 = chol3(prior.precision).T
     weights = jnp.where(mask[:, None, None], weights, jnp.eye(weights.shape[-1]))  # masked rows may be non-finite
     Uk = jnp.swapaxes(chol_small(weights), -1, -2) * mask[:, None, None]

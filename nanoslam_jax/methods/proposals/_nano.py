@@ -14,11 +14,13 @@ from nanoslam_jax.methods.proposals._base import (
     ProposalResult,
     measurement_residuals,
     noise_information,
-    pose_difference,
-    wrap_pose,
 )
-from nanoslam_jax.methods.proposals._iterated import gauss_newton_map
-from nanoslam_jax.methods.proposals._natural_gradient import Gaussian, natural_gradient_gaussian
+from nanoslam_jax.methods.proposals._iterated import POSES, gauss_newton_map
+from nanoslam_jax.methods.proposals._natural_gradient import (
+    Gaussian,
+    NaturalGradientSettings,
+    natural_gradient_gaussian,
+)
 
 
 class NanoProposal(AbstractProposal):
@@ -54,19 +56,8 @@ class NanoProposal(AbstractProposal):
         start = None
         if self.init == "gauss_newton":
             start = gauss_newton_map(prior, residual, weights, det.mask, max_iter=self.max_iter)
+        settings = NaturalGradientSettings(self.gamma, self.step, self.max_iter, self.hessian, self.solver)
         out = natural_gradient_gaussian(
-            prior,
-            residual,
-            weights,
-            det.mask,
-            self.rule,
-            gamma=self.gamma,
-            step=self.step,
-            max_iter=self.max_iter,
-            hessian=self.hessian,
-            solver=self.solver,
-            start=start,
-            diff=pose_difference,
-            project=wrap_pose,
+            prior, residual, weights, det.mask, self.rule, settings=settings, start=start, space=POSES
         )
         return ProposalResult(out.q.mean, out.q.cov, out.iterations, out.result)

@@ -22,7 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from nanoslam_jax.lib._linalg import chol3, inv3, logdet_spd, mm, mt, mv, quad_form, sym, tsum
 from nanoslam_jax.lib.quadrature import QuadratureRule
@@ -182,6 +182,37 @@ class NaturalGradientResult(NamedTuple):
     result: Int[Array, ""]  # 0 converged, 1 cap reached, 2 non-finite (prior returned)
 
 
+class StateSpace(NamedTuple):
+    """How iterates of a state are compared and kept valid.
+
+    Attributes:
+        diff: ``(a, b) -> a - b`` on the state space (wraps angles for poses).
+        project: maps an iterate back onto the state space (wraps angles for poses).
+    """
+
+    diff: Callable = jnp.subtract
+    project: Callable = lambda x: x
+
+
+class NaturalGradientSettings(eqx.Module):
+    """The natural-gradient iteration's settings.
+
+    Attributes:
+        gamma: KL stopping threshold (may be traced).
+        step: natural-gradient step, 1 the undamped iteration of the paper (may be traced).
+        max_iter: (static) iteration cap.
+        hessian: (static) ``'gauss_newton'`` or ``'exact'`` (then guarded positive definite).
+        solver: (static) ``'optimistix'`` (fixed-point solve with :class:`NaturalGradientKL`) or
+            ``'while_loop'``.
+    """
+
+    gamma: Float[ArrayLike, ""] = 1e-4
+    step: Float[ArrayLike, ""] = 1.0
+    max_iter: int = eqx.field(static=True, default=10)
+    hessian: str = eqx.field(static=True, default="gauss_newton")
+    solver: str = eqx.field(static=True, default="optimistix")
+
+
 def natural_gradient_gaussian(
     prior: Gaussian,
     residual: Callable[[Array], Array],
@@ -189,14 +220,9 @@ def natural_gradient_gaussian(
     mask: Bool[Array, " k"],
     rule: QuadratureRule,
     *,
-    gamma: Float[Array, ""] | float = 1e-4,
-    step: Float[Array, ""] | float = 1.0,
-    max_iter: int = 10,
-    hessian: str = "gauss_newton",
-    solver: str = "optimistix",
+    settings: NaturalGradientSettings = NaturalGradientSettings(),
     start: Gaussian | None = None,
-    diff: Callable = jnp.subtract,
-    project: Callable = lambda x: x,
+    space: StateSpace = StateSpace(),
 ) -> NaturalGradientResult:
     """The Gaussian minimising ``KL(q || prior) + E_q[l]`` by natural-gradient iteration.
 
@@ -206,22 +232,18 @@ def natural_gradient_gaussian(
         weights: inverse noise covariance of each residual.
         mask: which residuals count (none: the prior is returned after one step).
         rule: quadrature rule for the expectations.
-        gamma: KL stopping threshold.
-        step: natural-gradient step (1 is the undamped iteration of the paper).
-        max_iter: iteration cap.
-        hessian: ``'gauss_newton'`` or ``'exact'`` (then guarded positive definite).
-        solver: ``'optimistix'`` (fixed-point solve with :class:`NaturalGradientKL`) or
-            ``'while_loop'``.
+        settings: the iteration's stopping threshold, step, cap, Hessian and solver.
         start: initial iterate (default: the prior).
-        diff: ``(a, b) -> a - b`` on the state space (wraps angles for poses).
-        project: maps an iterate back onto the state space (wraps angles for poses).
+        space: the state space's difference and projection (default: Euclidean).
     """
+    diff, project = space
+    max_iter, hessian, step = settings.max_iter, settings.hessian, settings.step
     problem = NaturalGradientProblem(
         rule, prior, residual, weights, mask, jnp.asarray(step, prior.mean.dtype), hessian, diff, project
     )
-    gamma = jnp.asarray(gamma, prior.mean.dtype)
+    gamma = jnp.asarray(settings.gamma, prior.mean.dtype)
     y0 = (prior.mean, prior.precision) if start is None else (start.mean, start.precision)
-    if solver == "optimistix":
+    if settings.solver == "optimistix":
         sol: optx.Solution = optx.fixed_point(
             problem,
             NaturalGradientKL(gamma=gamma, diff=diff),

@@ -11,7 +11,7 @@ than through a Jacobian (``S = Pzz + R``). The landmark updates (``filter/_landm
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
@@ -44,17 +44,23 @@ def _block_chol(P: Float[Array, "3 3"], Sigma: Float[Array, "l l"]) -> Float[Arr
     return L.at[:3, :3].set(chol3(sym(P))).at[3:, 3:].set(chol_small(sym(Sigma)))
 
 
+class _HasAngles(Protocol):
+    """What the unscented updates need of a measurement model: ``h`` and its angle components."""
+
+    angles: tuple[int, ...]
+
+    def h(self, x: Float[Array, "3"], m: Float[Array, " l"]) -> Float[Array, " d"]: ...
+
+
 def unscented_measurement_update(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
-    h: Callable[[Float[Array, "3"], Float[Array, " l"]], Float[Array, " d"]],
+    model: AbstractMeasurementModel | _HasAngles,
     z: Float[Array, " d"],
-    m_mean: Float[Array, " l"],
-    m_cov: Float[Array, "l l"],
+    landmark: tuple[Float[Array, " l"], Float[Array, "l l"]],
     R: Float[Array, "d d"],
     rule: Unscented,
     *,
-    z_angle_index: int | tuple[int, ...] | None = 1,
     x_angle_index: int | None = 2,
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"], Float[Array, " d"], Float[Array, "d d"]]:
     """One unscented Kalman update of the pose with one detection of an uncertain landmark.
@@ -68,14 +74,13 @@ def unscented_measurement_update(
     Args:
         x: pose mean (3,).
         P: pose covariance (3, 3).
-        h: measurement function ``h(pose, landmark) -> z_hat``.
+        model: the measurement model: its ``h(pose, landmark) -> z_hat`` and ``angles``, the
+            static indices of the angle components of ``z`` (wrapped). Any object with these
+            two attributes serves.
         z: the detection (d,).
-        m_mean: the landmark mean (l,).
-        m_cov: the landmark covariance (l, l).
+        landmark: the landmark's mean (l,) and covariance (l, l).
         R: measurement noise covariance (d, d).
         rule: the unscented rule (``alpha, beta, kappa``; may be traced).
-        z_angle_index: static index (or tuple of indices) of the angle components of ``z``
-            (wrapped), or None.
         x_angle_index: static index of the angle component of ``x`` (wrapped), or None.
 
     Returns:
@@ -83,12 +88,13 @@ def unscented_measurement_update(
         previous ``P`` is kept if the update would leave it not positive definite), the
         innovation and its covariance.
     """
+    m_mean, m_cov = landmark
     centre = jnp.concatenate([x, m_mean])
     xi, wm, wc = rule.unit_points(centre.shape[-1])
     X = centre + mmt(xi, _block_chol(P, m_cov))  # (2n + 1, n): X_i = centre + L xi_i
-    Z = jax.vmap(h)(X[:, :3], X[:, 3:])
+    Z = jax.vmap(model.h)(X[:, :3], X[:, 3:])
     dZ = Z - Z[0]
-    angles = _indices(z_angle_index)
+    angles = _indices(model.angles)
     for i in angles:
         dZ = dZ.at[:, i].set(wrap_angle(dZ[:, i]))
     dz_mean, Pzz = sigma_point_stats(dZ, wm, wc)
@@ -110,54 +116,42 @@ def unscented_measurement_update(
 def unscented_sequential_update(
     x0: Float[Array, "3"],
     P0: Float[Array, "3 3"],
-    h: Callable[[Float[Array, "3"], Float[Array, " l"]], Float[Array, " d"]],
-    z: Float[Array, "k d"],
-    m_mean: Float[Array, "k l"],
-    m_cov: Float[Array, "k l l"],
-    mask: Bool[Array, " k"],
+    model: AbstractMeasurementModel | _HasAngles,
+    det: Detections,
     R: Float[Array, "d d"],
-    alpha: Float[ArrayLike, ""],
-    beta: Float[ArrayLike, ""],
-    kappa: Float[ArrayLike, ""],
+    rule: Unscented,
     *,
-    z_angle_index: int | tuple[int, ...] | None = 1,
     x_angle_index: int | None = 2,
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
     """UFastSLAM's proposal: unscented updates of the pose by the detections, one after another.
 
     A ``lax.scan`` over the ``k`` rows applies :func:`unscented_measurement_update` to each
-    real row (``mask``); masked rows leave the state unchanged. For a measurement function
+    real row (``det.mask``); masked rows leave the state unchanged. For a measurement function
     linear in pose and landmark this is exactly the Kalman posterior with the landmark
     covariance folded into the noise (``S = Hx P Hx' + Hm Sigma Hm' + R``).
 
     Args:
         x0: prior pose mean (3,).
         P0: prior pose covariance (3, 3).
-        h: measurement function ``h(pose, landmark) -> z_hat``.
-        z: detections (k, d).
-        m_mean: the associated landmark means (k, l).
-        m_cov: the associated landmark covariances (k, l, l).
-        mask: which rows are real associations (k,).
+        model: the measurement model (its ``h`` and ``angles``, as for
+            :func:`unscented_measurement_update`).
+        det: the detections ``(k, d)``, their associated landmarks' means and covariances and
+            which rows are real associations.
         R: measurement noise covariance (d, d).
-        alpha, beta, kappa: unscented parameters (scalars; may be traced).
-        z_angle_index: static index (or tuple of indices) of the angle components of a
-            detection, or None.
+        rule: the unscented rule (``alpha, beta, kappa``; may be traced).
         x_angle_index: static index of the heading in the pose, or None.
 
     Returns:
         The proposal mean and covariance ``(x, P)``.
     """
-    rule = Unscented(alpha=alpha, beta=beta, kappa=kappa)
 
     def body(carry, row):
         x, P = carry
         zk, mk, Sk, use = row
-        xn, Pn, _, _ = unscented_measurement_update(
-            x, P, h, zk, mk, Sk, R, rule, z_angle_index=z_angle_index, x_angle_index=x_angle_index
-        )
+        xn, Pn, _, _ = unscented_measurement_update(x, P, model, zk, (mk, Sk), R, rule, x_angle_index=x_angle_index)
         return (jnp.where(use, xn, x), jnp.where(use, Pn, P)), None
 
-    (x, P), _ = jax.lax.scan(body, (x0, P0), (z, m_mean, m_cov, mask))
+    (x, P), _ = jax.lax.scan(body, (x0, P0), (det.z, det.mean, det.cov, det.mask))
     return x, P
 
 
@@ -196,20 +190,8 @@ class UnscentedProposal(AbstractProposal):
 
     def __call__(self, x0, P0, det: Detections, R) -> ProposalResult:
         """Args: the prior mean ``x0`` and covariance ``P0``, the associated detections, the noise ``R``."""
-        x, P = unscented_sequential_update(
-            x0,
-            P0,
-            self.measurement.h,
-            det.z,
-            det.mean,
-            det.cov,
-            det.mask,
-            R,
-            self.alpha,
-            self.beta,
-            self.kappa,
-            z_angle_index=self.measurement.angles,
-        )
+        rule = Unscented(alpha=self.alpha, beta=self.beta, kappa=self.kappa)
+        x, P = unscented_sequential_update(x0, P0, self.measurement, det, R, rule)
         ok = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(P))
         x = jnp.where(ok, x, x0)
         P = jnp.where(ok, P, P0)

@@ -368,7 +368,7 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     import dataclasses
 
     from nanoslam_jax.methods._scan import make_proposal
-    from nanoslam_jax.methods.particle._rows import row_work, rows_over_buckets
+    from nanoslam_jax.methods.particle._rows import RowInputs, row_work, rows_over_buckets
     from nanoslam_jax.models import range_bearing
     from nanoslam_jax.methods.proposals import Detections
 
@@ -389,11 +389,13 @@ def test_row_buckets_give_the_full_rows_result_and_stay_one_branch():
     ps = jnp.broadcast_to(jnp.array([0, 0, 0, 0, 3, 0, 0, 0]), (n, k))
     bucketed = jax.jit(
         jax.vmap(
-            lambda x, P, d, ex, p, e, zm: rows_over_buckets(static, params, prop, x, P, R, d, ex, p, e, zm),
+            lambda x, P, d, ex, p, e, zm: rows_over_buckets(static, params, prop, x, P, R, RowInputs(d, ex, p, zm), e),
             (0, 0, 0, 0, 0, 0, None),
         )
     )
-    full = jax.jit(jax.vmap(lambda x, P, d, ex, p, e: row_work(static, params, prop, x, P, R, d, ex, p, e)))
+    full = jax.jit(
+        jax.vmap(lambda x, P, d, ex, p, e: row_work(static, params, prop, x, P, R, RowInputs(d, ex, p, ex), e))
+    )
     for n_real in (0, 1, 2, 3, 4, 5, 8):
         z_mask = jnp.arange(k) < n_real
         # Each particle associates its own subset of the real detections.
@@ -427,7 +429,8 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets,
     from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmark
     from nanoslam_jax.methods._scan import make_proposal
     from nanoslam_jax.methods._state import LandmarkMap
-    from nanoslam_jax.methods.particle._step import particle_update
+    from nanoslam_jax.methods.maps._association import ScanDetections
+    from nanoslam_jax.methods.particle._step import ParticleIn, SegmentIn, particle_update
 
     sets = {"off": ["map.manage=false"], "on": [], "use_tentative": ["map.use_tentative=true"]}[management]
     cfg = load_config(None, ["filter.capacity=16", "filter.window=8"] + sets)
@@ -442,15 +445,8 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets,
             static,
             params,
             make_proposal(static, params),
-            pose,
-            1e-4 * jnp.eye(3),
-            LandmarkMap.empty(16),
-            jnp.zeros(2),
-            jnp.zeros((2, 2)),
-            jnp.zeros(2, bool),
-            z,
-            z_mask,
-            eps,
+            ParticleIn(pose, 1e-4 * jnp.eye(3), LandmarkMap.empty(16), eps),
+            SegmentIn(jnp.zeros(2), jnp.zeros((2, 2)), jnp.zeros(2, bool), ScanDetections(z, z_mask)),
         )
     )(jnp.array([0.3, -1.2, 0.5]))
     R = params.R

@@ -17,6 +17,7 @@ from nanoslam_jax.app.experiment import execute, load_log, map_columns
 from nanoslam_jax.methods import reported_map, run_filter
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmark, ukf_init_landmark, ukf_update_loglik
+from nanoslam_jax.lib.quadrature import Unscented
 from nanoslam_jax.models import AbstractMeasurementModel, Circle
 
 # the functions under test, compiled (run eagerly, JAX compiles each operation)
@@ -64,7 +65,7 @@ def test_three_dimensional_landmark_updates_equal_the_kalman_filter():
     m0, c0 = init_landmark(x, z, jnp.asarray(R), model)
     np.testing.assert_allclose(m0, [3.5, -1.0, 0.7], atol=1e-12)
     np.testing.assert_allclose(c0, R, atol=1e-12)
-    um, uc = ukf_init_landmark(x, z, jnp.asarray(R), 1.0, 2.0, 0.0, model)
+    um, uc = ukf_init_landmark(x, z, jnp.asarray(R), Unscented(1.0, 2.0, 0.0), model)
     np.testing.assert_allclose(um, m0, atol=1e-12)
     np.testing.assert_allclose(uc, R, atol=1e-12)
 
@@ -72,7 +73,7 @@ def test_three_dimensional_landmark_updates_equal_the_kalman_filter():
     cov = np.array([[0.3, 0.05, 0.01], [0.05, 0.2, -0.02], [0.01, -0.02, 0.1]])
     z2 = jnp.array([2.45, 1.15, 0.72])
     want_m, want_c, want_ll = _kalman(mean, cov, np.asarray(z2) - (mean - [1.0, -2.0, 0.0]), R)
-    for update in (ekf_update_loglik, lambda *a: ukf_update_loglik(*a[:-1], 1.0, 2.0, 0.0, model=a[-1])):
+    for update in (ekf_update_loglik, lambda *a: ukf_update_loglik(*a[:-1], Unscented(1.0, 2.0, 0.0), model=a[-1])):
         got_m, got_c, got_ll = update(x, z2, jnp.asarray(mean), jnp.asarray(cov), jnp.asarray(R), model)
         np.testing.assert_allclose(got_m, want_m, atol=1e-12)
         np.testing.assert_allclose(got_c, want_c, atol=1e-12)

@@ -12,7 +12,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.methods import LandmarkMap, associate, ekf_update, gather_window, init_landmark, scatter_window
+from nanoslam_jax.methods import (
+    Gating,
+    LandmarkMap,
+    ScanDetections,
+    associate,
+    ekf_update,
+    gather_window,
+    init_landmark,
+    scatter_window,
+)
 from nanoslam_jax.methods.maps._landmarks import add_landmarks, update_slots
 from nanoslam_jax.methods.maps._association import innovation_information
 from nanoslam_jax.methods.maps._landmarks import first_true, free_slots, prefix_count
@@ -181,12 +190,9 @@ def assoc_fn():
             local_map(),
             jnp.asarray(X),
             jnp.asarray(P),
-            z,
-            z_mask,
+            ScanDetections(z, z_mask),
             jnp.asarray(R),
-            jnp.asarray(GATE),
-            jnp.asarray(NEW),
-            sequential,
+            Gating(jnp.asarray(GATE), jnp.asarray(NEW), sequential),
         )
 
     return {s: jax.jit(lambda z, m, s=s: fn(z, m, s)) for s in (True, False)}
@@ -296,7 +302,8 @@ def test_association_over_the_window_prefix_equals_the_whole_window(sequential):
         return local, jnp.asarray(x), jnp.asarray(z), z_mask
 
     def args(x, z, z_mask):
-        return (x, jnp.asarray(P), z, z_mask, jnp.asarray(R), jnp.asarray(GATE), jnp.asarray(NEW), sequential)
+        gating = Gating(jnp.asarray(GATE), jnp.asarray(NEW), sequential)
+        return (x, jnp.asarray(P), ScanDetections(z, z_mask), jnp.asarray(R), gating)
 
     full = jax.jit(lambda loc, x, z, zm: associate(loc, *args(x, z, zm)))
     prefix = jax.jit(lambda loc, x, z, zm: associate_window_prefix(loc, *args(x, z, zm)))

@@ -16,11 +16,11 @@ import pytest
 
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import LandmarkMap, associate, run_filter
+from nanoslam_jax.methods import Gating, LandmarkMap, Management, ScanDetections, associate, run_filter
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods.maps._management import manage_window, manage_window_prefix, occluded
 from nanoslam_jax.methods._scan import make_proposal
-from nanoslam_jax.methods.particle._step import particle_update
+from nanoslam_jax.methods.particle._step import ParticleIn, SegmentIn, particle_update
 
 K = 3
 CAP = 8
@@ -66,20 +66,8 @@ def stepper(static, params):
             static,
             params,
             proposal,
-            pose,
-            params.init_cov * jnp.eye(3),
-            lm,
-            jnp.zeros(1),
-            jnp.zeros((1, 2)),
-            jnp.zeros(1, bool),
-            z,
-            z_mask,
-            jnp.zeros(3),
-            True,
-            None,
-            None,
-            diam,
-            scan,
+            ParticleIn(pose, params.init_cov * jnp.eye(3), lm, jnp.zeros(3)),
+            SegmentIn(jnp.zeros(1), jnp.zeros((1, 2)), jnp.zeros(1, bool), ScanDetections(z, z_mask, diam), True, scan),
         )
         return out.landmarks
 
@@ -199,14 +187,11 @@ def test_occlusion_on_a_hand_built_scene():
             local,
             jnp.zeros(3),
             jnp.zeros(4, bool),
-            jnp.asarray(z),
-            jnp.asarray(z_mask),
-            jnp.full(K, 0.3),
+            ScanDetections(jnp.asarray(z), jnp.asarray(z_mask), jnp.full(K, 0.3)),
             jnp.asarray(True),
             0,
             params.measurement,
-            mp,
-            occlusion,
+            Management(mp, occlusion),
         )
         np.testing.assert_array_equal(np.asarray(out.misses), np.asarray(expect, int), err_msg=str(occlusion))
         np.testing.assert_allclose(out.log_odds, np.where(expect, 3.0 + math.log(0.2 / 0.8), 3.0), rtol=1e-12)
@@ -249,8 +234,9 @@ def test_management_over_the_window_prefix_equals_the_whole_window():
         return local, seen, z, jnp.asarray(rng.random(K) < 0.8)
 
     def full(local, seen, z, z_mask):
+        dets = ScanDetections(z, z_mask, jnp.full(K, 0.3))
         return manage_window(
-            local, jnp.zeros(3), seen, z, z_mask, jnp.full(K, 0.3), jnp.asarray(True), 0, params.measurement, mp, True
+            local, jnp.zeros(3), seen, dets, jnp.asarray(True), 0, params.measurement, Management(mp, True)
         )
 
     def prefix(local, seen, z, z_mask):
@@ -306,14 +292,9 @@ def test_diameter_term_separates_two_trees_at_the_same_range_and_bearing():
             local,
             jnp.zeros(3),
             1e-6 * jnp.eye(3),
-            jnp.asarray(z),
-            jnp.asarray(z_mask),
+            ScanDetections(jnp.asarray(z), jnp.asarray(z_mask), jnp.array([0.5, 0.0, 0.0])),
             params.R,
-            params.gate,
-            params.new_landmark,
-            diam=jnp.array([0.5, 0.0, 0.0]),
-            use_diameter=use,
-            sigma_diameter=0.05,
+            Gating(params.gate, params.new_landmark, use_diameter=use, sigma_diameter=0.05),
         )
         assert int(a.slot[0]) == slot, use
     # The distance to the 0.2 m tree carries (0.3)^2 / (1e-4 + 0.05^2) = 34.6 more.

@@ -25,7 +25,7 @@ from nanoslam_jax.app.experiment import adaptive_noise_report, load_log
 from nanoslam_jax.methods import run_batch, run_filter, stack_params
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.eval.metrics import evaluate
-from nanoslam_jax.methods.proposals import Gaussian, IteratedProposal, map_estimate
+from nanoslam_jax.methods.proposals import Gaussian, IteratedProposal, StateSpace, map_estimate
 from nanoslam_jax.methods.proposals._fastslam2 import linearized_gaussian
 from tests.unit.methods.test_nano import (
     _fs2_fn,
@@ -53,9 +53,7 @@ def _linear_fn(kind):
         residual = lambda x: z - H @ x  # noqa: E731
         if kind == "linearized":
             return linearized_gaussian(prior, residual, W, mask, project=lambda x: x)
-        q, _, _ = map_estimate(
-            prior, residual, W, mask, solver=kind, max_iter=50, tol=1e-12, diff=jnp.subtract, project=lambda x: x
-        )
+        q, _, _ = map_estimate(prior, residual, W, mask, solver=kind, max_iter=50, tol=1e-12, space=StateSpace())
         return q
 
     return jax.jit(fn)

@@ -25,6 +25,7 @@ from nanoslam_jax.methods.proposals import (
     LinearizedProposal,
     NanoProposal,
     gauss_newton_map,
+    NaturalGradientSettings,
     natural_gradient_gaussian,
 )
 from nanoslam_jax.methods.proposals._base import range_bearing_residuals
@@ -79,7 +80,12 @@ def _linear_ng_fn(rule, max_iter, solver):
     def fn(x0, L0, P0, H, W, z, mask, gamma):
         residual = lambda x: z - H @ x  # noqa: E731  (k, 2), not wrapped
         return natural_gradient_gaussian(
-            Gaussian(x0, L0, P0), residual, W, mask, RULES[rule], gamma=gamma, max_iter=max_iter, solver=solver
+            Gaussian(x0, L0, P0),
+            residual,
+            W,
+            mask,
+            RULES[rule],
+            settings=NaturalGradientSettings(gamma=gamma, max_iter=max_iter, solver=solver),
         )
 
     return jax.jit(fn)

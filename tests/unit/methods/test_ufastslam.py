@@ -7,6 +7,7 @@ near 0 to near +-pi), a simulated log's true path and trees, and the real log.
 """
 
 import math
+from typing import Callable, NamedTuple
 
 import equinox as eqx
 import jax
@@ -15,12 +16,13 @@ import numpy as np
 import pytest
 
 from nanoslam_jax.methods.maps import _landmarks
+from nanoslam_jax.lib.quadrature import Unscented
 from nanoslam_jax.models import range_bearing
 from nanoslam_jax.methods.proposals import Detections, LinearizedProposal, UnscentedProposal
 from nanoslam_jax.methods.proposals._ufastslam import unscented_sequential_update
 from tests.helpers.paths import REPO_ROOT
 
-ukf_update_loglik = jax.jit(_landmarks.ukf_update_loglik, static_argnames=("h", "z_angle_index"))
+ukf_update_loglik = jax.jit(_landmarks.ukf_update_loglik, static_argnames=("model",))
 ekf_update_loglik = jax.jit(_landmarks.ekf_update_loglik)
 ukf_init_landmark = jax.jit(_landmarks.ukf_init_landmark)
 init_landmark = jax.jit(_landmarks.init_landmark)
@@ -107,7 +109,29 @@ def batch_kalman(x0, P0, z, m, Sig):
     return x0 + K @ nu, P0 - K @ S @ K.T
 
 
-_seq_jit = jax.jit(unscented_sequential_update, static_argnames=("h", "z_angle_index", "x_angle_index"))
+_seq_jit = jax.jit(unscented_sequential_update, static_argnames=("model", "x_angle_index"))
+
+
+class FnModel(NamedTuple):
+    """A measurement model given by its function ``h(pose, landmark)`` and its angle components."""
+
+    h: Callable
+    angles: tuple[int, ...] = (1,)
+
+
+def seq(x0, P0, h, z, m, Sig, mask, ut, angles=(1, 2)):
+    """The sequential unscented update of ``z`` (rows ``mask``) with measurement function ``h``."""
+    z_angles = () if angles[0] is None else (angles[0],)
+    det = Detections(jnp.asarray(z), jnp.asarray(m), jnp.asarray(Sig), jnp.asarray(mask))
+    return _seq_jit(
+        jnp.asarray(x0),
+        jnp.asarray(P0),
+        FnModel(h, z_angles),
+        det,
+        jnp.asarray(R),
+        Unscented(*ut),
+        x_angle_index=angles[1],
+    )
 
 
 @pytest.mark.parametrize("k", [1, 4])
@@ -121,19 +145,7 @@ def test_linear_model_equals_batch_kalman(k, ut, angles):
     """
     rng, x0, P0, m, Sig = rotation_free_case(k, k)
     z = x0 @ A_LIN.T + m @ B_LIN.T + C_LIN + rng.normal(size=(k, 2)) * [1.0, 0.05]
-    x, P = _seq_jit(
-        jnp.asarray(x0),
-        jnp.asarray(P0),
-        h_lin,
-        jnp.asarray(z),
-        jnp.asarray(m),
-        jnp.asarray(Sig),
-        jnp.ones(k, bool),
-        jnp.asarray(R),
-        *ut,
-        z_angle_index=angles[0],
-        x_angle_index=angles[1],
-    )
+    x, P = seq(x0, P0, h_lin, z, m, Sig, np.ones(k, bool), ut, angles)
     x_ref, P_ref = batch_kalman(x0, P0, z, m, Sig)
     scale = np.abs(P0).max()
     np.testing.assert_allclose(x, x_ref, rtol=0, atol=1e-10 * (1 + np.abs(x_ref).max()))
@@ -149,40 +161,15 @@ def test_masked_rows_are_no_ops():
     """A masked row (garbage values, even NaN) leaves the result that of the other rows."""
     rng, x0, P0, m, Sig = rotation_free_case(7, 3)
     z = h_np(x0, m) + rng.normal(size=(3, 2)) * [0.5, 0.02]
-    args = dict(h=range_bearing, R=jnp.asarray(R), alpha=0.9, beta=2.0, kappa=0.0)
     keep = np.array([0, 2])
-    x2, P2 = _seq_jit(
-        jnp.asarray(x0),
-        jnp.asarray(P0),
-        z=jnp.asarray(z[keep]),
-        m_mean=jnp.asarray(m[keep]),
-        m_cov=jnp.asarray(Sig[keep]),
-        mask=jnp.ones(2, bool),
-        **args,
-    )
+    x2, P2 = seq(x0, P0, range_bearing, z[keep], m[keep], Sig[keep], np.ones(2, bool), PUBLISHED)
     z_bad, m_bad, S_bad = z.copy(), m.copy(), Sig.copy()
     z_bad[1], m_bad[1], S_bad[1] = np.nan, 1e9, -np.eye(2)
-    x3, P3 = _seq_jit(
-        jnp.asarray(x0),
-        jnp.asarray(P0),
-        z=jnp.asarray(z_bad),
-        m_mean=jnp.asarray(m_bad),
-        m_cov=jnp.asarray(S_bad),
-        mask=jnp.array([True, False, True]),
-        **args,
-    )
+    x3, P3 = seq(x0, P0, range_bearing, z_bad, m_bad, S_bad, np.array([True, False, True]), PUBLISHED)
     np.testing.assert_allclose(x3, x2, rtol=1e-14, atol=1e-14)
     np.testing.assert_allclose(P3, P2, rtol=1e-14, atol=1e-16)
     # All rows masked: the prior, exactly.
-    x0_, P0_ = _seq_jit(
-        jnp.asarray(x0),
-        jnp.asarray(P0),
-        z=jnp.asarray(z_bad),
-        m_mean=jnp.asarray(m_bad),
-        m_cov=jnp.asarray(S_bad),
-        mask=jnp.zeros(3, bool),
-        **args,
-    )
+    x0_, P0_ = seq(x0, P0, range_bearing, z_bad, m_bad, S_bad, np.zeros(3, bool), PUBLISHED)
     np.testing.assert_array_equal(x0_, x0)
     np.testing.assert_array_equal(P0_, P0)
 
@@ -260,7 +247,7 @@ def test_ukf_landmark_update_matches_gauss_hermite(case):
     x, m, Sig, dz = LM_CASES[case]
     z = h_np(x, m) + dz
     m_gh, C_gh, S_gh = gh_update(m, Sig, 2, z, lambda M: h_np(x, M), order=40)
-    mean, cov, ll = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), *PUBLISHED)
+    mean, cov, ll = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), Unscented(*PUBLISHED))
     e_mean, _, _ = ekf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)))
     err = np.abs(np.asarray(mean) - m_gh).max()
     assert err < 1.5e-2
@@ -286,7 +273,7 @@ def test_ukf_landmark_update_linear_model_is_kalman(ut):
     x = np.array([0.5, -1.0, 0.2])
     m, Sig = np.array([4.0, 2.0]), np.array([[0.7, 0.2], [0.2, 0.4]])
     z = A_LIN @ x + B_LIN @ m + C_LIN + np.array([0.6, -0.3])
-    mean, cov, ll = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), *ut, h=h_lin)
+    mean, cov, ll = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), Unscented(*ut), model=FnModel(h_lin))
     S = B_LIN @ Sig @ B_LIN.T + R
     K = Sig @ B_LIN.T @ np.linalg.inv(S)
     nu = z - (A_LIN @ x + B_LIN @ m + C_LIN)
@@ -301,7 +288,7 @@ def test_ukf_landmark_update_tiny_covariance_is_ekf():
     x, m, _, dz = LM_CASES[0]
     Sig = 1e-6 * np.array([[1.0, 0.3], [0.3, 2.0]])
     z = h_np(x, m) + dz
-    u = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), *PUBLISHED)
+    u = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), Unscented(*PUBLISHED))
     e = ekf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)))
     np.testing.assert_allclose(u[0], e[0], rtol=0, atol=1e-8)
     np.testing.assert_allclose(u[1], e[1], rtol=1e-5, atol=0)
@@ -322,7 +309,7 @@ def test_ukf_init_landmark_matches_gauss_hermite(r):
     M = x[:2] + Zs[:, :1] * np.stack([np.cos(ang), np.sin(ang)], 1)
     mu = w @ M
     C = (w[:, None] * (M - mu)).T @ (M - mu)
-    mean, cov = ukf_init_landmark(jnp.asarray(x), jnp.asarray(z), jnp.asarray(R), *PUBLISHED)
+    mean, cov = ukf_init_landmark(jnp.asarray(x), jnp.asarray(z), jnp.asarray(R), Unscented(*PUBLISHED))
     np.testing.assert_allclose(mean, mu, rtol=0, atol=1e-4)
     np.testing.assert_allclose(cov, C, rtol=0.02, atol=1e-3)
     # Close to the inverse model and eq. (16) (the noise is small against the range).
@@ -354,17 +341,7 @@ def test_proposal_bearings_and_heading_across_pi():
     assert np.all(np.abs(zf[:, 1]) > 3.0) and np.any(zf[:, 1] > 0) and np.any(zf[:, 1] < 0)
 
     def run(x, zz):
-        return _seq_jit(
-            jnp.asarray(x),
-            jnp.asarray(P0),
-            range_bearing,
-            jnp.asarray(zz),
-            jnp.asarray(m),
-            jnp.asarray(Sig),
-            jnp.ones(3, bool),
-            jnp.asarray(R),
-            *PUBLISHED,
-        )
+        return seq(x, P0, range_bearing, zz, m, Sig, np.ones(3, bool), PUBLISHED)
 
     xa, Pa = run(x0, z)
     xb, Pb = run(xf, zf)
@@ -388,8 +365,8 @@ def test_ukf_landmark_update_bearing_across_pi():
     z = h_np(x, m) + np.array([0.2, -0.03])
     xf, zf = flipped(x, z)
     assert abs(zf[1]) > 3.0
-    a = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), *PUBLISHED)
-    b = ukf_update_loglik(*map(jnp.asarray, (xf, zf, m, Sig, R)), *PUBLISHED)
+    a = ukf_update_loglik(*map(jnp.asarray, (x, z, m, Sig, R)), Unscented(*PUBLISHED))
+    b = ukf_update_loglik(*map(jnp.asarray, (xf, zf, m, Sig, R)), Unscented(*PUBLISHED))
     np.testing.assert_allclose(b[0], a[0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(b[1], a[1], rtol=1e-10, atol=1e-15)
     np.testing.assert_allclose(b[2], a[2], rtol=0, atol=1e-10)

@@ -22,7 +22,8 @@ from nanoslam_jax.app.config import load_config
 from nanoslam_jax.methods import LandmarkMap
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods._scan import make_proposal
-from nanoslam_jax.methods.particle._step import particle_update
+from nanoslam_jax.methods.maps._association import ScanDetections
+from nanoslam_jax.methods.particle._step import ParticleIn, SegmentIn, particle_update
 from tests.unit.methods.test_nano import ekf_pose_update, rb_jacobian_landmark, rb_jacobian_pose, rb_residual_np, wrap
 
 K = 3
@@ -84,15 +85,10 @@ def scene(sets, confirmed=(True, True)):
             static,
             params,
             make_proposal(static, params),
-            jnp.asarray(POSE),
-            jnp.asarray(POSE_COV),
-            lm,
-            jnp.zeros(2),
-            jnp.zeros((2, 2)),
-            jnp.zeros(2, bool),
-            jnp.asarray(z),
-            jnp.ones(K, bool),
-            jnp.zeros(3),
+            ParticleIn(jnp.asarray(POSE), jnp.asarray(POSE_COV), lm, jnp.zeros(3)),
+            SegmentIn(
+                jnp.zeros(2), jnp.zeros((2, 2)), jnp.zeros(2, bool), ScanDetections(jnp.asarray(z), jnp.ones(K, bool))
+            ),
         )
     )()
     assert int(out.n_associated) == 2 and int(out.n_new) == 1
