@@ -11,7 +11,7 @@ from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import execute, load_log, map_columns
 from nanoslam_jax.methods import reported_map, run_filter
 from nanoslam_jax.app.filters import settings_from_config
-from nanoslam_jax.methods.maps._association import associate
+from nanoslam_jax.methods.maps._association import Gating, ScanDetections, associate
 from nanoslam_jax.methods.gaussian._joint_gaussian import association_distances
 from nanoslam_jax.methods._state import LandmarkMap
 from nanoslam_jax.models import PAD_VARIANCE, Circle, Composite, LineSegment
@@ -54,19 +54,10 @@ def test_a_detection_is_never_associated_with_a_landmark_of_another_type(sequent
     local = _local_map([line, circle], [0, 1])
     z_line = LINE_CIRCLE.of_kind(0).h(x, jnp.asarray(line))
     z = jnp.stack([z_line, z_line])
-    assoc = jax.jit(associate, static_argnames="sequential")(
-        local,
-        x,
-        P,
-        z,
-        jnp.array([True, True]),
-        LINE_CIRCLE.noise_cov(),
-        jnp.asarray(1e6),  # a gate that takes anything of the right type
-        jnp.asarray(1e7),
-        sequential=sequential,
-        model=LINE_CIRCLE,
-        z_kind=jnp.array([1, 0]),
-    )
+    dets = ScanDetections(z, jnp.array([True, True]), kind=jnp.array([1, 0]))
+    # A gate that takes anything of the right type.
+    gating = Gating(jnp.asarray(1e6), jnp.asarray(1e7), sequential)
+    assoc = jax.jit(associate)(local, x, P, dets, LINE_CIRCLE.noise_cov(), gating, LINE_CIRCLE)
     slot = np.asarray(assoc.slot)
     assert slot[0] != 0  # the circle detection does not take the line
     assert slot[1] == 0 and float(assoc.d2[1]) < 1e-9  # the line detection does
