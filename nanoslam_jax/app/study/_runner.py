@@ -35,7 +35,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import yaml
 
@@ -45,6 +45,9 @@ from nanoslam_jax.app.config import ConfigError, config_to_dict
 from nanoslam_jax.app.study._spec import STUDY_METRICS, StudyPoint, StudySpec, expand_study, point_sweep_dict
 from nanoslam_jax.app.study._stats import equal_time, number, paired_comparison, summarize_points
 from nanoslam_jax.lib._precision import in_float64
+
+if TYPE_CHECKING:
+    from nanoslam_jax.app.sweep import ResultsFile
 
 __all__ = ["run_study", "StudyResult", "TIMING_FIELDS"]
 
@@ -178,6 +181,57 @@ def _write_study_yaml(out: Path, spec: StudySpec, points: list[StudyPoint], resu
     return held
 
 
+def _prepare_study_dir(out: Path, spec: StudySpec, points: list[StudyPoint], resume: bool) -> list[dict]:
+    """Create the study directory, write ``study.yaml`` and the config of each point's timing
+    process (its first seed); returns the points the directory holds (see ``_write_study_yaml``)."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "configs").mkdir(exist_ok=True)
+    held = _write_study_yaml(out, spec, points, resume)
+    for pt in points:
+        cfg = config_to_dict(pt.config) | {"seed": pt.seeds[0]}
+        (out / "configs" / f"{pt.point_id}.yaml").write_text(
+            f"# study {spec.name}: {pt.label}, {pt.particles or 'no'} particles, seeds {pt.seeds[0]}..{pt.seeds[-1]}\n"
+            + yaml.safe_dump(cfg, sort_keys=False)
+        )
+    return held
+
+
+def _open_timing_file(out: Path) -> ResultsFile:
+    """``timing.csv`` of the study, created, or repaired when it exists (a resumed study)."""
+    from nanoslam_jax.app.sweep import ResultsFile
+
+    timing_file = ResultsFile(out / "timing.csv", _TIMING_COLUMNS)
+    if (out / "timing.csv").exists():
+        timing_file.repair()
+    else:
+        timing_file.create()
+    return timing_file
+
+
+def _setup_sweep_devices(spec: StudySpec, first: StudyPoint, parallel: Optional[str]) -> None:
+    """Set up the JAX CPU devices of the sweep runner's ``devices`` mode, when the study uses it
+    (the ``run`` options of the point ``first``, and ``parallel``)."""
+    from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE, setup_devices
+    from nanoslam_jax.app.sweep import resolve_parallel, sweep_from_dict
+
+    opts = sweep_from_dict(point_sweep_dict(spec, first), source=spec.source).run
+    mode, workers = resolve_parallel(parallel or opts.parallel, opts.workers)
+    if mode == "devices" and opts.backend == "local":
+        setup_devices(workers * SWEEP_DEVICES_PER_CORE)
+
+
+def _plot_study(out: Path, spec: StudySpec, summary: list, floor: Optional[dict], say) -> None:
+    """Draw ``accuracy_vs_compute.png``; a failure is reported with ``say``, never raised."""
+    from nanoslam_jax.app.study._plots import plot_accuracy_vs_compute
+
+    try:
+        plot_accuracy_vs_compute(
+            out / "accuracy_vs_compute.png", summary, floor=floor, title=f"{spec.name}: {Path(spec.source).name}"
+        )
+    except Exception as e:  # the figure must never lose a study
+        say(f"figure failed: {type(e).__name__}: {e}")
+
+
 @in_float64
 def run_study(
     spec: StudySpec,
@@ -207,9 +261,8 @@ def run_study(
     Raises:
         ConfigError: ``out_dir`` holds a study already (without ``resume``), or none (with it).
     """
-    from nanoslam_jax.app._devices import SWEEP_DEVICES_PER_CORE, setup_devices
     from nanoslam_jax.lib._cache import enable_compile_cache
-    from nanoslam_jax.app.sweep import ResultsFile, read_results, resolve_parallel, run_sweep, sweep_from_dict
+    from nanoslam_jax.app.sweep import SweepOverrides, read_results, run_sweep, sweep_from_dict
 
     out = Path(out_dir)
     if resume and not (out / "study.yaml").is_file():
@@ -217,30 +270,15 @@ def run_study(
     if not resume and (out / "study.yaml").exists():
         raise ConfigError(f"{out}: holds a study already; pass --resume to continue it, or choose another --out")
     points = expand_study(spec)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "configs").mkdir(exist_ok=True)
-    held = _write_study_yaml(out, spec, points, resume)
-    for pt in points:  # the config each point's timing process runs: its first seed
-        cfg = config_to_dict(pt.config) | {"seed": pt.seeds[0]}
-        (out / "configs" / f"{pt.point_id}.yaml").write_text(
-            f"# study {spec.name}: {pt.label}, {pt.particles or 'no'} particles, seeds {pt.seeds[0]}..{pt.seeds[-1]}\n"
-            + yaml.safe_dump(cfg, sort_keys=False)
-        )
+    held = _prepare_study_dir(out, spec, points, resume)
     # The cache the command set up (the user's, or $NANOSLAM_CACHE_DIR; none with --no-cache) serves
     # the timing processes too; without one, the study keeps its programs in OUT/jax_cache.
     cache = enable_compile_cache(out / "jax_cache") if dict(spec.run).get("compile_cache", True) else None
-    timing_file = ResultsFile(out / "timing.csv", _TIMING_COLUMNS)
-    if (out / "timing.csv").exists():
-        timing_file.repair()
-    else:
-        timing_file.create()
+    timing_file = _open_timing_file(out)
     say = (lambda text: _say(stream, text)) if progress else (lambda text: None)  # noqa: E731
 
     if points:  # the sweep runner's JAX devices, set up before any point (some run as one process)
-        opts = sweep_from_dict(point_sweep_dict(spec, points[0]), source=spec.source).run
-        mode, workers = resolve_parallel(parallel or opts.parallel, opts.workers)
-        if mode == "devices" and opts.backend == "local":
-            setup_devices(workers * SWEEP_DEVICES_PER_CORE)
+        _setup_sweep_devices(spec, points[0], parallel)
 
     t_start = time.perf_counter()
     for k, pt in enumerate(points):
@@ -262,7 +300,7 @@ def run_study(
                 data_dir=data_dir,
                 progress=progress,
                 stream=stream,
-                parallel=parallel or ("single" if len(pt.seeds) == 1 else None),
+                overrides=SweepOverrides(parallel=parallel or ("single" if len(pt.seeds) == 1 else None)),
             )
         timed = {r["point_id"]: r for r in read_results(out / "timing.csv", key="point_id")}
         if timed.get(pt.point_id, {}).get("status") == "ok":
@@ -281,14 +319,7 @@ def run_study(
     summary, paired = write_tables(out, spec, held)
     floor = _gps_floor(out, spec, points, data_dir, say)
     if plots:
-        from nanoslam_jax.app.study._plots import plot_accuracy_vs_compute
-
-        try:
-            plot_accuracy_vs_compute(
-                out / "accuracy_vs_compute.png", summary, floor=floor, title=f"{spec.name}: {Path(spec.source).name}"
-            )
-        except Exception as e:  # the figure must never lose a study
-            say(f"figure failed: {type(e).__name__}: {e}")
+        _plot_study(out, spec, summary, floor, say)
     runs = _collect_runs(out, held)
     timing_rows = read_results(out / "timing.csv", key="point_id")
     n_failed = sum(r["status"] != "ok" for r in runs) + sum(r["status"] != "ok" for r in timing_rows)

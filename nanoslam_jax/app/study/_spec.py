@@ -36,7 +36,7 @@ from __future__ import annotations
 import dataclasses
 import re
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, NamedTuple, Optional, Sequence
 
 from nanoslam_jax.app.compare import deterministic, int_at_least, method_rows, read_comparison, resolve_base, str_list
 from nanoslam_jax.app.config import Config, ConfigError, config_to_dict, load_config, read_yaml_mapping
@@ -241,6 +241,149 @@ def _segments(value: Any, key: str, where: str) -> Optional[int]:
     return None if value is None else int_at_least(value, key, where, 1)
 
 
+class _Variant(NamedTuple):
+    """The settings of the study a call runs: the file's (or its ``quick`` variant's), narrowed by
+    the command line.
+
+    Attributes:
+        methods: the methods run, in file order.
+        particles: the default particle count -> seeds of the particle methods.
+        first_seed: first seed of every point.
+        segments: use only the first this many segments (None: all).
+        timing: how seconds per log are measured.
+    """
+
+    methods: list[StudyMethod]
+    particles: tuple[tuple[int, int], ...]
+    first_seed: int
+    segments: Optional[int]
+    timing: StudyTiming
+
+
+def _check_quick(raw: dict, where: str) -> None:
+    """The file has a ``quick`` section of known keys (for ``--quick``)."""
+    q = raw.get("quick")
+    if not isinstance(q, dict):
+        raise ConfigError(f"{where}: --quick needs a 'quick' section (a mapping of {sorted(_QUICK)}), got {q!r}")
+    bad = set(q) - _QUICK
+    if bad:
+        raise ConfigError(f"{where}: key 'quick': unknown key(s) {sorted(bad)}; expected some of {sorted(_QUICK)}")
+
+
+def _study_methods(raw: dict, where: str) -> list[StudyMethod]:
+    """The file's methods, each with its own particle counts (or ``None``)."""
+    return [
+        StudyMethod(
+            label,
+            sets,
+            None if row.get("particles") is None else _particle_map(row["particles"], f"{key}.particles", where),
+        )
+        for key, row, label, sets in method_rows(raw.get("methods"), where, _METHOD)
+    ]
+
+
+def _file_variant(raw: dict, methods: list[StudyMethod], where: str) -> _Variant:
+    """The top-level settings of the file."""
+    particles = _particle_map(raw.get("particles"), "particles", where)
+    first_seed = int_at_least(raw.get("first_seed", 0), "first_seed", where, 0)
+    segments = _segments(raw.get("segments"), "segments", where)
+    timing = _timing(raw.get("timing"), where, StudyTiming())
+    return _Variant(methods, particles, first_seed, segments, timing)
+
+
+def _quick_variant(q: dict, v: _Variant, where: str) -> _Variant:
+    """``v`` with the keys of the ``quick`` section ``q`` in place of the top-level ones."""
+    methods, particles, first_seed, segments, timing = v
+    if "particles" in q:  # replaces every method's counts
+        particles = _particle_map(q["particles"], "quick.particles", where)
+        methods = [dataclasses.replace(m, particles=None) for m in methods]
+    if "segments" in q:
+        segments = _segments(q["segments"], "quick.segments", where)
+    if "first_seed" in q:
+        first_seed = int_at_least(q["first_seed"], "quick.first_seed", where, 0)
+    timing = _timing(q.get("timing"), where, timing)
+    keep = q.get("methods")
+    if keep is not None:
+        labels = [m.label for m in v.methods]
+        if not isinstance(keep, list) or not keep or any(k not in labels for k in keep):
+            raise ConfigError(
+                f"{where}: key 'quick.methods': expected a list of method labels from {labels}, got {keep!r}"
+            )
+        methods = [m for m in methods if m.label in keep]
+    return _Variant(methods, particles, first_seed, segments, timing)
+
+
+def _only_methods(v: _Variant, only: Sequence[str], where: str) -> _Variant:
+    """``v`` with only the methods labelled ``only`` (``--methods``)."""
+    have = [m.label for m in v.methods]
+    if not only or any(k not in have for k in only):
+        raise ConfigError(f"{where}: --methods: expected labels of the study's methods {have}, got {list(only)}")
+    return v._replace(methods=[m for m in v.methods if m.label in only])
+
+
+def _only_counts(v: _Variant, counts: Sequence[int], where: str) -> _Variant:
+    """``v`` with only the particle counts ``counts`` (``--particles``), each one of the study's."""
+    have_n = sorted({n for n, _ in v.particles} | {n for m in v.methods if m.particles for n, _ in m.particles})
+    if not counts or any(not isinstance(n, int) or n not in have_n for n in counts):
+        raise ConfigError(f"{where}: --particles: expected particle counts of the study {have_n}, got {list(counts)}")
+    particles = tuple((n, s) for n, s in v.particles if n in counts)
+    methods = [
+        m
+        if m.particles is None
+        else dataclasses.replace(m, particles=tuple((n, s) for n, s in m.particles if n in counts))
+        for m in v.methods
+    ]
+    return v._replace(methods=methods, particles=particles)
+
+
+def _with_seeds(v: _Variant, seeds: int, where: str) -> _Variant:
+    """``v`` with ``seeds`` seeds at every particle count (``--seeds``)."""
+    int_at_least(seeds, "--seeds", where, 1)
+    particles = tuple((n, seeds) for n, _ in v.particles)
+    methods = [
+        m if m.particles is None else dataclasses.replace(m, particles=tuple((n, seeds) for n, _ in m.particles))
+        for m in v.methods
+    ]
+    return v._replace(methods=methods, particles=particles)
+
+
+def _run_options(raw: dict, where: str) -> dict:
+    """The file's ``run`` section (options of the sweep runner), ``{}`` when absent."""
+    run = raw.get("run") or {}
+    if not isinstance(run, dict):
+        raise ConfigError(f"{where}: key 'run': expected a mapping of sweep run options, got {run!r}")
+    return run
+
+
+def _paired_in_variant(raw: dict, labels: list[str], in_variant: list[str], where: str) -> Optional[PairedSpec]:
+    """The paired comparison, against the compared methods the variant keeps (``None`` when it keeps
+    the reference or none of them)."""
+    paired = _paired(raw.get("paired"), labels, where)
+    if paired is None:
+        return None
+    against = tuple(a for a in paired.against if a in in_variant)
+    return dataclasses.replace(paired, against=against) if paired.reference in in_variant and against else None
+
+
+def _check_points(spec: StudySpec, labels: list[str]) -> None:
+    """Validate every method's config, its filter method, the ``run`` options and the point ids."""
+    where = spec.source
+    points = expand_study(spec)  # every method's config is validated here, before anything runs
+    from nanoslam_jax.app.registry import method_names
+    from nanoslam_jax.app.sweep import sweep_from_dict
+
+    for pt in points:
+        if pt.method not in method_names():
+            raise ConfigError(
+                f"{where}: method {pt.label!r}: filter.method {pt.method!r} is not registered; "
+                f"registered: {', '.join(method_names())}"
+            )
+
+    sweep_from_dict(point_sweep_dict(spec, points[0]), source=where)  # the 'run' options, named by this file
+    if len({pt.point_id for pt in points}) != len(points):
+        raise ConfigError(f"{where}: key 'methods': labels must stay distinct once made file-name safe, got {labels}")
+
+
 def load_study(
     path: str | Path,
     overrides: tuple[str, ...] = (),
@@ -271,105 +414,37 @@ def load_study(
     where = str(p)
     raw = read_comparison(p, _TOP)
     if quick:
-        q = raw.get("quick")
-        if not isinstance(q, dict):
-            raise ConfigError(f"{where}: --quick needs a 'quick' section (a mapping of {sorted(_QUICK)}), got {q!r}")
-        bad = set(q) - _QUICK
-        if bad:
-            raise ConfigError(f"{where}: key 'quick': unknown key(s) {sorted(bad)}; expected some of {sorted(_QUICK)}")
+        _check_quick(raw, where)
     base = resolve_base(raw.get("base"), p)
-    methods = [
-        StudyMethod(
-            label,
-            sets,
-            None if row.get("particles") is None else _particle_map(row["particles"], f"{key}.particles", where),
-        )
-        for key, row, label, sets in method_rows(raw.get("methods"), where, _METHOD)
-    ]
+    methods = _study_methods(raw, where)
     labels = [m.label for m in methods]
-
-    particles = _particle_map(raw.get("particles"), "particles", where)
-    first_seed = int_at_least(raw.get("first_seed", 0), "first_seed", where, 0)
-    segments = _segments(raw.get("segments"), "segments", where)
-    timing = _timing(raw.get("timing"), where, StudyTiming())
+    v = _file_variant(raw, methods, where)
     if quick:
-        q = raw["quick"]
-        if "particles" in q:  # replaces every method's counts
-            particles = _particle_map(q["particles"], "quick.particles", where)
-            methods = [dataclasses.replace(m, particles=None) for m in methods]
-        if "segments" in q:
-            segments = _segments(q["segments"], "quick.segments", where)
-        if "first_seed" in q:
-            first_seed = int_at_least(q["first_seed"], "quick.first_seed", where, 0)
-        timing = _timing(q.get("timing"), where, timing)
-        keep = q.get("methods")
-        if keep is not None:
-            if not isinstance(keep, list) or not keep or any(k not in labels for k in keep):
-                raise ConfigError(
-                    f"{where}: key 'quick.methods': expected a list of method labels from {labels}, got {keep!r}"
-                )
-            methods = [m for m in methods if m.label in keep]
-    in_variant = [m.label for m in methods]  # --methods and --particles narrow a run, not the study
+        v = _quick_variant(raw["quick"], v, where)
+    in_variant = [m.label for m in v.methods]  # --methods and --particles narrow a run, not the study
     if only is not None:
-        have = [m.label for m in methods]
-        if not only or any(k not in have for k in only):
-            raise ConfigError(f"{where}: --methods: expected labels of the study's methods {have}, got {list(only)}")
-        methods = [m for m in methods if m.label in only]
+        v = _only_methods(v, only, where)
     if counts is not None:
-        have_n = sorted({n for n, _ in particles} | {n for m in methods if m.particles for n, _ in m.particles})
-        if not counts or any(not isinstance(n, int) or n not in have_n for n in counts):
-            raise ConfigError(
-                f"{where}: --particles: expected particle counts of the study {have_n}, got {list(counts)}"
-            )
-        particles = tuple((n, s) for n, s in particles if n in counts)
-        methods = [
-            m
-            if m.particles is None
-            else dataclasses.replace(m, particles=tuple((n, s) for n, s in m.particles if n in counts))
-            for m in methods
-        ]
+        v = _only_counts(v, counts, where)
     if seeds is not None:
-        int_at_least(seeds, "--seeds", where, 1)
-        particles = tuple((n, seeds) for n, _ in particles)
-        methods = [
-            m if m.particles is None else dataclasses.replace(m, particles=tuple((n, seeds) for n, _ in m.particles))
-            for m in methods
-        ]
-    run = raw.get("run") or {}
-    if not isinstance(run, dict):
-        raise ConfigError(f"{where}: key 'run': expected a mapping of sweep run options, got {run!r}")
-    paired = _paired(raw.get("paired"), labels, where)
-    if paired is not None:  # the quick variant may drop some of the compared methods
-        against = tuple(a for a in paired.against if a in in_variant)
-        paired = dataclasses.replace(paired, against=against) if paired.reference in in_variant and against else None
+        v = _with_seeds(v, seeds, where)
+    run = _run_options(raw, where)
+    paired = _paired_in_variant(raw, labels, in_variant, where)
     spec = StudySpec(
         name=str(raw.get("name", p.stem)) + ("-quick" if quick else ""),
         source=where,
         base=base,
         set=str_list(raw.get("set"), "set", where) + tuple(overrides),
-        methods=tuple(methods),
-        particles=particles,
-        first_seed=first_seed,
-        segments=segments,
-        timing=timing,
+        methods=tuple(v.methods),
+        particles=v.particles,
+        first_seed=v.first_seed,
+        segments=v.segments,
+        timing=v.timing,
         run=tuple(run.items()),
         paired=paired,
         quick=quick,
     )
-    points = expand_study(spec)  # every method's config is validated here, before anything runs
-    from nanoslam_jax.app.registry import method_names
-    from nanoslam_jax.app.sweep import sweep_from_dict
-
-    for pt in points:
-        if pt.method not in method_names():
-            raise ConfigError(
-                f"{where}: method {pt.label!r}: filter.method {pt.method!r} is not registered; "
-                f"registered: {', '.join(method_names())}"
-            )
-
-    sweep_from_dict(point_sweep_dict(spec, points[0]), source=where)  # the 'run' options, named by this file
-    if len({pt.point_id for pt in points}) != len(points):
-        raise ConfigError(f"{where}: key 'methods': labels must stay distinct once made file-name safe, got {labels}")
+    _check_points(spec, labels)
     return spec
 
 
