@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, Literal, Optional, cast
+from typing import Any, Literal, NamedTuple, Optional, cast
 
 import numpy as np
 
@@ -141,67 +141,120 @@ def odometry_controls(cfg: Config) -> bool:
     return issubclass(motion_model_class(cfg.model.motion), Odometry)
 
 
-def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
-    """Read (or simulate) the log of ``cfg`` and cut it into segments.
+class _Read(NamedTuple):
+    """A log as read (or simulated), before it is cut into segments.
 
-    Args:
-        cfg: the run configuration (``data`` and ``sim`` or ``indoor`` sections).
-        data_dir: a ``--data`` directory overriding ``data.path`` (with ``data.kind: indoor``, an
-            indoor log directory read instead of simulating one).
+    Attributes:
+        raw: the host log, with its detections.
+        frame: metrics frame (:attr:`LoadedLog.frame`).
+        source: where it came from.
+        features: the true line segments and circles (``None``: none known).
+        reference: the reference path (``None``: none).
+        scans: the laser scans (``None``: none read).
     """
-    features = reference = scans = None
-    odometry = odometry_controls(cfg)
-    if cfg.data.kind == "simulated":
-        from nanoslam_jax.sim.park import simulate, simulate_config
 
-        if odometry:  # a differential-drive robot with its sensor at the odometry model's offset
-            o = cfg.odometry
-            raw = simulate(cfg.sim, cfg.vehicle, UnicycleConfig(sensor_x=o.sensor_x, sensor_y=o.sensor_y))
-        else:
-            raw = simulate_config(cfg)
-        frame, source = "slam", f"simulated (seed {cfg.sim.seed})"
-    elif cfg.data.kind == "city":
-        from nanoslam_jax.sim.city import simulate_city
+    raw: RawLog
+    frame: str
+    source: str
+    features: Any = None
+    reference: Any = None
+    scans: Any = None
 
-        if odometry:  # a differential-drive robot with its sensor at the odometry model's offset
-            o = cfg.odometry
-            unicycle: Optional[UnicycleConfig] = UnicycleConfig(sensor_x=o.sensor_x, sensor_y=o.sensor_y)
-        else:
-            unicycle = cfg.unicycle if cfg.model.motion == "unicycle" else None
-        raw = simulate_city(cfg.city, cfg.sim, cfg.vehicle, unicycle).raw
-        frame = "slam"
-        source = f"simulated city ({cfg.city.blocks}x{cfg.city.blocks} blocks, {cfg.city.distance_m:g} m, seed {cfg.city.seed})"
-    elif cfg.data.kind == "indoor" and data_dir is None and cfg.data.path is None:
-        from nanoslam_jax.sim.indoor import feature_truth, simulate_indoor
 
-        indoor = simulate_indoor(cfg.indoor)
-        raw, frame, features = indoor.raw, "slam", feature_truth(indoor.world)
-        source = f"simulated indoor ({indoor.world.template}, seed {cfg.indoor.seed})"
-        scans = indoor.scans
-        if cfg.data.detections != "file":
-            raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
-    elif cfg.data.format in ("carmen", "rosbag"):
-        raw, scans, source, reference = _load_laser_odom(cfg, data_dir)
-        raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
-        frame = "relative"
+def _unicycle_at_odometry_sensor(cfg: Config) -> UnicycleConfig:
+    """A differential-drive robot with its sensor at the odometry model's offset."""
+    o = cfg.odometry
+    return UnicycleConfig(sensor_x=o.sensor_x, sensor_y=o.sensor_y)
+
+
+def _read_simulated_park(cfg: Config, odometry: bool) -> _Read:
+    """``data.kind: simulated``: the simulated park."""
+    from nanoslam_jax.sim.park import simulate, simulate_config
+
+    if odometry:
+        raw = simulate(cfg.sim, cfg.vehicle, _unicycle_at_odometry_sensor(cfg))
     else:
-        from nanoslam_jax.data import load_laser
-        from nanoslam_jax.sim.indoor import read_feature_truth
+        raw = simulate_config(cfg)
+    return _Read(raw, "slam", f"simulated (seed {cfg.sim.seed})")
 
-        directory = resolve_data_dir(cfg, data_dir)
-        if cfg.data.format == "mrclam":
-            raw = load_mrclam(directory, cfg.data.robot)
-        else:
-            fmt = cast(Literal["auto", "ascii", "mat"], cfg.data.format)  # carmen and rosbag are read above
-            raw = load_victoria_park(directory, fmt, detections=cfg.data.detections == "file")
-        if cfg.data.detections != "file":
-            scans = load_laser(directory)
-            raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
-        frame = "slam" if raw.truth_poses is not None else "relative"
-        source = raw.source or str(directory)
-        features = read_feature_truth(directory)
-    if odometry and raw.dr.shape[1] == 3:  # a differential-drive robot's (v, omega) rows
-        raw = dataclasses.replace(raw, dr=odometry_rows_from_unicycle(raw.dr))
+
+def _read_simulated_city(cfg: Config, odometry: bool) -> _Read:
+    """``data.kind: city``: the simulated city."""
+    from nanoslam_jax.sim.city import simulate_city
+
+    if odometry:
+        unicycle: Optional[UnicycleConfig] = _unicycle_at_odometry_sensor(cfg)
+    else:
+        unicycle = cfg.unicycle if cfg.model.motion == "unicycle" else None
+    raw = simulate_city(cfg.city, cfg.sim, cfg.vehicle, unicycle).raw
+    source = (
+        f"simulated city ({cfg.city.blocks}x{cfg.city.blocks} blocks, {cfg.city.distance_m:g} m, seed {cfg.city.seed})"
+    )
+    return _Read(raw, "slam", source)
+
+
+def _read_simulated_indoor(cfg: Config) -> _Read:
+    """``data.kind: indoor`` without a log directory: the simulated indoor world, its scans and
+    (unless ``data.detections: file``) the front end's detections in them."""
+    from nanoslam_jax.sim.indoor import feature_truth, simulate_indoor
+
+    indoor = simulate_indoor(cfg.indoor)
+    raw, features = indoor.raw, feature_truth(indoor.world)
+    source = f"simulated indoor ({indoor.world.template}, seed {cfg.indoor.seed})"
+    if cfg.data.detections != "file":
+        raw = with_scan_detections(raw, indoor.scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
+    return _Read(raw, "slam", source, features=features, scans=indoor.scans)
+
+
+def _read_laser_odometry_log(cfg: Config, data_dir: Optional[str]) -> _Read:
+    """``data.format: carmen`` or ``rosbag``: the odometry, the front end's detections in the scans
+    and the reference path."""
+    raw, scans, source, reference = _load_laser_odom(cfg, data_dir)
+    raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
+    return _Read(raw, "relative", source, reference=reference, scans=scans)
+
+
+def _read_log_directory(cfg: Config, data_dir: Optional[str]) -> _Read:
+    """A log directory (Victoria Park, MRCLAM or an indoor log): its files, the laser scans when
+    the detections come from the front end, and the true features it holds."""
+    from nanoslam_jax.data import load_laser
+    from nanoslam_jax.sim.indoor import read_feature_truth
+
+    directory = resolve_data_dir(cfg, data_dir)
+    scans = None
+    if cfg.data.format == "mrclam":
+        raw = load_mrclam(directory, cfg.data.robot)
+    else:
+        fmt = cast(Literal["auto", "ascii", "mat"], cfg.data.format)  # carmen and rosbag are read elsewhere
+        raw = load_victoria_park(directory, fmt, detections=cfg.data.detections == "file")
+    if cfg.data.detections != "file":
+        scans = load_laser(directory)
+        raw = with_scan_detections(raw, scans, cfg.data.detections, cfg.detector, cfg.data.beam_step)
+    frame = "slam" if raw.truth_poses is not None else "relative"
+    source = raw.source or str(directory)
+    return _Read(raw, frame, source, features=read_feature_truth(directory), scans=scans)
+
+
+def _read_log(cfg: Config, data_dir: Optional[str], odometry: bool) -> _Read:
+    """Read or simulate the log ``data.kind`` and ``data.format`` name."""
+    if cfg.data.kind == "simulated":
+        return _read_simulated_park(cfg, odometry)
+    if cfg.data.kind == "city":
+        return _read_simulated_city(cfg, odometry)
+    if cfg.data.kind == "indoor" and data_dir is None and cfg.data.path is None:
+        return _read_simulated_indoor(cfg)
+    if cfg.data.format in ("carmen", "rosbag"):
+        return _read_laser_odometry_log(cfg, data_dir)
+    return _read_log_directory(cfg, data_dir)
+
+
+def _cut_segments(cfg: Config, raw: RawLog, source: str) -> Segments:
+    """Cut ``raw`` into the segments of ``data``; the errors name what to change.
+
+    Raises:
+        ValueError: no laser scan kept (naming detector.min_line_length for line segments), or a
+            scan holds more features than ``nasrukf.max_groups``.
+    """
     d = cfg.data
     try:
         segments = make_segments(
@@ -227,20 +280,50 @@ def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
                 f"key 'nasrukf.max_groups': a scan of {source} holds {most} line segments and arcs, more than "
                 f"nasrukf.max_groups ({cfg.nasrukf.max_groups}); raise it to at least {most}"
             )
+    return segments
+
+
+def _observable_map_truth(cfg: Config, raw: RawLog, segments: Segments) -> Optional[np.ndarray]:
+    """The true landmarks observable from the true path (a simulated or surveyed point map)."""
+    if raw.truth_landmarks is None or raw.truth_poses is None:
+        return None
+    d = cfg.data
+    t = np.asarray(segments.time)[np.asarray(segments.z_mask).any(axis=1)]
+    seen = observable_landmarks(raw.truth_landmarks, raw.truth_poses, t, d.max_range, cfg.map.fov_deg, d.min_range)
+    return np.asarray(raw.truth_landmarks)[seen]
+
+
+def _survey_of(raw: RawLog) -> Optional[Survey]:
+    """The surveyed landmarks of a log without a true path (e.g. MRCLAM's)."""
+    if raw.truth_landmarks is None or raw.truth_poses is not None:
+        return None
+    xy = np.asarray(raw.truth_landmarks, dtype=float)
+    ids = np.arange(xy.shape[0]) if raw.landmark_ids is None else np.asarray(raw.landmark_ids, dtype=np.int64)
+    return Survey(xy, ids)
+
+
+def load_log(cfg: Config, data_dir: Optional[str] = None) -> LoadedLog:
+    """Read (or simulate) the log of ``cfg`` and cut it into segments.
+
+    Args:
+        cfg: the run configuration (``data`` and ``sim`` or ``indoor`` sections).
+        data_dir: a ``--data`` directory overriding ``data.path`` (with ``data.kind: indoor``, an
+            indoor log directory read instead of simulating one).
+    """
+    odometry = odometry_controls(cfg)
+    read = _read_log(cfg, data_dir, odometry)
+    raw = read.raw
+    if odometry and raw.dr.shape[1] == 3:  # a differential-drive robot's (v, omega) rows
+        raw = dataclasses.replace(raw, dr=odometry_rows_from_unicycle(raw.dr))
+    segments = _cut_segments(cfg, raw, read.source)
     # a map of lines: scored against the true walls, not points (NASRUKF's per-beam features are lines and arcs)
-    lines = cfg.model.measurement == "line" or d.detections == "laser_beams" or "+" in cfg.model.measurement
-    features = features if lines or cfg.model.measurement in ("circle", "line+circle") else None
-    map_truth = None
-    if raw.truth_landmarks is not None and raw.truth_poses is not None and not lines:
-        t = np.asarray(segments.time)[np.asarray(segments.z_mask).any(axis=1)]
-        seen = observable_landmarks(raw.truth_landmarks, raw.truth_poses, t, d.max_range, cfg.map.fov_deg, d.min_range)
-        map_truth = np.asarray(raw.truth_landmarks)[seen]
-    survey = None
-    if raw.truth_landmarks is not None and raw.truth_poses is None:
-        xy = np.asarray(raw.truth_landmarks, dtype=float)
-        ids = np.arange(xy.shape[0]) if raw.landmark_ids is None else np.asarray(raw.landmark_ids, dtype=np.int64)
-        survey = Survey(xy, ids)
-    return LoadedLog(raw, segments, frame, source, map_truth, survey, features, reference, scans)
+    measurement = cfg.model.measurement
+    lines = measurement == "line" or cfg.data.detections == "laser_beams" or "+" in measurement
+    features = read.features if lines or measurement in ("circle", "line+circle") else None
+    map_truth = None if lines else _observable_map_truth(cfg, raw, segments)
+    return LoadedLog(
+        raw, segments, read.frame, read.source, map_truth, _survey_of(raw), features, read.reference, read.scans
+    )
 
 
 def _load_laser_odom(cfg: Config, data_dir: Optional[str]):

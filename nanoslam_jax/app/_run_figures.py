@@ -4,6 +4,8 @@ error along the log, the ESS, and for a laser log with a reference the scans dra
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, cast
 
 import numpy as np
 
@@ -13,30 +15,37 @@ from nanoslam_jax.eval.metrics import (
 )
 from nanoslam_jax.app._map_table import _map_layout, map_columns
 
+if TYPE_CHECKING:
+    from nanoslam_jax.app.experiment import RunResult
 
-def write_run_figures(out, cfg, log, t, est, landmarks, ess, n_particles, mk, dr_poses) -> None:
-    """The run's figures: ``ess.png`` (particle methods), and ``trajectory.png`` and ``error.png``
-    against the log's reference path (with ``scan_map.png``) or its GPS or truth."""
+
+def write_run_figures(out: Path, result: RunResult) -> None:
+    """The figures of ``result`` in ``out``: ``ess.png`` (particle methods), and ``trajectory.png``
+    and ``error.png`` against the log's reference path (with ``scan_map.png``) or its GPS or truth."""
     from nanoslam_jax.eval.plotting import plot_series
 
-    if ess is not None:
+    cfg, log = result.config, result.log
+    if result.ess is not None:
         plot_series(
             out / "ess.png",
-            [("ESS", t, ess)],
+            [("ESS", result.times, result.ess)],
             "effective sample size",
             f"{cfg.name}: ESS",
-            hline=cfg.filter.resample_threshold * n_particles,
+            hline=cfg.filter.resample_threshold * cfg.filter.n_particles,
         )
     if log.reference is not None and not len(log.raw.gps):
-        _reference_plots(out, cfg, log, t, est, landmarks, dr_poses)
+        _reference_plots(out, result)
     else:
-        _gps_plots(out, cfg, log, t, est, landmarks, mk, dr_poses)
+        _gps_plots(out, result)
 
 
-def _gps_plots(out, cfg, log, t, est, landmarks, mk, dr_poses) -> None:
+def _gps_plots(out: Path, result: RunResult) -> None:
     """``trajectory.png`` against GPS (or the truth) and, with GPS, ``error.png`` beside dead reckoning's."""
     from nanoslam_jax.eval.plotting import plot_series, plot_trajectory
 
+    cfg, log, t, est = result.config, result.log, result.times, result.trajectory
+    landmarks, dr_poses = result.landmarks, result.dead_reckoning
+    rotation_deg, frame = cfg.metrics.gps_rotation_deg, cast(Literal["relative", "slam"], log.frame)
     gps = log.raw.gps
     ref = (
         relative_gps(gps[:, 1:3], cfg.metrics.gps_rotation_deg) if log.frame == "relative" and len(gps) else gps[:, 1:3]
@@ -61,14 +70,14 @@ def _gps_plots(out, cfg, log, t, est, landmarks, mk, dr_poses) -> None:
     )
     if not len(gps):  # no GPS (e.g. MRCLAM): no error over time
         return
-    te, err = error_over_time(t, est[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"])
+    te, err = error_over_time(t, est[:, :2], gps, rotation_deg=rotation_deg, frame=frame)
     series = [(cfg.filter.method, te, err)]
     if cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):
         # The baseline: the vehicle model alone on the same log.
         series.append(
             (
                 "dead reckoning",
-                *error_over_time(t, dr_poses[:, :2], gps, rotation_deg=mk["rotation_deg"], frame=mk["frame"]),
+                *error_over_time(t, dr_poses[:, :2], gps, rotation_deg=rotation_deg, frame=frame),
             )
         )
     plot_series(
@@ -108,12 +117,15 @@ def _line_extents(lines: np.ndarray, points: np.ndarray, near: float = 0.1, gap:
     return np.asarray(segs, float).reshape(-1, 2, 2)
 
 
-def _reference_plots(out, cfg, log, t, est, landmarks, dr_poses) -> None:
+def _reference_plots(out: Path, result: RunResult) -> None:
     """A log scored against a reference path: the path and dead reckoning aligned onto it, their
     errors along it, and the map of every scan's points drawn from each path, with the landmark lines."""
     from nanoslam_jax.app._replay import scan_points
     from nanoslam_jax.eval import align_on_reference
     from nanoslam_jax.eval.plotting import plot_scan_maps, plot_series, plot_trajectory
+
+    cfg, log, t, est = result.config, result.log, result.times, result.trajectory
+    landmarks, dr_poses = result.landmarks, result.dead_reckoning
 
     ref = log.reference
     paths = [(cfg.filter.method, est)]

@@ -16,7 +16,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, NamedTuple, Optional
 
 import jax
 import numpy as np
@@ -235,12 +235,7 @@ class RunResult:
             _write_csv(out / "map.csv", cols, self.landmarks, fmt="%.9g")
         (out / "metrics.json").write_text(json.dumps(_json_safe(self.metrics), indent=2) + "\n")
         if (cfg.output.plots if plots is None else plots) and self.finite:
-            mk = dict(
-                rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=self.log.frame
-            )
-            write_run_figures(
-                out, cfg, self.log, t, est, self.landmarks, self.ess, cfg.filter.n_particles, mk, self.dead_reckoning
-            )
+            write_run_figures(out, self)
         if cfg.output.rerun:  # last: a recording that fails costs a warning, not the run's other results
             from nanoslam_jax.app._replay import record_run
 
@@ -262,6 +257,146 @@ def write_tum(path: str | Path, times: np.ndarray, poses: np.ndarray) -> None:
     zero = np.zeros_like(half)
     rows = np.c_[times, poses[:, 0], poses[:, 1], zero, zero, zero, np.sin(half), np.cos(half)]
     np.savetxt(path, rows, fmt="%.9f", delimiter=" ", header="time x y z qx qy qz qw")
+
+
+class _Estimate(NamedTuple):
+    """What a run estimated, before it is scored.
+
+    Attributes:
+        trajectory: the reported pose at each segment (the smoothed path when the smoother ran).
+        mean: the filter's weighted mean pose at each segment (dead reckoning: its poses).
+        best: the best particle's pose at each segment (dead reckoning: its poses).
+        unsmoothed: the path the smoother started from, or None.
+        ess: the effective sample size per segment (particle methods), or None.
+        outputs: the per-segment outputs of the filter (host arrays), or None.
+        state: the filter's final state, or None.
+        landmarks: the reported map (:func:`map_table`), or None.
+    """
+
+    trajectory: np.ndarray
+    mean: np.ndarray
+    best: np.ndarray
+    unsmoothed: Optional[np.ndarray] = None
+    ess: Optional[np.ndarray] = None
+    outputs: Any = None
+    state: Any = None
+    landmarks: Optional[np.ndarray] = None
+
+
+def _add_warnings(metrics: dict, warnings: list[str]) -> None:
+    """Append ``warnings`` to ``metrics["warnings"]`` (created on the first one)."""
+    if warnings:
+        metrics.setdefault("warnings", []).extend(warnings)
+
+
+def _filter_metrics(run: Any, static: Static, n_segments: int) -> dict:
+    """The filter's own counts and timings: overflows, resampling, ESS, proposal and association
+    statistics, compile and run time."""
+    o = run.outputs
+    has = np.asarray(o.n_associated) > 0
+    return dict(
+        landmark_overflow=int(run.state.overflow),
+        window_overflow_max=int(np.max(o.window_overflow)),
+        resample_count=int(resample_count(run.state)),
+        ess_mean=float(np.mean(o.ess)),
+        ess_min=float(np.min(o.ess)),
+        nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,
+        proposal_capped=int(np.sum(o.n_capped)),
+        proposal_nonfinite=int(np.sum(o.n_nonfinite)),
+        weight_resets=int(np.sum(o.weight_reset)),
+        associations_per_scan=float(np.mean(o.n_associated)),
+        compile_s=run.compile_s,
+        run_s=run.run_s,
+        ms_per_scan=1e3 * run.run_s / max(n_segments, 1),
+        n_particles=static.n_particles,
+        capacity=static.capacity,
+    )
+
+
+def _add_adaptive_metrics(metrics: dict, static: Static, params: Params, state: Any) -> None:
+    """Where the adaptive measurement noise and NASRUKF's adaptive process noise ended (when on)."""
+    if static.adaptive_noise:
+        noise_metrics, noise_warnings = adaptive_noise_report(static, params, state)
+        metrics.update(noise_metrics)
+        _add_warnings(metrics, noise_warnings)
+    if isinstance(static.method_settings, NasrukfStatic) and static.method_settings.adaptive_process:
+        process_metrics, process_warnings = adaptive_process_summary(
+            np.asarray(state.process_scale), int(state.process_count), float(params.method.process_floor)
+        )
+        metrics.update(process_metrics)
+        _add_warnings(metrics, process_warnings)
+
+
+def _run_filter_of(
+    cfg: Config, log: LoadedLog, settings: tuple[Static, Params], dr_poses: np.ndarray, show: bool, metrics: dict
+) -> _Estimate:
+    """Run the filter (and the smoother) on ``log``; adds to ``metrics`` dead reckoning's errors
+    against GPS, the smoother's report and the filter's own statistics."""
+    static, params = settings
+    seg = log.segments
+    t = np.asarray(seg.time)
+    # The baseline every result is read against: the motion model alone on the same log.
+    if np.all(np.isfinite(dr_poses)) and len(log.raw.gps):
+        mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
+        dr = evaluate(t, dr_poses[:, :2], log.raw.gps, **mk)
+        metrics.update({f"dr_{k}": dr[k] for k in ("rmse_fixed", "rmse_aligned", "final_error")})
+    run = run_filter(
+        static, params, seg, cfg.seed, chunk=cfg.output.chunk, progress=text_progress(cfg.name) if show else None
+    )
+    o = run.outputs
+    best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
+    est = np.asarray(reported_trajectory(static.estimate, o, run.state))
+    unsmoothed = None
+    if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
+        unsmoothed = est
+        sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior)
+        est = sm.poses
+        smoother_report, smoother_warnings = smoother_metrics(sm, cfg.smoother)
+        metrics.update(smoother_report)
+        _add_warnings(metrics, smoother_warnings)
+    ess = None if is_gaussian(static.method) else np.asarray(o.ess)
+    outputs, state = jax.tree.map(np.asarray, o), run.state
+    landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
+    metrics.update(_filter_metrics(run, static, len(t)))
+    _add_adaptive_metrics(metrics, static, params, run.state)
+    return _Estimate(est, mean, best_pose, unsmoothed, ess, outputs, state, landmarks)
+
+
+def _map_estimate(cfg: Config, landmarks: Optional[np.ndarray], state: Any) -> Optional[MapEstimate]:
+    """The reported map as the scorer reads it (positions, confirmed, ids, kinds, NASRUKF's arcs)."""
+    if landmarks is None:
+        return None
+    dim, names = _map_layout(cfg)
+    cols = map_columns(dim, names is not None)
+    ids = landmarks[:, len(cols)] if landmarks.shape[1] > len(cols) else None
+    kinds = None if names is None else np.asarray(names)[landmarks[:, dim].astype(int)]
+    lm = MapEstimate(landmarks[:, :dim], landmarks[:, cols.index("confirmed")] > 0, ids, kinds)
+    if (arc_table := getattr(state, "arc_table", None)) is not None:  # NASRUKF's per-beam arcs
+        lm = with_arcs(lm, *(np.asarray(a) for a in arc_table()))
+    return lm
+
+
+def _add_dead_reckoning_baselines(cfg: Config, log: LoadedLog, dr_poses: np.ndarray, metrics: dict) -> None:
+    """Dead reckoning scored beside the run: against the reference path, its error over the run's,
+    its heading error, and the map its path gives against the survey."""
+    seg = log.segments
+    t = np.asarray(seg.time)
+    dr_finite = np.all(np.isfinite(dr_poses))
+    if log.reference is not None and dr_finite:  # dead reckoning against the reference path
+        from nanoslam_jax.eval import score_reference
+
+        metrics.update(score_reference(log.reference, t, None, dr_poses))
+    if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:
+        metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
+    if "rmse_heading_deg" in metrics and cfg.filter.method != "dead_reckoning" and dr_finite:
+        metrics["dr_rmse_heading_deg"] = rmse_heading_deg(t, dr_poses[:, 2], log.raw.truth_poses)
+    if log.survey is not None and dr_finite and (np.asarray(seg.z_id) >= 0).any():
+        # The baseline: every sighting of known id projected from the dead-reckoned path.
+        dr_ids, dr_xy = sighting_map(dr_poses, seg)
+        dr_map = map_alignment_metrics(dr_xy, log.survey.xy, dr_ids, log.survey.ids, cfg.metrics.map_radius)
+        metrics.update(dr_survey_rmse=dr_map["rmse"], dr_survey_found=dr_map["n_found"])
+        if np.isfinite(metrics.get("survey_rmse", np.nan)):
+            metrics["survey_dr_over_slam"] = dr_map["rmse"] / max(metrics["survey_rmse"], 1e-12)
 
 
 @in_float64
@@ -295,118 +430,43 @@ def execute(
         "command": " ".join(sys.argv),
     }
     show = cfg.output.progress if progress is None else progress
-
-    landmarks = None
-    other = unsmoothed = outputs = state = None
-    mean = best_pose = None
-    mk = dict(rotation_deg=cfg.metrics.gps_rotation_deg, jump_speed=cfg.metrics.jump_speed, frame=log.frame)
     t0 = time.perf_counter()
     dr_poses = np.asarray(jax.block_until_ready(dead_reckoning(params, seg)))
     dr_s = time.perf_counter() - t0
     if cfg.filter.method == "dead_reckoning":
         metrics.update(run_s=dr_s)
-        est = mean = best_pose = dr_poses
-        ess = None
+        e = _Estimate(dr_poses, dr_poses, dr_poses)
     else:
-        # The baseline every result is read against: the motion model alone on the same log.
-        if np.all(np.isfinite(dr_poses)) and len(log.raw.gps):
-            dr = evaluate(t, dr_poses[:, :2], log.raw.gps, **mk)
-            metrics.update({f"dr_{k}": dr[k] for k in ("rmse_fixed", "rmse_aligned", "final_error")})
-        run = run_filter(
-            static, params, seg, cfg.seed, chunk=cfg.output.chunk, progress=text_progress(cfg.name) if show else None
-        )
-        o = run.outputs
-        best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
-        est = np.asarray(reported_trajectory(static.estimate, o, run.state))
-        other = mean if static.estimate == "best" else best_pose
-        if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
-            unsmoothed = est
-            sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior)
-            est = sm.poses
-            smoother_report, smoother_warnings = smoother_metrics(sm, cfg.smoother)
-            metrics.update(smoother_report)
-            if smoother_warnings:
-                metrics.setdefault("warnings", []).extend(smoother_warnings)
-        ess = None if is_gaussian(static.method) else np.asarray(o.ess)
-        outputs, state = jax.tree.map(np.asarray, o), run.state
-        landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
-        has = np.asarray(o.n_associated) > 0
-        metrics.update(
-            landmark_overflow=int(run.state.overflow),
-            window_overflow_max=int(np.max(o.window_overflow)),
-            resample_count=int(resample_count(run.state)),
-            ess_mean=float(np.mean(o.ess)),
-            ess_min=float(np.min(o.ess)),
-            nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,
-            proposal_capped=int(np.sum(o.n_capped)),
-            proposal_nonfinite=int(np.sum(o.n_nonfinite)),
-            weight_resets=int(np.sum(o.weight_reset)),
-            associations_per_scan=float(np.mean(o.n_associated)),
-            compile_s=run.compile_s,
-            run_s=run.run_s,
-            ms_per_scan=1e3 * run.run_s / max(len(t), 1),
-            n_particles=static.n_particles,
-            capacity=static.capacity,
-        )
-        if static.adaptive_noise:
-            noise_metrics, noise_warnings = adaptive_noise_report(static, params, run.state)
-            metrics.update(noise_metrics)
-            if noise_warnings:
-                metrics.setdefault("warnings", []).extend(noise_warnings)
-        if isinstance(static.method_settings, NasrukfStatic) and static.method_settings.adaptive_process:
-            process_metrics, process_warnings = adaptive_process_summary(
-                np.asarray(run.state.process_scale), int(run.state.process_count), float(params.method.process_floor)
-            )
-            metrics.update(process_metrics)
-            if process_warnings:
-                metrics.setdefault("warnings", []).extend(process_warnings)
+        e = _run_filter_of(cfg, log, (static, params), dr_poses, bool(show), metrics)
 
     # JAX's own count of this run's tracing, lowering and compiling (or loading from the cache).
     metrics["compilation"] = {
         **compile_stats().since(stats0).as_dict(),
         "cache_dir": jax.config.jax_compilation_cache_dir or None,
     }
-    lm = None
-    if landmarks is not None:
-        dim, names = _map_layout(cfg)
-        cols = map_columns(dim, names is not None)
-        ids = landmarks[:, len(cols)] if landmarks.shape[1] > len(cols) else None
-        kinds = None if names is None else np.asarray(names)[landmarks[:, dim].astype(int)]
-        lm = MapEstimate(landmarks[:, :dim], landmarks[:, cols.index("confirmed")] > 0, ids, kinds)
-        if (arc_table := getattr(state, "arc_table", None)) is not None:  # NASRUKF's per-beam arcs
-            lm = with_arcs(lm, *(np.asarray(a) for a in arc_table()))
+    lm = _map_estimate(cfg, e.landmarks, e.state)
     # The one scorer of every command: the estimate against GPS, the map, and (for path: the
     # filter's own estimate; after the smoother: the path it started from) the other trajectories.
-    others = None if other is None else companion_tracks(static.estimate, best_pose, mean, unsmoothed)
-    metrics.update(score_run(log, est, cfg.metrics, lm, others))
-    if log.reference is not None and np.all(np.isfinite(dr_poses)):  # dead reckoning against the reference path
-        from nanoslam_jax.eval import score_reference
-
-        metrics.update(score_reference(log.reference, t, None, dr_poses))
-    if "dr_rmse_fixed" in metrics and "rmse_fixed" in metrics:
-        metrics["dr_over_slam"] = metrics["dr_rmse_fixed"] / max(metrics["rmse_fixed"], 1e-12)
-    if "rmse_heading_deg" in metrics and cfg.filter.method != "dead_reckoning" and np.all(np.isfinite(dr_poses)):
-        metrics["dr_rmse_heading_deg"] = rmse_heading_deg(t, dr_poses[:, 2], log.raw.truth_poses)
-    if log.survey is not None and np.all(np.isfinite(dr_poses)) and (np.asarray(seg.z_id) >= 0).any():
-        # The baseline: every sighting of known id projected from the dead-reckoned path.
-        dr_ids, dr_xy = sighting_map(dr_poses, seg)
-        dr_map = map_alignment_metrics(dr_xy, log.survey.xy, dr_ids, log.survey.ids, cfg.metrics.map_radius)
-        metrics.update(dr_survey_rmse=dr_map["rmse"], dr_survey_found=dr_map["n_found"])
-        if np.isfinite(metrics.get("survey_rmse", np.nan)):
-            metrics["survey_dr_over_slam"] = dr_map["rmse"] / max(metrics["survey_rmse"], 1e-12)
+    others = (
+        None
+        if cfg.filter.method == "dead_reckoning"
+        else companion_tracks(static.estimate, e.best, e.mean, e.unsmoothed)
+    )
+    metrics.update(score_run(log, e.trajectory, cfg.metrics, lm, others))
+    _add_dead_reckoning_baselines(cfg, log, dr_poses, metrics)
     return RunResult(
         config=cfg,
         log=log,
         times=t,
-        trajectory=est,
-        mean_trajectory=mean,
-        best_trajectory=best_pose,
-        path_before_smoother=unsmoothed,
+        trajectory=e.trajectory,
+        mean_trajectory=e.mean,
+        best_trajectory=e.best,
+        path_before_smoother=e.unsmoothed,
         dead_reckoning=dr_poses,
-        landmarks=landmarks,
-        ess=ess,
-        outputs=outputs,
-        state=state,
+        landmarks=e.landmarks,
+        ess=e.ess,
+        outputs=e.outputs,
+        state=e.state,
         metrics=metrics,
     )
 
