@@ -53,7 +53,7 @@ import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Callable, NamedTuple, Optional
 
 import jax
 import numpy as np
@@ -136,6 +136,162 @@ def filter_key(cfg: Config, seeds) -> str:
     return json.dumps([d, [int(s) for s in seeds]], sort_keys=True, default=str)
 
 
+class _RunCache:
+    """The filter runs of one :func:`filter_key`, by kind (``'timed'``, ``'single'``, ``'batch'``),
+    kept in a caller's ``cache`` (None: each run is computed anew)."""
+
+    def __init__(self, cache: Optional[dict], key: str):
+        self.cache, self.key = cache, key
+
+    def get(self, kind: str, compute: Callable[[], Any]) -> Any:
+        """The run of ``kind``: the kept one, else ``compute()`` (kept)."""
+        if self.cache is None:
+            return compute()
+        if (self.key, kind) not in self.cache:
+            self.cache[(self.key, kind)] = compute()
+        return self.cache[(self.key, kind)]
+
+
+class _SeedRuns(NamedTuple):
+    """The filter runs of a method's seeds, as they are smoothed and scored.
+
+    Attributes:
+        run: the run the smoother starts from (the single run, or the batch).
+        batched: whether ``run`` is a batch (seed ``i`` its member ``i``).
+        maps: the reported maps, one per seed (leading axis).
+        overflow: the landmark overflow of each seed.
+        estimates: the reported trajectory of each seed.
+        best: the best particle's pose of each seed.
+        mean: the mean pose of each seed.
+        run_s: the run time (the single run's, or the batch's).
+    """
+
+    run: Any
+    batched: bool
+    maps: Any
+    overflow: np.ndarray
+    estimates: Any
+    best: np.ndarray
+    mean: np.ndarray
+    run_s: float
+
+
+def _run_dead_reckoning(
+    res: MethodResult, cfg: Config, log, params, first_seed: int, keep_trajectories: bool
+) -> MethodResult:
+    """Dead reckoning (once, deterministic): timed after a first call that compiles, and scored."""
+    seg = log.segments
+    n = int(seg.time.shape[0])
+    t0 = time.perf_counter()
+    jax.block_until_ready(dead_reckoning(params, seg))
+    t1 = time.perf_counter()
+    est = np.asarray(dead_reckoning(params, seg))
+    res.ms_per_scan = 1e3 * (time.perf_counter() - t1) / n
+    res.compile_s = t1 - t0
+    res.trajectory = est
+    res.trajectories = [est] if keep_trajectories else None
+    reason = failure_reason(np.asarray(seg.time), est)
+    res.rows.append(
+        {
+            "seed": first_seed,
+            "status": "failed" if reason else "ok",
+            "reason": reason,
+            **score_run(log, est, cfg.metrics),
+            "n_landmarks": 0,
+            "n_confirmed": 0,
+        }
+    )
+    if reason:
+        res.status, res.reason = "failed", reason
+    return res
+
+
+def _record_timing(res: MethodResult, single: Any, t: np.ndarray) -> None:
+    """The compile time, the time per scan and each chunk's time per scan of the timed run."""
+    n = len(t)
+    res.compile_s = single.compile_s
+    res.ms_per_scan = 1e3 * single.run_s / n
+    sizes = np.minimum(single.chunk_size, n - single.chunk_size * np.arange(len(single.chunk_s)))
+    res.chunk_ms = 1e3 * np.asarray(single.chunk_s) / sizes
+    mids = np.minimum(single.chunk_size * np.arange(len(sizes)) + sizes // 2, n - 1)
+    res.chunk_t = t[mids]
+
+
+def _single_seed_runs(cfg: Config, settings: tuple, seg, first_seed: int, single: Any, runs: _RunCache) -> _SeedRuns:
+    """The one seed's run (``single``, or a run chunked as ``nanoslam run`` chunks it when the
+    smoother reads the map history)."""
+    static, params = settings
+    n = int(seg.time.shape[0])
+    run = single
+    if cfg.smoother.enabled and cfg.smoother.map_history and single.chunk_size != min(cfg.output.chunk, n):
+        # The smoother's map history is the map at the end of each chunk of output.chunk
+        # segments: the scored run is chunked as `nanoslam run` chunks it.
+        single = run = runs.get("single", lambda: run_filter(static, params, seg, first_seed, chunk=cfg.output.chunk))
+    maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
+    overflow = np.asarray(single.state.overflow)[None]
+    est_all = reported_trajectory(static.estimate, single.outputs, single.state)[None]
+    best_all, mean_all = (np.asarray(a)[None] for a in (single.outputs.best_pose, single.outputs.mean_pose))
+    return _SeedRuns(run, False, maps, overflow, est_all, best_all, mean_all, single.run_s)
+
+
+def _batch_runs(cfg: Config, settings: tuple, seg, seeds: list[int], progress, runs: _RunCache) -> _SeedRuns:
+    """Every seed in one vmapped batch."""
+    static, params = settings
+    run = runs.get(
+        "batch",
+        lambda: run_batch(
+            static,
+            stack_params([params] * len(seeds)),
+            seg,
+            np.asarray(seeds),
+            chunk=cfg.output.chunk,
+            progress=progress,
+        ),
+    )
+    maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
+    overflow = np.asarray(run.state.overflow)
+    est_all = reported_trajectory(static.estimate, run.outputs, run.state)
+    best_all, mean_all = np.asarray(run.outputs.best_pose), np.asarray(run.outputs.mean_pose)
+    return _SeedRuns(run, True, maps, overflow, est_all, best_all, mean_all, run.run_s)
+
+
+def _score_seeds(
+    res: MethodResult, cfg: Config, log, settings: tuple, seeds: list[int], sr: _SeedRuns
+) -> list[np.ndarray]:
+    """Smooth (with ``smoother.enabled``) and score each seed's run into ``res.rows``; returns the
+    scored trajectories."""
+    static, params = settings
+    seg = log.segments
+    t = np.asarray(seg.time)
+    trajectories = []
+    for i, s in enumerate(seeds):
+        est, before, extra = np.asarray(sr.estimates[i]), None, {}
+        if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline, per seed
+            sm = smooth_filter_run(sr.run, est, seg, params, cfg.smoother, cfg.filter.prior, i if sr.batched else None)
+            before, est = est, sm.poses
+            extra, _ = smoother_metrics(sm, cfg.smoother)
+        reason = failure_reason(t, est)
+        score = score_run(
+            log,
+            est,
+            cfg.metrics,
+            _map_of(sr.maps, i),
+            companion_tracks(static.estimate, sr.best[i], sr.mean[i], before),
+        )
+        res.rows.append(
+            {
+                "seed": int(s),
+                "status": "failed" if reason else "ok",
+                "reason": reason,
+                **score,
+                "landmark_overflow": int(sr.overflow[i]),
+                **extra,
+            }
+        )
+        trajectories.append(est)
+    return trajectories
+
+
 def run_method(
     spec: CompareSpec,
     m: MethodSpec,
@@ -170,110 +326,29 @@ def run_method(
     static, params = settings_from_config(cfg, seg.k_max, n)
     res = MethodResult(m, method, rows=[])
     seeds = [spec.first_seed] if deterministic(method) else list(range(spec.first_seed, spec.first_seed + spec.seeds))
-
     if method == "dead_reckoning":
-        t0 = time.perf_counter()
-        jax.block_until_ready(dead_reckoning(params, seg))
-        t1 = time.perf_counter()
-        est = np.asarray(dead_reckoning(params, seg))
-        res.ms_per_scan = 1e3 * (time.perf_counter() - t1) / n
-        res.compile_s = t1 - t0
-        res.trajectory = est
-        res.trajectories = [est] if keep_trajectories else None
-        reason = failure_reason(t, est)
-        res.rows.append(
-            {
-                "seed": spec.first_seed,
-                "status": "failed" if reason else "ok",
-                "reason": reason,
-                **score_run(log, est, cfg.metrics),
-                "n_landmarks": 0,
-                "n_confirmed": 0,
-            }
-        )
-        if reason:
-            res.status, res.reason = "failed", reason
-        return res
+        return _run_dead_reckoning(res, cfg, log, params, spec.first_seed, keep_trajectories)
 
-    key = filter_key(cfg, seeds)
-
-    def cached(kind: str, compute):
-        if cache is None:
-            return compute()
-        if (key, kind) not in cache:
-            cache[(key, kind)] = compute()
-        return cache[(key, kind)]
-
+    runs = _RunCache(cache, filter_key(cfg, seeds))
+    single = None
     if timed:  # one run of the first seed, chunk by chunk
-        single = cached(
+        single = runs.get(
             "timed",
             lambda: run_filter(static, params, seg, spec.first_seed, chunk=min(spec.timing_chunk, n), timed=True),
         )
-        res.compile_s = single.compile_s
-        res.ms_per_scan = 1e3 * single.run_s / n
-        sizes = np.minimum(single.chunk_size, n - single.chunk_size * np.arange(len(single.chunk_s)))
-        res.chunk_ms = 1e3 * np.asarray(single.chunk_s) / sizes
-        mids = np.minimum(single.chunk_size * np.arange(len(sizes)) + sizes // 2, n - 1)
-        res.chunk_t = t[mids]
+        _record_timing(res, single, t)
     elif len(seeds) == 1:
-        single = cached("single", lambda: run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk))
-
+        single = runs.get("single", lambda: run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk))
     if len(seeds) == 1:
-        run, index = single, None
-        if cfg.smoother.enabled and cfg.smoother.map_history and single.chunk_size != min(cfg.output.chunk, n):
-            # The smoother's map history is the map at the end of each chunk of output.chunk
-            # segments: the scored run is chunked as `nanoslam run` chunks it.
-            single = run = cached(
-                "single", lambda: run_filter(static, params, seg, spec.first_seed, chunk=cfg.output.chunk)
-            )
-        maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
-        overflow = np.asarray(single.state.overflow)[None]
-        est_all = reported_trajectory(static.estimate, single.outputs, single.state)[None]
-        best_all, mean_all = (np.asarray(a)[None] for a in (single.outputs.best_pose, single.outputs.mean_pose))
-        res.batch_run_s = single.run_s
+        sr = _single_seed_runs(cfg, (static, params), seg, spec.first_seed, single, runs)
     else:
-        run = cached(
-            "batch",
-            lambda: run_batch(
-                static,
-                stack_params([params] * len(seeds)),
-                seg,
-                np.asarray(seeds),
-                chunk=cfg.output.chunk,
-                progress=progress,
-            ),
-        )
-        index = 0
-        maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
-        overflow = np.asarray(run.state.overflow)
-        est_all = reported_trajectory(static.estimate, run.outputs, run.state)
-        best_all, mean_all = np.asarray(run.outputs.best_pose), np.asarray(run.outputs.mean_pose)
-        res.batch_run_s = run.run_s
-    trajectories = []
-    for i, s in enumerate(seeds):
-        est, before, extra = np.asarray(est_all[i]), None, {}
-        if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline, per seed
-            sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior, None if index is None else i)
-            before, est = est, sm.poses
-            extra, _ = smoother_metrics(sm, cfg.smoother)
-        reason = failure_reason(t, est)
-        score = score_run(
-            log, est, cfg.metrics, _map_of(maps, i), companion_tracks(static.estimate, best_all[i], mean_all[i], before)
-        )
-        res.rows.append(
-            {
-                "seed": int(s),
-                "status": "failed" if reason else "ok",
-                "reason": reason,
-                **score,
-                "landmark_overflow": int(overflow[i]),
-                **extra,
-            }
-        )
-        trajectories.append(est)
+        sr = _batch_runs(cfg, (static, params), seg, seeds, progress, runs)
+    res.batch_run_s = sr.run_s
+    trajectories = _score_seeds(res, cfg, log, (static, params), seeds, sr)
     res.trajectory = trajectories[0]
     if keep_trajectories:
         res.trajectories = trajectories
+    maps = sr.maps
     res.landmarks = maps.mean[0][maps.active[0] & maps.confirmed[0]]
     bad = [r["seed"] for r in res.rows if r["status"] != "ok"]
     if bad:
