@@ -221,7 +221,7 @@ def multicore_one(args) -> dict:
     import csv
 
     import nanoslam_jax  # noqa: F401
-    from nanoslam_jax.app.sweep import run_sweep, sweep_from_dict
+    from nanoslam_jax.app.sweep import SweepOverrides, run_sweep, sweep_from_dict
 
     spec = sweep_from_dict(
         sweep_dict(args.config, args.configs, args.particles, args.segments, args.configs), source="benchmark"
@@ -233,9 +233,7 @@ def multicore_one(args) -> dict:
             os.path.join(d, "s"),
             data_dir=args.data,
             progress=False,
-            parallel=mode,
-            workers=2,
-            vectorize=args.vectorize,
+            overrides=SweepOverrides(parallel=mode, workers=2, vectorize=args.vectorize),
         )
         wall = time.perf_counter() - t0
         rows = list(csv.DictReader(open(os.path.join(d, "s", "results.csv"))))
