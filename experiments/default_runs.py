@@ -27,7 +27,7 @@ import numpy as np
 from nanoslam_jax.eval._scoring import MapEstimate, failure_reason, score_run, seed_summary
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import dead_reckoning, reported_map, reported_trajectory, run_batch, stack_params
+from nanoslam_jax.methods import dead_reckoning, reported_map, run_batch, stack_params
 from nanoslam_jax.app.filters import settings_from_config
 
 jax.config.update("jax_enable_x64", True)  # the library computes in float64
@@ -47,7 +47,7 @@ def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds
     t = np.asarray(log.segments.time)
     dr = score_run(log, np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments))), cfg.metrics)
     maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
-    est = np.asarray(reported_trajectory(static.estimate, run.outputs, run.state))
+    est = np.asarray(static.estimate.trajectory(run.outputs, run.state))
     nan = float("nan")
     rows = []
     for i, seed in enumerate(seeds):

@@ -25,7 +25,7 @@ from nanoslam_jax import enable_compile_cache
 from nanoslam_jax.eval._scoring import score_run, seed_summary
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import reported_trajectory, run_batch, stack_params, text_progress
+from nanoslam_jax.methods import AncestralPath, run_batch, stack_params, text_progress
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.smoother._smoother import SmootherSettings, smooth_run, smoother_map
 from target_score import score as target_score  # experiments/ is on the path when this script runs
@@ -92,7 +92,7 @@ def main() -> None:
         chunk=cfg.output.chunk,
         progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"),
     )
-    paths = reported_trajectory("path", run.outputs, run.state)
+    paths = AncestralPath().trajectory(run.outputs, run.state)
     nan = float("nan")
     base = [score_run(log, paths[i], cfg.metrics) for i in range(len(seeds))]
 

@@ -12,11 +12,39 @@ import jax.numpy as jnp
 
 from nanoslam_jax.app.config import Config
 from nanoslam_jax.app.registry import get_method, static_of, traced_of
+from nanoslam_jax.methods import (
+    AncestralPath,
+    BestParticle,
+    KnownAssociation,
+    LinearisedPrior,
+    MarginalWeight,
+    Multinomial,
+    NearestAssociation,
+    ProductWeight,
+    Residual,
+    Stratified,
+    Systematic,
+    UnscentedPrior,
+    WeightedMean,
+)
 from nanoslam_jax.methods._params import MapParams, Params, Static, _logit, particle_devices, row_buckets, shardable
 from nanoslam_jax.app._models import measurement_model_from_config, motion_model_from_config
 from nanoslam_jax.models import check_motion_model
 
-__all__ = ["method_static", "settings_from_config"]
+__all__ = ["COMPONENTS", "method_static", "settings_from_config"]
+
+#: The built-in components of the filter's static settings by the ``filter`` key that names them:
+#: ``{key: {name: class}}``.
+COMPONENTS: dict[str, dict[str, type]] = {
+    key: {c.name: c for c in classes}
+    for key, classes in {
+        "prior": (UnscentedPrior, LinearisedPrior),
+        "association": (NearestAssociation, KnownAssociation),
+        "weight": (ProductWeight, MarginalWeight),
+        "resampler": (Systematic, Stratified, Multinomial, Residual),
+        "estimate": (BestParticle, WeightedMean, AncestralPath),
+    }.items()
+}
 
 
 def method_static(cfg: Config) -> Hashable:
@@ -42,16 +70,14 @@ def settings_from_config(cfg: Config, k_max: int, segments: int = 0) -> tuple[St
         capacity=f.capacity,
         window=f.window,
         k_max=k_max,
-        prior=f.prior,
-        prior_cov=f.prior_cov,
+        prior=COMPONENTS["prior"][f.prior](reset=f.prior_cov == "reset"),
         sequential=f.sequential,
-        association=f.association,
-        weight=f.weight,
-        resampler=f.resampler,
-        estimate=f.estimate,
+        association=COMPONENTS["association"][f.association](),
+        weight=COMPONENTS["weight"][f.weight](),
+        resampler=COMPONENTS["resampler"][f.resampler](),
+        estimate=COMPONENTS["estimate"][f.estimate](),
         manage=cfg.map.manage,
         occlusion=cfg.map.occlusion,
-        landmark_update=method.landmark_update,
         row_buckets=row_buckets(f.row_buckets, f.n_particles, segments),
         devices=particle_devices(f.split_devices, f.n_particles, split_ok=shardable(method, settings)),
         adaptive_noise=nz.adaptive,
@@ -100,12 +126,15 @@ def settings_from_config(cfg: Config, k_max: int, segments: int = 0) -> tuple[St
 
 
 def static_summary(static: Static) -> dict[str, Any]:
-    """The static settings as plain values for a YAML or JSON record: the method by its name, each
-    nested settings object as a mapping of its fields."""
+    """The static settings as plain values for a YAML or JSON record: the method and each component
+    by its name (the prior's covariance as ``prior_cov``), each nested settings object as a mapping
+    of its fields."""
     out: dict[str, Any] = {}
     for f in dataclasses.fields(static):
         value = getattr(static, f.name)
-        if f.name == "method":
+        if f.name == "prior":
+            out["prior"], out["prior_cov"] = value.name, "reset" if value.reset else "carry"
+        elif f.name == "method" or f.name in COMPONENTS:
             out[f.name] = value.name
         elif dataclasses.is_dataclass(value) and not isinstance(value, type):
             out[f.name] = dataclasses.asdict(value)

@@ -240,10 +240,10 @@ class FilterConfig:
     )
     window_margin: float = _f(5.0, lo=0.0, doc="the window holds landmarks within max_range + this (m)")
     prior: Literal["unscented", "linearized"] = _f(
-        _STATIC.prior, static=True, doc="how control noise is mapped to the pose covariance"
+        _STATIC.prior.name, static=True, doc="how control noise is mapped to the pose covariance"
     )
     prior_cov: Literal["reset", "carry"] = _f(
-        _STATIC.prior_cov,
+        "reset" if _STATIC.prior.reset else "carry",
         static=True,
         doc="'reset': start each segment from the sampled pose with init_cov; 'carry': from the last proposal covariance",
     )
@@ -261,22 +261,22 @@ class FilterConfig:
     )
     sequential: bool = _f(_STATIC.sequential, static=True, doc="associate detections one after another within a scan")
     association: Literal["nearest", "known"] = _f(
-        _STATIC.association,
+        _STATIC.association.name,
         static=True,
         doc="'nearest': nearest neighbour within filter.gate, a new landmark above filter.new_landmark; 'known': "
         "the log's landmark ids (e.g. MRCLAM's barcodes): a detection matches the landmark started by its "
         "id and starts one when none has it; detections without an id are ignored",
     )
     weight: Literal["product", "marginal"] = _f(
-        _STATIC.weight, static=True, doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior"
+        _STATIC.weight.name, static=True, doc="'product': eq. 17 at the proposal; 'marginal': likelihood at the prior"
     )
     p0: float = _f(0.05, lo=0.0, lo_open=True, doc="likelihood factor of a new landmark")
     resampler: Literal["systematic", "stratified", "multinomial", "residual"] = _f(
-        _STATIC.resampler, static=True, doc="resampling scheme"
+        _STATIC.resampler.name, static=True, doc="resampling scheme"
     )
     resample_threshold: float = _f(0.5, lo=0.0, hi=1.0, doc="resample when ESS < threshold * N")
     estimate: Literal["best", "mean", "path"] = _f(
-        _STATIC.estimate,
+        _STATIC.estimate.name,
         static=True,
         doc="reported trajectory: at each segment the highest-weight particle's pose (best, the paper's) or the "
         "weighted mean (mean); or path: the history of the particle that is best at the end of the log, "

@@ -81,7 +81,7 @@ from nanoslam_jax.eval._scoring import (
     score_run,
 )
 from nanoslam_jax.app.config import Config, ConfigError, config_to_dict
-from nanoslam_jax.methods import dead_reckoning, reported_map, reported_trajectory, run_batch, run_filter, stack_params
+from nanoslam_jax.methods import dead_reckoning, reported_map, run_batch, run_filter, stack_params
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.smoother._smoother import smooth_filter_run, smoother_metrics
 from nanoslam_jax.app._compare_report import (
@@ -229,7 +229,7 @@ def _single_seed_runs(cfg: Config, settings: tuple, seg, first_seed: int, single
         single = run = runs.get("single", lambda: run_filter(static, params, seg, first_seed, chunk=cfg.output.chunk))
     maps = jax.tree.map(lambda a: np.asarray(a)[None], reported_map(single.state))
     overflow = np.asarray(single.state.overflow)[None]
-    est_all = reported_trajectory(static.estimate, single.outputs, single.state)[None]
+    est_all = static.estimate.trajectory(single.outputs, single.state)[None]
     best_all, mean_all = (np.asarray(a)[None] for a in (single.outputs.best_pose, single.outputs.mean_pose))
     return _SeedRuns(run, False, maps, overflow, est_all, best_all, mean_all, single.run_s)
 
@@ -250,7 +250,7 @@ def _batch_runs(cfg: Config, settings: tuple, seg, seeds: list[int], progress, r
     )
     maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
     overflow = np.asarray(run.state.overflow)
-    est_all = reported_trajectory(static.estimate, run.outputs, run.state)
+    est_all = static.estimate.trajectory(run.outputs, run.state)
     best_all, mean_all = np.asarray(run.outputs.best_pose), np.asarray(run.outputs.mean_pose)
     return _SeedRuns(run, True, maps, overflow, est_all, best_all, mean_all, run.run_s)
 

@@ -39,7 +39,6 @@ from nanoslam_jax.methods import (
     dead_reckoning,
     noise_estimates,
     reported_map,
-    reported_trajectory,
     run_filter,
     text_progress,
 )
@@ -345,7 +344,7 @@ def _run_filter_of(
     )
     o = run.outputs
     best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
-    est = np.asarray(reported_trajectory(static.estimate, o, run.state))
+    est = np.asarray(static.estimate.trajectory(o, run.state))
     unsmoothed = None
     if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
         unsmoothed = est

@@ -77,7 +77,7 @@ def _init(static: Static, params: Params, key):
 @functools.partial(jax.jit, static_argnames=("static",))
 def _step(static: Static, params: Params, state, segment: Segments):
     rel = None
-    if not is_gaussian(static.method) and static.prior_cov == "reset" and params.motion.rigid:
+    if not is_gaussian(static.method) and static.prior.reset and params.motion.rigid:
         rel = relative_prior(segment.dt, segment.u, segment.dr_mask, params, static.prior)
     return _masked_step(static, params, state, (segment, jnp.asarray(True), rel))
 

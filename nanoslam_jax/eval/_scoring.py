@@ -44,6 +44,7 @@ import numpy as np
 
 from nanoslam_jax.eval._reference_metrics import score_reference
 from nanoslam_jax.eval.metrics import evaluate, feature_map_errors, map_summary, rmse_heading_deg, survey_summary
+from nanoslam_jax.methods import AbstractEstimate, BestParticle
 
 __all__ = [
     "HIGHER_IS_BETTER",
@@ -178,13 +179,16 @@ def failure_reason(times: np.ndarray, est: np.ndarray) -> str:
 
 
 def companion_tracks(
-    estimate: str, best_pose: np.ndarray, mean_pose: np.ndarray, before_smoother: Optional[np.ndarray] = None
+    estimate: AbstractEstimate,
+    best_pose: np.ndarray,
+    mean_pose: np.ndarray,
+    before_smoother: Optional[np.ndarray] = None,
 ) -> dict[str, np.ndarray]:
     """The trajectories a run reports beside its estimate, for :func:`score_run`'s ``others``:
     the filter's other per-segment estimate (``wmean``, the weighted mean, when ``filter.estimate``
     is ``best``; else ``best``, the best particle's pose) and, after the smoother, the ``path`` it
     started from."""
-    out = {"wmean": mean_pose} if estimate == "best" else {"best": best_pose}
+    out = {"wmean": mean_pose} if isinstance(estimate, BestParticle) else {"best": best_pose}
     if before_smoother is not None:
         out["path"] = before_smoother
     return out

@@ -1,10 +1,15 @@
 """Resampling schemes over normalised log-weights (docs/method/filter.md).
 
 Each returns ``N`` ancestor indices. All are unbiased: the expected number of copies of
-particle ``i`` is ``N w_i``.
+particle ``i`` is ``N w_i``. A particle filter takes its scheme as a resampler object
+(:class:`AbstractResampler`), so a user's own scheme is a subclass with a ``__call__``.
 """
 
 from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -61,12 +66,64 @@ def residual(key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]
     return jnp.where(jnp.arange(n) < n_det, det, drawn)
 
 
-RESAMPLERS = {"systematic": systematic, "stratified": stratified, "multinomial": multinomial, "residual": residual}
+@dataclasses.dataclass(frozen=True)
+class AbstractResampler(abc.ABC):
+    """A resampling scheme: ancestor indices from log-weights (``filter.resampler`` names one).
+
+    A subclass is a frozen dataclass (hashable: it is part of a filter's static settings) whose
+    ``__call__`` is a pure JAX function of a key and the particles' log-weights.
+
+    Attributes:
+        name: the scheme's name (``filter.resampler``).
+    """
+
+    name: ClassVar[str] = ""
+
+    @abc.abstractmethod
+    def __call__(self, key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]:
+        """``n`` ancestor indices, each particle ``i`` drawn ``n w_i`` times in expectation.
+
+        Args:
+            key: the draw's random key.
+            log_w: the particles' log-weights (not necessarily normalised).
+        """
 
 
-def resample(kind: str, key: Key[Array, ""], log_w: Float[Array, " n"]) -> Int[Array, " n"]:
-    """Ancestor indices by the named scheme (``systematic``, ``stratified``, ``multinomial``, ``residual``)."""
-    try:
-        return RESAMPLERS[kind](key, log_w)
-    except KeyError:
-        raise ValueError(f"filter.resampler: expected one of {', '.join(RESAMPLERS)}, got {kind!r}") from None
+@dataclasses.dataclass(frozen=True)
+class Systematic(AbstractResampler):
+    """Systematic resampling (:func:`systematic`): one uniform offset for ``n`` evenly spaced points."""
+
+    name: ClassVar[str] = "systematic"
+
+    def __call__(self, key, log_w):
+        return systematic(key, log_w)
+
+
+@dataclasses.dataclass(frozen=True)
+class Stratified(AbstractResampler):
+    """Stratified resampling (:func:`stratified`): one uniform draw in each of ``n`` strata."""
+
+    name: ClassVar[str] = "stratified"
+
+    def __call__(self, key, log_w):
+        return stratified(key, log_w)
+
+
+@dataclasses.dataclass(frozen=True)
+class Multinomial(AbstractResampler):
+    """Multinomial resampling (:func:`multinomial`): ``n`` independent categorical draws."""
+
+    name: ClassVar[str] = "multinomial"
+
+    def __call__(self, key, log_w):
+        return multinomial(key, log_w)
+
+
+@dataclasses.dataclass(frozen=True)
+class Residual(AbstractResampler):
+    """Residual resampling (:func:`residual`): ``floor(n w_i)`` copies, the rest multinomial."""
+
+    name: ClassVar[str] = "residual"
+
+    def __call__(self, key, log_w):
+        return residual(key, log_w)

@@ -14,6 +14,8 @@ import dataclasses
 from collections.abc import Callable, Hashable, Mapping
 from typing import Any, Literal, Optional
 
+from nanoslam_jax.methods.maps._updates import AbstractLandmarkUpdate, EkfLandmarkUpdate
+
 __all__ = ["Method", "METHOD_KINDS"]
 
 #: What a method is: a particle filter with its own proposal, a Gaussian filter with its own state
@@ -50,8 +52,10 @@ class Method:
             covariance and the map's counts), which the driver turns into the common per-scan
             :class:`~nanoslam_jax.methods.StepOutput` (one hypothesis: best pose = mean pose,
             ESS 1, never resampled).
-        landmark_update: how a particle method updates its landmarks: ``"ekf"`` (linearised) or
-            ``"unscented"``.
+        landmark_update: how a particle method starts and updates its landmarks, an
+            :class:`~nanoslam_jax.methods.AbstractLandmarkUpdate`: the EKF
+            (:class:`~nanoslam_jax.methods.EkfLandmarkUpdate`) or the unscented transform
+            (:class:`~nanoslam_jax.methods.UnscentedLandmarkUpdate`).
         shardable: ``shardable(static) -> bool``: whether its per-particle work may be split over
             devices (``shard_map``), given the static settings (its own in
             ``static.method_settings``).
@@ -79,7 +83,7 @@ class Method:
     proposal: Optional[Callable[..., Any]] = None
     init: Optional[Callable[..., Any]] = None
     step: Optional[Callable[..., Any]] = None
-    landmark_update: Literal["ekf", "unscented"] = "ekf"
+    landmark_update: AbstractLandmarkUpdate = EkfLandmarkUpdate()
     shardable: Callable[[Any], bool] = _always
     adaptive_noise: bool = False
     static_default: Hashable = dataclasses.field(default=None, compare=False)
@@ -96,8 +100,11 @@ class Method:
             raise ValueError(f"Method {self.name!r}: a particle method needs a proposal")
         if self.kind == "gaussian" and (self.init is None or self.step is None):
             raise ValueError(f"Method {self.name!r}: a Gaussian method needs init and step")
-        if self.landmark_update not in ("ekf", "unscented"):
-            raise ValueError(f"Method {self.name!r}: landmark_update must be 'ekf' or 'unscented'")
+        if not isinstance(self.landmark_update, AbstractLandmarkUpdate):
+            raise TypeError(
+                f"Method {self.name!r}: landmark_update must be an AbstractLandmarkUpdate "
+                f"(EkfLandmarkUpdate() or UnscentedLandmarkUpdate()), got {self.landmark_update!r}"
+            )
 
     def __repr__(self) -> str:
         return f"Method({self.name!r}, kind={self.kind!r})"

@@ -14,7 +14,12 @@ from typing import Any, NamedTuple
 
 from jaxtyping import Array, Bool, Float
 
+from nanoslam_jax.lib._resampling import AbstractResampler, Systematic
+from nanoslam_jax.methods.maps._association import AbstractAssociation, NearestAssociation
 from nanoslam_jax.methods.particle._methods import NANO
+from nanoslam_jax.methods.particle._path import AbstractEstimate, BestParticle
+from nanoslam_jax.methods.particle._prior import AbstractPrior, UnscentedPrior
+from nanoslam_jax.methods.particle._rows import AbstractWeight, ProductWeight
 from nanoslam_jax.methods._method import Method
 from nanoslam_jax.methods._method_settings import BeamParams as BeamParams
 from nanoslam_jax.models import AbstractMeasurementModel, AbstractMotionModel, RangeBearing, is_range_bearing
@@ -39,6 +44,15 @@ class _FromMethod:
 _FROM_METHOD = _FromMethod()
 
 
+_COMPONENTS = {
+    "prior": AbstractPrior,
+    "association": AbstractAssociation,
+    "weight": AbstractWeight,
+    "resampler": AbstractResampler,
+    "estimate": AbstractEstimate,
+}
+
+
 @dataclasses.dataclass(frozen=True)
 class Static:
     """Settings that fix array shapes or program structure (hashable).
@@ -53,10 +67,19 @@ class Static:
         k_max: detections per segment of the log.
         row_buckets: detection-row counts the per-row work may run over (:func:`row_buckets`).
         devices: JAX devices a run's particles are split over (:func:`particle_devices`).
-        prior, prior_cov, sequential, association, weight, resampler, estimate: the ``filter``
-            section's keys of those names.
+        prior: how a particle's pose is predicted through a segment and the covariance it starts
+            from (:class:`~nanoslam_jax.methods.AbstractPrior`; ``filter.prior`` and
+            ``filter.prior_cov``).
+        sequential: ``filter.sequential``.
+        association: which landmark each detection is
+            (:class:`~nanoslam_jax.methods.AbstractAssociation`; ``filter.association``).
+        weight: where the importance weight evaluates the detections
+            (:class:`~nanoslam_jax.methods.AbstractWeight`; ``filter.weight``).
+        resampler: the resampling scheme (:class:`~nanoslam_jax.methods.AbstractResampler`;
+            ``filter.resampler``).
+        estimate: the reported trajectory (:class:`~nanoslam_jax.methods.AbstractEstimate`;
+            ``filter.estimate``).
         manage, occlusion: ``map.manage`` and ``map.occlusion``.
-        landmark_update: ``"ekf"`` or ``"unscented"`` landmark updates (the method's).
         adaptive_noise: the adaptive measurement-noise estimate is on (``noise.adaptive``).
         method_settings: the method's own static settings: a frozen dataclass such as
             :class:`~nanoslam_jax.methods.NanoStatic`, or None for a method without. Left out, the
@@ -70,16 +93,14 @@ class Static:
     k_max: int = 14
     row_buckets: tuple[int, ...] = ()
     devices: int = 1
-    prior: str = "unscented"
-    prior_cov: str = "reset"
+    prior: AbstractPrior = UnscentedPrior()
     sequential: bool = True
-    association: str = "nearest"
-    weight: str = "product"
-    resampler: str = "systematic"
-    estimate: str = "best"
+    association: AbstractAssociation = NearestAssociation()
+    weight: AbstractWeight = ProductWeight()
+    resampler: AbstractResampler = Systematic()
+    estimate: AbstractEstimate = BestParticle()
     manage: bool = True
     occlusion: bool = True
-    landmark_update: str = "ekf"
     adaptive_noise: bool = False
     method_settings: Hashable = _FROM_METHOD
 
@@ -89,6 +110,9 @@ class Static:
                 f"Static.method: expected a nanoslam_jax.methods.Method, got {self.method!r} "
                 "(nanoslam_jax.app.registry.get_method(name) gives the method of a filter.method name)"
             )
+        for name, base in _COMPONENTS.items():
+            if not isinstance(getattr(self, name), base):
+                raise TypeError(f"Static.{name}: expected a {base.__name__}, got {getattr(self, name)!r}")
         if self.method_settings is _FROM_METHOD:
             object.__setattr__(self, "method_settings", self.method.static_default)
 

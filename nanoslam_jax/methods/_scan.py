@@ -25,7 +25,7 @@ from nanoslam_jax.data import Segments
 from nanoslam_jax.methods._method import Method
 from nanoslam_jax.methods.proposals import AbstractProposal
 from nanoslam_jax.methods._params import Params, Static
-from nanoslam_jax.methods.particle._prior import predict_mean, relative_prior
+from nanoslam_jax.methods.particle._prior import AbstractPrior, UnscentedPrior, predict_mean, relative_prior
 from nanoslam_jax.methods.gaussian._gaussian import as_step_output
 from nanoslam_jax.methods._state import FilterState, LandmarkMap, init_state
 from nanoslam_jax.methods.particle._step import StepOutput, filter_step
@@ -89,17 +89,18 @@ def segment_priors(
     ``filter.prior_cov: carry``, a motion model that is not ``rigid``). It depends on the controls
     and the hyperparameters only, so :func:`filter_scan` computes it for all segments at once,
     before the scan."""
-    if is_gaussian(static.method) or static.prior_cov != "reset" or not params.motion.rigid:
+    if is_gaussian(static.method) or not static.prior.reset or not params.motion.rigid:
         return None
     return relative_priors(segments, params, static.prior)
 
 
 def relative_priors(
-    segments: Segments, params: Params, kind: str = "unscented"
+    segments: Segments, params: Params, prior: AbstractPrior = UnscentedPrior()
 ) -> tuple[Float[Array, "segments 3"], Float[Array, "segments 3 3"]]:
-    """:func:`relative_prior` of every segment (``kind``: ``filter.prior``). Traced inside the
+    """:func:`relative_prior` of every segment (``prior``: ``filter.prior``). Traced inside the
     filter's program by :func:`segment_priors`; the offline smoother calls its compiled form."""
-    return jax.vmap(relative_prior, (0, 0, 0, None, None))(segments.dt, segments.u, segments.dr_mask, params, kind)
+    rel = lambda dt, u, m: relative_prior(dt, u, m, params, prior)  # noqa: E731
+    return jax.vmap(rel)(segments.dt, segments.u, segments.dr_mask)
 
 
 def initial_state(static: Static, params: Params, key: Key[Array, ""]):

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, TYPE_CHECKING
 
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key
 
 from nanoslam_jax.models import is_composite
-from nanoslam_jax.methods._params import Params, Static
+
+if TYPE_CHECKING:
+    from nanoslam_jax.methods._params import Params, Static
 
 
 class LandmarkMap(NamedTuple):
@@ -125,7 +127,7 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         landmarks=LandmarkMap.empty(
             static.capacity,
             (n,),
-            ident=static.association == "known",
+            ident=static.association.known,
             dim=params.measurement.landmark_dim,
             kinds=is_composite(params.measurement),
         ),

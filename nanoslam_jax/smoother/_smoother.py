@@ -57,7 +57,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from nanoslam_jax.smoother._settings import SmootherConfig
 from nanoslam_jax.methods._params import Params
-from nanoslam_jax.methods import relative_priors
+from nanoslam_jax.methods import AbstractPrior, UnscentedPrior, relative_priors
 from nanoslam_jax.smoother._loop_closure import (
     LoopClosureSettings,
     co_observed,
@@ -186,15 +186,16 @@ class Smoothed(NamedTuple):
     rejected: int = 0
 
 
-_relative_priors = jax.jit(relative_priors, static_argnums=2)  # one compilation per log shape and kind
+_relative_priors = jax.jit(relative_priors, static_argnums=2)  # one compilation per log shape and prior
 
 
 def segment_motion(
-    segments, params: Params, kind: str = "unscented"
+    segments, params: Params, prior: AbstractPrior = UnscentedPrior()
 ) -> tuple[Float[Array, "segments 3"], Float[Array, "segments 3 3"]]:
     """Each segment's motion prior in the frame of its start pose (mean and covariance), as the
-    filter's prior computes it (:func:`~nanoslam_jax.methods.relative_prior`)."""
-    return _relative_priors(segments, params, kind)
+    filter's prior computes it (:func:`~nanoslam_jax.methods.relative_prior`; ``prior``:
+    ``filter.prior``)."""
+    return _relative_priors(segments, params, prior)
 
 
 def _whitened_d2(x, m, z, sigma_r: float, sigma_beta: float) -> np.ndarray:
@@ -533,13 +534,19 @@ def smoother_map(
 
 
 def smooth_run(
-    path, landmarks, segments, params: Params, settings: SmootherSettings, prior: str = "unscented", held=None
+    path,
+    landmarks,
+    segments,
+    params: Params,
+    settings: SmootherSettings,
+    prior: AbstractPrior = UnscentedPrior(),
+    held=None,
 ) -> Smoothed:
     """:func:`smooth_path` for a run: the log's detections and motion priors from ``segments`` and
     ``params`` (one run's hyperparameters), the association gate ``params.gate``.
 
     Args:
-        path: the run's ancestral path (``reported_trajectory("path", ...)``).
+        path: the run's ancestral path (``AncestralPath().trajectory(...)``).
         landmarks: the positions of its final best particle's confirmed landmarks.
         segments: the log's segments.
         params: the run's hyperparameters.
@@ -565,7 +572,7 @@ def smooth_run(
 
 
 def smooth_filter_run(
-    run, path, segments, params: Params, config, prior: str = "unscented", index: int | None = None
+    run, path, segments, params: Params, config, prior: AbstractPrior = UnscentedPrior(), index: int | None = None
 ) -> Smoothed:
     """Smooth one run of :func:`~nanoslam_jax.methods.run_filter` (or member ``index`` of a
     :func:`~nanoslam_jax.methods.run_batch`): its final best particle's map (:func:`smoother_map`)
@@ -573,7 +580,7 @@ def smooth_filter_run(
 
     Args:
         run: the run (:class:`~nanoslam_jax.methods.FilterRun`).
-        path: ``(segments, 3)`` its ancestral path (``reported_trajectory("path", ...)``, that member's).
+        path: ``(segments, 3)`` its ancestral path (``AncestralPath().trajectory(...)``, that member's).
         segments: the log's segments.
         params: the run's hyperparameters (one member's).
         config: the ``smoother`` section (:class:`nanoslam_jax.app.config.SmootherConfig`).

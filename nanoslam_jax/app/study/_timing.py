@@ -60,7 +60,7 @@ def time_point(
     setup_run_devices(cfg)  # as `nanoslam run` does
     import numpy as np
 
-    from nanoslam_jax.methods import reported_trajectory, run_filter
+    from nanoslam_jax.methods import run_filter
     from nanoslam_jax.app.filters import settings_from_config
     from nanoslam_jax.smoother._smoother import smooth_filter_run
     from nanoslam_jax.lib._cache import enable_compile_cache
@@ -79,7 +79,7 @@ def time_point(
         compile_s = r.compile_s if compile_s is None else compile_s
         smoother_s = 0.0
         if cfg.smoother.enabled:  # the offline smoother after the run, part of what one run costs
-            path = np.asarray(reported_trajectory(static.estimate, r.outputs, r.state))
+            path = np.asarray(static.estimate.trajectory(r.outputs, r.state))
             smoother_s = smooth_filter_run(r, path, log.segments, params, cfg.smoother, cfg.filter.prior).seconds
         runs.append(r.run_s + smoother_s)
     scans = int(log.segments.time.shape[0])

@@ -202,7 +202,7 @@ def _member(static: Static, params: Params, seed, segments: Segments, history_ch
         map_mean=lm.mean,
         map_active=lm.active,
         map_confirmed=lm.confirmed,
-        path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate == "path" else None,
+        path_pose=ancestral_path(out.poses, out.ancestors, state.best) if static.estimate.records_path else None,
         noise=noise_estimates(state) if static.adaptive_noise else None,
         map_ident=lm.ident,
         history_mean=h_mean,
@@ -422,7 +422,8 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
     """Metrics of member ``i`` (:func:`~nanoslam_jax.eval._scoring.score_run`, as every command scores
     a run; the smoothed path with ``smoother.enabled``) and its status."""
     static = task.static
-    est = np.asarray({"best": out.best_pose, "mean": out.mean_pose, "path": out.path_pose}[static.estimate][i])
+    # The ancestral path is followed back in the program (path_pose); the others are recorded per segment.
+    est = np.asarray(out.path_pose[i] if static.estimate.records_path else static.estimate.trajectory(out)[i])
     act = np.asarray(out.map_active[i], bool)
     lm = MapEstimate(
         np.asarray(out.map_mean[i])[act],

@@ -60,7 +60,7 @@ def _bytes_per_run(static: Static, n_segments: int) -> int:
     state = static.n_particles * static.capacity * (2 + 4 + 1 + 1 + 1) * 8
     window = static.n_particles * static.window_size * (2 + 4 + 3) * 8 * static.k_max
     outputs = n_segments * 16 * 8
-    if static.estimate == "path":  # every particle's pose and ancestor per segment, followed back in the program
+    if static.estimate.records_path:  # every particle's pose and ancestor per segment, followed back in the program
         outputs += n_segments * static.n_particles * 4 * 8
     return 4 * state + 2 * window + 2 * outputs + (1 << 16)
 

@@ -13,7 +13,7 @@ Per segment (:func:`ekf_slam_step`):
 1. **Prediction** (:func:`~._joint_gaussian.ekf_slam_predict`): the pose is propagated through
    the segment's DR pieces by first-order linearisation with autodiff Jacobians, touching only
    the three pose rows and columns: O(C), not O(C^2). EKF-SLAM always uses this linearised prior
-   (``static.prior`` is not used): mixing an unscented ``P_xx`` with Jacobian cross-covariances
+   (``static.prior``'s transform is not used): mixing an unscented ``P_xx`` with Jacobian cross-covariances
    would not be a joint linearisation and need not stay positive semi-definite.
 2. **Sequential detections** (a loop over the scan's real detections, in order): the innovation
    covariance of every slot, ``S_j = H_j P H_j' + R`` (pose-landmark cross-covariance included),
@@ -125,7 +125,7 @@ def init_ekf_state(static: Static, params: Params) -> EkfSlamState:
     zero = jnp.zeros((), jnp.int32)
     # The bookkeeping of an empty map; its mean and covariance are placeholders of one element.
     book = LandmarkMap.empty(
-        c, ident=static.association == "known", dim=dim, kinds=is_composite(params.measurement)
+        c, ident=static.association.known, dim=dim, kinds=is_composite(params.measurement)
     )._replace(mean=jnp.zeros((1, dim)), cov=jnp.zeros((1, dim, dim)))
     return EkfSlamState(
         mean=jnp.zeros(n),
@@ -244,7 +244,7 @@ def _detections(
     n_real = jnp.sum(z_mask).astype(jnp.int32)
     (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
     pre = None
-    if static.association == "known":  # a detection without a landmark id is not associated
+    if static.association.known:  # a detection without a landmark id is not associated
         z_mask = z_mask & (seg.z_id >= 0)
         n_real = jnp.sum(z_mask).astype(jnp.int32)
         (order,) = jnp.nonzero(z_mask, size=k_max, fill_value=0)
@@ -266,7 +266,7 @@ def _associate(
         seg: the segment; ``k``: the detection's index; ``kind``: its type (composite models, else None).
         pre: the non-sequential association (:attr:`_Detections.pre`).
     """
-    if static.association == "known":  # the landmark started by this id, or a new one
+    if static.association.known:  # the landmark started by this id, or a new one
         same = c.book.active & (c.book.ident == seg.z_id[k])
         j = jnp.argmax(same).astype(jnp.int32)
         matched = jnp.any(same)

@@ -289,7 +289,7 @@ def _associate(
         1.0 / (jnp.concatenate([local.landmarks.diam_var, jnp.full(K, var_d)]) + var_d),
         mp.use_diameter,
     )
-    known = static.association == "known"
+    known = static.association.known
     id_term = None
     if known:
         ident = local.landmarks.ident
@@ -489,7 +489,7 @@ def _add_new(
     var_d = jnp.square(mp.sigma_diameter)
     seg, upd, ini, upd_d, upd_dv = scan.seg, updated.upd, updated.ini, updated.diam, updated.diam_var
     K = seg.z.shape[0]
-    known = static.association == "known"
+    known = static.association.known
     is_new = match.assoc.is_new
     pt = jnp.where(match.provisional, match.ps, K)
     extra = jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop")

@@ -125,7 +125,7 @@ def init_nasrukf_state(static: Static, params: Params) -> NasrukfState:
         mean=jnp.zeros((c, f)),
         gain=jnp.zeros((c, f, 3)),
         sqrt=jnp.broadcast_to(jnp.eye(f), (c, f, f)),
-        landmarks=LandmarkMap.empty(c, ident=static.association == "known"),
+        landmarks=LandmarkMap.empty(c, ident=static.association.known),
     )
     return NasrukfState(
         pose=jnp.zeros(3),

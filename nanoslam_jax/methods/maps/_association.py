@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from typing import ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -114,6 +115,41 @@ class ScanDetections(NamedTuple):
     diam: Float[Array, " k_max"] | None = None
     ident: Int[Array, " k_max"] | None = None
     kind: Int[Array, " k_max"] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class AbstractAssociation:
+    """Which landmark each detection is (``filter.association`` names one): a filter's component,
+    a frozen dataclass (hashable: part of its static settings).
+
+    Attributes:
+        name: its name (``filter.association``).
+        known: detections carry the id of their landmark and are matched by it (the map keeps
+            each landmark's id); otherwise by distance through the gates (:class:`Gating`).
+    """
+
+    name: ClassVar[str] = ""
+    known: ClassVar[bool] = False
+
+    def detection_ids(self, z_id: Int[Array, " k_max"] | None) -> Int[Array, " k_max"] | None:
+        """The landmark ids association matches by (``z_id``: the log's, -1 for none), or None."""
+        return z_id if self.known else None
+
+
+@dataclasses.dataclass(frozen=True)
+class NearestAssociation(AbstractAssociation):
+    """Nearest neighbour by squared Mahalanobis distance, within the chi-square gates."""
+
+    name: ClassVar[str] = "nearest"
+
+
+@dataclasses.dataclass(frozen=True)
+class KnownAssociation(AbstractAssociation):
+    """By the landmark id each detection carries (a simulator's or a surveyed log's); a detection
+    without an id (-1) is not associated."""
+
+    name: ClassVar[str] = "known"
+    known: ClassVar[bool] = True
 
 
 class Gating(eqx.Module):

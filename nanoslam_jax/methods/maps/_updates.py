@@ -16,7 +16,16 @@ from nanoslam_jax.methods.maps._landmarks import ekf_update_loglik, init_landmar
 
 
 class AbstractLandmarkUpdate(eqx.Module):
-    """Starts and updates the landmarks of a scan's detection rows at one (sampled) pose."""
+    """Starts and updates the landmarks of a scan's detection rows at one (sampled) pose.
+
+    A particle method names its own (:attr:`~nanoslam_jax.methods.Method.landmark_update`); the
+    step takes it with the run's traced hyperparameters (:meth:`bind`).
+    """
+
+    def bind(self, params) -> "AbstractLandmarkUpdate":
+        """This update with what it takes from the run's hyperparameters ``params`` (a
+        :class:`~nanoslam_jax.methods.Params`) filled in; by default itself."""
+        return self
 
     @abc.abstractmethod
     def start(
@@ -77,10 +86,17 @@ class UnscentedLandmarkUpdate(AbstractLandmarkUpdate):
     One model for all rows.
 
     Attributes:
-        rule: the unscented transform's parameters (traced, so a sweep over them compiles once).
+        rule: the unscented transform's parameters; None (the default): the run's traced
+            ``filter.ut_alpha``, ``ut_beta``, ``ut_kappa`` (:meth:`bind`), so a sweep over them
+            compiles once.
     """
 
-    rule: Unscented = Unscented()
+    rule: Unscented | None = None
+
+    def bind(self, params) -> "UnscentedLandmarkUpdate":
+        if self.rule is not None:
+            return self
+        return UnscentedLandmarkUpdate(Unscented(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa))
 
     def start(self, x, z, R, model, kind):
         return jax.vmap(lambda zk: ukf_init_landmark(x, zk, R, self.rule, model))(z)

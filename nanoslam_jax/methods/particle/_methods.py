@@ -9,6 +9,7 @@ from typing import Any
 from nanoslam_jax.lib.quadrature import make_rule
 from nanoslam_jax.methods._method import Method
 from nanoslam_jax.methods._method_settings import IteratedStatic, NanoStatic, settings_of
+from nanoslam_jax.methods.maps._updates import UnscentedLandmarkUpdate
 from nanoslam_jax.methods.proposals import LinearizedProposal, NanoProposal, PriorProposal
 from nanoslam_jax.methods.proposals._iterated import IteratedProposal
 from nanoslam_jax.methods.proposals._ufastslam import UnscentedProposal
@@ -84,7 +85,7 @@ FASTSLAM2 = Method(
 UFASTSLAM = Method(
     "ufastslam",
     proposal=_ufastslam,
-    landmark_update="unscented",
+    landmark_update=UnscentedLandmarkUpdate(),
     adaptive_noise=True,
     description="Unscented FastSLAM: unscented proposal and landmark updates",
 )

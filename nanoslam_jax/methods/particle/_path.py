@@ -11,15 +11,15 @@ offline (smoothed) estimate, not a filtering one.
 
 from __future__ import annotations
 
+import abc
+import dataclasses
 import functools
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
-
-#: The reported estimates (``filter.estimate``).
-ESTIMATES = ("best", "mean", "path")
 
 
 def ancestral_path(
@@ -55,30 +55,65 @@ def _ancestral_path(poses, ancestors, final, batched: bool):
     return (jax.vmap(ancestral_path) if batched else ancestral_path)(poses, ancestors, final)
 
 
-def reported_trajectory(estimate: str, outputs, state=None) -> np.ndarray:
-    """The trajectory a run reports, as a host array ``(segments, 3)`` (``(batch, segments, 3)``
-    for a batch's outputs and state).
+@dataclasses.dataclass(frozen=True)
+class AbstractEstimate(abc.ABC):
+    """The trajectory a run reports (``filter.estimate`` names one): a filter's component, a frozen
+    dataclass (hashable: part of its static settings).
 
-    Args:
-        estimate: ``filter.estimate``: ``best``, ``mean`` or ``path``.
-        outputs: the run's per-segment :class:`StepOutput` (host or device arrays); ``path``
-            needs the ``poses`` and ``ancestors`` a run records with ``filter.estimate: path``.
-        state: the run's final state (``path`` only: the path of its ``best`` particle is followed).
+    Attributes:
+        name: its name (``filter.estimate``).
+        records_path: the run records every particle's pose and ancestor per segment
+            (``StepOutput.poses``, ``ancestors``), which the estimate follows back.
     """
-    if estimate == "best":
+
+    name: ClassVar[str] = ""
+    records_path: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def trajectory(self, outputs, state=None) -> np.ndarray:
+        """The reported trajectory as a host array ``(segments, 3)`` (``(batch, segments, 3)`` for
+        a batch's outputs and state).
+
+        Args:
+            outputs: the run's per-segment :class:`StepOutput` (host or device arrays).
+            state: the run's final state (needed where the estimate follows its best particle).
+        """
+
+
+@dataclasses.dataclass(frozen=True)
+class BestParticle(AbstractEstimate):
+    """At each segment the pose of the particle with the largest weight then."""
+
+    name: ClassVar[str] = "best"
+
+    def trajectory(self, outputs, state=None):
         return np.asarray(outputs.best_pose)
-    if estimate == "mean":
+
+
+@dataclasses.dataclass(frozen=True)
+class WeightedMean(AbstractEstimate):
+    """At each segment the particles' weighted mean pose (headings averaged on the circle)."""
+
+    name: ClassVar[str] = "mean"
+
+    def trajectory(self, outputs, state=None):
         return np.asarray(outputs.mean_pose)
-    if estimate != "path":
-        raise ValueError(f"filter.estimate: expected one of {', '.join(ESTIMATES)}, got {estimate!r}")
-    if outputs.poses is None or state is None:
-        raise ValueError(
-            "filter.estimate 'path' needs the particles' poses and ancestors, which a run records "
-            "only when its config has filter.estimate: path, and the run's final state"
-        )
-    batched = np.ndim(outputs.poses) == 4
-    return np.asarray(
-        _ancestral_path(
-            jnp.asarray(outputs.poses), jnp.asarray(outputs.ancestors), jnp.asarray(state.best), batched=batched
-        )
-    )
+
+
+@dataclasses.dataclass(frozen=True)
+class AncestralPath(AbstractEstimate):
+    """The history of the particle that is best at the end of the log (:func:`ancestral_path`):
+    an offline (smoothed) estimate."""
+
+    name: ClassVar[str] = "path"
+    records_path: ClassVar[bool] = True
+
+    def trajectory(self, outputs, state=None):
+        if outputs.poses is None or state is None:
+            raise ValueError(
+                "filter.estimate 'path' needs the particles' poses and ancestors, which a run records "
+                "only when its config has filter.estimate: path, and the run's final state"
+            )
+        batched = np.ndim(outputs.poses) == 4
+        poses, ancestors, best = jnp.asarray(outputs.poses), jnp.asarray(outputs.ancestors), jnp.asarray(state.best)
+        return np.asarray(_ancestral_path(poses, ancestors, best, batched=batched))

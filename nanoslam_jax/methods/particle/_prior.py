@@ -13,6 +13,10 @@ per segment and :func:`compose_prior` places it at each particle's pose.
 
 from __future__ import annotations
 
+import abc
+import dataclasses
+from typing import ClassVar, TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
@@ -21,7 +25,9 @@ from nanoslam_jax.lib._linalg import chol3, mm, mt, mv, sandwich, sym
 from nanoslam_jax.lib._trig import sincos
 from nanoslam_jax.models import AbstractRateModel, wrap_angle
 from nanoslam_jax.lib.quadrature import Unscented
-from nanoslam_jax.methods._params import Params
+
+if TYPE_CHECKING:
+    from nanoslam_jax.methods._params import Params
 
 
 def _sqrt_heading_first(P: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
@@ -90,6 +96,51 @@ def _linear_piece(x, P, u, dt, params: Params):
     return motion.step(x, u, dt), sym(sandwich(F, P) + sandwich(G, motion.noise_cov(dt)))
 
 
+@dataclasses.dataclass(frozen=True)
+class AbstractPrior(abc.ABC):
+    """How a particle's pose Gaussian is carried through a segment's pieces (``filter.prior``), and
+    the covariance each segment starts from (``filter.prior_cov``).
+
+    A subclass is a frozen dataclass (hashable: part of a filter's static settings) with
+    :meth:`piece`, one log piece's propagation.
+
+    Attributes:
+        name: the prior's name (``filter.prior``).
+        reset: each segment starts from ``init_cov * I`` at the particle's pose (``prior_cov:
+            reset``), instead of the particle's last proposal covariance (``carry``).
+    """
+
+    name: ClassVar[str] = ""
+    reset: bool = True
+
+    @abc.abstractmethod
+    def piece(
+        self, x: Float[Array, "3"], P: Float[Array, "3 3"], u: Float[Array, " c"], dt: Float[Array, ""], params: Params
+    ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+        """The pose Gaussian ``(x, P)`` moved by one piece of controls ``u`` over ``dt``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class UnscentedPrior(AbstractPrior):
+    """The augmented unscented transform over (pose, process noise), with the traced ``ut_*``
+    parameters."""
+
+    name: ClassVar[str] = "unscented"
+
+    def piece(self, x, P, u, dt, params):
+        return _ut_piece(x, P, u, dt, params)
+
+
+@dataclasses.dataclass(frozen=True)
+class LinearisedPrior(AbstractPrior):
+    """First-order propagation with the motion model's autodiff Jacobians."""
+
+    name: ClassVar[str] = "linearized"
+
+    def piece(self, x, P, u, dt, params):
+        return _linear_piece(x, P, u, dt, params)
+
+
 def predict(
     x: Float[Array, "3"],
     P: Float[Array, "3 3"],
@@ -97,7 +148,7 @@ def predict(
     u: Float[Array, "dr c"],
     dr_mask: Bool[Array, " dr"],
     params: Params,
-    kind: str = "unscented",
+    prior: AbstractPrior = UnscentedPrior(),
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
     """Propagate a pose Gaussian through a segment's DR pieces.
 
@@ -108,16 +159,15 @@ def predict(
         u: piece controls (the motion model's ``control_dim`` values).
         dr_mask: which pieces are real (padding leaves the Gaussian unchanged).
         params: hyperparameters (vehicle constants, control noise, unscented parameters).
-        kind: ``'unscented'`` (augmented unscented transform) or ``'linearized'``.
+        prior: the propagation (:class:`UnscentedPrior` or :class:`LinearisedPrior`).
 
     Returns:
         The prior mean and covariance at the segment's scan time.
     """
-    piece = _ut_piece if kind == "unscented" else _linear_piece
 
     def body(i, carry):
         xc, Pc = carry
-        xn, Pn = piece(xc, Pc, u[i], dt[i], params)
+        xn, Pn = prior.piece(xc, Pc, u[i], dt[i], params)
         return jnp.where(dr_mask[i], xn, xc), jnp.where(dr_mask[i], Pn, Pc)
 
     # Only up to the last real piece (most segments have 9-10 of 12): under vmap over particles,
@@ -143,7 +193,7 @@ def relative_prior(
     u: Float[Array, "dr c"],
     dr_mask: Bool[Array, " dr"],
     params: Params,
-    kind: str = "unscented",
+    prior: AbstractPrior = UnscentedPrior(),
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
     """The prior of a segment in the frame of its start pose, from covariance ``init_cov * I``.
 
@@ -153,7 +203,7 @@ def relative_prior(
     rounding. Arguments as for :func:`predict`.
     """
     zero = jnp.zeros(3, dtype=jnp.result_type(dt, float))
-    return predict(zero, params.init_cov * jnp.eye(3, dtype=zero.dtype), dt, u, dr_mask, params, kind)
+    return predict(zero, params.init_cov * jnp.eye(3, dtype=zero.dtype), dt, u, dr_mask, params, prior)
 
 
 def compose_prior(

@@ -4,7 +4,9 @@ it over only as many rows as the scan has (``filter.row_buckets``)."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import abc
+import dataclasses
+from typing import ClassVar, NamedTuple, TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -12,12 +14,51 @@ from jaxtyping import Array, Bool, Float, Int
 
 from nanoslam_jax.lib._linalg import chol3, gaussian_logpdf, mv
 from nanoslam_jax.lib._trig import computed_once
-from nanoslam_jax.lib.quadrature import Unscented
 from nanoslam_jax.models import row_models, wrap_angle
 from nanoslam_jax.methods.proposals import AbstractProposal, Detections, ProposalResult
 from nanoslam_jax.methods.maps._association import predicted_measurements
-from nanoslam_jax.methods.maps._updates import AbstractLandmarkUpdate, EkfLandmarkUpdate, UnscentedLandmarkUpdate
-from nanoslam_jax.methods._params import Params, Static
+
+if TYPE_CHECKING:
+    from nanoslam_jax.methods._params import Params, Static
+
+
+@dataclasses.dataclass(frozen=True)
+class AbstractWeight:
+    """Where a particle's importance weight evaluates its detections of mapped landmarks
+    (``filter.weight`` names one): a filter's component, a frozen dataclass (hashable).
+
+    Attributes:
+        name: its name (``filter.weight``).
+    """
+
+    name: ClassVar[str] = ""
+
+    @abc.abstractmethod
+    def at(
+        self, proposal: ProposalResult, x0: Float[Array, "3"], P0: Float[Array, "3 3"]
+    ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+        """The pose Gaussian the detections' likelihoods are taken over, from the particle's
+        proposal and its prior ``(x0, P0)``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ProductWeight(AbstractWeight):
+    """Eq. 17: the likelihoods over the proposal (the product of the prior and the detections)."""
+
+    name: ClassVar[str] = "product"
+
+    def at(self, proposal, x0, P0):
+        return proposal.mean, proposal.cov
+
+
+@dataclasses.dataclass(frozen=True)
+class MarginalWeight(AbstractWeight):
+    """The marginal likelihoods over the prior (FastSLAM 1.0's weight)."""
+
+    name: ClassVar[str] = "marginal"
+
+    def at(self, proposal, x0, P0):
+        return x0, P0
 
 
 class RowResults(NamedTuple):
@@ -60,14 +101,6 @@ class RowInputs(NamedTuple):
     mask: Bool[Array, " k"]
 
 
-def landmark_update(static: Static, params: Params) -> AbstractLandmarkUpdate:
-    """The landmark start and update a method uses (``static.landmark_update``): unscented, with the
-    traced ``ut_*`` parameters, or the EKF."""
-    if static.landmark_update == "unscented":
-        return UnscentedLandmarkUpdate(Unscented(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa))
-    return EkfLandmarkUpdate()
-
-
 def row_work(
     static: Static,
     params: Params,
@@ -91,14 +124,14 @@ def row_work(
     x_s = prop.mean + mv(chol3(prop.cov), eps)
     x_s = computed_once(x_s.at[2].set(wrap_angle(x_s[2])))
     # Weight of the associations with existing landmarks (eq. 17, or the marginal at the prior).
-    xw, Pw = (prop.mean, prop.cov) if static.weight == "product" else (x0, P0)
+    xw, Pw = static.weight.at(prop, x0, P0)
     model = params.measurement
     # A composite's rows each take their type's model and noise (one shared model otherwise).
     row_model, ax = row_models(model, det.kind)
     z_hat, S = predicted_measurements(xw, Pw, det.mean, det.cov, R, model, det.kind)
     ll = gaussian_logpdf(jax.vmap(lambda md, z, zh: md.innovation(z, zh), (ax, 0, 0))(row_model, det.z, z_hat), S)
     # New landmarks at the sampled pose (eq. 16, or its unscented counterpart for UFastSLAM).
-    updates = landmark_update(static, params)
+    updates = static.method.landmark_update.bind(params)
     new_mean, new_cov = updates.start(x_s, det.z, R, model, det.kind)
     # EKF (UFastSLAM: unscented) updates at the sampled pose; each landmark is matched at most once
     # per scan. A match to a landmark created earlier in this scan weighs with its likelihood at x_s.

@@ -35,7 +35,7 @@ from nanoslam_jax.methods.maps._landmarks import (
 )
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.particle._prior import compose_prior, predict, relative_prior
-from nanoslam_jax.lib._resampling import effective_sample_size, normalise, resample
+from nanoslam_jax.lib._resampling import effective_sample_size, normalise
 from nanoslam_jax.methods.particle._rows import RowInputs, RowResults, rows_over_buckets
 from nanoslam_jax.methods.maps._management import (
     Candidates,
@@ -122,7 +122,7 @@ class ParticleIn(NamedTuple):
 
     Attributes:
         pose, pose_cov: the particle's pose and its covariance (the prior's start with
-            ``static.prior_cov == 'propagate'``).
+            ``static.prior.reset`` off).
         landmarks: the particle's map.
         eps: the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
         noise, noise_count: the particle's adaptive measurement-noise variances and how many
@@ -149,7 +149,7 @@ class SegmentIn(NamedTuple):
             masks the pose and weight; with no detections the map is unchanged).
         scan: the count of laser scans before this one (the clock of the landmarks' ``born``).
         rel_prior: the segment's :func:`relative_prior`, shared by all particles, with
-            ``static.prior_cov == 'reset'``; the prior is then placed at the particle's pose
+            ``static.prior.reset``; the prior is then placed at the particle's pose
             instead of propagated per particle (the same Gaussian up to rounding). None:
             propagated per particle.
         slot_bucket: index into ``static.slot_buckets`` of a map prefix that holds every active
@@ -267,7 +267,7 @@ def _prior(
     if seg.rel_prior is not None:
         x0, P0 = compose_prior(particle.pose, *seg.rel_prior)
     else:
-        P_start = params.init_cov * jnp.eye(3) if static.prior_cov == "reset" else particle.pose_cov
+        P_start = params.init_cov * jnp.eye(3) if static.prior.reset else particle.pose_cov
         x0, P0 = predict(particle.pose, P_start, seg.dt, seg.u, seg.dr_mask, params, static.prior)
     return computed_once((x0, P0))
 
@@ -479,7 +479,7 @@ def filter_step(
 ) -> tuple[FilterState, StepOutput]:
     """Advance the particle set through one segment.
 
-    ``rel_prior``: the segment's :func:`relative_prior`, used with ``static.prior_cov == 'reset'``
+    ``rel_prior``: the segment's :func:`relative_prior`, used with ``static.prior.reset``
     (computed here when None; :func:`filter_scan` computes every segment's before its scan).
 
     A padding segment (``valid`` False; it has no detections and ``dt = 0``) leaves the state
@@ -491,7 +491,7 @@ def filter_step(
     the particles' small outputs are gathered in one collective per step, and the maps cross
     devices only when the particles are resampled.
     """
-    if static.prior_cov != "reset" or not params.motion.rigid:
+    if not static.prior.reset or not params.motion.rigid:
         rel_prior = None  # a model that is not rigid: every particle's prior is predicted from its own pose
     elif rel_prior is None:
         rel_prior = relative_prior(seg.dt, seg.u, seg.dr_mask, params, static.prior)
@@ -526,7 +526,7 @@ def _shared(
         seg.z,
         seg.z_mask,
         seg.diam,
-        seg.z_id if static.association == "known" else None,
+        static.association.detection_ids(seg.z_id),
         seg.z_kind if is_composite(params.measurement) else None,
     )
     return SegmentIn(seg.dt, seg.u, seg.dr_mask, dets, valid & seg.is_scan, scan, rel_prior, slot_bucket, in_use)
@@ -620,14 +620,14 @@ def _step(
     record = _record(out, log_w, best, valid, finite, params.resample_threshold)
 
     def ancestors(parts):
-        anc = resample(static.resampler, k_res, parts.log_w)
+        anc = static.resampler(k_res, parts.log_w)
         # A copy of the best particle if it survived (always, for systematic and residual
         # resampling, since its weight is >= 1/N), else the best survivor.
         return anc, jnp.argmax(parts.log_w[anc]).astype(jnp.int32)
 
     uniform = jnp.full((n,), -jnp.log(n), dtype=particles.log_w.dtype)
     # filter.estimate: path records the genealogy: the resampling's ancestors, identity without it.
-    track = static.estimate == "path"
+    track = static.estimate.records_path
     if axis is None:
         # A conditional copy; under a sweep's vmap each run copies its maps only when it resamples.
         # The ancestors are drawn at every step (one uniform and a search over the weights, well

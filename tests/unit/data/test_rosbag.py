@@ -489,7 +489,7 @@ def test_a_bag_and_the_equivalent_carmen_file_give_the_same_trajectory(tmp_path,
     from nanoslam_jax.app.config import load_config
     from nanoslam_jax.app.experiment import load_log
     from nanoslam_jax.app.filters import settings_from_config
-    from nanoslam_jax.methods import reported_trajectory, run_filter
+    from nanoslam_jax.methods import run_filter
 
     bag_path, clf = _equivalent_logs(tmp_path, kind)
     common = [
@@ -514,7 +514,7 @@ def test_a_bag_and_the_equivalent_carmen_file_give_the_same_trajectory(tmp_path,
             log = load_log(cfg, str(path))
         static, params = settings_from_config(cfg, log.segments.k_max)
         run = run_filter(static, params, log.segments, 0)
-        paths[name] = np.asarray(reported_trajectory(static.estimate, run.outputs, run.state))
+        paths[name] = np.asarray(static.estimate.trajectory(run.outputs, run.state))
         assert int(np.asarray(run.state.landmark_map().active).sum()) >= 2  # walls were mapped
     bag_est, carmen_est = paths["bag"], paths["carmen"]
     assert bag_est.shape == carmen_est.shape and np.all(np.isfinite(bag_est))

@@ -500,9 +500,9 @@ def test_particles_split_over_devices_give_the_same_run():
         a, b = one.state.particles, two.state.particles
         # filter.estimate: path split over the devices (the ancestors come out of the resampling's
         # cond): the same filter, one genealogy branch per resampling, ending at the last best pose.
-        from nanoslam_jax.methods import reported_trajectory
-        p2 = run_filter(dataclasses.replace(static, estimate="path"), params, log.segments, 0)
-        path2 = reported_trajectory("path", p2.outputs, p2.state)
+        from nanoslam_jax.methods import AncestralPath
+        p2 = run_filter(dataclasses.replace(static, estimate=AncestralPath()), params, log.segments, 0)
+        path2 = AncestralPath().trajectory(p2.outputs, p2.state)
         print(json.dumps(dict(
             path_same_filter=bool(np.array_equal(np.asarray(p2.outputs.best_pose), np.asarray(two.outputs.best_pose))),
             path=float(np.max(np.abs(path2[-1] - np.asarray(p2.outputs.best_pose)[-1]))),

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.methods import predict
+from nanoslam_jax.methods import UnscentedPrior, predict
 from nanoslam_jax.methods.proposals import (
     Detections,
     Gaussian,
@@ -389,7 +389,7 @@ def published_cases(n_cases=24, k=6, start_sigma=None):
     else:
         P_start = np.diag(np.square([start_sigma[0], start_sigma[0], start_sigma[1]]))
     prior_fn = jax.jit(
-        lambda x, u: predict(x, P_start, jnp.full(steps, 0.025), u, jnp.ones(steps, bool), params, "unscented")
+        lambda x, u: predict(x, P_start, jnp.full(steps, 0.025), u, jnp.ones(steps, bool), params, UnscentedPrior())
     )
     rng = np.random.default_rng(11)
     cases = []

@@ -13,7 +13,7 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import ancestral_path, reported_trajectory, run_filter
+from nanoslam_jax.methods import AncestralPath, BestParticle, WeightedMean, ancestral_path, run_filter
 from nanoslam_jax.app.filters import settings_from_config
 
 
@@ -54,7 +54,7 @@ def sim_runs():
     """One simulated log; seed 5 run with ``estimate: path`` and with ``best``."""
     _, log, static, params = _sim()
     path = run_filter(static, params, log.segments, 5)
-    plain = run_filter(dataclasses.replace(static, estimate="best"), params, log.segments, 5)
+    plain = run_filter(dataclasses.replace(static, estimate=BestParticle()), params, log.segments, 5)
     return log, static, params, path, plain
 
 
@@ -71,7 +71,7 @@ def test_path_runs_record_the_genealogy_without_changing_the_filter(sim_runs):
     ident = np.arange(8)
     assert all(np.array_equal(a, ident) for r, a in zip(np.asarray(o.resampled), np.asarray(o.ancestors)) if not r)
 
-    path = reported_trajectory("path", o, run.state)
+    path = AncestralPath().trajectory(o, run.state)
     np.testing.assert_array_equal(
         path, carried_forward(np.asarray(o.poses), np.asarray(o.ancestors), int(run.state.best))
     )
@@ -89,7 +89,7 @@ def test_batched_paths_equal_each_members_path():
     poses = rng.normal(size=(b, t, n, 3))
     ancestors = np.sort(rng.integers(0, n, size=(b, t, n)), axis=-1)
     final = np.array([0, 3, 4])
-    paths = reported_trajectory("path", SimpleNamespace(poses=poses, ancestors=ancestors), SimpleNamespace(best=final))
+    paths = AncestralPath().trajectory(SimpleNamespace(poses=poses, ancestors=ancestors), SimpleNamespace(best=final))
     assert paths.shape == (b, t, 3)
     for i in range(b):
         np.testing.assert_array_equal(paths[i], carried_forward(poses[i], ancestors[i], final[i]))
@@ -119,8 +119,8 @@ def test_path_needs_particles(method):
 def test_reported_trajectory_needs_the_recorded_poses(sim_runs):
     _, _, _, _, plain = sim_runs
     with pytest.raises(ValueError, match="filter.estimate: path"):
-        reported_trajectory("path", plain.outputs, plain.state)
-    np.testing.assert_array_equal(reported_trajectory("mean", plain.outputs), np.asarray(plain.outputs.mean_pose))
+        AncestralPath().trajectory(plain.outputs, plain.state)
+    np.testing.assert_array_equal(WeightedMean().trajectory(plain.outputs), np.asarray(plain.outputs.mean_pose))
 
 
 @pytest.mark.slow
@@ -132,5 +132,5 @@ def test_sweep_member_follows_the_path_inside_its_program(sim_runs):
     log, static, params, alone, _ = sim_runs
     out = jax.jit(_batch._member, static_argnums=0)(static, params, 5, log.segments)
     np.testing.assert_allclose(
-        np.asarray(out.path_pose), reported_trajectory("path", alone.outputs, alone.state), rtol=0, atol=1e-9
+        np.asarray(out.path_pose), AncestralPath().trajectory(alone.outputs, alone.state), rtol=0, atol=1e-9
     )

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from nanoslam_jax.app.config import load_config
-from nanoslam_jax.methods import compose_prior, predict, relative_prior
+from nanoslam_jax.methods import LinearisedPrior, UnscentedPrior, compose_prior, predict, relative_prior
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.models import vehicle_step
 from nanoslam_jax.lib.quadrature import Unscented
 
 _, PARAMS = settings_from_config(load_config("configs/victoria_park_nano.yaml"), 14)
-predict_jit = jax.jit(predict, static_argnums=6)  # compiled once per kind and shape for the tests below
+predict_jit = jax.jit(predict, static_argnums=6)  # compiled once per prior and shape for the tests below
 
 
 def generic_ut(x, P, u, dt, params):
@@ -41,7 +41,7 @@ def test_structured_unscented_prior_equals_generic_augmented_ut(seed):
     A = rng.normal(size=(3, 3)) * 0.1
     P = jnp.asarray(A @ A.T + 1e-4 * np.eye(3))
     u = jnp.asarray([rng.uniform(0, 5), rng.uniform(-0.4, 0.4)])
-    m1, P1 = predict(x, P, jnp.array([0.025]), u[None], jnp.array([True]), PARAMS, "unscented")
+    m1, P1 = predict(x, P, jnp.array([0.025]), u[None], jnp.array([True]), PARAMS, UnscentedPrior())
     m2, P2 = generic_ut(x, P, u, 0.025, PARAMS)
     d = np.array(m1 - m2)
     d[2] = np.angle(np.exp(1j * d[2]))
@@ -49,7 +49,7 @@ def test_structured_unscented_prior_equals_generic_augmented_ut(seed):
     np.testing.assert_allclose(P1, P2, atol=1e-12)
 
 
-@pytest.mark.parametrize("kind", ["unscented", "linearized"])
+@pytest.mark.parametrize("kind", [UnscentedPrior(), LinearisedPrior()], ids=["unscented", "linearized"])
 @pytest.mark.slow
 def test_padding_pieces_leave_the_prior_unchanged(kind):
     x, P = jnp.asarray([1.0, 2.0, 3.1]), jnp.diag(jnp.asarray([0.1, 0.2, 0.01]))
@@ -68,8 +68,8 @@ def test_unscented_and_linearized_priors_agree_for_small_noise():
     x, P = jnp.asarray([0.0, 0.0, 0.3]), 1e-6 * jnp.eye(3)
     dt = jnp.full(9, 0.025)
     u = jnp.tile(jnp.asarray([4.0, 0.2]), (9, 1))
-    mu, Pu = predict(x, P, dt, u, dt > 0, p, "unscented")
-    ml, Pl = predict(x, P, dt, u, dt > 0, p, "linearized")
+    mu, Pu = predict(x, P, dt, u, dt > 0, p, UnscentedPrior())
+    ml, Pl = predict(x, P, dt, u, dt > 0, p, LinearisedPrior())
     # They differ by the second-order (curvature) term of the mean, O(sigma^2) ~ 1e-6 here.
     np.testing.assert_allclose(mu, ml, atol=1e-5)
     np.testing.assert_allclose(Pu, Pl, rtol=1e-3, atol=1e-14)
@@ -81,7 +81,7 @@ def _rigid(x, t, theta):
     return np.array([t[0] + c * x[0] - s * x[1], t[1] + s * x[0] + c * x[1], x[2] + theta])
 
 
-@pytest.mark.parametrize("kind", ["unscented", "linearized"])
+@pytest.mark.parametrize("kind", [UnscentedPrior(), LinearisedPrior()], ids=["unscented", "linearized"])
 @pytest.mark.parametrize("seed", range(3))
 def test_prior_commutes_with_rigid_motions(kind, seed):
     """Moving the start pose by a rigid motion moves the prior mean by it and rotates the
@@ -104,7 +104,7 @@ def test_prior_commutes_with_rigid_motions(kind, seed):
     np.testing.assert_allclose(P2, A @ np.asarray(P1) @ A.T, atol=1e-15, rtol=1e-10)
 
 
-@pytest.mark.parametrize("kind", ["unscented", "linearized"])
+@pytest.mark.parametrize("kind", [UnscentedPrior(), LinearisedPrior()], ids=["unscented", "linearized"])
 @pytest.mark.slow
 def test_relative_prior_placed_at_a_pose_equals_that_poses_prior(kind):
     """The shared prior of ``filter.prior_cov: reset``: one propagation from the origin, placed at

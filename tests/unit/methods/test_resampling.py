@@ -12,7 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nanoslam_jax.methods import RESAMPLERS, effective_sample_size, normalise, resample
+from nanoslam_jax.methods import Multinomial, Residual, Stratified, Systematic, effective_sample_size, normalise
+
+RESAMPLERS = {r.name: r for r in (Systematic(), Stratified(), Multinomial(), Residual())}
 
 N_KEYS = 20_000
 
@@ -109,14 +111,17 @@ def test_uniform_systematic_and_stratified_are_identity_counts(offspring):
         assert np.all(offspring[scheme, "uniform"] == 1), scheme
 
 
-@pytest.mark.slow
-def test_resample_dispatch_and_unknown_kind():
-    lw = jnp.asarray(log_weights(WEIGHTS["spread"]))
-    key = jax.random.key(0)
-    for name, fn in RESAMPLERS.items():
-        np.testing.assert_array_equal(resample(name, key, lw), fn(key, lw))
-    with pytest.raises(ValueError, match="systematic"):
-        resample("bogus", key, lw)
+def test_each_builtin_resampler_is_named_by_its_config_key():
+    """The configuration's names build exactly these schemes (the ``filter.resampler`` choices)."""
+    from typing import get_args
+
+    from nanoslam_jax.app._build import COMPONENTS
+    from nanoslam_jax.app._config_schema import FilterConfig
+
+    hints = FilterConfig.__annotations__["resampler"]
+    names = set(get_args(eval(hints, vars(__import__("typing")))) if isinstance(hints, str) else get_args(hints))
+    assert set(COMPONENTS["resampler"]) == names == set(RESAMPLERS)
+    assert all(type(RESAMPLERS[n]) is c for n, c in COMPONENTS["resampler"].items())
 
 
 # ----------------------------------------------------------------------------- ESS and normalise

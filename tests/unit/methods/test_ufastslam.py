@@ -19,6 +19,7 @@ from nanoslam_jax.methods.maps import _landmarks
 from nanoslam_jax.lib.quadrature import Unscented
 from nanoslam_jax.models import range_bearing
 from nanoslam_jax.methods.proposals import Detections, LinearizedProposal, UnscentedProposal
+from nanoslam_jax.methods import UnscentedLandmarkUpdate
 from nanoslam_jax.methods.proposals._ufastslam import unscented_sequential_update
 from tests.helpers.paths import REPO_ROOT
 
@@ -402,7 +403,7 @@ def test_filter_tracks_simulated_truth():
     cfg = load_config(None, ["sim.duration=60"] + SHARED)
     log = load_log(cfg)
     static, params = settings_from_config(cfg, log.segments.k_max)
-    assert static.landmark_update == "unscented"
+    assert isinstance(static.method.landmark_update, UnscentedLandmarkUpdate)
     dr = dead_reckoning_metrics(cfg, log)["rmse_fixed"]
     t = np.asarray(log.segments.time)
     tp = log.raw.truth_poses

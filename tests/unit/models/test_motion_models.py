@@ -20,7 +20,7 @@ from nanoslam_jax.app import filters
 from nanoslam_jax.app.cli import main as cli_main
 from nanoslam_jax.app.config import ConfigError, load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import predict, run_filter
+from nanoslam_jax.methods import LinearisedPrior, UnscentedPrior, predict, run_filter
 from nanoslam_jax.app.filters import settings_from_config
 from tests.helpers.internals import ut_piece as _ut_piece
 from nanoslam_jax.models import AbstractMotionModel, AbstractRateModel, Ackermann, Unicycle
@@ -138,7 +138,7 @@ def test_unicycle_step_and_jacobians():
         )
 
 
-@pytest.mark.parametrize("kind", ["unscented", "linearized"])
+@pytest.mark.parametrize("kind", [UnscentedPrior(), LinearisedPrior()], ids=["unscented", "linearized"])
 @pytest.mark.slow
 def test_random_walk_prior_adds_dt_times_the_noise(kind):
     """With no motion, the prior's mean stays and its covariance grows by dt diag(s_xy^2, s_xy^2, s_phi^2)
