@@ -104,7 +104,7 @@ def main() -> None:
         rows = []
         for i, s in enumerate(seeds):
             final, held = smoother_map(run, settings, i)
-            sm = smooth_run(paths[i], final, log.segments, params, settings, cfg.filter.prior, held)
+            sm = smooth_run(paths[i], final, log.segments, params, settings, static.prior, held)
             m = score_run(log, sm.poses, cfg.metrics)
             rows.append(
                 dict(

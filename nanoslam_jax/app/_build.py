@@ -33,18 +33,16 @@ from nanoslam_jax.models import check_motion_model
 
 __all__ = ["COMPONENTS", "method_static", "settings_from_config"]
 
+_BUILTIN: dict[str, tuple[Any, ...]] = {
+    "prior": (UnscentedPrior, LinearisedPrior),
+    "association": (NearestAssociation, KnownAssociation),
+    "weight": (ProductWeight, MarginalWeight),
+    "resampler": (Systematic, Stratified, Multinomial, Residual),
+    "estimate": (BestParticle, WeightedMean, AncestralPath),
+}
 #: The built-in components of the filter's static settings by the ``filter`` key that names them:
 #: ``{key: {name: class}}``.
-COMPONENTS: dict[str, dict[str, type]] = {
-    key: {c.name: c for c in classes}
-    for key, classes in {
-        "prior": (UnscentedPrior, LinearisedPrior),
-        "association": (NearestAssociation, KnownAssociation),
-        "weight": (ProductWeight, MarginalWeight),
-        "resampler": (Systematic, Stratified, Multinomial, Residual),
-        "estimate": (BestParticle, WeightedMean, AncestralPath),
-    }.items()
-}
+COMPONENTS: dict[str, dict[str, Any]] = {key: {c.name: c for c in classes} for key, classes in _BUILTIN.items()}
 
 
 def method_static(cfg: Config) -> Hashable:

@@ -267,7 +267,7 @@ def _score_seeds(
     for i, s in enumerate(seeds):
         est, before, extra = np.asarray(sr.estimates[i]), None, {}
         if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline, per seed
-            sm = smooth_filter_run(sr.run, est, seg, params, cfg.smoother, cfg.filter.prior, i if sr.batched else None)
+            sm = smooth_filter_run(sr.run, est, seg, params, cfg.smoother, static.prior, i if sr.batched else None)
             before, est = est, sm.poses
             extra, _ = smoother_metrics(sm, cfg.smoother)
         reason = failure_reason(t, est)

@@ -348,7 +348,7 @@ def _run_filter_of(
     unsmoothed = None
     if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
         unsmoothed = est
-        sm = smooth_filter_run(run, est, seg, params, cfg.smoother, cfg.filter.prior)
+        sm = smooth_filter_run(run, est, seg, params, cfg.smoother, static.prior)
         est = sm.poses
         smoother_report, smoother_warnings = smoother_metrics(sm, cfg.smoother)
         metrics.update(smoother_report)

@@ -80,7 +80,7 @@ def time_point(
         smoother_s = 0.0
         if cfg.smoother.enabled:  # the offline smoother after the run, part of what one run costs
             path = np.asarray(static.estimate.trajectory(r.outputs, r.state))
-            smoother_s = smooth_filter_run(r, path, log.segments, params, cfg.smoother, cfg.filter.prior).seconds
+            smoother_s = smooth_filter_run(r, path, log.segments, params, cfg.smoother, static.prior).seconds
         runs.append(r.run_s + smoother_s)
     scans = int(log.segments.time.shape[0])
     med = statistics.median(runs)

@@ -98,8 +98,15 @@ class UnscentedLandmarkUpdate(AbstractLandmarkUpdate):
             return self
         return UnscentedLandmarkUpdate(Unscented(alpha=params.ut_alpha, beta=params.ut_beta, kappa=params.ut_kappa))
 
+    def _bound_rule(self) -> Unscented:
+        if self.rule is None:
+            raise ValueError("UnscentedLandmarkUpdate: no rule; bind(params) gives the run's traced ut_* one")
+        return self.rule
+
     def start(self, x, z, R, model, kind):
-        return jax.vmap(lambda zk: ukf_init_landmark(x, zk, R, self.rule, model))(z)
+        rule = self._bound_rule()
+        return jax.vmap(lambda zk: ukf_init_landmark(x, zk, R, rule, model))(z)
 
     def update(self, x, z, mean, cov, R, model, kind):
-        return jax.vmap(lambda zk, m, c: ukf_update_loglik(x, zk, m, c, R, self.rule, model))(z, mean, cov)
+        rule = self._bound_rule()
+        return jax.vmap(lambda zk, m, c: ukf_update_loglik(x, zk, m, c, R, rule, model))(z, mean, cov)
