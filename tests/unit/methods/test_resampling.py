@@ -111,19 +111,6 @@ def test_uniform_systematic_and_stratified_are_identity_counts(offspring):
         assert np.all(offspring[scheme, "uniform"] == 1), scheme
 
 
-def test_each_builtin_resampler_is_named_by_its_config_key():
-    """The configuration's names build exactly these schemes (the ``filter.resampler`` choices)."""
-    from typing import get_args
-
-    from nanoslam_jax.app._build import COMPONENTS
-    from nanoslam_jax.app._config_schema import FilterConfig
-
-    hints = FilterConfig.__annotations__["resampler"]
-    names = set(get_args(eval(hints, vars(__import__("typing")))) if isinstance(hints, str) else get_args(hints))
-    assert set(COMPONENTS["resampler"]) == names == set(RESAMPLERS)
-    assert all(type(RESAMPLERS[n]) is c for n, c in COMPONENTS["resampler"].items())
-
-
 # ----------------------------------------------------------------------------- ESS and normalise
 
 
