@@ -116,3 +116,41 @@ def test_the_contract_holds_for_import_linter():
     res = subprocess.run([str(exe)], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert res.returncode == 0, res.stdout[-3000:]
     assert "1 kept, 0 broken" in res.stdout
+
+
+def _diagram_layers(text: str) -> list[set[str]]:
+    """The layers the Mermaid flowchart of docs/architecture.md draws, from the top: the chain of
+    ``a --> b --> ...`` read as packages (a node that is a subgraph of packages stands for them)."""
+    block = text.split("```mermaid", 1)[1].split("```", 1)[0]
+    inner: dict[str, set[str]] = {}
+    current = None
+    chain: list[str] = []
+    for line in (raw.strip() for raw in block.splitlines()):
+        if line.startswith("subgraph "):
+            current = line.split()[1].split("[")[0]
+            inner[current] = set()
+        elif line == "end":
+            current = None
+        elif "-->" in line:
+            chain = [part.strip() for part in line.split("-->")]
+        elif current is not None and line:
+            inner[current].add(line.split("[")[0])
+    packages = {p.name for p in (ROOT / "nanoslam_jax").iterdir() if (p / "__init__.py").is_file()}
+    return [{node} if node in packages else inner[node] for node in chain]
+
+
+def test_the_architecture_diagram_draws_the_contracts_layers():
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    contract = [{p.removeprefix("nanoslam_jax.") for p in layer} for layer in _layers()]
+    assert _diagram_layers(text) == contract
+    for layer in contract:
+        for package in layer:
+            assert f"`nanoslam_jax.{package}`" in text, package  # a row of the layer table
+
+
+def test_a_diagram_with_a_layer_out_of_order_is_caught():
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    swapped = text.replace("methods --> data", "data --> methods")
+    assert swapped != text
+    contract = [{p.removeprefix("nanoslam_jax.") for p in layer} for layer in _layers()]
+    assert _diagram_layers(swapped) != contract
