@@ -33,16 +33,20 @@ from nanoslam_jax.models import check_motion_model
 
 __all__ = ["COMPONENTS", "method_static", "settings_from_config"]
 
-_BUILTIN: dict[str, tuple[Any, ...]] = {
-    "prior": (UnscentedPrior, LinearisedPrior),
-    "association": (NearestAssociation, KnownAssociation),
-    "weight": (ProductWeight, MarginalWeight),
-    "resampler": (Systematic, Stratified, Multinomial, Residual),
-    "estimate": (BestParticle, WeightedMean, AncestralPath),
-}
+
+def _named(*classes: Any) -> dict[str, Any]:
+    return {c.name: c for c in classes}
+
+
 #: The built-in components of the filter's static settings by the ``filter`` key that names them:
 #: ``{key: {name: class}}``.
-COMPONENTS: dict[str, dict[str, Any]] = {key: {c.name: c for c in classes} for key, classes in _BUILTIN.items()}
+COMPONENTS: dict[str, dict[str, Any]] = {
+    "prior": _named(UnscentedPrior, LinearisedPrior),
+    "association": _named(NearestAssociation, KnownAssociation),
+    "weight": _named(ProductWeight, MarginalWeight),
+    "resampler": _named(Systematic, Stratified, Multinomial, Residual),
+    "estimate": _named(BestParticle, WeightedMean, AncestralPath),
+}
 
 
 def method_static(cfg: Config) -> Hashable:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -90,40 +90,42 @@ class AbstractResampler(abc.ABC):
 
 
 @dataclasses.dataclass(frozen=True)
-class Systematic(AbstractResampler):
+class _Scheme(AbstractResampler):
+    """A built-in scheme: one of this module's functions (:attr:`scheme`)."""
+
+    scheme: ClassVar[Any]  # a staticmethod (key, log_w) -> ancestor indices
+
+    def __call__(self, key, log_w):
+        return type(self).scheme(key, log_w)
+
+
+@dataclasses.dataclass(frozen=True)
+class Systematic(_Scheme):
     """Systematic resampling (:func:`systematic`): one uniform offset for ``n`` evenly spaced points."""
 
     name: ClassVar[str] = "systematic"
-
-    def __call__(self, key, log_w):
-        return systematic(key, log_w)
+    scheme = staticmethod(systematic)
 
 
 @dataclasses.dataclass(frozen=True)
-class Stratified(AbstractResampler):
+class Stratified(_Scheme):
     """Stratified resampling (:func:`stratified`): one uniform draw in each of ``n`` strata."""
 
     name: ClassVar[str] = "stratified"
-
-    def __call__(self, key, log_w):
-        return stratified(key, log_w)
+    scheme = staticmethod(stratified)
 
 
 @dataclasses.dataclass(frozen=True)
-class Multinomial(AbstractResampler):
+class Multinomial(_Scheme):
     """Multinomial resampling (:func:`multinomial`): ``n`` independent categorical draws."""
 
     name: ClassVar[str] = "multinomial"
-
-    def __call__(self, key, log_w):
-        return multinomial(key, log_w)
+    scheme = staticmethod(multinomial)
 
 
 @dataclasses.dataclass(frozen=True)
-class Residual(AbstractResampler):
+class Residual(_Scheme):
     """Residual resampling (:func:`residual`): ``floor(n w_i)`` copies, the rest multinomial."""
 
     name: ClassVar[str] = "residual"
-
-    def __call__(self, key, log_w):
-        return residual(key, log_w)
+    scheme = staticmethod(residual)

@@ -6,6 +6,7 @@ import typing
 
 import pytest
 
+from nanoslam_jax.app.config import ConfigError
 from nanoslam_jax.app._build import COMPONENTS, static_summary
 from nanoslam_jax.app._config_schema import FilterConfig
 from nanoslam_jax.app.config import load_config
@@ -51,3 +52,10 @@ def test_a_configured_static_names_its_components_back(overrides):
         assert isinstance(getattr(static, key), COMPONENTS[key][getattr(cfg.filter, key)])
     assert summary["prior_cov"] == cfg.filter.prior_cov
     assert static.prior.reset == (cfg.filter.prior_cov == "reset")
+
+
+@pytest.mark.parametrize("key", list(BASES))
+def test_an_unknown_component_name_is_refused_naming_the_key(key):
+    with pytest.raises(ConfigError, match=f"filter.{key}") as err:
+        load_config(None, [f"filter.{key}=bogus"])
+    assert all(name in str(err.value) for name in COMPONENTS[key])
