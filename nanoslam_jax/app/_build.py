@@ -4,11 +4,8 @@ run (:func:`settings_from_config`), the method's static settings (:func:`method_
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Hashable
 from typing import Any
-
-import jax.numpy as jnp
 
 from nanoslam_jax.app.config import Config
 from nanoslam_jax.app.registry import get_method, static_of, traced_of
@@ -27,7 +24,8 @@ from nanoslam_jax.methods import (
     UnscentedPrior,
     WeightedMean,
 )
-from nanoslam_jax.methods._params import MapParams, Params, Static, _logit, particle_devices, row_buckets, shardable
+from nanoslam_jax.methods._params import Params, Static, particle_devices, row_buckets, shardable
+from nanoslam_jax.methods._settings import hyperparameters
 from nanoslam_jax.app._models import measurement_model_from_config, motion_model_from_config
 from nanoslam_jax.models import check_motion_model
 
@@ -85,43 +83,18 @@ def settings_from_config(cfg: Config, k_max: int, segments: int = 0) -> tuple[St
         adaptive_noise=nz.adaptive,
         method_settings=settings,
     )
-    a = lambda x: jnp.asarray(x, dtype=float)  # noqa: E731
-    mp = cfg.map
-    map_params = MapParams(
-        log_odds_hit=a(math.log(mp.p_detect / mp.p_false)),
-        log_odds_miss=a(math.log1p(-mp.p_detect) - math.log1p(-mp.p_false) if mp.p_detect < 1.0 else -math.inf),
-        log_odds_birth=a(_logit(mp.birth_probability)),
-        log_odds_confirm=a(_logit(mp.confirm_probability)),
-        confirm_hits=a(mp.confirm_hits),
-        tentative_scans=a(mp.tentative_scans),
-        log_odds_remove=a(_logit(mp.remove_probability)),
-        log_odds_max=a(_logit(mp.max_probability)),
-        occlusion_width=a(mp.occlusion_width),
-        use_tentative=jnp.asarray(mp.use_tentative),
-        use_diameter=jnp.asarray(mp.use_diameter),
-        sigma_diameter=a(mp.sigma_diameter),
-    )
     motion = motion_model_from_config(cfg)
     try:
         check_motion_model(motion)  # a user model's shapes, before any program is traced
     except ValueError as e:
         raise ValueError(f"key 'model.motion': {e}") from None
-    params = Params(
-        motion=motion,
-        measurement=measurement_model_from_config(cfg),
-        init_cov=a(f.init_cov),
-        ut_alpha=a(f.ut_alpha),
-        ut_beta=a(f.ut_beta),
-        ut_kappa=a(f.ut_kappa),
-        gate=a(f.gate),
-        new_landmark=a(f.new_landmark),
-        log_p0=a(math.log(f.p0)),
-        resample_threshold=a(f.resample_threshold),
-        max_range=a(cfg.data.max_range),
-        window_margin=a(f.window_margin),
-        map=map_params,
-        forgetting=a(nz.forgetting),
-        noise_floor=a(nz.adaptive_floor),
+    params = hyperparameters(
+        motion,
+        measurement_model_from_config(cfg),
+        max_range=cfg.data.max_range,
+        filter=f,
+        map=cfg.map,
+        noise=nz,
         method=traced_of(method, cfg),
     )
     return static, params

@@ -25,8 +25,6 @@ import yaml
 from nanoslam_jax.app._config_checks import CHECKS
 from nanoslam_jax.app._config_schema import (
     ADAPTIVE_NOISE_METHODS,
-    ROW_BUCKETS_FROM,
-    SPLIT_DEVICES_FROM,
     Config,
     DataConfig,
     DetectorConfig,
@@ -48,6 +46,7 @@ from nanoslam_jax.app._config_schema import (
     UnicycleConfig,
     VehicleConfig,
 )
+from nanoslam_jax.methods._params import ROW_BUCKETS_FROM, SPLIT_DEVICES_FROM
 
 __all__ = [
     "Config",

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 
 from nanoslam_jax.methods import METHOD_KINDS, Method
 from nanoslam_jax.methods import _builtin as builtin
-from nanoslam_jax.methods._method_settings import BeamParams, IteratedStatic, NanoParams, NanoStatic, NasrukfParams
+from nanoslam_jax.methods._method_settings import IteratedStatic, NanoParams, NanoStatic, NasrukfParams
 from nanoslam_jax.methods._method_settings import NasrukfStatic
 
 if TYPE_CHECKING:
@@ -113,51 +113,29 @@ def traced_of(method: Method, cfg: "Config") -> Any:
 # --------------------------------------------------------------------------- the built-in methods' settings
 
 
-def _a(x: float) -> Any:
-    """A traced scalar: ``x`` as a float array."""
-    return jnp.asarray(x, dtype=float)
-
-
-def _fields_from(cls: Any, section: Any, rename: dict[str, str] | None = None, convert: Any = None) -> dict[str, Any]:
-    """Each field of ``cls`` (a dataclass or NamedTuple) from the config ``section``'s key of the same
-    name (or the one ``rename`` gives), passed through ``convert`` when given."""
-    names = cls._fields if hasattr(cls, "_fields") else tuple(f.name for f in dataclasses.fields(cls))
-    rename = rename or {}
-    value = (lambda v: v) if convert is None else convert
-    return {n: value(getattr(section, rename.get(n, n))) for n in names}
-
-
 def nano_static(cfg: "Config") -> NanoStatic:
     """NANO-SLAM's static settings from ``cfg.nano``."""
-    return NanoStatic(**_fields_from(NanoStatic, cfg.nano))
+    return cfg.nano.static()
 
 
 def nano_traced(cfg: "Config") -> NanoParams:
     """NANO-SLAM's traced hyperparameters from ``cfg.nano``."""
-    ut = {"alpha": "ut_alpha", "beta": "ut_beta", "kappa": "ut_kappa"}
-    return NanoParams(**_fields_from(NanoParams, cfg.nano, ut, _a))
+    return cfg.nano.params()
 
 
 def iterated_static(cfg: "Config") -> IteratedStatic:
     """The iterated proposal's static settings from ``cfg.iterated``."""
-    return IteratedStatic(**_fields_from(IteratedStatic, cfg.iterated))
+    return cfg.iterated.static()
 
 
 def nasrukf_static(cfg: "Config") -> NasrukfStatic:
     """NASRUKF's static settings from ``cfg.nasrukf``."""
-    return NasrukfStatic(**_fields_from(NasrukfStatic, cfg.nasrukf, {"groups": "max_groups"}))
+    return cfg.nasrukf.static()
 
 
 def nasrukf_traced(cfg: "Config") -> NasrukfParams:
     """NASRUKF's traced hyperparameters from ``cfg.nasrukf``."""
-    n = cfg.nasrukf
-    beams = BeamParams(**_fields_from(BeamParams, n, convert=_a)) if n.measurement == "beams" else None
-    return NasrukfParams(
-        new_feature_hits=_a(n.new_feature_hits),
-        process_forgetting=_a(n.process_forgetting),
-        process_floor=_a(n.process_floor),
-        beams=beams,
-    )
+    return cfg.nasrukf.params()
 
 
 _READERS = {

@@ -49,7 +49,10 @@ from nanoslam_jax.methods._builtin import (
 )
 from nanoslam_jax.methods._method_settings import (
     BeamParams as BeamParams,
+    IteratedConfig as IteratedConfig,
     IteratedStatic as IteratedStatic,
+    NanoConfig as NanoConfig,
+    NasrukfConfig as NasrukfConfig,
     NanoParams as NanoParams,
     NanoStatic as NanoStatic,
     NasrukfParams as NasrukfParams,
@@ -62,6 +65,12 @@ from nanoslam_jax.methods._params import (
     particle_devices as particle_devices,
     shardable as shardable,
     row_buckets as row_buckets,
+)
+from nanoslam_jax.methods._settings import (
+    FilterConfig as FilterConfig,
+    MapConfig as MapConfig,
+    NoiseConfig as NoiseConfig,
+    hyperparameters as hyperparameters,
 )
 from nanoslam_jax.methods.particle._path import (
     AbstractEstimate as AbstractEstimate,
@@ -205,14 +214,21 @@ __all__ = [
     "NASRUKF",
     "UFASTSLAM",
     "BeamParams",
+    "IteratedConfig",
     "IteratedStatic",
+    "NanoConfig",
     "NanoParams",
     "NanoStatic",
+    "NasrukfConfig",
     "NasrukfParams",
     "NasrukfStatic",
     "MapParams",
     "Params",
     "Static",
+    "FilterConfig",
+    "MapConfig",
+    "NoiseConfig",
+    "hyperparameters",
     "particle_devices",
     "shardable",
     "row_buckets",

@@ -10,6 +10,7 @@ heaviest particle leaves every particle descended from the best one of its step)
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -29,16 +30,22 @@ from nanoslam_jax.methods import (
     AbstractResampler,
     AncestralPath,
     BestParticle,
+    FilterConfig,
+    MapConfig,
     MapParams,
+    NanoConfig,
     NanoParams,
     NanoStatic,
     NasrukfParams,
+    NasrukfConfig,
     NearestAssociation,
+    NoiseConfig,
     Params,
     ProductWeight,
     Static,
     Systematic,
     UnscentedPrior,
+    hyperparameters,
     run_filter,
 )
 from nanoslam_jax.models import Ackermann, RangeBearing
@@ -148,6 +155,31 @@ def test_a_filter_built_from_objects_equals_the_configured_one(log, name):
     np.testing.assert_allclose(
         np.asarray(mine.outputs.mean_pose), np.asarray(ref.outputs.mean_pose), rtol=0, atol=1e-12
     )
+
+
+def _equal_trees(a, b):
+    la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+    assert jax.tree.structure(a) == jax.tree.structure(b)
+    for x, y in zip(la, lb):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-15, atol=0)
+
+
+def test_the_core_settings_build_the_hand_written_hyperparameters():
+    """The core's settings objects (probabilities, degrees, p0) turn into the traced form (log-odds,
+    log p0) exactly as written out by hand above."""
+    with float64():
+        built = hyperparameters(
+            Ackermann(sigma_v=0.5, sigma_alpha=math.radians(6.0)),
+            RangeBearing(sigma_r=0.3, sigma_beta=math.radians(1.0)),
+            max_range=30.0,
+            filter=FilterConfig(**FILTER, p0=0.05, window_margin=5.0),
+            map=MapConfig(**MAP, max_probability=0.999, use_tentative=False),
+            noise=NoiseConfig(forgetting=0.99, adaptive_floor=0.01),
+            method=NanoConfig().params(),
+        )
+        _equal_trees(built, params_from_objects(_nano()))
+        _equal_trees(NasrukfConfig().params(), _nasrukf())
+    assert NanoConfig().static() == NanoStatic()
 
 
 @dataclasses.dataclass(frozen=True)
