@@ -109,7 +109,6 @@ from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.gaussian._srukf import (
     SigmaMeasurement,
     adaptive_noise_rows,
-    adaptive_process_update,
     measurement_update,
     predict_measurement,
     process_noise_basis,
@@ -117,6 +116,7 @@ from nanoslam_jax.methods.gaussian._srukf import (
 from nanoslam_jax.methods._method_settings import nasrukf_params, nasrukf_static
 from nanoslam_jax.methods.gaussian._nasrukf_state import NasrukfFeatures, NasrukfState, configured_noise, feature_dim
 from nanoslam_jax.methods.gaussian._gaussian import GaussianStepOutput
+from nanoslam_jax.methods.gaussian._nasrukf_joint import fused_process_update
 from nanoslam_jax.methods.gaussian._nasrukf_joint import (
     _minus,
     _rule,
@@ -363,28 +363,20 @@ def _fuse(
     ``nasrukf.adaptive_process`` the estimated ``Q`` from their pose corrections and covariance
     changes (:func:`~._srukf.adaptive_process_update`)."""
     ns, nk = nasrukf_static(static), nasrukf_params(params)
-    x0, S0, P0, basis = prior.x, prior.S, prior.P, prior.basis
+    x0, S0, basis = prior.x, prior.S, prior.basis
     local, existing, ws = win.local, match.existing, match.ws
     hits_before = jnp.where(existing, local.landmarks.hits[ws], 1)
     fuse = match.matched & (hits_before >= nk.new_feature_hits)
     if static.manage:  # tentative features (and those started in this scan) move the pose only if asked
         fuse = fuse & ((existing & local.landmarks.confirmed[ws]) | params.map.use_tentative)
     x_g, S_g = fuse_poses(x0, S0, post.x[:, :3], post.L[:, :3, :3], fuse)
-    process_scale, process_count = state.process_scale, state.process_count
+    process = (state.process_scale, state.process_count, basis)
     if ns.adaptive_process:  # the estimated Q from the fused joint states' corrections and covariance changes
-        dx = jax.vmap(_minus, (0, None))(post.x[:, :3], x0)
-        Pi = mmt(post.L[:, :3, :3], post.L[:, :3, :3])
-        w = fuse.astype(x0.dtype)
-        change = jnp.sum(w[:, None, None] * (dx[:, :, None] * dx[:, None, :] + Pi - P0), axis=0) / jnp.maximum(
-            jnp.sum(w), 1.0
+        Ls = post.L[:, :3, :3]
+        process = fused_process_update(
+            process, post.x[:, :3], Ls, fuse, x0, S0, nk.process_forgetting, nk.process_floor
         )
-        updated = jnp.any(fuse)
-        new_scale = adaptive_process_update(
-            process_scale, process_count, change, S0, basis, nk.process_forgetting, nk.process_floor
-        )
-        process_scale = jnp.where(updated, new_scale, process_scale)
-        process_count = process_count + updated.astype(process_count.dtype)
-        basis = jnp.where(updated, jnp.zeros_like(basis), basis)
+    process_scale, process_count, basis = process
     return _Fused(x_g, S_g, process_scale, process_count, basis)
 
 

@@ -41,10 +41,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from nanoslam_jax.lib._linalg import mmt, mv
+from nanoslam_jax.lib._linalg import mv
 from nanoslam_jax.models import wrap_angle
 from nanoslam_jax.models._lines import beam_range_circle, line_to_world
 from nanoslam_jax.lib.quadrature import Unscented
+from nanoslam_jax.methods.gaussian._nasrukf_joint import fused_process_update
 from nanoslam_jax.methods.gaussian._nasrukf_joint import (
     _minus,
     fuse_poses,
@@ -77,7 +78,6 @@ from nanoslam_jax.methods._method_settings import nasrukf_params, nasrukf_static
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.gaussian._srukf import (
     adaptive_noise_rows,
-    adaptive_process_update,
     predict_measurement,
     process_noise_basis,
     srukf_transform,
@@ -376,21 +376,11 @@ def _fuse(
     x_f, S_f = fuse_poses(x0, S0, xs, Lp, use)
     x_g = jnp.where(static_now, x0, x_f)
     S_g = jnp.where(static_now, S0, S_f)
-    process_scale, process_count = state.process_scale, state.process_count
-    if ns.adaptive_process:
-        P0 = mmt(S0, S0)
-        dx = jax.vmap(_minus, (0, None))(xs, x0)
-        Pi = mmt(Lp, Lp)
-        w = use.astype(x0.dtype)
-        change = jnp.sum(w[:, None, None] * (dx[:, :, None] * dx[:, None, :] + Pi - P0), axis=0)
-        change = change / jnp.maximum(jnp.sum(w), 1.0)
-        updated = jnp.any(use) & ~static_now
-        new_scale = adaptive_process_update(
-            process_scale, process_count, change, S0, basis, nk.process_forgetting, nk.process_floor
-        )
-        process_scale = jnp.where(updated, new_scale, process_scale)
-        process_count = process_count + updated.astype(process_count.dtype)
-        basis = jnp.where(updated, jnp.zeros_like(basis), basis)
+    process = (state.process_scale, state.process_count, basis)
+    if ns.adaptive_process:  # no estimate while the pose is held
+        use = use & ~static_now
+        process = fused_process_update(process, xs, Lp, use, x0, S0, nk.process_forgetting, nk.process_floor)
+    process_scale, process_count, basis = process
     return _Fused(x_g, S_g, process_scale, process_count, basis)
 
 

@@ -20,7 +20,7 @@ from nanoslam_jax.lib._linalg import chol3, inv2, inv3, mm, mmt, mt, mv, sandwic
 from nanoslam_jax.models import inverse_range_bearing, range_bearing, range_bearing_jacobians, wrap_angle
 from nanoslam_jax.lib.quadrature import Unscented
 from nanoslam_jax.methods._params import Params
-from nanoslam_jax.methods.gaussian._srukf import chol_rank_update, srukf_transform
+from nanoslam_jax.methods.gaussian._srukf import adaptive_process_update, chol_rank_update, srukf_transform
 from nanoslam_jax.methods.gaussian._nasrukf_state import NasrukfFeatures
 
 
@@ -201,3 +201,42 @@ def fuse_poses(
     P = sym(inv3(sym(Lam)))
     x = x0 + P @ eta
     return x.at[2].set(wrap_angle(x[2])), chol3(P)
+
+
+def fused_process_update(
+    process: tuple[Array, Array, Array],
+    xs: Float[Array, "k 3"],
+    Ls: Float[Array, "k 3 3"],
+    use: Bool[Array, " k"],
+    x0: Float[Array, "3"],
+    S0: Float[Array, "3 3"],
+    forgetting: Float[Array, ""],
+    floor: Float[Array, ""],
+) -> tuple[Array, Array, Array]:
+    """The adaptive process noise after a scan whose fused joint states corrected the pose:
+    :func:`~._srukf.adaptive_process_update` with their mean ``dx dx' + P_i - P-``.
+
+    Args:
+        process: the estimate ``(scale, count, basis)``: ``Lambda``, the updates it has seen and the
+            map ``Lambda -> Q_pose`` since the last.
+        xs, Ls: the fused joint states' poses (means, lower square roots).
+        use: which of them were fused (none: the estimate is returned unchanged).
+        x0, S0: the scan's prior pose (mean, lower square root).
+        forgetting, floor: ``nasrukf.process_forgetting`` and ``process_floor``.
+
+    Returns:
+        The new ``(scale, count, basis)``; after an update the basis starts again from zero.
+    """
+    scale, count, basis = process
+    P0 = mmt(S0, S0)
+    dx = jax.vmap(_minus, (0, None))(xs, x0)
+    w = use.astype(x0.dtype)
+    change = jnp.sum(w[:, None, None] * (dx[:, :, None] * dx[:, None, :] + mmt(Ls, Ls) - P0), axis=0)
+    change = change / jnp.maximum(jnp.sum(w), 1.0)
+    updated = jnp.any(use)
+    new_scale = adaptive_process_update(scale, count, change, S0, basis, forgetting, floor)
+    return (
+        jnp.where(updated, new_scale, scale),
+        count + updated.astype(count.dtype),
+        jnp.where(updated, jnp.zeros_like(basis), basis),
+    )
