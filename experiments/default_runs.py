@@ -7,8 +7,8 @@ embedded default.
 
 All logs are padded to the same detection rows per scan (one compiled program). For each
 simulated log (``sim.seed`` = 0, 1, ...) the filter seeds ``1000 * sim.seed + i`` run
-vmapped in one program; each run is scored by the evaluation protocol against the truth, next to
-noise-free dead reckoning on the same log, and its reported map (confirmed landmarks) against the
+vmapped in one program, run and scored by the engine of ``nanoslam compare``
+(``nanoslam_jax.app.compare.run_method``) against the truth, next to dead reckoning on the same log, and its reported map (confirmed landmarks) against the
 trees its true path could see, in the SLAM frame and after the trajectory's rigid alignment.
 Prints one line per run and the medians, quartiles and worst cases. Runs are scored as every
 command scores one (``nanoslam_jax.eval._scoring.score_run``) and summarised under its failed-seed rule
@@ -24,42 +24,45 @@ import time
 import jax
 import numpy as np
 
-from nanoslam_jax.eval._scoring import MapEstimate, failure_reason, score_run, seed_summary
+from nanoslam_jax.app.compare import CompareSpec, MethodSpec, method_config, run_method
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import dead_reckoning, reported_map, run_batch, stack_params
 from nanoslam_jax.app.filters import settings_from_config
+from nanoslam_jax.eval._scoring import score_run, seed_summary
+from nanoslam_jax.methods import dead_reckoning
 
 jax.config.update("jax_enable_x64", True)  # the library computes in float64
 
 
 def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds: int) -> list[dict]:
-    """Every filter seed's figures on the simulated log of ``sim_seed``."""
-    cfg = load_config(config, overrides + [f"sim.seed={sim_seed}"])
+    """Every filter seed's figures on the simulated log of ``sim_seed``, run and scored by the engine
+    of ``nanoslam compare``."""
+    spec = CompareSpec(
+        name="default_runs",
+        base=config,
+        methods=(MethodSpec("run", ()),),
+        seeds=n_seeds,
+        first_seed=1000 * sim_seed,
+        set=(*overrides, f"sim.seed={sim_seed}"),
+        source=config or "the embedded default",
+    )
+    cfg = method_config(spec, spec.methods[0])
     if cfg.data.kind != "simulated":
         raise SystemExit(
             f"{config or 'embedded default'}: data.kind is {cfg.data.kind!r}; this script needs simulated logs"
         )
     log = load_log(cfg)
-    static, params = settings_from_config(cfg, log.segments.k_max)
-    seeds = 1000 * sim_seed + np.arange(n_seeds)
-    run = run_batch(static, stack_params([params] * n_seeds), log.segments, seeds, chunk=cfg.output.chunk)
-    t = np.asarray(log.segments.time)
+    _, params = settings_from_config(cfg, log.segments.k_max)
     dr = score_run(log, np.asarray(dead_reckoning(params, jax.tree.map(np.asarray, log.segments))), cfg.metrics)
-    maps = jax.tree.map(np.asarray, jax.vmap(reported_map)(run.state))
-    est = np.asarray(static.estimate.trajectory(run.outputs, run.state))
     nan = float("nan")
     rows = []
-    for i, seed in enumerate(seeds):
-        act = maps.active[i]
-        m = score_run(log, est[i], cfg.metrics, MapEstimate(maps.mean[i][act], maps.confirmed[i][act]))
-        reason = failure_reason(t, est[i])
+    for m in run_method(spec, spec.methods[0], log, timed=False).rows:
         rows.append(
             dict(
                 sim_seed=sim_seed,
-                seed=int(seed),
-                status="failed" if reason else "ok",
-                reason=reason,
+                seed=m["seed"],
+                status=m["status"],
+                reason=m["reason"],
                 rmse_fixed=m.get("rmse_fixed", nan),
                 rmse_aligned=m.get("rmse_aligned", nan),
                 dr_rmse_fixed=dr.get("rmse_fixed", nan),
@@ -69,7 +72,7 @@ def runs_on_log(config: str | None, overrides: list[str], sim_seed: int, n_seeds
                 spurious=m["map_spurious_fraction"],
                 found_aligned=m.get("map_found_fraction_aligned", nan),
                 spurious_aligned=m.get("map_spurious_fraction_aligned", nan),
-                overflow=int(np.asarray(run.state.overflow)[i]),
+                overflow=m["landmark_overflow"],
             )
         )
     return rows

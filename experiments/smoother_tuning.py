@@ -5,7 +5,8 @@ combination of the smoother settings given, one Markdown table ranked by the tar
         --grid odometry_scale=0.03,0.1,0.3 floor_xy=0.05,0.1,0.2 floor_phi_deg=0.1,0.3,1.0
 
 The filter runs once per seed (``filter.estimate: path`` is set); each setting smooths every
-seed's final best particle's path and map. A setting's score is that of
+seed's final best particle's path and map and scores it, by the engine of ``nanoslam compare``
+(``nanoslam_jax.app.compare.run_method``, whose run cache keeps the filter runs for every setting). A setting's score is that of
 ``experiments/target_score.py``: the largest of median rmse_aligned / 2.6 m, median rmse_fixed /
 3.5 m and each metric's worst seed / (1.5 x its median); a seed whose smoother did not converge
 counts as a failed run (score inf). The smoother's settings are host-side, so they are not a
@@ -22,12 +23,11 @@ import json
 import numpy as np
 
 from nanoslam_jax import enable_compile_cache
-from nanoslam_jax.eval._scoring import score_run, seed_summary
+from nanoslam_jax.app.compare import CompareSpec, MethodSpec, run_method
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.experiment import load_log
-from nanoslam_jax.methods import AncestralPath, run_batch, stack_params, text_progress
-from nanoslam_jax.app.filters import settings_from_config
-from nanoslam_jax.smoother._smoother import SmootherSettings, smooth_run, smoother_map
+from nanoslam_jax.eval._scoring import seed_summary
+from nanoslam_jax.methods import text_progress
 from target_score import score as target_score  # experiments/ is on the path when this script runs
 import jax
 
@@ -82,42 +82,40 @@ def main() -> None:
             p.error(f"--grid {item!r}: expected KEY=V1,V2,... with KEY one of {', '.join(names)}")
         grid[key] = [float(v) for v in values.split(",")]
     log = load_log(cfg, args.data)
-    static, params = settings_from_config(cfg, log.segments.k_max)
     seeds = np.arange(args.first_seed, args.first_seed + args.seeds)
-    run = run_batch(
-        static,
-        stack_params([params] * len(seeds)),
-        log.segments,
-        seeds,
-        chunk=cfg.output.chunk,
-        progress=text_progress(f"{cfg.name} x{len(seeds)} seeds"),
+    spec = CompareSpec(
+        name=cfg.name,
+        base=args.config,
+        methods=(),
+        seeds=args.seeds,
+        first_seed=args.first_seed,
+        set=(*args.overrides, "filter.estimate=path", "smoother.enabled=true"),
+        source=args.config,
     )
-    paths = AncestralPath().trajectory(run.outputs, run.state)
+    runs: dict = {}  # the filter runs, shared by every setting (they differ in the smoother only)
     nan = float("nan")
-    base = [score_run(log, paths[i], cfg.metrics) for i in range(len(seeds))]
+    base: list[dict] = []
 
     results = []
     combos = list(itertools.product(*grid.values())) or [()]
     for values in combos:
-        sc = dataclasses.replace(cfg.smoother, **{k: (int(v) if k == "max_iter" else v) for k, v in zip(grid, values)})
-        settings = SmootherSettings.from_config(sc)
-        rows = []
-        for i, s in enumerate(seeds):
-            final, held = smoother_map(run, settings, i)
-            sm = smooth_run(paths[i], final, log.segments, params, settings, static.prior, held)
-            m = score_run(log, sm.poses, cfg.metrics)
-            rows.append(
-                dict(
-                    seed=int(s),
-                    rmse_fixed=m.get("rmse_fixed", nan),
-                    rmse_aligned=m.get("rmse_aligned", nan),
-                    rmse_fixed_path=base[i].get("rmse_fixed", nan),
-                    rmse_aligned_path=base[i].get("rmse_aligned", nan),
-                    iterations=sm.iterations,
-                    converged=sm.converged,
-                    seconds=sm.seconds,
-                )
+        sets = tuple(f"smoother.{k}={v:g}" for k, v in zip(grid, values))
+        progress = text_progress(f"{cfg.name} x{len(seeds)} seeds") if not runs else None
+        res = run_method(spec, MethodSpec("setting", sets), log, progress, timed=False, cache=runs)
+        rows = [
+            dict(
+                seed=int(r["seed"]),
+                rmse_fixed=r.get("rmse_fixed", nan),
+                rmse_aligned=r.get("rmse_aligned", nan),
+                rmse_fixed_path=r.get("rmse_fixed_path", nan),
+                rmse_aligned_path=r.get("rmse_aligned_path", nan),
+                iterations=r.get("smoother_iterations", 0),
+                converged=bool(r.get("smoother_converged", False)),
+                seconds=r.get("smoother_s", nan),
             )
+            for r in res.rows
+        ]
+        base = base or [{"rmse_fixed": r["rmse_fixed_path"], "rmse_aligned": r["rmse_aligned_path"]} for r in rows]
         fx, al = (np.array([r[k] for r in rows]) for k in ("rmse_fixed", "rmse_aligned"))
         conv = np.array([r["converged"] for r in rows])
         setting = dict(zip(grid, values))

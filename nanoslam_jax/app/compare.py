@@ -75,7 +75,6 @@ from nanoslam_jax.app._compare_spec import (
 from nanoslam_jax._version import __version__
 from nanoslam_jax.eval._scoring import (
     MapEstimate,
-    companion_tracks,
     failure_reason,
     format_number,
     score_run,
@@ -83,7 +82,8 @@ from nanoslam_jax.eval._scoring import (
 from nanoslam_jax.app.config import Config, ConfigError, config_to_dict
 from nanoslam_jax.methods import dead_reckoning, reported_map, run_batch, run_filter, stack_params
 from nanoslam_jax.app.filters import settings_from_config
-from nanoslam_jax.smoother._smoother import smooth_filter_run, smoother_metrics
+from nanoslam_jax.smoother._smoother import smooth_filter_run
+from nanoslam_jax.app._scored import Tracks, score_estimate
 from nanoslam_jax.app._compare_report import (
     FEATURE_KEYS as FEATURE_KEYS,
     MethodResult as MethodResult,
@@ -262,33 +262,24 @@ def _score_seeds(
     scored trajectories."""
     static, params = settings
     seg = log.segments
-    t = np.asarray(seg.time)
     trajectories = []
     for i, s in enumerate(seeds):
-        est, before, extra = np.asarray(sr.estimates[i]), None, {}
-        if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline, per seed
-            sm = smooth_filter_run(sr.run, est, seg, params, cfg.smoother, static.prior, i if sr.batched else None)
-            before, est = est, sm.poses
-            extra, _ = smoother_metrics(sm, cfg.smoother)
-        reason = failure_reason(t, est)
-        score = score_run(
-            log,
-            est,
-            cfg.metrics,
-            _map_of(sr.maps, i),
-            companion_tracks(static.estimate, sr.best[i], sr.mean[i], before),
-        )
+        smooth = None
+        if cfg.smoother.enabled:  # the path and its map refined offline, per seed
+            member = i if sr.batched else None
+            smooth = lambda est, m=member: smooth_filter_run(sr.run, est, seg, params, cfg.smoother, static.prior, m)  # noqa: E731
+        tracks = Tracks(sr.estimates[i], sr.best[i], sr.mean[i])
+        sc = score_estimate(log, tracks, static.estimate, cfg.metrics, _map_of(sr.maps, i), smooth, cfg.smoother)
         res.rows.append(
             {
                 "seed": int(s),
-                "status": "failed" if reason else "ok",
-                "reason": reason,
-                **score,
+                "status": "failed" if sc.reason else "ok",
+                "reason": sc.reason,
+                **sc.metrics,
                 "landmark_overflow": int(sr.overflow[i]),
-                **extra,
             }
         )
-        trajectories.append(est)
+        trajectories.append(sc.trajectory)
     return trajectories
 
 

@@ -49,8 +49,9 @@ from nanoslam_jax.eval.metrics import (
     map_alignment_metrics,
     rmse_heading_deg,
 )
-from nanoslam_jax.eval._scoring import MapEstimate, companion_tracks, score_run, with_arcs
-from nanoslam_jax.smoother._smoother import smooth_filter_run, smoother_metrics
+from nanoslam_jax.eval._scoring import MapEstimate, score_run, with_arcs
+from nanoslam_jax.smoother._smoother import smooth_filter_run
+from nanoslam_jax.app._scored import Tracks, filter_statistics, score_estimate
 from nanoslam_jax.lib._precision import in_float64
 from nanoslam_jax.app._load import (
     LoadedLog as LoadedLog,
@@ -262,10 +263,10 @@ class _Estimate(NamedTuple):
     """What a run estimated, before it is scored.
 
     Attributes:
-        trajectory: the reported pose at each segment (the smoothed path when the smoother ran).
+        trajectory: the reported pose at each segment.
         mean: the filter's weighted mean pose at each segment (dead reckoning: its poses).
         best: the best particle's pose at each segment (dead reckoning: its poses).
-        unsmoothed: the path the smoother started from, or None.
+        smooth: the smoother of this run (path -> ``Smoothed``), or None.
         ess: the effective sample size per segment (particle methods), or None.
         outputs: the per-segment outputs of the filter (host arrays), or None.
         state: the filter's final state, or None.
@@ -275,7 +276,7 @@ class _Estimate(NamedTuple):
     trajectory: np.ndarray
     mean: np.ndarray
     best: np.ndarray
-    unsmoothed: Optional[np.ndarray] = None
+    smooth: Any = None
     ess: Optional[np.ndarray] = None
     outputs: Any = None
     state: Any = None
@@ -289,21 +290,9 @@ def _add_warnings(metrics: dict, warnings: list[str]) -> None:
 
 
 def _filter_metrics(run: Any, static: Static, n_segments: int) -> dict:
-    """The filter's own counts and timings: overflows, resampling, ESS, proposal and association
-    statistics, compile and run time."""
-    o = run.outputs
-    has = np.asarray(o.n_associated) > 0
+    """The filter's own counts (:func:`filter_statistics`), its compile and run time."""
     return dict(
-        landmark_overflow=int(run.state.overflow),
-        window_overflow_max=int(np.max(o.window_overflow)),
-        resample_count=int(resample_count(run.state)),
-        ess_mean=float(np.mean(o.ess)),
-        ess_min=float(np.min(o.ess)),
-        nano_iterations_mean=float(np.mean(np.asarray(o.iterations)[has])) if has.any() else 0.0,
-        proposal_capped=int(np.sum(o.n_capped)),
-        proposal_nonfinite=int(np.sum(o.n_nonfinite)),
-        weight_resets=int(np.sum(o.weight_reset)),
-        associations_per_scan=float(np.mean(o.n_associated)),
+        **filter_statistics(run.outputs, run.state.overflow, resample_count(run.state)),
         compile_s=run.compile_s,
         run_s=run.run_s,
         ms_per_scan=1e3 * run.run_s / max(n_segments, 1),
@@ -345,20 +334,15 @@ def _run_filter_of(
     o = run.outputs
     best_pose, mean = np.asarray(o.best_pose), np.asarray(o.mean_pose)
     est = np.asarray(static.estimate.trajectory(o, run.state))
-    unsmoothed = None
-    if cfg.smoother.enabled and np.all(np.isfinite(est)):  # the path and its map refined offline
-        unsmoothed = est
-        sm = smooth_filter_run(run, est, seg, params, cfg.smoother, static.prior)
-        est = sm.poses
-        smoother_report, smoother_warnings = smoother_metrics(sm, cfg.smoother)
-        metrics.update(smoother_report)
-        _add_warnings(metrics, smoother_warnings)
+    smooth = None
+    if cfg.smoother.enabled:  # the path and its map refined offline
+        smooth = lambda path: smooth_filter_run(run, path, seg, params, cfg.smoother, static.prior)  # noqa: E731
     ess = None if is_gaussian(static.method) else np.asarray(o.ess)
     outputs, state = jax.tree.map(np.asarray, o), run.state
     landmarks = map_table(jax.tree.map(np.asarray, reported_map(run.state)))
     metrics.update(_filter_metrics(run, static, len(t)))
     _add_adaptive_metrics(metrics, static, params, run.state)
-    return _Estimate(est, mean, best_pose, unsmoothed, ess, outputs, state, landmarks)
+    return _Estimate(est, mean, best_pose, smooth, ess, outputs, state, landmarks)
 
 
 def _map_estimate(cfg: Config, landmarks: Optional[np.ndarray], state: Any) -> Optional[MapEstimate]:
@@ -444,23 +428,25 @@ def execute(
         "cache_dir": jax.config.jax_compilation_cache_dir or None,
     }
     lm = _map_estimate(cfg, e.landmarks, e.state)
-    # The one scorer of every command: the estimate against GPS, the map, and (for path: the
-    # filter's own estimate; after the smoother: the path it started from) the other trajectories.
-    others = (
-        None
-        if cfg.filter.method == "dead_reckoning"
-        else companion_tracks(static.estimate, e.best, e.mean, e.unsmoothed)
-    )
-    metrics.update(score_run(log, e.trajectory, cfg.metrics, lm, others))
+    if cfg.filter.method == "dead_reckoning":
+        trajectory, before = e.trajectory, None
+        metrics.update(score_run(log, trajectory, cfg.metrics, lm))
+    else:  # the one scorer of every command (smoothing the path first when the smoother is on)
+        sc = score_estimate(
+            log, Tracks(e.trajectory, e.best, e.mean), static.estimate, cfg.metrics, lm, e.smooth, cfg.smoother
+        )
+        metrics.update(sc.metrics)
+        _add_warnings(metrics, sc.warnings)
+        trajectory, before = sc.trajectory, sc.before_smoother
     _add_dead_reckoning_baselines(cfg, log, dr_poses, metrics)
     return RunResult(
         config=cfg,
         log=log,
         times=t,
-        trajectory=e.trajectory,
+        trajectory=trajectory,
         mean_trajectory=e.mean,
         best_trajectory=e.best,
-        path_before_smoother=e.unsmoothed,
+        path_before_smoother=before,
         dead_reckoning=dr_poses,
         landmarks=e.landmarks,
         ess=e.ess,

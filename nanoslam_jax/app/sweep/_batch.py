@@ -21,7 +21,8 @@ import numpy as np
 from nanoslam_jax.lib._cache import program_cache, release_programs, watched_compile
 from nanoslam_jax.app.config import Config
 from nanoslam_jax.data import Segments
-from nanoslam_jax.eval._scoring import MapEstimate, companion_tracks, failure_reason, score_run
+from nanoslam_jax.eval._scoring import MapEstimate
+from nanoslam_jax.app._scored import Tracks, filter_statistics, score_estimate
 from nanoslam_jax.methods import (
     MapHistory,
     Params,
@@ -35,7 +36,7 @@ from nanoslam_jax.methods import (
     reported_map,
     resample_count,
 )
-from nanoslam_jax.smoother._smoother import Smoothed, SmootherSettings, held_landmarks, smooth_run, smoother_metrics
+from nanoslam_jax.smoother._smoother import Smoothed, SmootherSettings, held_landmarks, smooth_run
 from nanoslam_jax.lib._precision import in_float64
 
 
@@ -403,7 +404,7 @@ def execute_batch(task: BatchTask, log: LogData) -> list[dict]:
     return rows
 
 
-def _smooth(i: int, out: BatchOutput, log: LogData, task: BatchTask, path: np.ndarray, lm: MapEstimate) -> Smoothed:
+def _smooth(i: int, out: BatchOutput, log: LogData, task: BatchTask, path: np.ndarray, *, lm: MapEstimate) -> Smoothed:
     """Member ``i``'s final best particle's path and map smoothed (as ``nanoslam run`` does after
     a run): its confirmed landmarks, and with ``smoother.map_history`` those it held at the end of
     an earlier chunk."""
@@ -430,38 +431,21 @@ def _score(i: int, out: BatchOutput, log: LogData, task: BatchTask) -> dict:
         np.asarray(out.map_confirmed[i])[act],
         None if out.map_ident is None else np.asarray(out.map_ident[i])[act],
     )
-    m: dict = {}
-    before = None
-    if task.smoother is not None and np.all(np.isfinite(est)):
-        sm = _smooth(i, out, log, task, est, lm)
-        before, est = est, sm.poses
-        sm_metrics, _ = smoother_metrics(sm, task.smoother)
-        m.update(sm_metrics, smoother_converged=int(sm.converged))
-    reason = failure_reason(log.time, est)
-    reasons = [reason] if reason else []
-    m.update(
-        score_run(
-            log,
-            est,
-            task.metrics_opts[i],
-            lm,
-            companion_tracks(static.estimate, out.best_pose[i], out.mean_pose[i], before),
-        )
+    sc = score_estimate(
+        log,
+        Tracks(est, out.best_pose[i], out.mean_pose[i]),
+        static.estimate,
+        task.metrics_opts[i],
+        lm,
+        None if task.smoother is None else functools.partial(_smooth, i, out, log, task, lm=lm),
+        task.smoother,
     )
-    has = out.n_associated[i] > 0
-    overflow = int(out.overflow[i])
-    m.update(
-        landmark_overflow=overflow,
-        window_overflow_max=int(np.max(out.window_overflow[i], initial=0)),
-        resample_count=int(out.resample_count[i]),
-        ess_mean=float(np.mean(out.ess[i])),
-        ess_min=float(np.min(out.ess[i])),
-        nano_iterations_mean=float(np.mean(out.iterations[i][has])) if has.any() else 0.0,
-        proposal_capped=int(np.sum(out.n_capped[i])),
-        proposal_nonfinite=int(np.sum(out.n_nonfinite[i])),
-        weight_resets=int(np.sum(out.weight_reset[i])),
-        associations_per_scan=float(np.mean(out.n_associated[i])),
-    )
+    m = sc.metrics
+    if "smoother_converged" in m:
+        m["smoother_converged"] = int(m["smoother_converged"])
+    reasons = [sc.reason] if sc.reason else []
+    m.update(filter_statistics(jax.tree.map(lambda a: a[i], out), out.overflow[i], out.resample_count[i]))
+    overflow = m["landmark_overflow"]
     if out.noise is not None:
         p_i = jax.tree.map(lambda a: np.asarray(a)[i], task.params)
         m.update(adaptive_noise_summary(out.noise[i], configured_noise(static, p_i), float(p_i.noise_floor))[0])
