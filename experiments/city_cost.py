@@ -8,7 +8,7 @@ scan (after compilation), scans, landmarks in the map (all and confirmed), the l
 overflow (detections that found no free slot), the RMSE against the truth and dead reckoning's
 RMSE on the same log::
 
-    python experiments/city_cost.py                        # the full 20 km city (hours on 2 cores)
+    python experiments/city_cost.py                        # the full 20 km city (about 5 min on 2 cores)
     python experiments/city_cost.py --distance 3000        # a 3 km drive through the same city
     python experiments/city_cost.py --particles 10 --capacity 4096 --set city.blocks=6
 """
