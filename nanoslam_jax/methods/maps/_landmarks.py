@@ -12,6 +12,7 @@ local landmark's existence).
 
 from __future__ import annotations
 
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -54,6 +55,43 @@ def first_true(mask: Bool[Array, " n"], size: int) -> tuple[Int[Array, " size"],
     return idx, rank[-1]
 
 
+#: Slots per block of :func:`first_true_blocked`, and the fewest slots it is used for (below, the
+#: plain :func:`first_true` is as cheap).
+SEARCH_BLOCK, SEARCH_FROM = 64, 1024
+#: Blocks :func:`first_true_blocked` may gather (then every block holding a True, at most ``size``).
+SEARCH_BUDGETS = (2, 8)
+
+
+def first_true_blocked(mask: Bool[Array, " n"], size: int) -> tuple[Int[Array, " size"], Int[Array, ""]]:
+    """:func:`first_true` of a long ``mask`` at a cost that follows the blocks holding its first
+    ``size`` True entries, not ``n``: the entries are counted per block of :data:`SEARCH_BLOCK`,
+    and only the first blocks that hold any of the first ``size`` are searched (the fewest of
+    :data:`SEARCH_BUDGETS` blocks that hold them, a ``lax.switch`` on
+    :func:`~nanoslam_jax.lib._batching.batch_max`, so under ``vmap`` one branch serves every member).
+    The same indices and count as :func:`first_true`; ``n`` must be a multiple of the block."""
+    n, b = mask.shape[0], SEARCH_BLOCK
+    nb = n // b
+    counts = jnp.sum(mask.reshape(nb, b), axis=1, dtype=jnp.int32)
+    before = jnp.cumsum(counts) - counts  # Trues in the blocks before each block
+    # The first ``size`` Trues lie in the blocks that start with fewer than ``size`` before them.
+    wanted = (counts > 0) & (before < size)
+    need = jnp.sum(wanted)
+    budgets = tuple(k for k in SEARCH_BUDGETS if k < min(size, nb)) + (min(size, nb),)
+    branch = batch_max(jnp.sum(need > jnp.asarray(budgets[:-1], jnp.int32)).astype(jnp.int32))
+
+    def search(k: int) -> Int[Array, " size"]:
+        blocks, _ = first_true(wanted, k)  # ``nb`` past the last wanted block
+        slots = (blocks[:, None] * b + jnp.arange(b, dtype=jnp.int32)).reshape(-1)
+        hit = mask.at[slots].get(mode="fill", fill_value=False)
+        idx, _ = first_true(hit, size)
+        return jnp.where(idx < slots.shape[0], slots.at[idx].get(mode="fill", fill_value=n), n)
+
+    total = jnp.sum(counts, dtype=jnp.int32)
+    if len(budgets) == 1:
+        return search(budgets[0]), total
+    return jax.lax.switch(branch, [functools.partial(search, k) for k in budgets]), total
+
+
 def gather_window(
     lm: LandmarkMap,
     position: Float[Array, "2"],
@@ -90,7 +128,8 @@ def gather_window(
         model = model.of_kind(lm.kind[:slots])
     d2 = model.window_distance2(position, lm.mean[:slots])
     near = lm.active[:slots] & (d2 < jnp.square(radius))
-    idx, n_near = first_true(near, window)
+    long = slots >= SEARCH_FROM and slots % SEARCH_BLOCK == 0
+    idx, n_near = first_true_blocked(near, window) if long else first_true(near, window)
     if slots < capacity:
         idx = jnp.where(idx < slots, idx, capacity)  # unused window slots point at ``capacity``
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
