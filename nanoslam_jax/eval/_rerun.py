@@ -42,15 +42,6 @@ def _require_rerun():
     return rerun
 
 
-def rerun_available() -> bool:
-    """Whether ``rerun-sdk`` can be imported (what ``output.rerun`` needs)."""
-    try:
-        _require_rerun()
-    except ImportError:
-        return False
-    return True
-
-
 def to_world(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     """``(n, 2)`` points in the frame of ``pose = (x, y, phi)`` (forward, left) in the world frame."""
     c, s = np.cos(pose[2]), np.sin(pose[2])

@@ -90,10 +90,6 @@ def extract_features_chunked(
     return concatenate_features(parts)
 
 
-def _fmt(v) -> str:
-    return "" if v is None else (f"{v:.6f}" if isinstance(v, float) else str(v))
-
-
 def write_features_csv(path: str | os.PathLike, feats: Features) -> int:
     """Write every line segment, circle, corner, break point and tree of ``feats`` to a CSV file
     (:data:`FEATURE_COLUMNS`), ordered by scan; returns the number of rows."""

@@ -55,11 +55,6 @@ def _inset(poly: np.ndarray, d) -> np.ndarray:
     return out
 
 
-def _signed_area(poly: np.ndarray) -> float:
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
-
-
 def reference_path(waypoints: np.ndarray, radius: np.ndarray) -> IndoorPath:
     """The closed loop through ``waypoints`` with corner ``i`` rounded by an arc of ``radius[i]``, starting
     at the middle of the straight piece from waypoint 0 to waypoint 1.

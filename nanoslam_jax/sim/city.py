@@ -370,12 +370,6 @@ def simulate_city(
     return CityLog(raw=raw, world=world)
 
 
-def simulate_city_config(cfg) -> CityLog:
-    """:func:`simulate_city` with the settings of a run configuration: its ``city``, ``sim`` and ``vehicle``
-    sections, and a differential-drive robot (section ``unicycle``) when ``model.motion`` is ``unicycle``."""
-    return simulate_city(cfg.city, cfg.sim, cfg.vehicle, cfg.unicycle if cfg.model.motion == "unicycle" else None)
-
-
 def simulate_city_to_dir(
     directory: Union[str, os.PathLike],
     city: CityConfig | None = None,
