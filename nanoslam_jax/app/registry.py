@@ -33,6 +33,7 @@ detections takes the run's measurement model from ``params.measurement`` (an
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 from collections.abc import Hashable
 from typing import TYPE_CHECKING, Any
@@ -41,8 +42,6 @@ import jax.numpy as jnp
 
 from nanoslam_jax.methods import METHOD_KINDS, Method
 from nanoslam_jax.methods import _builtin as builtin
-from nanoslam_jax.methods._method_settings import IteratedStatic, NanoParams, NanoStatic, NasrukfParams
-from nanoslam_jax.methods._method_settings import NasrukfStatic
 
 if TYPE_CHECKING:
     from nanoslam_jax.app.config import Config
@@ -113,36 +112,21 @@ def traced_of(method: Method, cfg: "Config") -> Any:
 # --------------------------------------------------------------------------- the built-in methods' settings
 
 
-def nano_static(cfg: "Config") -> NanoStatic:
-    """NANO-SLAM's static settings from ``cfg.nano``."""
-    return cfg.nano.static()
+def section_static(section: str, cfg: "Config") -> Hashable:
+    """A built-in method's static settings: ``static()`` of its section of ``cfg``."""
+    return getattr(cfg, section).static()
 
 
-def nano_traced(cfg: "Config") -> NanoParams:
-    """NANO-SLAM's traced hyperparameters from ``cfg.nano``."""
-    return cfg.nano.params()
+def section_traced(section: str, cfg: "Config") -> Any:
+    """A built-in method's traced hyperparameters: ``params()`` of its section of ``cfg``."""
+    return getattr(cfg, section).params()
 
 
-def iterated_static(cfg: "Config") -> IteratedStatic:
-    """The iterated proposal's static settings from ``cfg.iterated``."""
-    return cfg.iterated.static()
-
-
-def nasrukf_static(cfg: "Config") -> NasrukfStatic:
-    """NASRUKF's static settings from ``cfg.nasrukf``."""
-    return cfg.nasrukf.static()
-
-
-def nasrukf_traced(cfg: "Config") -> NasrukfParams:
-    """NASRUKF's traced hyperparameters from ``cfg.nasrukf``."""
-    return cfg.nasrukf.params()
-
-
-_READERS = {
-    "nano": (nano_static, nano_traced),
-    "iterated": (iterated_static, None),
-    "nasrukf": (nasrukf_static, nasrukf_traced),
-}
-for _m in builtin.BUILTIN_METHODS:
-    _static, _traced = _READERS.get(_m.name, (None, None))
-    register(dataclasses.replace(_m, static_settings=_static, traced_settings=_traced))
+for _m in builtin.BUILTIN_METHODS:  # a built-in method with a section reads it (NanoConfig, ...)
+    if _m.section is not None:
+        _m = dataclasses.replace(
+            _m,
+            static_settings=functools.partial(section_static, _m.section),
+            traced_settings=functools.partial(section_traced, _m.section),
+        )
+    register(_m)

@@ -222,6 +222,10 @@ class IteratedConfig:
         """The static settings (:class:`IteratedStatic`)."""
         return IteratedStatic(**_same_names(IteratedStatic, self))
 
+    def params(self) -> dict:
+        """The traced hyperparameters: none of its own (an empty dict, as for a method without)."""
+        return {}
+
 
 @dataclass(frozen=True)
 class NasrukfConfig:

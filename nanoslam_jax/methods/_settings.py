@@ -14,6 +14,7 @@ from typing import Any, Literal, Optional
 import jax.numpy as jnp
 
 from nanoslam_jax.lib._fields import _f
+from nanoslam_jax.methods._method_settings import _a
 from nanoslam_jax.methods._params import (
     ROW_BUCKETS_FROM,
     ROW_BUCKETS_WORK,
@@ -34,9 +35,9 @@ _SENSOR = SensorDefaults()
 _STATIC = Static()
 
 
-def _a(x: float) -> Any:
-    """A traced scalar: ``x`` as a float array."""
-    return jnp.asarray(x, dtype=float)
+def _fraction(default: float, doc: str) -> Any:
+    """A field in ``(0, 1]``: a probability or a fraction (:func:`~nanoslam_jax.lib._fields._f`)."""
+    return _f(default, lo=0.0, lo_open=True, hi=1.0, doc=doc)
 
 
 @dataclass(frozen=True)
@@ -65,11 +66,8 @@ class NoiseConfig:
         lo_open=True,
         doc="forgetting factor b of the adaptive estimate, 0 < b < 1 (its memory is about 1 / (1 - b) detections)",
     )
-    adaptive_floor: float = _f(
+    adaptive_floor: float = _fraction(
         0.01,
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
         doc="smallest variance the adaptive estimate may reach, as a fraction of the configured one",
     )
 
@@ -187,33 +185,21 @@ class MapConfig:
         doc="landmark management on; false: every detection beyond filter.new_landmark starts a permanent "
         "landmark that is used at once (the published methods' rule), and the other keys here are ignored",
     )
-    p_detect: float = _f(
+    p_detect: float = _fraction(
         0.75,
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
         doc="probability that a landmark inside the sensor footprint is detected in a scan",
     )
-    p_false: float = _f(
+    p_false: float = _fraction(
         0.075,
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
         doc="probability that a landmark that does not exist (clutter) is 'detected' again in a scan "
         "(a clutter detection falling in its gate); must be below p_detect",
     )
-    birth_probability: float = _f(
+    birth_probability: float = _fraction(
         0.5,
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
         doc="existence probability of a landmark right after the detection that starts it",
     )
-    confirm_probability: float = _f(
+    confirm_probability: float = _fraction(
         0.9,
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
         doc="a tentative landmark is confirmed when its existence probability reaches this ...",
     )
     confirm_hits: int = _f(4, lo=1, doc="... and it has at least this many detections (its first included)")
@@ -223,11 +209,8 @@ class MapConfig:
     remove_probability: float = _f(
         0.02, lo=0.0, hi=1.0, doc="a landmark whose existence probability falls below this is removed (its slot reused)"
     )
-    max_probability: float = _f(
+    max_probability: float = _fraction(
         0.99,
-        lo=0.0,
-        lo_open=True,
-        hi=1.0,
         doc="existence probabilities are capped here, so a tree that has gone can still be removed after a few misses",
     )
     fov_deg: float = _f(_SENSOR.fov_deg, lo=0.0, lo_open=True, hi=360.0, doc="the sensor's field of view (deg)")

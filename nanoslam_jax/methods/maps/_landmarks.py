@@ -31,8 +31,9 @@ def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
     return RangeBearing() if model is None else model
 
 
-def prefix_count(mask: Bool[Array, " n"], block: int = 32) -> Int[Array, " n"]:
-    """Inclusive running count of ``mask`` (``cumsum``), as two small matrix products.
+def prefix_count(mask: Bool[Array, " n"] | Int[Array, " n"], block: int = 32) -> Int[Array, " n"]:
+    """Inclusive running count of ``mask`` (``cumsum``; of counts, their running sum), as two small
+    matrix products.
 
     XLA:CPU lowers ``cumsum`` to a windowed reduction costing ~8x more than a blocked product with
     a triangular matrix of ones (exact: counts are far below float32's 2^24).
@@ -72,7 +73,7 @@ def first_true_blocked(mask: Bool[Array, " n"], size: int) -> tuple[Int[Array, "
     n, b = mask.shape[0], SEARCH_BLOCK
     nb = n // b
     counts = jnp.sum(mask.reshape(nb, b), axis=1, dtype=jnp.int32)
-    before = jnp.cumsum(counts) - counts  # Trues in the blocks before each block
+    before = prefix_count(counts) - counts  # Trues in the blocks before each block
     # The first ``size`` Trues lie in the blocks that start with fewer than ``size`` before them.
     wanted = (counts > 0) & (before < size)
     need = jnp.sum(wanted)

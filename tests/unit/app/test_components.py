@@ -8,7 +8,7 @@ import pytest
 
 from nanoslam_jax.app.config import ConfigError
 from nanoslam_jax.app._build import COMPONENTS, static_summary
-from nanoslam_jax.app._config_schema import FilterConfig
+from nanoslam_jax.methods import FilterConfig
 from nanoslam_jax.app.config import load_config
 from nanoslam_jax.app.filters import settings_from_config
 from nanoslam_jax.methods import (

@@ -20,7 +20,7 @@ from nanoslam_jax.methods import (
     make_proposal,
 )
 from nanoslam_jax.app.filters import settings_from_config
-from nanoslam_jax.app.registry import Method, get_method, method_names, nano_static, register
+from nanoslam_jax.app.registry import Method, get_method, method_names, register
 from nanoslam_jax.methods.proposals import AbstractProposal, ProposalResult
 from nanoslam_jax.app.sweep import read_results, run_sweep, sweep_from_dict
 
@@ -87,9 +87,9 @@ def test_settings_are_nested_per_method():
     """Each method's own settings sit in one field of Static and of Params; the shared ones stay flat."""
     cfg = load_config(None, ["filter.method=nano", "nano.gamma=0.01"])
     static, params = settings_from_config(cfg, 14)
-    assert static.method_settings == nano_static(cfg) and isinstance(params.method, NanoParams)
+    assert static.method_settings == cfg.nano.static() and isinstance(params.method, NanoParams)
     assert float(params.method.gamma) == 0.01 and hash(static) == hash(dataclasses.replace(static))
-    assert Static(method=get_method("nano")).method_settings == nano_static(Config()) == NanoStatic()
+    assert Static(method=get_method("nano")).method_settings == Config().nano.static() == NanoStatic()
     static, params = settings_from_config(load_config(None, ["filter.method=iterated"]), 14)
     assert isinstance(static.method_settings, IteratedStatic) and params.method == {}
     static, params = settings_from_config(load_config(None, ["filter.method=nasrukf"]), 14)
