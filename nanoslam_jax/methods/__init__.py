@@ -122,6 +122,7 @@ from nanoslam_jax.methods._state import (
     FilterState as FilterState,
     LandmarkMap as LandmarkMap,
     Particles as Particles,
+    BlockIndex as BlockIndex,
     count_confirmed as count_confirmed,
     init_state as init_state,
 )
@@ -258,6 +259,7 @@ __all__ = [
     "FilterState",
     "LandmarkMap",
     "Particles",
+    "BlockIndex",
     "count_confirmed",
     "init_state",
     "StepOutput",

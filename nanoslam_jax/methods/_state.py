@@ -7,10 +7,15 @@ from typing import NamedTuple, TYPE_CHECKING
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key
 
-from nanoslam_jax.models import is_composite
+from nanoslam_jax.models import AbstractMeasurementModel, is_composite
 
 if TYPE_CHECKING:
     from nanoslam_jax.methods._params import Params, Static
+
+
+#: Slots per block of a long map's window search and of its :class:`BlockIndex`, and the fewest
+#: slots of a map searched by blocks (below, a search of the whole map is as cheap).
+SEARCH_BLOCK, SEARCH_FROM = 64, 1024
 
 
 class LandmarkMap(NamedTuple):
@@ -71,6 +76,54 @@ class LandmarkMap(NamedTuple):
         )
 
 
+class BlockIndex(NamedTuple):
+    """A map's spatial index: a box per block of :data:`SEARCH_BLOCK` slots that holds the
+    positions (first two components) of the block's active landmarks, so that a window search
+    (:func:`~nanoslam_jax.methods.maps._index.gather_window_indexed`) visits only the blocks whose
+    box comes near the particle. The boxes only widen (:meth:`widen` at every write of a
+    position); an empty block's box is empty (``lo = +inf``, ``hi = -inf``).
+
+    Attributes:
+        lo: the smallest ``(x, y)`` of each block's landmarks.
+        hi: the largest.
+    """
+
+    lo: Float[Array, "*particles blocks 2"]
+    hi: Float[Array, "*particles blocks 2"]
+
+    @staticmethod
+    def empty(capacity: int, batch: tuple[int, ...] = ()) -> "BlockIndex":
+        """The index of an empty map of ``capacity`` slots (a multiple of the block), with optional
+        leading batch axes."""
+        shape = batch + (capacity // SEARCH_BLOCK, 2)
+        return BlockIndex(jnp.full(shape, jnp.inf), jnp.full(shape, -jnp.inf))
+
+    def widen(self, slots: Int[Array, " k"], points: Float[Array, "k l"]) -> "BlockIndex":
+        """The index after landmarks at ``points`` (their first two components) were written to
+        ``slots`` (those at or past the capacity are ignored)."""
+        block = slots // SEARCH_BLOCK
+        xy = points[:, :2]
+        return BlockIndex(self.lo.at[block].min(xy, mode="drop"), self.hi.at[block].max(xy, mode="drop"))
+
+    def near(self, position: Float[Array, "2"], radius2: Float[Array, ""], blocks: int) -> Bool[Array, " blocks"]:
+        """Which of the first ``blocks`` blocks have a box within ``sqrt(radius2)`` of ``position``.
+
+        The box's distance is a lower bound of each of its landmarks' (rounding is monotone), and
+        the comparison is widened by a relative 1e-9, so a block holding a landmark within the
+        radius is always near."""
+        lo, hi = self.lo[:blocks], self.hi[:blocks]
+        dx = jnp.maximum(jnp.maximum(lo[:, 0] - position[0], position[0] - hi[:, 0]), 0.0)
+        dy = jnp.maximum(jnp.maximum(lo[:, 1] - position[1], position[1] - hi[:, 1]), 0.0)
+        return jnp.square(dx) + jnp.square(dy) <= radius2 * (1.0 + 1e-9)
+
+
+def keeps_index(capacity: int, model: AbstractMeasurementModel) -> bool:
+    """Whether a map of ``capacity`` slots of ``model``'s landmarks keeps a :class:`BlockIndex`:
+    from :data:`SEARCH_FROM` slots (a multiple of the block), for point landmarks."""
+    point = type(model).window_distance2 is AbstractMeasurementModel.window_distance2
+    return capacity >= SEARCH_FROM and capacity % SEARCH_BLOCK == 0 and point
+
+
 class Particles(NamedTuple):
     """The particle set.
 
@@ -83,6 +136,8 @@ class Particles(NamedTuple):
             for range-bearing detections): the configured ones, or
             its adaptive estimate (``noise.adaptive``).
         noise_count: residuals each particle's adaptive estimate has seen.
+        map_index: each particle's :class:`BlockIndex` of its map, kept where :func:`keeps_index`
+            (None: the window is searched over the map).
     """
 
     pose: Float[Array, "particles 3"]
@@ -91,6 +146,7 @@ class Particles(NamedTuple):
     landmarks: LandmarkMap
     noise: Float[Array, "particles d"]
     noise_count: Int[Array, " particles"]
+    map_index: BlockIndex | None = None
 
 
 class FilterState(NamedTuple):
@@ -133,6 +189,7 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         ),
         noise=jnp.broadcast_to(jnp.diagonal(params.R), (n, params.measurement.measurement_dim)),
         noise_count=jnp.zeros(n, jnp.int32),
+        map_index=BlockIndex.empty(static.capacity, (n,)) if keeps_index(static.capacity, params.measurement) else None,
     )
     zero = jnp.zeros((), jnp.int32)
     return FilterState(particles, key, zero, zero, zero, zero, zero)

@@ -23,7 +23,7 @@ from nanoslam_jax.lib._linalg import chol_small, gaussian_logpdf, inv_small, is_
 from nanoslam_jax.lib._trig import computed_once
 from nanoslam_jax.models import AbstractMeasurementModel, Composite, OfKind, RangeBearing, wrap_angle
 from nanoslam_jax.lib.quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
-from nanoslam_jax.methods._state import LandmarkMap
+from nanoslam_jax.methods._state import SEARCH_BLOCK, SEARCH_FROM, LandmarkMap
 
 
 def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
@@ -56,9 +56,6 @@ def first_true(mask: Bool[Array, " n"], size: int) -> tuple[Int[Array, " size"],
     return idx, rank[-1]
 
 
-#: Slots per block of :func:`first_true_blocked`, and the fewest slots it is used for (below, the
-#: plain :func:`first_true` is as cheap).
-SEARCH_BLOCK, SEARCH_FROM = 64, 1024
 #: Blocks :func:`first_true_blocked` may gather (then every block holding a True, at most ``size``).
 SEARCH_BUDGETS = (2, 8)
 
@@ -121,6 +118,20 @@ def gather_window(
         landmarks within ``radius`` did not fit the window (0 unless the window is too small for
         the local landmark density; the lowest slots, i.e. the oldest landmarks, are kept).
     """
+    idx, n_near = window_slots(lm, position, window, radius, slots, model)
+    return local_map(lm, idx), idx, jnp.maximum(n_near - window, 0)
+
+
+def window_slots(
+    lm: LandmarkMap,
+    position: Float[Array, "2"],
+    window: int,
+    radius: Float[Array, ""],
+    slots: int | None = None,
+    model: AbstractMeasurementModel | None = None,
+) -> tuple[Int[Array, " window"], Int[Array, ""]]:
+    """The slots of :func:`gather_window`'s local map (``capacity`` for unused ones) and how many
+    active landmarks lie within ``radius`` (of which the lowest ``window`` slots are kept)."""
     capacity = lm.active.shape[0]
     slots = capacity if slots is None else min(slots, capacity)
     model = _model(model)
@@ -133,12 +144,18 @@ def gather_window(
     idx, n_near = first_true_blocked(near, window) if long else first_true(near, window)
     if slots < capacity:
         idx = jnp.where(idx < slots, idx, capacity)  # unused window slots point at ``capacity``
+    return idx, n_near
+
+
+def local_map(lm: LandmarkMap, idx: Int[Array, " window"]) -> LandmarkMap:
+    """The local map of the slots ``idx`` of ``lm`` (``capacity``: an unused local slot, inactive,
+    with zero mean and unit covariance)."""
+    capacity = lm.active.shape[0]
     local = jax.tree.map(lambda a: a.at[idx].get(mode="fill", fill_value=0), lm)
     dim = lm.cov.shape[-1]
-    local = local._replace(
+    return local._replace(
         active=idx < capacity, cov=jnp.where((idx < capacity)[:, None, None], local.cov, jnp.eye(dim))
     )
-    return local, idx, jnp.maximum(n_near - window, 0)
 
 
 #: Prefix sizes of the local window (then the whole window) that the association
@@ -248,6 +265,19 @@ def add_landmarks(
     Returns:
         The updated map and the number of landmarks dropped for lack of capacity.
     """
+    lm, target = place_landmarks(lm, new, is_new, contiguous, free)
+    return lm, jnp.sum(is_new & (target == lm.active.shape[0]))
+
+
+def place_landmarks(
+    lm: LandmarkMap,
+    new: LandmarkMap,
+    is_new: Bool[Array, " k"],
+    contiguous: bool = False,
+    free: Int[Array, " k"] | None = None,
+) -> tuple[LandmarkMap, Int[Array, " k"]]:
+    """:func:`add_landmarks`, returning the slot each candidate went to (``capacity``: not placed,
+    for lack of a free slot or not being new) instead of the overflow."""
     capacity = lm.active.shape[0]
     k_max = is_new.shape[0]
     order = jnp.clip(jnp.cumsum(is_new) - 1, 0, k_max - 1)
@@ -259,7 +289,7 @@ def add_landmarks(
     target = jnp.where(is_new, free[order], capacity)
     fields = [f for f in LandmarkMap._fields if not (contiguous and f == "misses") and getattr(lm, f) is not None]
     lm = lm._replace(**{f: getattr(lm, f).at[target].set(getattr(new, f), mode="drop") for f in fields})
-    return lm, jnp.sum(is_new & (target == capacity))
+    return lm, target
 
 
 def init_landmark(

@@ -27,12 +27,14 @@ from nanoslam_jax.methods.maps._association import (
 )
 from nanoslam_jax.methods.maps._landmarks import (
     MANAGED_FIELDS,
-    add_landmarks,
+    SEARCH_FROM,
     free_slots,
     gather_window,
+    place_landmarks,
     scatter_window,
     update_slots,
 )
+from nanoslam_jax.methods.maps._index import gather_window_indexed
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.particle._prior import compose_prior, predict, relative_prior
 from nanoslam_jax.lib._resampling import effective_sample_size, normalise
@@ -48,6 +50,7 @@ from nanoslam_jax.methods.maps._management import (
 )
 from nanoslam_jax.methods.gaussian._srukf import adaptive_noise_rows
 from nanoslam_jax.methods._state import (
+    BlockIndex,
     FilterState,
     LandmarkMap,
     Particles,
@@ -115,6 +118,7 @@ class _ParticleOut(NamedTuple):
     n_confirmed: Int[Array, ""]
     noise: Float[Array, " d"]
     noise_count: Int[Array, ""]
+    map_index: BlockIndex | None
 
 
 class ParticleIn(NamedTuple):
@@ -127,6 +131,7 @@ class ParticleIn(NamedTuple):
         eps: the particle's standard normal draw: the sampled pose is ``mean + chol(cov) eps``.
         noise, noise_count: the particle's adaptive measurement-noise variances and how many
             residuals they have seen (``static.adaptive_noise``; None: the configured noise).
+        map_index: the spatial index of the particle's map (None: the map keeps none).
     """
 
     pose: Float[Array, "3"]
@@ -135,6 +140,7 @@ class ParticleIn(NamedTuple):
     eps: Float[Array, "3"]
     noise: Float[Array, " d"] | None = None
     noise_count: Int[Array, ""] | None = None
+    map_index: BlockIndex | None = None
 
 
 class SegmentIn(NamedTuple):
@@ -222,8 +228,9 @@ def particle_update(
     local, idx, window_overflow = _over_slot_bucket(
         static,
         seg.slot_bucket,
-        lambda b, lm, x: gather_window(lm, x, W, radius, b, params.measurement),
+        functools.partial(_gather, W, radius, params.measurement),
         particle.landmarks,
+        particle.map_index,
         x0[:2],
     )
     m = _match(static, params, local, x0, P0, dets, R)
@@ -236,8 +243,8 @@ def particle_update(
     rows = rows_over_buckets(
         static, params, proposal, x0, P0, R, RowInputs(det, m.existing, m.ps, dets.mask), particle.eps
     )
-    lm, overflow, (n_landmarks, n_confirmed) = _update_map(
-        static, params, particle.landmarks, (local, idx), m, rows, seg._replace(dets=dets)
+    lm, index, overflow, (n_landmarks, n_confirmed) = _update_map(
+        static, params, (particle.landmarks, particle.map_index), (local, idx), m, rows, seg._replace(dets=dets)
     )
     has_assoc = jnp.any(m.used)
     return _ParticleOut(
@@ -256,7 +263,16 @@ def particle_update(
         n_confirmed=n_confirmed,
         noise=noise,
         noise_count=noise_count,
+        map_index=index,
     )
+
+
+def _gather(window: int, radius, model, slots: int | None, lm: LandmarkMap, index: BlockIndex | None, position):
+    """The particle's local window from the first ``slots`` slots of its map, through its spatial
+    index where it keeps one and the prefix is long."""
+    if index is None or (slots is not None and slots < SEARCH_FROM):
+        return gather_window(lm, position, window, radius, slots, model)
+    return gather_window_indexed(lm, index, position, window, radius, slots, model)
 
 
 def _prior(
@@ -355,14 +371,16 @@ def _log_weight(static: Static, params: Params, m: _Matches, rows: RowResults) -
 def _update_map(
     static: Static,
     params: Params,
-    lm: LandmarkMap,
+    mapped: tuple[LandmarkMap, BlockIndex | None],
     window: tuple[LandmarkMap, Int[Array, " w"]],
     m: _Matches,
     rows: RowResults,
     seg: SegmentIn,
-) -> tuple[LandmarkMap, Int[Array, ""], tuple[Int[Array, ""], Int[Array, ""]]]:
-    """The particle's map after the scan: matched landmarks updated, management over the window,
-    the scan's new landmarks added; with the overflow and the landmark counts."""
+) -> tuple[LandmarkMap, BlockIndex | None, Int[Array, ""], tuple[Int[Array, ""], Int[Array, ""]]]:
+    """The particle's map (and its spatial index) after the scan: matched landmarks updated,
+    management over the window, the scan's new landmarks added; with the overflow and the
+    landmark counts."""
+    lm, index = mapped
     local, idx = window
     dets, mp = seg.dets, params.map
     W, K = local.active.shape[0], static.k_max
@@ -384,14 +402,12 @@ def _update_map(
             return manage_window(loc, rows.pose, sn, dets, seg.observed, seg.scan, params.measurement, policy)
 
         local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
-        # The matched rows' estimates go straight to their slots (k rows); of the window only the
-        # fields management changes are written back (scattering every field of all W slots
-        # cost more than the management itself).
-        lm = update_slots(lm, jnp.where(m.existing, idx[m.ws], lm.active.shape[0]), *upd)
+    # The matched rows' estimates go straight to their slots (k rows); of the window only the
+    # fields management changes are written back.
+    updated = jnp.where(m.existing, idx[m.ws], lm.active.shape[0])
+    lm = update_slots(lm, updated, *upd)
+    if static.manage:
         lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), seg.scan, mp, seg.slots_used)
-    else:
-        # Only the landmarks the scan's detections matched change: write those rows back.
-        lm = update_slots(lm, jnp.where(m.existing, idx[m.ws], lm.active.shape[0]), *upd)
     # Every active landmark lies in the slot bucket before this scan (management only frees
     # slots), so the scan's new landmarks go to its first K free slots at most K past it: the
     # free slots are searched there and the map's landmarks counted there, not over the capacity.
@@ -399,11 +415,14 @@ def _update_map(
     free = None
     if static.manage:
         free = _over_slot_bucket(static, seg.slot_bucket, lambda b, a: free_slots(a, K, past(b)), lm.active)
-    lm, overflow = add_landmarks(lm, new, m.assoc.is_new, contiguous=not static.manage, free=free)
+    lm, placed = place_landmarks(lm, new, m.assoc.is_new, contiguous=not static.manage, free=free)
+    overflow = jnp.sum(m.assoc.is_new & (placed == lm.active.shape[0]))
+    if index is not None:
+        index = index.widen(updated, rows.upd_mean).widen(placed, new.mean)
     counts = _over_slot_bucket(
         static, seg.slot_bucket, lambda b, lm_: _counts(jax.tree.map(lambda a: a[: past(b)], lm_)), lm
     )
-    return lm, overflow, counts
+    return lm, index, overflow, counts
 
 
 def _started(
@@ -447,11 +466,11 @@ def _counts(lm: LandmarkMap) -> tuple[Int[Array, ""], Int[Array, ""]]:
     return count_landmarks(lm).astype(jnp.int32), count_confirmed(lm).astype(jnp.int32)
 
 
-def _gather_small(fields: dict, skip: str, axis_name: str) -> dict:
-    """All-gather (tiled, inside ``shard_map``) every field but ``skip`` in one collective: the
+def _gather_small(fields: dict, skip: tuple[str, ...], axis_name: str) -> dict:
+    """All-gather (tiled, inside ``shard_map``) every field but those in ``skip`` in one collective: the
     fields are packed as floating-point columns of one ``(particles, columns)`` array (the
     integer and boolean fields are small counts, exact as floats) and unpacked after."""
-    names = [f for f in fields if f != skip]
+    names = [f for f in fields if f not in skip and fields[f] is not None]
     cols = [fields[f].reshape(fields[f].shape[0], -1).astype(float) for f in names]
     packed = jax.lax.all_gather(jnp.concatenate(cols, axis=1), axis_name, tiled=True)
     out, i = {}, 0
@@ -501,7 +520,10 @@ def filter_step(
     part, rep = PartitionSpec("particles"), PartitionSpec()
     spec = jax.tree.map(lambda _: rep, state)
     spec = spec._replace(
-        particles=spec.particles._replace(landmarks=jax.tree.map(lambda _: part, state.particles.landmarks))
+        particles=spec.particles._replace(
+            landmarks=jax.tree.map(lambda _: part, state.particles.landmarks),
+            map_index=jax.tree.map(lambda _: part, state.particles.map_index),
+        )
     )
     step = functools.partial(_step, static, "particles")
     return jax.shard_map(
@@ -603,10 +625,12 @@ def _step(
 
     in_use = batch_max(state.slots)
     shared = _shared(static, params, seg, state.scan, valid, rel_prior, in_use)
-    particle = ParticleIn(mine(p.pose), mine(p.pose_cov), p.landmarks, mine(eps), mine(p.noise), mine(p.noise_count))
+    particle = ParticleIn(
+        mine(p.pose), mine(p.pose_cov), p.landmarks, mine(eps), mine(p.noise), mine(p.noise_count), p.map_index
+    )
     out = jax.vmap(particle_update, (None, None, None, 0, None))(static, params, proposal, particle, shared)
     if axis is not None:
-        out = out._replace(**_gather_small(out._asdict(), "landmarks", axis))
+        out = out._replace(**_gather_small(out._asdict(), ("landmarks", "map_index"), axis))
     out = out._replace(
         pose=jnp.where(valid, out.pose, p.pose),
         pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),
@@ -616,7 +640,7 @@ def _step(
     )
     log_w, finite = _reweight(p.log_w, out.dlogw, valid)
     best = jnp.argmax(log_w).astype(jnp.int32)
-    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count)
+    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count, out.map_index)
     record = _record(out, log_w, best, valid, finite, params.resample_threshold)
 
     def ancestors(parts):
@@ -654,7 +678,9 @@ def _step(
                 return jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], block)
 
             lms = map_prefix(take, parts.landmarks, in_use + static.k_max, axis=1)
-            parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None))._replace(landmarks=lms)
+            parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None, map_index=None))._replace(
+                landmarks=lms, map_index=take(parts.map_index)
+            )
             return parts._replace(log_w=uniform), best_after, (anc if track else None)
 
         particles, best, parents = jax.lax.cond(

@@ -479,7 +479,8 @@ def test_second_detection_of_a_new_landmark_updates_it_in_the_same_scan(buckets,
 def test_particles_split_over_devices_give_the_same_run():
     """A run whose particles are split over two JAX CPU devices (``shard_map``;
     ``filter.split_devices``: each device keeps its share of the maps) computes the same run,
-    records and resampling included, as on one device.
+    records and resampling included, as on one device; the maps' spatial indexes (1024 slots) are
+    split with them.
     JAX fixes its device count at start-up, so this runs in a fresh interpreter."""
     code = textwrap.dedent("""
         import dataclasses, json
@@ -492,7 +493,7 @@ def test_particles_split_over_devices_give_the_same_run():
         from nanoslam_jax.app.filters import settings_from_config
         from nanoslam_jax.methods import run_filter
         cfg = load_config(None, ["data.t_end=40", "filter.n_particles=64", "filter.row_buckets=never",
-                                 "filter.split_devices=always"])
+                                 "filter.split_devices=always", "filter.capacity=1024"])
         log = load_log(cfg)
         static, params = settings_from_config(cfg, log.segments.k_max)
         one = run_filter(dataclasses.replace(static, devices=1), params, log.segments, 0)
@@ -515,6 +516,9 @@ def test_particles_split_over_devices_give_the_same_run():
             pose=float(np.max(np.abs(np.asarray(one.outputs.best_pose) - np.asarray(two.outputs.best_pose)))),
             log_w=float(np.max(np.abs(np.asarray(a.log_w) - np.asarray(b.log_w)))),
             maps=float(np.max(np.abs(np.asarray(a.landmarks.mean) - np.asarray(b.landmarks.mean)))),
+            index=float(np.max(np.abs(np.asarray(a.map_index.hi) - np.asarray(b.map_index.hi)), initial=0.0, where=np.isfinite(np.asarray(a.map_index.hi)))),
+            index_split=not b.map_index.hi.sharding.is_fully_replicated,
+            index_blocks=bool(np.array_equal(np.isfinite(np.asarray(a.map_index.hi)), np.isfinite(np.asarray(b.map_index.hi)))),
             resamples=[int(one.state.resample_count), int(two.state.resample_count)],
             landmarks=[int(np.sum(a.landmarks.active)), int(np.sum(b.landmarks.active))])))
     """)
@@ -525,6 +529,9 @@ def test_particles_split_over_devices_give_the_same_run():
     assert r["resamples"][0] == r["resamples"][1] > 0
     assert r["landmarks"][0] == r["landmarks"][1] > 0
     assert r["pose"] < 1e-9 and r["log_w"] < 1e-9 and r["maps"] < 1e-9, r
+    assert r["index_split"] and r["index_blocks"] and r["index"] < 1e-9, (
+        r
+    )  # the spatial index (1024 slots) travels with its map
     assert r["path_same_filter"] and r["path"] == 0.0 and r["path_branches"] == r["resamples"][1], r
 
 
