@@ -230,13 +230,18 @@ def free_slots(active: Bool[Array, " capacity"], k: int, slots: int | None = Non
     Args:
         active: which slots hold a landmark.
         k: how many free slots are wanted.
-        slots: search only the first ``slots`` slots (the search costs in proportion to them);
-            they must hold every active landmark and ``k`` free slots, e.g. a prefix holding
-            every active landmark plus ``k`` (default: all).
+        slots: search only the first ``slots`` slots (the search costs in proportion to them;
+            from :data:`SEARCH_FROM`, only the blocks holding the free slots found are
+            searched); they must hold every active landmark and ``k`` free slots, e.g. a prefix
+            holding every active landmark plus ``k`` (default: all).
     """
     capacity = active.shape[0]
     slots = capacity if slots is None else min(slots, capacity)
-    free, _ = first_true(~active[:slots], k)
+    span = min(-(-slots // SEARCH_BLOCK) * SEARCH_BLOCK, capacity)  # whole blocks, for the blocked search
+    if span >= SEARCH_FROM and span % SEARCH_BLOCK == 0:
+        free, _ = first_true_blocked(~active[:span], k)
+    else:
+        free, _ = first_true(~active[:slots], k)
     return free if slots == capacity else jnp.where(free < slots, free, capacity)
 
 

@@ -114,11 +114,12 @@ class _ParticleOut(NamedTuple):
     n_new: Int[Array, ""]
     window_overflow: Int[Array, ""]
     overflow: Int[Array, ""]
-    n_landmarks: Int[Array, ""]
-    n_confirmed: Int[Array, ""]
+    n_landmarks: Int[Array, ""] | None
+    n_confirmed: Int[Array, ""] | None
     noise: Float[Array, " d"]
     noise_count: Int[Array, ""]
     map_index: BlockIndex | None
+    slots: Int[Array, ""] | None
 
 
 class ParticleIn(NamedTuple):
@@ -243,7 +244,7 @@ def particle_update(
     rows = rows_over_buckets(
         static, params, proposal, x0, P0, R, RowInputs(det, m.existing, m.ps, dets.mask), particle.eps
     )
-    lm, index, overflow, (n_landmarks, n_confirmed) = _update_map(
+    lm, index, overflow, (n_landmarks, n_confirmed, slots) = _update_map(
         static, params, (particle.landmarks, particle.map_index), (local, idx), m, rows, seg._replace(dets=dets)
     )
     has_assoc = jnp.any(m.used)
@@ -264,6 +265,7 @@ def particle_update(
         noise=noise,
         noise_count=noise_count,
         map_index=index,
+        slots=slots,
     )
 
 
@@ -376,10 +378,11 @@ def _update_map(
     m: _Matches,
     rows: RowResults,
     seg: SegmentIn,
-) -> tuple[LandmarkMap, BlockIndex | None, Int[Array, ""], tuple[Int[Array, ""], Int[Array, ""]]]:
+) -> tuple[LandmarkMap, BlockIndex | None, Int[Array, ""], tuple[Optional[Int[Array, ""]], ...]]:
     """The particle's map (and its spatial index) after the scan: matched landmarks updated,
-    management over the window, the scan's new landmarks added; with the overflow and the
-    landmark counts."""
+    management over the window, the scan's new landmarks added; with the overflow and, when the
+    particles are split over devices, the landmark counts and one past the highest active slot
+    (else None: the step finds them)."""
     lm, index = mapped
     local, idx = window
     dets, mp = seg.dets, params.map
@@ -419,10 +422,14 @@ def _update_map(
     overflow = jnp.sum(m.assoc.is_new & (placed == lm.active.shape[0]))
     if index is not None:
         index = index.widen(updated, rows.upd_mean).widen(placed, new.mean)
+    if static.devices == 1:  # the step counts the best particle's landmarks and the slots in use
+        return lm, index, overflow, (None, None, None)
+    # Split over devices: counted where the maps are, with one past the particle's highest active slot.
     counts = _over_slot_bucket(
         static, seg.slot_bucket, lambda b, lm_: _counts(jax.tree.map(lambda a: a[: past(b)], lm_)), lm
     )
-    return lm, index, overflow, counts
+    used = jnp.asarray(lm.active.shape[0] if seg.slots_used is None else seg.slots_used + K)
+    return lm, index, overflow, (*counts, prefix_max(lm.active, used))
 
 
 def _started(
@@ -554,6 +561,13 @@ def _shared(
     return SegmentIn(seg.dt, seg.u, seg.dr_mask, dets, valid & seg.is_scan, scan, rel_prior, slot_bucket, in_use)
 
 
+def _slots_in_use(lm: LandmarkMap, before: Int[Array, " n"] | None, bound: Int[Array, ""]) -> Int[Array, ""]:
+    """One past the highest active slot of the particles' maps ``lm`` after the step (every active
+    one lies below ``bound``); split over devices, the highest of the particles' before resampling
+    (``before``), which bounds it too since resampling copies maps."""
+    return prefix_max(lm.active, bound) if before is None else jnp.max(before)
+
+
 def _reweight(
     log_w: Float[Array, " n"], dlogw: Float[Array, " n"], valid: Bool[Array, ""]
 ) -> tuple[Float[Array, " n"], Bool[Array, ""]]:
@@ -578,15 +592,17 @@ def _record(
     """The segment's record from every particle's outputs and the new weights."""
     n = log_w.shape[0]
     ess = effective_sample_size(log_w)
+    if out.n_landmarks is None or out.n_confirmed is None:  # one device: the best particle's map
+        n_landmarks, n_confirmed = _counts(jax.tree.map(lambda a: a[best], out.landmarks))
+    else:  # counted per particle where the maps are (the best one's would cross devices)
+        n_landmarks, n_confirmed = out.n_landmarks[best], out.n_confirmed[best]
     return StepOutput(
         best_pose=out.pose[best],
         mean_pose=weighted_mean_pose(out.pose, log_w),
         ess=ess,
         resampled=valid & (ess < resample_threshold * n),
-        # Counted per particle where the maps are (indexing the best particle's map instead would
-        # move every map between the devices at every step when the particles are split).
-        n_landmarks=out.n_landmarks[best],
-        n_confirmed=out.n_confirmed[best],
+        n_landmarks=n_landmarks,
+        n_confirmed=n_confirmed,
         iterations=jnp.sum(jnp.where(out.has_assoc, out.iterations, 0)) / jnp.maximum(jnp.sum(out.has_assoc), 1),
         n_capped=jnp.sum(out.result == 1).astype(jnp.int32),
         n_nonfinite=jnp.sum(out.result == 2).astype(jnp.int32),
@@ -672,12 +688,14 @@ def _step(
             parts, _, _ = args
             anc, best_after = ancestors(parts)
 
-            # This device's new particles may descend from any device's: gather all maps, block
-            # by block over the slots that can hold a landmark after this step.
+            # This device's new particles may descend from any device's: gather all maps (of a
+            # long map, block by block over the slots that can hold a landmark after this step;
+            # a short one whole, in one collective per field).
             def take(block):
                 return jax.tree.map(lambda a: jax.lax.all_gather(a, axis, tiled=True)[mine(anc)], block)
 
-            lms = map_prefix(take, parts.landmarks, in_use + static.k_max, axis=1)
+            short = static.capacity < SEARCH_FROM
+            lms = take(parts.landmarks) if short else map_prefix(take, parts.landmarks, in_use + static.k_max, axis=1)
             parts = jax.tree.map(lambda a: a[anc], parts._replace(landmarks=None, map_index=None))._replace(
                 landmarks=lms, map_index=take(parts.map_index)
             )
@@ -691,9 +709,7 @@ def _step(
         )
     if track:
         record = record._replace(poses=out.pose, ancestors=parents)
-    slots = prefix_max(particles.landmarks.active, in_use + static.k_max)
-    if axis is not None:
-        slots = jax.lax.pmax(slots, axis)
+    slots = _slots_in_use(particles.landmarks, out.slots, in_use + static.k_max)
     new_state = FilterState(
         particles=particles,
         key=key,

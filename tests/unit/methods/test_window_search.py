@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from nanoslam_jax import float64
 from nanoslam_jax.methods import LandmarkMap, gather_window
-from nanoslam_jax.methods.maps._landmarks import SEARCH_FROM, first_true, first_true_blocked
+from nanoslam_jax.methods.maps._landmarks import SEARCH_FROM, first_true, first_true_blocked, free_slots
 
 SLOTS = (1024, 2048)
 WINDOW = 64
@@ -99,3 +99,26 @@ def test_the_blocked_first_true_equals_nonzero(n, size):
         np.testing.assert_array_equal(np.asarray(got_idx[i]), want)
         np.testing.assert_array_equal(np.asarray(plain_idx[i]), want)
         assert int(got_n[i]) == int(plain_n[i]) == int(m.sum())
+
+
+@pytest.mark.parametrize("slots", [700, 1038, 2062, 4096])
+def test_the_free_slots_of_a_long_prefix_are_the_first_free_ones(slots):
+    """``free_slots`` over a prefix (the slot bucket plus one slot per detection; blocked from
+    1024 slots): the first ``k`` free slots below the prefix's end in order, ``capacity`` past
+    them, whatever the holes management left; numpy's brute force is the truth."""
+    capacity, k = 4096, 14
+    rng = np.random.default_rng(slots)
+    masks = []
+    for holes in (0.0, 0.002, 0.05, 0.5):
+        active = np.zeros(capacity, bool)
+        active[: slots - 10] = rng.random(slots - 10) >= holes
+        masks.append(active)
+    full = np.zeros(capacity, bool)
+    full[:slots] = True  # no free slot below the prefix's end
+    masks.append(full)
+    got = jax.vmap(lambda a: free_slots(a, k, slots))(jnp.asarray(np.stack(masks)))
+    for i, active in enumerate(masks):
+        want = np.full(k, capacity)
+        free = np.flatnonzero(~active[:slots])[:k]
+        want[: len(free)] = free
+        np.testing.assert_array_equal(np.asarray(got[i]), want)
