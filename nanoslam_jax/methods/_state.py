@@ -79,7 +79,7 @@ class LandmarkMap(NamedTuple):
 class BlockIndex(NamedTuple):
     """A map's spatial index: a box per block of :data:`SEARCH_BLOCK` slots that holds the
     positions (first two components) of the block's active landmarks, so that a window search
-    (:func:`~nanoslam_jax.methods.maps._index.gather_window_indexed`) visits only the blocks whose
+    (:func:`~nanoslam_jax.methods.maps._landmarks.gather_window` with ``index``) visits only the blocks whose
     box comes near the particle. The boxes only widen (:meth:`widen` at every write of a
     position); an empty block's box is empty (``lo = +inf``, ``hi = -inf``).
 
@@ -97,6 +97,14 @@ class BlockIndex(NamedTuple):
         leading batch axes."""
         shape = batch + (capacity // SEARCH_BLOCK, 2)
         return BlockIndex(jnp.full(shape, jnp.inf), jnp.full(shape, -jnp.inf))
+
+    @staticmethod
+    def of(lm: "LandmarkMap") -> "BlockIndex":
+        """The exact index of one map (capacity a multiple of the block): the boxes of the
+        positions of its active landmarks, block by block."""
+        act = lm.active.reshape(-1, SEARCH_BLOCK)[..., None]
+        xy = lm.mean[:, :2].reshape(-1, SEARCH_BLOCK, 2)
+        return BlockIndex(jnp.min(jnp.where(act, xy, jnp.inf), axis=1), jnp.max(jnp.where(act, xy, -jnp.inf), axis=1))
 
     def widen(self, slots: Int[Array, " k"], points: Float[Array, "k l"]) -> "BlockIndex":
         """The index after landmarks at ``points`` (their first two components) were written to

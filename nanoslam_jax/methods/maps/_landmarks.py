@@ -23,7 +23,7 @@ from nanoslam_jax.lib._linalg import chol_small, gaussian_logpdf, inv_small, is_
 from nanoslam_jax.lib._trig import computed_once
 from nanoslam_jax.models import AbstractMeasurementModel, Composite, OfKind, RangeBearing, wrap_angle
 from nanoslam_jax.lib.quadrature import Unscented, sigma_point_cross_cov, sigma_point_stats
-from nanoslam_jax.methods._state import SEARCH_BLOCK, SEARCH_FROM, LandmarkMap
+from nanoslam_jax.methods._state import SEARCH_BLOCK, SEARCH_FROM, BlockIndex, LandmarkMap
 
 
 def _model(model: AbstractMeasurementModel | None) -> AbstractMeasurementModel:
@@ -97,6 +97,7 @@ def gather_window(
     radius: Float[Array, ""],
     slots: int | None = None,
     model: AbstractMeasurementModel | None = None,
+    index: BlockIndex | None = None,
 ) -> tuple[LandmarkMap, Int[Array, " window"], Int[Array, ""]]:
     """The local map of one particle.
 
@@ -111,6 +112,11 @@ def gather_window(
         model: the measurement model, whose
             :meth:`~nanoslam_jax.models.AbstractMeasurementModel.window_distance2` measures the
             distance to a landmark (None: range-bearing, the Euclidean distance to a point).
+        index: the map's spatial index (point landmarks only), whose boxes hold every active
+            landmark: from :data:`SEARCH_FROM` slots only the blocks whose box comes within
+            ``radius`` are searched (the fewest of :data:`INDEX_BUDGETS` blocks that hold them, a
+            ``lax.switch`` on :func:`~nanoslam_jax.lib._batching.batch_max`, else every slot),
+            with the same result. None: every slot.
 
     Returns:
         The local map (``window`` slots; unused ones inactive, zero mean, unit covariance), the
@@ -118,8 +124,34 @@ def gather_window(
         landmarks within ``radius`` did not fit the window (0 unless the window is too small for
         the local landmark density; the lowest slots, i.e. the oldest landmarks, are kept).
     """
-    idx, n_near = window_slots(lm, position, window, radius, slots, model)
+    idx, n_near = window_slots(lm, position, window, radius, slots, model, index)
     return local_map(lm, idx), idx, jnp.maximum(n_near - window, 0)
+
+
+#: Blocks the search through a spatial index may visit (then every slot is searched).
+INDEX_BUDGETS = (2, 8, 32)
+
+
+def _near_in_blocks(
+    lm: LandmarkMap,
+    near_block: Bool[Array, " nb"],
+    k: int,
+    position: Float[Array, "2"],
+    window: int,
+    radius2: Float[Array, ""],
+    model: AbstractMeasurementModel,
+) -> tuple[Int[Array, " window"], Int[Array, ""]]:
+    """:func:`window_slots` from the first ``k`` near blocks (every near block, when there are at
+    most ``k``)."""
+    capacity, b, nb = lm.active.shape[0], SEARCH_BLOCK, near_block.shape[0]
+    blocks, _ = first_true(near_block, k)  # ``nb`` past the near blocks
+    slots = (blocks[:, None] * b + jnp.arange(b, dtype=jnp.int32)).reshape(-1)
+    mean = lm.mean.at[slots].get(mode="fill", fill_value=0.0)
+    active = lm.active.at[slots].get(mode="fill", fill_value=False) & (slots < nb * b)
+    near = active & (model.window_distance2(position, mean) < radius2)
+    j, n_near = first_true(near, window)
+    idx = slots.at[j].get(mode="fill", fill_value=capacity)
+    return jnp.where(idx < nb * b, idx, capacity), n_near
 
 
 def window_slots(
@@ -129,12 +161,22 @@ def window_slots(
     radius: Float[Array, ""],
     slots: int | None = None,
     model: AbstractMeasurementModel | None = None,
+    index: BlockIndex | None = None,
 ) -> tuple[Int[Array, " window"], Int[Array, ""]]:
     """The slots of :func:`gather_window`'s local map (``capacity`` for unused ones) and how many
     active landmarks lie within ``radius`` (of which the lowest ``window`` slots are kept)."""
     capacity = lm.active.shape[0]
     slots = capacity if slots is None else min(slots, capacity)
     model = _model(model)
+    nb = slots // SEARCH_BLOCK
+    budgets = tuple(k for k in INDEX_BUDGETS if k < nb)
+    if index is not None and slots >= SEARCH_FROM and slots % SEARCH_BLOCK == 0 and budgets:
+        near_block = index.near(position, jnp.square(radius), nb)
+        search = functools.partial(_near_in_blocks, lm, near_block)
+        branches = [functools.partial(search, k, position, window, jnp.square(radius), model) for k in budgets]
+        whole = functools.partial(window_slots, lm, position, window, radius, slots, model)
+        branch = batch_max(jnp.sum(jnp.sum(near_block) > jnp.asarray(budgets, jnp.int32)).astype(jnp.int32))
+        return jax.lax.switch(branch, [*branches, whole])
     if isinstance(model, Composite):  # each landmark by its type's distance
         assert lm.kind is not None, "a composite model's map has the kind field"
         model = model.of_kind(lm.kind[:slots])

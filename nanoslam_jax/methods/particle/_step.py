@@ -18,7 +18,6 @@ from nanoslam_jax.data import Segments
 from nanoslam_jax.models import circular_mean, is_composite
 from nanoslam_jax.methods.proposals import AbstractProposal, Detections
 from nanoslam_jax.methods.maps._association import (
-    Association,
     Gating,
     ScanDetections,
     associate,
@@ -26,36 +25,20 @@ from nanoslam_jax.methods.maps._association import (
     predicted_measurements,
 )
 from nanoslam_jax.methods.maps._landmarks import (
-    MANAGED_FIELDS,
-    SEARCH_FROM,
-    free_slots,
     gather_window,
-    place_landmarks,
-    scatter_window,
-    update_slots,
 )
-from nanoslam_jax.methods.maps._index import gather_window_indexed
 from nanoslam_jax.methods._params import Params, Static
 from nanoslam_jax.methods.particle._prior import compose_prior, predict, relative_prior
 from nanoslam_jax.lib._resampling import effective_sample_size, normalise
 from nanoslam_jax.methods.particle._rows import RowInputs, RowResults, rows_over_buckets
-from nanoslam_jax.methods.maps._management import (
-    Candidates,
-    Management,
-    diameter_update,
-    drop_stale,
-    manage_window,
-    manage_window_prefix,
-    new_landmarks,
-)
 from nanoslam_jax.methods.gaussian._srukf import adaptive_noise_rows
+from nanoslam_jax.methods.particle._map_update import Matches, SegmentIn, landmark_counts, over_slot_bucket, update_map
 from nanoslam_jax.methods._state import (
+    SEARCH_FROM,
     BlockIndex,
     FilterState,
     LandmarkMap,
     Particles,
-    count_confirmed,
-    count_landmarks,
 )
 
 
@@ -144,64 +127,6 @@ class ParticleIn(NamedTuple):
     map_index: BlockIndex | None = None
 
 
-class SegmentIn(NamedTuple):
-    """What one segment gives every particle (shared, not vmapped).
-
-    Attributes:
-        dt, u, dr_mask: the segment's odometry steps, controls and which steps are real.
-        dets: the scan's detections; ``dets.ident`` is given only with known association, and
-            ``dets.kind`` only for a composite measurement model.
-        observed: the segment is a laser scan. False marks padding, or a segment splitting a long
-            gap between scans: landmark management then counts no misses (for padding the caller
-            masks the pose and weight; with no detections the map is unchanged).
-        scan: the count of laser scans before this one (the clock of the landmarks' ``born``).
-        rel_prior: the segment's :func:`relative_prior`, shared by all particles, with
-            ``static.prior.reset``; the prior is then placed at the particle's pose
-            instead of propagated per particle (the same Gaussian up to rounding). None:
-            propagated per particle.
-        slot_bucket: index into ``static.slot_buckets`` of a map prefix that holds every active
-            landmark (the local window, and with management the free slots, are searched there;
-            None: the whole map). The same for all particles, so under ``vmap`` it stays a branch.
-        slots_used: one past the highest active slot of any particle (the stale tentative
-            landmarks are dropped below it; None: over the whole map).
-    """
-
-    dt: Float[Array, " dr"]
-    u: Float[Array, "dr c"]
-    dr_mask: Bool[Array, " dr"]
-    dets: ScanDetections
-    observed: Bool[Array, ""] | bool = True
-    scan: Int[Array, ""] | int = 0
-    rel_prior: tuple[Float[Array, "3"], Float[Array, "3 3"]] | None = None
-    slot_bucket: Int[Array, ""] | None = None
-    slots_used: Int[Array, ""] | None = None
-
-
-class _Matches(NamedTuple):
-    """How a scan's rows relate to one particle's local window (from the association).
-
-    Attributes:
-        assoc: the association.
-        matched: the row matched a landmark (of the window or started earlier in the scan).
-        existing: the row matched a landmark of the window.
-        provisional: the row matched the landmark an earlier row of this scan started.
-        ws: the local slot of a row that matched an existing landmark (clipped for the others).
-        ps: the row that started the landmark a row matched (clipped for the others).
-        trusted: the matched landmark may shape the proposal and the weight (with management:
-            a confirmed one, or any with ``map.use_tentative``).
-        used: the rows that shape the proposal and the weight.
-    """
-
-    assoc: Association
-    matched: Bool[Array, " k"]
-    existing: Bool[Array, " k"]
-    provisional: Bool[Array, " k"]
-    ws: Int[Array, " k"]
-    ps: Int[Array, " k"]
-    trusted: Bool[Array, " k"]
-    used: Bool[Array, " k"]
-
-
 def particle_update(
     static: Static, params: Params, proposal: AbstractProposal, particle: ParticleIn, seg: SegmentIn
 ) -> _ParticleOut:
@@ -226,10 +151,10 @@ def particle_update(
     x0, P0 = _prior(static, params, particle, seg)
     radius = params.max_range + params.window_margin
     W = static.window_size - K
-    local, idx, window_overflow = _over_slot_bucket(
+    local, idx, window_overflow = over_slot_bucket(
         static,
         seg.slot_bucket,
-        functools.partial(_gather, W, radius, params.measurement),
+        lambda b, lm, ix, x: gather_window(lm, x, W, radius, b, params.measurement, ix),
         particle.landmarks,
         particle.map_index,
         x0[:2],
@@ -244,7 +169,7 @@ def particle_update(
     rows = rows_over_buckets(
         static, params, proposal, x0, P0, R, RowInputs(det, m.existing, m.ps, dets.mask), particle.eps
     )
-    lm, index, overflow, (n_landmarks, n_confirmed, slots) = _update_map(
+    lm, index, overflow, (n_landmarks, n_confirmed, slots) = update_map(
         static, params, (particle.landmarks, particle.map_index), (local, idx), m, rows, seg._replace(dets=dets)
     )
     has_assoc = jnp.any(m.used)
@@ -269,14 +194,6 @@ def particle_update(
     )
 
 
-def _gather(window: int, radius, model, slots: int | None, lm: LandmarkMap, index: BlockIndex | None, position):
-    """The particle's local window from the first ``slots`` slots of its map, through its spatial
-    index where it keeps one and the prefix is long."""
-    if index is None or (slots is not None and slots < SEARCH_FROM):
-        return gather_window(lm, position, window, radius, slots, model)
-    return gather_window_indexed(lm, index, position, window, radius, slots, model)
-
-
 def _prior(
     static: Static, params: Params, particle: ParticleIn, seg: SegmentIn
 ) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
@@ -298,7 +215,7 @@ def _match(
     P0: Float[Array, "3 3"],
     dets: ScanDetections,
     R: Float[Array, "d d"],
-) -> _Matches:
+) -> Matches:
     """The scan's association with the particle's local window, and which rows it makes used."""
     mp = params.map
     gating = Gating(params.gate, params.new_landmark, static.sequential, mp.use_diameter, mp.sigma_diameter)
@@ -313,7 +230,7 @@ def _match(
     ws = jnp.clip(assoc.slot, 0, W - 1)
     # Rows that shape the proposal and the weight: with management, those of confirmed landmarks.
     trusted = (local.confirmed[ws] | mp.use_tentative) if static.manage else jnp.ones(K, bool)
-    return _Matches(
+    return Matches(
         assoc=assoc,
         matched=matched,
         existing=existing,
@@ -349,7 +266,7 @@ def _adapt_noise(
     return noise, noise_count
 
 
-def _log_weight(static: Static, params: Params, m: _Matches, rows: RowResults) -> Float[Array, ""]:
+def _log_weight(static: Static, params: Params, m: Matches, rows: RowResults) -> Float[Array, ""]:
     """The particle's log-weight increment: the used rows' likelihoods, ``p0`` for each row that
     weighs as a new landmark, and the likelihood at the sampled pose of rows matching a landmark
     started earlier in the scan."""
@@ -368,109 +285,6 @@ def _log_weight(static: Static, params: Params, m: _Matches, rows: RowResults) -
         + jnp.sum(m.assoc.is_new) * params.log_p0
         + jnp.sum(jnp.where(m.provisional, rows.llp, 0.0))
     )
-
-
-def _update_map(
-    static: Static,
-    params: Params,
-    mapped: tuple[LandmarkMap, BlockIndex | None],
-    window: tuple[LandmarkMap, Int[Array, " w"]],
-    m: _Matches,
-    rows: RowResults,
-    seg: SegmentIn,
-) -> tuple[LandmarkMap, BlockIndex | None, Int[Array, ""], tuple[Optional[Int[Array, ""]], ...]]:
-    """The particle's map (and its spatial index) after the scan: matched landmarks updated,
-    management over the window, the scan's new landmarks added; with the overflow and, when the
-    particles are split over devices, the landmark counts and one past the highest active slot
-    (else None: the step finds them)."""
-    lm, index = mapped
-    local, idx = window
-    dets, mp = seg.dets, params.map
-    W, K = local.active.shape[0], static.k_max
-    assert dets.diam is not None
-    # Diameters: each matched row updates its landmark's estimate (scalar Kalman filter).
-    var_d = jnp.square(mp.sigma_diameter)
-    cur_d = jnp.where(m.existing, local.diam[m.ws], dets.diam[m.ps])
-    cur_dv = jnp.where(m.existing, local.diam_var[m.ws], var_d)
-    upd_d, upd_dv = diameter_update(cur_d, cur_dv, dets.diam, mp.sigma_diameter)
-    new = _started(static, params, m, rows, dets, (upd_d, upd_dv), seg.scan)
-    upd = (rows.upd_mean, rows.upd_cov, upd_d, upd_dv)
-    if static.manage:
-        wt = jnp.where(m.existing, m.ws, W)
-        local = update_slots(local, wt, *upd)
-        seen = jnp.zeros(W, bool).at[wt].set(True, mode="drop")
-        policy = Management(mp, static.occlusion)
-
-        def manage(loc, sn):
-            return manage_window(loc, rows.pose, sn, dets, seg.observed, seg.scan, params.measurement, policy)
-
-        local = manage_window_prefix(local, seen, jnp.sum(local.active), manage)
-    # The matched rows' estimates go straight to their slots (k rows); of the window only the
-    # fields management changes are written back.
-    updated = jnp.where(m.existing, idx[m.ws], lm.active.shape[0])
-    lm = update_slots(lm, updated, *upd)
-    if static.manage:
-        lm = drop_stale(scatter_window(lm, local, idx, fields=MANAGED_FIELDS), seg.scan, mp, seg.slots_used)
-    # Every active landmark lies in the slot bucket before this scan (management only frees
-    # slots), so the scan's new landmarks go to its first K free slots at most K past it: the
-    # free slots are searched there and the map's landmarks counted there, not over the capacity.
-    past = lambda b: None if b is None else b + K  # noqa: E731
-    free = None
-    if static.manage:
-        free = _over_slot_bucket(static, seg.slot_bucket, lambda b, a: free_slots(a, K, past(b)), lm.active)
-    lm, placed = place_landmarks(lm, new, m.assoc.is_new, contiguous=not static.manage, free=free)
-    overflow = jnp.sum(m.assoc.is_new & (placed == lm.active.shape[0]))
-    if index is not None:
-        index = index.widen(updated, rows.upd_mean).widen(placed, new.mean)
-    if static.devices == 1:  # the step counts the best particle's landmarks and the slots in use
-        return lm, index, overflow, (None, None, None)
-    # Split over devices: counted where the maps are, with one past the particle's highest active slot.
-    counts = _over_slot_bucket(
-        static, seg.slot_bucket, lambda b, lm_: _counts(jax.tree.map(lambda a: a[: past(b)], lm_)), lm
-    )
-    used = jnp.asarray(lm.active.shape[0] if seg.slots_used is None else seg.slots_used + K)
-    return lm, index, overflow, (*counts, prefix_max(lm.active, used))
-
-
-def _started(
-    static: Static,
-    params: Params,
-    m: _Matches,
-    rows: RowResults,
-    dets: ScanDetections,
-    diam_upd: tuple[Float[Array, " k"], Float[Array, " k"]],
-    scan: Int[Array, ""] | int,
-) -> LandmarkMap:
-    """The landmarks the scan starts, as they leave it (a later detection of the scan may have
-    updated one)."""
-    assert dets.diam is not None
-    K = static.k_max
-    upd_d, upd_dv = diam_upd
-    pt = jnp.where(m.provisional, m.ps, K)
-    cand = Candidates(
-        mean=rows.new_mean.at[pt].set(rows.upd_mean, mode="drop"),
-        cov=rows.new_cov.at[pt].set(rows.upd_cov, mode="drop"),
-        diam=dets.diam.at[pt].set(upd_d, mode="drop"),
-        diam_var=jnp.full(K, jnp.square(params.map.sigma_diameter)).at[pt].set(upd_dv, mode="drop"),
-        ident=dets.ident,
-        kind=dets.kind,
-    )
-    extra_hits = jnp.zeros(K, jnp.int32).at[pt].add(1, mode="drop")
-    return new_landmarks(cand, m.assoc.is_new, extra_hits, scan, params.map, static.manage)
-
-
-def _over_slot_bucket(static: Static, slot_bucket: Int[Array, ""] | None, fn, *operands):
-    """``fn(slots, *operands)`` with ``slots`` the size of the map prefix ``slot_bucket`` names (a
-    ``lax.switch`` over ``static.slot_buckets``; the index is the same for all particles, so under
-    ``vmap`` it stays one branch), or ``fn(None, *operands)`` (the whole map) without buckets."""
-    if slot_bucket is None or len(static.slot_buckets) == 1:
-        return fn(None, *operands)
-    return jax.lax.switch(slot_bucket, [functools.partial(fn, b) for b in static.slot_buckets], *operands)
-
-
-def _counts(lm: LandmarkMap) -> tuple[Int[Array, ""], Int[Array, ""]]:
-    """:func:`count_landmarks` and :func:`count_confirmed` of one particle's map, as int32."""
-    return count_landmarks(lm).astype(jnp.int32), count_confirmed(lm).astype(jnp.int32)
 
 
 def _gather_small(fields: dict, skip: tuple[str, ...], axis_name: str) -> dict:
@@ -593,7 +407,7 @@ def _record(
     n = log_w.shape[0]
     ess = effective_sample_size(log_w)
     if out.n_landmarks is None or out.n_confirmed is None:  # one device: the best particle's map
-        n_landmarks, n_confirmed = _counts(jax.tree.map(lambda a: a[best], out.landmarks))
+        n_landmarks, n_confirmed = landmark_counts(jax.tree.map(lambda a: a[best], out.landmarks))
     else:  # counted per particle where the maps are (the best one's would cross devices)
         n_landmarks, n_confirmed = out.n_landmarks[best], out.n_confirmed[best]
     return StepOutput(

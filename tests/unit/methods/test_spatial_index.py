@@ -19,9 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nanoslam_jax import float64
-from nanoslam_jax.methods import LandmarkMap
+from nanoslam_jax.methods import LandmarkMap, gather_window
 from nanoslam_jax.methods._state import SEARCH_BLOCK, SEARCH_FROM, BlockIndex, init_state, keeps_index
-from nanoslam_jax.methods.maps._index import gather_window_indexed
 from nanoslam_jax.models import Circle, LineSegment, RangeBearing
 
 WINDOW = 48
@@ -61,7 +60,7 @@ def _written(seed: int, slots: int, used: int, moves: float, removals: float, re
 @functools.cache
 def _search(slots: int, window: int):
     with float64():
-        return jax.jit(jax.vmap(lambda lm, ix, p, r: gather_window_indexed(lm, ix, p, window, r, slots)))
+        return jax.jit(jax.vmap(lambda lm, ix, p, r: gather_window(lm, p, window, r, slots, index=ix)))
 
 
 @settings(max_examples=40, deadline=None)
@@ -121,7 +120,7 @@ def test_the_boxes_kept_by_writes_are_the_exact_boxes_until_a_landmark_moves_or_
         np.testing.assert_array_equal(np.asarray(index.hi), blocks.max(1))
         lm = LandmarkMap.empty(slots)._replace(mean=jnp.asarray(xy), active=jnp.ones(slots, bool))
         assert int(jnp.sum(index.near(jnp.array([10.0, 0.0]), jnp.asarray(300.0**2), slots // SEARCH_BLOCK))) == 3
-        _, idx, overflow = gather_window_indexed(lm, index, jnp.array([10.0, 0.0]), WINDOW, jnp.asarray(300.0))
+        _, idx, overflow = gather_window(lm, jnp.array([10.0, 0.0]), WINDOW, jnp.asarray(300.0), index=index)
         want_idx, want_n = _brute(np.ones(slots, bool), xy, (10.0, 0.0), 300.0, WINDOW)
         np.testing.assert_array_equal(np.asarray(idx), want_idx)
         assert int(overflow) == want_n - WINDOW
