@@ -4,6 +4,7 @@ autodiff Jacobians, and Levenberg-Marquardt on the normal equations, whose pose 
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple, Optional
 
 import jax
@@ -11,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from nanoslam_jax.models import innovation, range_bearing, wrap_angle, wrap_angle_np
 
@@ -48,14 +50,35 @@ def _pad(n: int) -> int:
 _BAND = 5
 
 
-def _solve_normal(H: sp.spmatrix, rhs: np.ndarray, n_poses: int) -> np.ndarray:
-    """Solve ``H x = rhs`` for the smoother's normal matrix (symmetric positive definite): poses
-    first (a banded block, tied to each other only by consecutive odometry factors), then the
-    landmarks (a block-diagonal block). The poses are eliminated with a banded Cholesky
-    factorisation, the landmarks' Schur complement (dense, two unknowns per landmark) is solved,
-    and the poses are substituted back: exact, and linear in the number of poses."""
+#: The most entries (8 bytes each) of the dense pose-landmark block that :func:`_solve_normal`
+#: builds; a larger problem (a city-sized log) is solved by a sparse factorisation instead.
+DENSE_BUDGET = 1 << 27
+
+
+def _solve_normal(H: sp.spmatrix, rhs: np.ndarray, n_poses: int, dense_budget: int = DENSE_BUDGET) -> np.ndarray:
+    """Solve ``H x = rhs`` for the smoother's normal matrix (symmetric positive definite): the
+    ``n_poses`` pose unknowns first (a banded block, tied to each other only by consecutive odometry
+    factors), then the landmarks (a block-diagonal block).
+
+    While the pose-landmark block has at most ``dense_budget`` entries, the poses are eliminated
+    with a banded Cholesky factorisation, the landmarks' Schur complement (dense, two unknowns per
+    landmark) is solved, and the poses are substituted back: exact, and linear in the number of
+    poses. A larger problem is solved by SuperLU on the sparse matrix with a minimum-degree ordering
+    of its symmetric pattern, whose memory grows with the matrix's nonzeros, not with poses times
+    landmarks. Raises ``numpy.linalg.LinAlgError`` where the matrix is singular to working precision.
+    """
     H = H.tocsr()
     nP = n_poses
+    if nP * (H.shape[0] - nP) > dense_budget:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", spla.MatrixRankWarning)
+            try:
+                x = spla.spsolve(H.tocsc(), rhs, permc_spec="MMD_AT_PLUS_A")
+            except (spla.MatrixRankWarning, RuntimeError) as err:
+                raise np.linalg.LinAlgError(f"smoother: the normal matrix is singular ({err})") from err
+        if not np.all(np.isfinite(x)):
+            raise np.linalg.LinAlgError("smoother: the sparse solve of the normal matrix is not finite")
+        return x
     A = H[:nP, :nP].tocoo()
     upper = A.col >= A.row
     if np.any(A.col - A.row > _BAND):

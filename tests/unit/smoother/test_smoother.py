@@ -24,11 +24,9 @@ def _wrap(a):
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def test_structured_solve_equals_a_dense_solve():
-    """Poses eliminated by banded Cholesky, landmarks by their Schur complement: the same solution
-    as numpy's dense solver on a matrix of the smoother's structure."""
-    rng = np.random.default_rng(0)
-    T, M = 30, 5
+def _structured_normal_matrix(rng, T=30, M=5):
+    """A normal matrix of the smoother's structure: odometry ties consecutive poses, each detection
+    one pose and one landmark."""
     nP, n = 3 * T, 3 * T + 2 * M
     rows = []
     for t in range(T):  # odometry factor t ties pose t-1 (if any) and pose t
@@ -46,9 +44,31 @@ def test_structured_solve_equals_a_dense_solve():
             r[nP + 2 * j : nP + 2 * j + 2] = rng.normal(size=2)
             rows.append(r)
     J = np.array(rows)
-    H = J.T @ J
-    b = rng.normal(size=n)
-    np.testing.assert_allclose(_solve_normal(sp.csr_matrix(H), b, nP), np.linalg.solve(H, b), rtol=1e-9, atol=1e-9)
+    return J.T @ J, nP
+
+
+@pytest.mark.parametrize("dense_budget", [None, 0], ids=["banded-schur", "sparse-lu"])
+def test_structured_solve_equals_a_dense_solve(dense_budget):
+    """Poses eliminated by banded Cholesky and landmarks by their Schur complement (a small
+    problem), or SuperLU on the sparse matrix (one over the dense budget, forced here by a budget of
+    0): the same solution as numpy's dense solver on a matrix of the smoother's structure."""
+    rng = np.random.default_rng(0)
+    H, nP = _structured_normal_matrix(rng)
+    b = rng.normal(size=H.shape[0])
+    kw = {} if dense_budget is None else {"dense_budget": dense_budget}
+    x = _solve_normal(sp.csr_matrix(H), b, nP, **kw)
+    np.testing.assert_allclose(x, np.linalg.solve(H, b), rtol=1e-9, atol=1e-9)
+
+
+def test_sparse_solve_of_a_singular_matrix_raises_linalg_error():
+    """A landmark no detection constrains makes the matrix singular: the sparse path raises
+    ``LinAlgError`` (the damped step then damps more), never returns NaNs."""
+    rng = np.random.default_rng(1)
+    H, nP = _structured_normal_matrix(rng)
+    H[-2:, :] = 0.0
+    H[:, -2:] = 0.0
+    with pytest.raises(np.linalg.LinAlgError):
+        _solve_normal(sp.csr_matrix(H), rng.normal(size=H.shape[0]), nP, dense_budget=0)
 
 
 def _problem(seed=0, T=40, noise=True):
