@@ -98,14 +98,6 @@ class BlockIndex(NamedTuple):
         shape = batch + (capacity // SEARCH_BLOCK, 2)
         return BlockIndex(jnp.full(shape, jnp.inf), jnp.full(shape, -jnp.inf))
 
-    @staticmethod
-    def of(lm: "LandmarkMap") -> "BlockIndex":
-        """The exact index of one map (capacity a multiple of the block): the boxes of the
-        positions of its active landmarks, block by block."""
-        act = lm.active.reshape(-1, SEARCH_BLOCK)[..., None]
-        xy = lm.mean[:, :2].reshape(-1, SEARCH_BLOCK, 2)
-        return BlockIndex(jnp.min(jnp.where(act, xy, jnp.inf), axis=1), jnp.max(jnp.where(act, xy, -jnp.inf), axis=1))
-
     def widen(self, slots: Int[Array, " k"], points: Float[Array, "k l"]) -> "BlockIndex":
         """The index after landmarks at ``points`` (their first two components) were written to
         ``slots`` (those at or past the capacity are ignored)."""

@@ -50,6 +50,20 @@ def _pad(n: int) -> int:
 _BAND = 5
 
 
+def _solve_sparse(H: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
+    """``H x = rhs`` by SuperLU with a minimum-degree ordering of ``H``'s symmetric pattern;
+    ``LinAlgError`` where ``H`` is singular to working precision (never NaNs)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", spla.MatrixRankWarning)
+        try:
+            x = spla.spsolve(H.tocsc(), rhs, permc_spec="MMD_AT_PLUS_A")
+        except (spla.MatrixRankWarning, RuntimeError) as err:
+            raise np.linalg.LinAlgError(f"smoother: the normal matrix is singular ({err})") from err
+    if not np.all(np.isfinite(x)):
+        raise np.linalg.LinAlgError("smoother: the sparse solve of the normal matrix is not finite")
+    return x
+
+
 #: The most entries (8 bytes each) of the dense pose-landmark block that :func:`_solve_normal`
 #: builds; a larger problem (a city-sized log) is solved by a sparse factorisation instead.
 DENSE_BUDGET = 1 << 27
@@ -67,18 +81,10 @@ def _solve_normal(H: sp.spmatrix, rhs: np.ndarray, n_poses: int, dense_budget: i
     of its symmetric pattern, whose memory grows with the matrix's nonzeros, not with poses times
     landmarks. Raises ``numpy.linalg.LinAlgError`` where the matrix is singular to working precision.
     """
-    H = H.tocsr()
     nP = n_poses
     if nP * (H.shape[0] - nP) > dense_budget:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", spla.MatrixRankWarning)
-            try:
-                x = spla.spsolve(H.tocsc(), rhs, permc_spec="MMD_AT_PLUS_A")
-            except (spla.MatrixRankWarning, RuntimeError) as err:
-                raise np.linalg.LinAlgError(f"smoother: the normal matrix is singular ({err})") from err
-        if not np.all(np.isfinite(x)):
-            raise np.linalg.LinAlgError("smoother: the sparse solve of the normal matrix is not finite")
-        return x
+        return _solve_sparse(H, rhs)
+    H = H.tocsr()
     A = H[:nP, :nP].tocoo()
     upper = A.col >= A.row
     if np.any(A.col - A.row > _BAND):

@@ -171,9 +171,10 @@ def window_slots(
     nb = slots // SEARCH_BLOCK
     budgets = tuple(k for k in INDEX_BUDGETS if k < nb)
     if index is not None and slots >= SEARCH_FROM and slots % SEARCH_BLOCK == 0 and budgets:
-        near_block = index.near(position, jnp.square(radius), nb)
+        radius2 = jnp.square(radius)
+        near_block = index.near(position, radius2, nb)
         search = functools.partial(_near_in_blocks, lm, near_block)
-        branches = [functools.partial(search, k, position, window, jnp.square(radius), model) for k in budgets]
+        branches = [functools.partial(search, k, position, window, radius2, model) for k in budgets]
         whole = functools.partial(window_slots, lm, position, window, radius, slots, model)
         branch = batch_max(jnp.sum(jnp.sum(near_block) > jnp.asarray(budgets, jnp.int32)).astype(jnp.int32))
         return jax.lax.switch(branch, [*branches, whole])

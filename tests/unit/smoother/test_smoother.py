@@ -10,7 +10,7 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from nanoslam_jax.app.config import ConfigError, load_config
-from nanoslam_jax.smoother._least_squares import _solve_normal
+from nanoslam_jax.smoother._least_squares import DENSE_BUDGET, _solve_normal
 from nanoslam_jax.smoother._smoother import (
     DetectionNoise,
     SegmentData,
@@ -47,7 +47,7 @@ def _structured_normal_matrix(rng, T=30, M=5):
     return J.T @ J, nP
 
 
-@pytest.mark.parametrize("dense_budget", [None, 0], ids=["banded-schur", "sparse-lu"])
+@pytest.mark.parametrize("dense_budget", [DENSE_BUDGET, 0], ids=["banded-schur", "sparse-lu"])
 def test_structured_solve_equals_a_dense_solve(dense_budget):
     """Poses eliminated by banded Cholesky and landmarks by their Schur complement (a small
     problem), or SuperLU on the sparse matrix (one over the dense budget, forced here by a budget of
@@ -55,8 +55,7 @@ def test_structured_solve_equals_a_dense_solve(dense_budget):
     rng = np.random.default_rng(0)
     H, nP = _structured_normal_matrix(rng)
     b = rng.normal(size=H.shape[0])
-    kw = {} if dense_budget is None else {"dense_budget": dense_budget}
-    x = _solve_normal(sp.csr_matrix(H), b, nP, **kw)
+    x = _solve_normal(sp.csr_matrix(H), b, nP, dense_budget)
     np.testing.assert_allclose(x, np.linalg.solve(H, b), rtol=1e-9, atol=1e-9)
 
 
