@@ -124,6 +124,13 @@ def keeps_index(capacity: int, model: AbstractMeasurementModel) -> bool:
     return capacity >= SEARCH_FROM and capacity % SEARCH_BLOCK == 0 and point
 
 
+def keeps_versions(capacity: int, devices: int) -> bool:
+    """Whether the particles' maps of ``capacity`` slots keep block versions
+    (``Particles.map_version``): from :data:`SEARCH_FROM` slots (a multiple of the block), on one
+    device (split over devices, resampling gathers the maps across them)."""
+    return capacity >= SEARCH_FROM and capacity % SEARCH_BLOCK == 0 and devices == 1
+
+
 class Particles(NamedTuple):
     """The particle set.
 
@@ -138,6 +145,10 @@ class Particles(NamedTuple):
         noise_count: residuals each particle's adaptive estimate has seen.
         map_index: each particle's :class:`BlockIndex` of its map, kept where :func:`keeps_index`
             (None: the window is searched over the map).
+        map_version: each particle's version of each block of :data:`SEARCH_BLOCK` slots of its
+            map, kept where :func:`keeps_versions`: two particles' blocks with the same version
+            hold the same slots, so that resampling copies only the blocks that differ from the
+            ancestor's (None: it copies the slots in use).
     """
 
     pose: Float[Array, "particles 3"]
@@ -147,6 +158,7 @@ class Particles(NamedTuple):
     noise: Float[Array, "particles d"]
     noise_count: Int[Array, " particles"]
     map_index: BlockIndex | None = None
+    map_version: Int[Array, "particles blocks"] | None = None
 
 
 class FilterState(NamedTuple):
@@ -190,6 +202,11 @@ def init_state(static: Static, params: Params, key: Key[Array, ""]) -> FilterSta
         noise=jnp.broadcast_to(jnp.diagonal(params.R), (n, params.measurement.measurement_dim)),
         noise_count=jnp.zeros(n, jnp.int32),
         map_index=BlockIndex.empty(static.capacity, (n,)) if keeps_index(static.capacity, params.measurement) else None,
+        map_version=(
+            jnp.zeros((n, static.capacity // SEARCH_BLOCK), jnp.int32)
+            if keeps_versions(static.capacity, static.devices)
+            else None
+        ),
     )
     zero = jnp.zeros((), jnp.int32)
     return FilterState(particles, key, zero, zero, zero, zero, zero)

@@ -100,11 +100,13 @@ def update_map(
     m: Matches,
     rows: RowResults,
     seg: SegmentIn,
-) -> tuple[LandmarkMap, BlockIndex | None, Int[Array, ""], tuple[Optional[Int[Array, ""]], ...]]:
+) -> tuple[LandmarkMap, BlockIndex | None, Int[Array, ""], tuple[Optional[Int[Array, ""]], ...], Int[Array, " m"]]:
     """The particle's map (and its spatial index) after the scan: matched landmarks updated,
-    management over the window, the scan's new landmarks added; with the overflow and, when the
-    particles are split over devices, the landmark counts and one past the highest active slot
-    (else None: the step finds them)."""
+    management over the window, the scan's new landmarks added; with the overflow, when the
+    particles are split over devices the landmark counts and one past the highest active slot
+    (else None: the step finds them), and the slots written (the capacity for none; besides
+    these, only the stale tentative landmarks' ``active`` changes, the same function of every
+    particle's slots)."""
     lm, index = mapped
     local, idx = window
     dets, mp = seg.dets, params.map
@@ -144,14 +146,15 @@ def update_map(
     overflow = jnp.sum(m.assoc.is_new & (placed == lm.active.shape[0]))
     if index is not None:
         index = index.widen(updated, rows.upd_mean).widen(placed, new.mean)
+    written = jnp.concatenate([idx if static.manage else updated, placed])
     if static.devices == 1:  # the step counts the best particle's landmarks and the slots in use
-        return lm, index, overflow, (None, None, None)
+        return lm, index, overflow, (None, None, None), written
     # Split over devices: counted where the maps are, with one past the particle's highest active slot.
     counts = over_slot_bucket(
         static, seg.slot_bucket, lambda b, lm_: landmark_counts(jax.tree.map(lambda a: a[: past(b)], lm_)), lm
     )
     used = jnp.asarray(lm.active.shape[0] if seg.slots_used is None else seg.slots_used + K)
-    return lm, index, overflow, (*counts, prefix_max(lm.active, used))
+    return lm, index, overflow, (*counts, prefix_max(lm.active, used)), written
 
 
 def _started(

@@ -32,6 +32,7 @@ from nanoslam_jax.methods.particle._prior import compose_prior, predict, relativ
 from nanoslam_jax.lib._resampling import effective_sample_size, normalise
 from nanoslam_jax.methods.particle._rows import RowInputs, RowResults, rows_over_buckets
 from nanoslam_jax.methods.gaussian._srukf import adaptive_noise_rows
+from nanoslam_jax.methods.particle._resample import mark_written, take_changed_blocks
 from nanoslam_jax.methods.particle._map_update import Matches, SegmentIn, landmark_counts, over_slot_bucket, update_map
 from nanoslam_jax.methods._state import (
     SEARCH_FROM,
@@ -103,6 +104,7 @@ class _ParticleOut(NamedTuple):
     noise_count: Int[Array, ""]
     map_index: BlockIndex | None
     slots: Int[Array, ""] | None
+    written: Int[Array, " m"]
 
 
 class ParticleIn(NamedTuple):
@@ -169,7 +171,7 @@ def particle_update(
     rows = rows_over_buckets(
         static, params, proposal, x0, P0, R, RowInputs(det, m.existing, m.ps, dets.mask), particle.eps
     )
-    lm, index, overflow, (n_landmarks, n_confirmed, slots) = update_map(
+    lm, index, overflow, (n_landmarks, n_confirmed, slots), written = update_map(
         static, params, (particle.landmarks, particle.map_index), (local, idx), m, rows, seg._replace(dets=dets)
     )
     has_assoc = jnp.any(m.used)
@@ -191,6 +193,7 @@ def particle_update(
         noise_count=noise_count,
         map_index=index,
         slots=slots,
+        written=written,
     )
 
 
@@ -382,6 +385,17 @@ def _slots_in_use(lm: LandmarkMap, before: Int[Array, " n"] | None, bound: Int[A
     return prefix_max(lm.active, bound) if before is None else jnp.max(before)
 
 
+def _take_maps(
+    flag: Bool[Array, ""], anc: Int[Array, " n"], particles: Particles, used: Int[Array, ""]
+) -> tuple[LandmarkMap, Int[Array, "n blocks"] | None]:
+    """The maps (and their block versions) after a resampling to ancestors ``anc`` if ``flag``:
+    with block versions, only the blocks that differ from the ancestor's are copied; without,
+    the slots below ``used``."""
+    if particles.map_version is None:
+        return take_prefix_if(flag, anc, particles.landmarks, used), None
+    return take_changed_blocks(flag, anc, particles.landmarks, particles.map_version, used)
+
+
 def _reweight(
     log_w: Float[Array, " n"], dlogw: Float[Array, " n"], valid: Bool[Array, ""]
 ) -> tuple[Float[Array, " n"], Bool[Array, ""]]:
@@ -460,7 +474,7 @@ def _step(
     )
     out = jax.vmap(particle_update, (None, None, None, 0, None))(static, params, proposal, particle, shared)
     if axis is not None:
-        out = out._replace(**_gather_small(out._asdict(), ("landmarks", "map_index"), axis))
+        out = out._replace(**_gather_small(out._asdict(), ("landmarks", "map_index", "written"), axis))
     out = out._replace(
         pose=jnp.where(valid, out.pose, p.pose),
         pose_cov=jnp.where(valid, out.pose_cov, p.pose_cov),
@@ -470,7 +484,10 @@ def _step(
     )
     log_w, finite = _reweight(p.log_w, out.dlogw, valid)
     best = jnp.argmax(log_w).astype(jnp.int32)
-    particles = Particles(out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count, out.map_index)
+    version = None if p.map_version is None else mark_written(p.map_version, out.written, state.resample_count)
+    particles = Particles(
+        out.pose, out.pose_cov, log_w, out.landmarks, out.noise, out.noise_count, out.map_index, version
+    )
     record = _record(out, log_w, best, valid, finite, params.resample_threshold)
 
     def ancestors(parts):
@@ -491,9 +508,13 @@ def _step(
         log_w = jnp.where(record.resampled, uniform, particles.log_w)
         # Of the maps, only the slots that can hold a landmark after this step are copied: those
         # below the step's start plus one new landmark per detection.
-        lms = take_prefix_if(record.resampled, anc, particles.landmarks, in_use + static.k_max)
-        rest = take_if(record.resampled, anc, particles._replace(log_w=log_w)._asdict() | {"landmarks": None})
-        particles = Particles(**rest | {"landmarks": lms})
+        lms, version = _take_maps(record.resampled, anc, particles, in_use + static.k_max)
+        rest = take_if(
+            record.resampled,
+            anc,
+            particles._replace(log_w=log_w)._asdict() | {"landmarks": None, "map_version": None},
+        )
+        particles = Particles(**rest | {"landmarks": lms, "map_version": version})
         best = jnp.where(record.resampled, best_after, best)
         parents = jnp.where(record.resampled, anc, jnp.arange(n, dtype=anc.dtype)) if track else None
     else:
