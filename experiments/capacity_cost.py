@@ -5,11 +5,17 @@ smallest capacity, the RMSE and the map (identical wherever the map fits every c
 
     python experiments/capacity_cost.py
     python experiments/capacity_cost.py --particles 10 --capacity 512 4096 --set filter.split_devices=never
+    python experiments/capacity_cost.py --capacity 512 16384 --repeats 5
+
+With ``--repeats R`` the capacities are run in turn R times (the order reversed every other
+round) and the table gives each capacity's median milliseconds per scan, every run's in
+brackets, and the median over the rounds of each round's ratio to the smallest capacity.
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import tempfile
 
 from nanoslam_jax.app.config import load_config
@@ -21,28 +27,36 @@ def main() -> None:
     ap.add_argument("--particles", type=int, default=100, help="filter.n_particles")
     ap.add_argument("--capacity", type=int, nargs="+", default=[512, 2048, 8192, 16384], help="filter.capacity values")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument("--repeats", type=int, default=1, help="rounds over the capacities")
     args = ap.parse_args()
-    rows = []
-    for cap in args.capacity:
-        cfg = load_config(
-            None,
-            [
-                f"filter.n_particles={args.particles}",
-                f"filter.capacity={cap}",
-                "output.plots=false",
-                "output.progress=false",
-                *args.overrides,
-            ],
-        )
-        with tempfile.TemporaryDirectory() as out:
-            rows.append((cap, run_experiment(cfg, out, progress=False)))
-    base = rows[0][1]["ms_per_scan"]
+    runs: dict[int, list[dict]] = {cap: [] for cap in args.capacity}
+    for r in range(args.repeats):
+        for cap in args.capacity if r % 2 == 0 else args.capacity[::-1]:
+            cfg = load_config(
+                None,
+                [
+                    f"filter.n_particles={args.particles}",
+                    f"filter.capacity={cap}",
+                    "output.plots=false",
+                    "output.progress=false",
+                    *args.overrides,
+                ],
+            )
+            with tempfile.TemporaryDirectory() as out:
+                runs[cap].append(run_experiment(cfg, out, progress=False))
+    base = runs[args.capacity[0]]
     print(f"\nNANO-SLAM, {args.particles} particles, embedded default log\n")
     print("| capacity | ms per scan | vs smallest | RMSE [m] | landmarks (confirmed) | overflow |")
     print("|---|---|---|---|---|---|")
-    for cap, m in rows:
+    for cap, ms in runs.items():
+        each = [m["ms_per_scan"] for m in ms]
+        ratio = statistics.median(a["ms_per_scan"] / b["ms_per_scan"] for a, b in zip(ms, base))
+        shown = f"{statistics.median(each):.2f}" + (
+            f" ({', '.join(f'{x:.2f}' for x in each)})" if len(each) > 1 else ""
+        )
+        m = ms[0]
         print(
-            f"| {cap} | {m['ms_per_scan']:.2f} | {m['ms_per_scan'] / base:.2f}x | {m['rmse_fixed']:.3f} "
+            f"| {cap} | {shown} | {ratio:.2f}x | {m['rmse_fixed']:.3f} "
             f"| {m['n_landmarks']} ({m['n_confirmed']}) | {m.get('landmark_overflow', 0)} |"
         )
 

@@ -11,11 +11,17 @@ RMSE on the same log::
     python experiments/city_cost.py                        # the full 20 km city (about 5 min on 2 cores)
     python experiments/city_cost.py --distance 3000        # a 3 km drive through the same city
     python experiments/city_cost.py --particles 10 --capacity 4096 --set city.blocks=6
+    python experiments/city_cost.py --repeats 3            # each log 3 times, alternating; medians
+
+With ``--repeats`` the logs are run in turn (city, park, city, park, ...) and the table gives
+each log's median milliseconds per scan with every run's in brackets, and the ratio of the
+medians: on a shared machine the park's short run varies by tens of percent from run to run.
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import tempfile
 import time
 
@@ -39,6 +45,7 @@ def main() -> None:
     ap.add_argument("--capacity", type=int, default=16384, help="filter.capacity (landmark slots per particle)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--skip-park", action="store_true", help="only the city")
+    ap.add_argument("--repeats", type=int, default=1, help="runs of each log, in turn")
     args = ap.parse_args()
     common = [
         "filter.method=nano",
@@ -48,20 +55,32 @@ def main() -> None:
         "output.progress=false",
         *args.overrides,
     ]
-    rows = [_row(f"city {args.distance / 1000:g} km", ["data.kind=city", f"city.distance_m={args.distance}", *common])]
+    logs = [(f"city {args.distance / 1000:g} km", ["data.kind=city", f"city.distance_m={args.distance}", *common])]
     if not args.skip_park:
-        rows.append(_row("park (default simulated)", ["data.kind=simulated", *common]))
+        logs.append(("park (default simulated)", ["data.kind=simulated", *common]))
+    runs: dict[str, list[dict]] = {label: [] for label, _ in logs}
+    for _ in range(args.repeats):
+        for label, overrides in logs:
+            runs[label].append(_row(label, overrides))
     print(f"\nNANO-SLAM, {args.particles} particles, filter.capacity {args.capacity}\n")
     print(
         "| log | ms per scan | scans | landmarks (confirmed) | overflow | RMSE [m] | dead reckoning RMSE [m] | wall [s] |"
     )
     print("|---|---|---|---|---|---|---|---|")
-    for r in rows:
+    medians = {}
+    for label, rows in runs.items():
+        ms = [r["ms_per_scan"] for r in rows]
+        medians[label] = statistics.median(ms)
+        each = f" ({', '.join(f'{m:.1f}' for m in ms)})" if len(ms) > 1 else ""
+        r = rows[0]
         print(
-            f"| {r['label']} | {r['ms_per_scan']:.1f} | {r['n_segments']} | {r['n_landmarks']} ({r['n_confirmed']}) | "
+            f"| {label} | {medians[label]:.1f}{each} | {r['n_segments']} | {r['n_landmarks']} ({r['n_confirmed']}) | "
             f"{r['landmark_overflow']} | {r['rmse_fixed']:.2f} | {r.get('dr_rmse_fixed', float('nan')):.2f} | "
-            f"{r['wall_s']:.0f} |"
+            f"{statistics.median(x['wall_s'] for x in rows):.0f} |"
         )
+    if len(medians) == 2:
+        city, park = medians.values()
+        print(f"\ncity / park (medians): {city / park:.2f}x")
 
 
 if __name__ == "__main__":
