@@ -46,7 +46,7 @@ def mark_written(
     n, blocks = version.shape
     fresh = epoch.astype(version.dtype) * n + jnp.arange(1, n + 1, dtype=version.dtype)
     rows = jnp.broadcast_to(jnp.arange(n)[:, None], written.shape)
-    block = jnp.minimum(written // SEARCH_BLOCK, blocks)  # ``blocks``: dropped
+    block = written // SEARCH_BLOCK  # from ``blocks`` on (no slot written): dropped
     return version.at[rows, block].set(jnp.broadcast_to(fresh[:, None], written.shape), mode="drop")
 
 
@@ -85,12 +85,12 @@ def take_changed_blocks(
     theirs = version[indices]
     ordered = jnp.all(indices[1:] >= indices[:-1])
     stale = (flag & ordered) & in_use & (theirs != version)
-    up, down = stale & (indices > rows)[:, None], stale & (indices < rows)[:, None]
     chunk = COPY_CHUNK * n
     size = n * blocks + chunk  # every entry, then a pass's worth past the last
     none = jnp.full(size, n * blocks, jnp.int32)
 
     def lists(_):
+        up, down = stale & (indices > rows)[:, None], stale & (indices < rows)[:, None]
         (a, ca), (b, cb) = first_true(up.reshape(-1), size), first_true(down.reshape(-1), size)
         return a, ca, b, cb
 
