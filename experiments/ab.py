@@ -3,17 +3,21 @@
     python experiments/ab.py HEAD~3                                # A = HEAD~3, B = the working tree
     python experiments/ab.py v0.4 main --particles 10 100 1000 --rounds 4
     python experiments/ab.py HEAD~1 --config configs/victoria_park_fastslam1.yaml --set data.t_end=300
+    python experiments/ab.py v0.4 main --particles 10 100 --rounds 1 --compile-rounds 6   # first-run compile
 
 Revision A (and B, when given) is checked out with ``git worktree add --detach`` into a temporary
 directory; without B, B is the working tree as it stands. Each run is ``nanoslam run CONFIG --set
 filter.n_particles=N`` in a fresh process whose ``PYTHONPATH`` is that tree, so any layout of the
-package works, however it was refactored. Each tree has its own persistent compilation cache (a
-temporary directory): the first round compiles, later rounds load. Rounds alternate the order
-(A B, B A, ...) so that a machine whose speed drifts slows both alike.
+package works, however it was refactored. Each tree has its own persistent compilation cache per
+particle count (a temporary directory, empty at first): the first round compiles, later rounds
+load. Rounds alternate the order (A B, B A, ...) so that a machine whose speed drifts slows both
+alike. With ``--compile-rounds K`` the first-run compile is measured K times, each run starting
+from an empty cache, also in alternating order.
 
 The table gives, per particle count, the median run time of each revision (``run_s`` of
 ``metrics.json``: the filter after compilation), the ratio of the medians B / A and the median of
-the per-round ratios, the first round's compile time of each, and the largest difference between
+the per-round ratios, the median first-run compile time (``compile_s``) of each and the median of
+the compile rounds' ratios B / A, and the largest difference between
 the two revisions' trajectories and maps (``trajectory.csv`` to 1e-6, ``map.csv`` to 9 digits;
 0 means identical outputs at that precision).
 """
@@ -89,6 +93,19 @@ def _difference(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.abs(a - b), initial=0.0))
 
 
+def _compile_rounds(trees: dict, first: dict, args: argparse.Namespace, n: int, extra: list[str], tmp: Path) -> dict:
+    """First-run compile times of each tree: round 0's, then ``--compile-rounds - 1`` more runs, each
+    from an empty cache, in alternating order (B A, A B, ...)."""
+    compiles = {k: [first[k]["compile_s"]] for k in trees}
+    for r in range(1, args.compile_rounds):
+        for k in ("B", "A") if r % 2 == 1 else ("A", "B"):
+            cache = tmp / f"fresh-{k}-{n}-{r}"
+            res = _run(trees[k], cache, args.config, n, extra, tmp / f"out-{k}", args.data)
+            compiles[k].append(res["compile_s"])
+            shutil.rmtree(cache, ignore_errors=True)
+    return compiles
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("a", help="revision A (anything `git worktree add` takes)")
@@ -96,20 +113,25 @@ def main() -> None:
     p.add_argument("--config", default="configs/victoria_park_nano.yaml", help="the run config, relative to a tree")
     p.add_argument("--particles", type=int, nargs="+", default=[10, 100, 1000])
     p.add_argument("--rounds", type=int, default=3, help="timed runs of each revision per particle count")
+    p.add_argument(
+        "--compile-rounds", type=int, default=1, help="first runs from an empty cache per revision and particle count"
+    )
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a config override for both")
     p.add_argument("--data", help="the log directory (--data of `nanoslam run`)")
     p.add_argument("--json", help="also write the table here")
     args = p.parse_args()
     if args.rounds < 1:
         p.error("--rounds: expected at least 1")
+    if args.compile_rounds < 1:
+        p.error("--compile-rounds: expected at least 1")
     extra = [x for kv in args.set for x in ("--set", kv)]
     with tempfile.TemporaryDirectory(prefix="nanoslam-ab-") as tmp:
         tmp = Path(tmp)
         trees = {"A": _worktree(args.a, tmp / "a"), "B": _worktree(args.b, tmp / "b") if args.b else ROOT}
-        caches = {k: tmp / f"cache-{k}" for k in trees}
         rows = []
         try:
             for n in args.particles:
+                caches = {k: tmp / f"cache-{k}-{n}" for k in trees}
                 times: dict[str, list[float]] = {"A": [], "B": []}
                 first: dict[str, dict] = {}
                 for r in range(args.rounds + 1):  # round 0 compiles (into each tree's cache) and is not timed
@@ -119,15 +141,18 @@ def main() -> None:
                             first[k] = res
                         else:
                             times[k].append(res["run_s"])
+                compiles = _compile_rounds(trees, first, args, n, extra, tmp)
                 a, b = np.array(times["A"]), np.array(times["B"])
+                ca, cb = np.array(compiles["A"]), np.array(compiles["B"])
                 row = {
                     "particles": n,
                     "a_run_s": float(np.median(a)),
                     "b_run_s": float(np.median(b)),
                     "ratio_of_medians": float(np.median(b) / np.median(a)),
                     "median_round_ratio": float(np.median(b / a)),
-                    "a_compile_s": first["A"]["compile_s"],
-                    "b_compile_s": first["B"]["compile_s"],
+                    "a_compile_s": float(np.median(ca)),
+                    "b_compile_s": float(np.median(cb)),
+                    "compile_round_ratio": float(np.median(cb / ca)),
                     "trajectory_diff": _difference(first["A"]["trajectory"], first["B"]["trajectory"]),
                     "map_diff": _difference(first["A"]["map"], first["B"]["map"]),
                 }
@@ -140,16 +165,20 @@ def main() -> None:
                         ["git", "-C", str(ROOT), "worktree", "remove", "--force", str(trees[k])], capture_output=True
                     )
     label_b = args.b or "working tree"
-    print(f"A = {args.a}, B = {label_b}; {args.config}, {args.rounds} timed rounds each, alternating\n")
+    print(
+        f"A = {args.a}, B = {label_b}; {args.config}, {args.rounds} timed rounds and "
+        f"{args.compile_rounds} compile rounds each, alternating\n"
+    )
     print(
         "| particles | A run (s) | B run (s) | B / A (medians) | B / A (median of rounds) | A compile (s) "
-        "| B compile (s) | largest difference: trajectory, map |"
+        "| B compile (s) | compile B / A (median of rounds) | largest difference: trajectory, map |"
     )
-    print("|---:|---:|---:|---:|---:|---:|---:|---|")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     for r in rows:
         print(
             f"| {r['particles']} | {r['a_run_s']:.2f} | {r['b_run_s']:.2f} | {r['ratio_of_medians']:.3f} "
             f"| {r['median_round_ratio']:.3f} | {r['a_compile_s']:.1f} | {r['b_compile_s']:.1f} "
+            f"| {r['compile_round_ratio']:.3f} "
             f"| {r['trajectory_diff']:.3g}, {r['map_diff']:.3g} |"
         )
     if args.json:
