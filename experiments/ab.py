@@ -125,8 +125,8 @@ def main() -> None:
     if args.compile_rounds < 1:
         p.error("--compile-rounds: expected at least 1")
     extra = [x for kv in args.set for x in ("--set", kv)]
-    with tempfile.TemporaryDirectory(prefix="nanoslam-ab-") as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory(prefix="nanoslam-ab-") as tmp_name:
+        tmp = Path(tmp_name)
         trees = {"A": _worktree(args.a, tmp / "a"), "B": _worktree(args.b, tmp / "b") if args.b else ROOT}
         rows = []
         try:
@@ -174,12 +174,12 @@ def main() -> None:
         "| B compile (s) | compile B / A (median of rounds) | largest difference: trajectory, map |"
     )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---|")
-    for r in rows:
+    for row in rows:
         print(
-            f"| {r['particles']} | {r['a_run_s']:.2f} | {r['b_run_s']:.2f} | {r['ratio_of_medians']:.3f} "
-            f"| {r['median_round_ratio']:.3f} | {r['a_compile_s']:.1f} | {r['b_compile_s']:.1f} "
-            f"| {r['compile_round_ratio']:.3f} "
-            f"| {r['trajectory_diff']:.3g}, {r['map_diff']:.3g} |"
+            f"| {row['particles']} | {row['a_run_s']:.2f} | {row['b_run_s']:.2f} | {row['ratio_of_medians']:.3f} "
+            f"| {row['median_round_ratio']:.3f} | {row['a_compile_s']:.1f} | {row['b_compile_s']:.1f} "
+            f"| {row['compile_round_ratio']:.3f} "
+            f"| {row['trajectory_diff']:.3g}, {row['map_diff']:.3g} |"
         )
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
